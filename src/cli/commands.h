@@ -1,0 +1,10 @@
+// Each `kdgrid` subcommand lives in its own cmd_*.cpp and registers itself on the app.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace kdgrid::cli {
+
+void add_info_command(CLI::App& app);
+
+}  // namespace kdgrid::cli

@@ -1,0 +1,25 @@
+// `kdgrid`: the command-line front end of kdgrid_core (render, info, rays, trace, bench, gen).
+#include <cstdio>
+#include <exception>
+
+#include "cli/commands.h"
+#include "util/error.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"kdgrid: a ray tracer for studying acceleration structures (hybrid grid/kd-tree)"};
+  app.require_subcommand(1);
+  app.set_help_all_flag("--help-all", "Show help for every subcommand");
+  kdgrid::cli::add_info_command(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const kdgrid::Error& e) {
+    std::fprintf(stderr, "kdgrid: error: %s\n", e.what());
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "kdgrid: internal error: %s\n", e.what());
+    return 2;
+  }
+  return 0;
+}

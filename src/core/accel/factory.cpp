@@ -1,0 +1,25 @@
+#include <chrono>
+
+#include "accel/accelerator.h"
+#include "accel/brute.h"
+#include "util/error.h"
+
+namespace kdgrid {
+
+std::vector<std::string> accelerator_names() { return {"brute"}; }
+
+std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
+  if (name == "brute") return std::make_unique<BruteForce>();
+  std::string valid;
+  for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;
+  throw ParamError("unknown accelerator '" + name + "': choose one of " + valid);
+}
+
+std::unique_ptr<Accelerator> build_accelerator(const std::string& name, const Mesh& mesh,
+                                               const BuildParams& params) {
+  auto a = make_accelerator(name);
+  a->build(mesh, params);
+  return a;
+}
+
+}  // namespace kdgrid

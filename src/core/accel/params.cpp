@@ -1,0 +1,34 @@
+#include "accel/params.h"
+
+#include <unistd.h>
+
+#include <thread>
+
+#include "util/error.h"
+
+namespace kdgrid {
+
+uint64_t effective_memory_budget(const BuildParams& p) {
+  if (p.memory_budget > 0) return p.memory_budget;
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page <= 0) return uint64_t(4) << 30;
+  return uint64_t(pages) * uint64_t(page) / 2;
+}
+
+int effective_threads(int threads) {
+  if (threads > 0) return threads;
+  const unsigned n = std::thread::hardware_concurrency();
+  return n ? int(n) : 1;
+}
+
+TriangleTestKind parse_triangle_test(const std::string& s) {
+  if (s == "watertight") return TriangleTestKind::Watertight;
+  if (s == "moller" || s == "moller-trumbore" || s == "fast") return TriangleTestKind::Moller;
+  throw ParamError("unknown triangle test '" + s + "': use 'watertight' (default) or 'moller'");
+}
+
+const char* to_string(TriangleTestKind k) {
+  return k == TriangleTestKind::Watertight ? "watertight" : "moller";
+}
+
+}  // namespace kdgrid

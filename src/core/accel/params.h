@@ -1,0 +1,88 @@
+// Build parameters of every acceleration structure, in one place so the CLI, the
+// benchmark and the viewer set them the same way. Each knob says its default, unit and why.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+namespace kdgrid {
+
+enum class TriangleTestKind {
+  /// Woop, Benthin & Wald 2013: no ray passes between triangles sharing an edge or vertex.
+  Watertight,
+  /// Möller & Trumbore 1997: fewer operations, may leak through shared edges/vertices.
+  Moller,
+};
+
+struct BuildParams {
+  /// Ray/triangle test used by every traversal (measured by `kdgrid sweep triangle`).
+  TriangleTestKind triangle_test = TriangleTestKind::Watertight;
+  /// Threads used by builders that parallelise; 0 = all hardware threads.
+  int threads = 0;
+
+  // ---- binned-SAH BVH -------------------------------------------------------------------
+  /// SAH bins per axis per split. 16 is the usual quality/speed knee (Wald 2007).
+  int bvh_bins = 16;
+  /// Leaves hold at most this many triangles; a node with fewer always becomes a leaf
+  /// when the SAH says splitting does not pay.
+  int bvh_max_leaf = 8;
+  /// SAH cost of one traversal step relative to one triangle test (1.0 = equal).
+  float bvh_traversal_cost = 1.0f;
+
+  // ---- uniform grid ---------------------------------------------------------------------
+  /// Density heuristic: cells ~ lambda * triangles (Wald et al. 2006 use 4-8). Unitless.
+  float grid_lambda = 4.0f;
+  /// Upper bound on cells along any axis, so a sparse scene cannot ask for 1e9 cells.
+  int grid_max_resolution = 1024;
+
+  // ---- SAH kd-tree (Wald & Havran 2006) --------------------------------------------------
+  /// Cost of one traversal step (K_T) and of one triangle test (K_I). Only the ratio matters.
+  float kd_traversal_cost = 1.0f;
+  float kd_intersection_cost = 1.5f;
+  /// Fraction the cost of a split is reduced by when one side is empty (pbrt uses 0.5 as
+  /// bonus 1-0.5; we use 0.8 multiplier = 20% bonus, Wald & Havran's lambda).
+  float kd_empty_bonus = 0.2f;
+  /// Maximum depth; 0 = auto, 8 + 1.3 log2(N) (pbrt).
+  int kd_max_depth = 0;
+
+  // ---- hybrid regular grid / kd-tree -----------------------------------------------------
+  /// Basic cell size in scene units; <= 0 means auto (see hybrid.h for the rule).
+  /// Written as a value here; the CLI parses "auto" to 0.
+  float cell_size = 0.0f;
+  /// Auto rule: the cell edge is this percentile of the triangles' largest bounding-box
+  /// extent ("the minimum cell size that can fit most of the primitives"). 0..100.
+  float cell_percentile = 90.0f;
+  /// Use the dense cell matrix of the paper (memory ~ scene volume in cells) instead of
+  /// the default bricked storage (memory ~ occupied content).
+  bool hybrid_dense_matrix = false;
+  /// Hybrid traversal/intersection costs for its SAH; defaults match the kd-tree's.
+  float hybrid_traversal_cost = 1.0f;
+  float hybrid_intersection_cost = 1.5f;
+
+  // ---- irregular grid (Pérard-Gayot et al. 2017) -----------------------------------------
+  /// Top-level density: cells per primitive.
+  float irregular_top_density = 0.12f;
+  /// Second-level density: cells per reference in each top cell.
+  float irregular_sub_density = 2.4f;
+  bool irregular_merge = true;
+  bool irregular_expand = true;
+
+  // ---- Embree ----------------------------------------------------------------------------
+  /// "low", "medium" or "high" (RTC_BUILD_QUALITY_*). Medium is Embree's default.
+  std::string embree_quality = "medium";
+
+  // ---- memory guard ----------------------------------------------------------------------
+  /// Structures that can grow with parameters (grid, hybrid, irregular) refuse to build
+  /// beyond this many bytes; 0 = auto (half of physical memory).
+  uint64_t memory_budget = 0;
+};
+
+/// Resolves memory_budget = 0 to half of physical memory.
+uint64_t effective_memory_budget(const BuildParams& p);
+/// Resolves threads = 0 to the hardware thread count.
+int effective_threads(int threads);
+/// Parses "watertight" / "moller" (ParamError otherwise).
+TriangleTestKind parse_triangle_test(const std::string& s);
+const char* to_string(TriangleTestKind k);
+
+}  // namespace kdgrid

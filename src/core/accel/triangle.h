@@ -1,0 +1,107 @@
+// Ray/triangle tests. Both accept a hit when tmin <= t < tmax; ties are broken by test
+// order, so two structures may report different triangles at exactly the same t.
+//
+// Each test has a per-ray precomputation (RayData) done once per traversal, and an
+// intersect() that is called per triangle. Barycentrics follow Hit: u weights v1, v weights v2.
+#pragma once
+
+#include <cmath>
+#include <utility>
+
+#include "math/ray.h"
+#include "math/vec.h"
+
+namespace kdgrid {
+
+/// Watertight ray/triangle intersection (Woop, Benthin, Wald, JCGT 2013). Vertices are
+/// transformed into a ray-aligned shear space in which the 2D edge functions of two
+/// triangles sharing an edge are exact negatives of each other, so a ray can never pass
+/// between them. Edge functions that come out exactly zero are recomputed in double, as the
+/// paper prescribes. Requires -ffp-contract=off (set in CMake) to keep that symmetry.
+struct WatertightTest {
+  struct RayData {
+    Vec3 org;
+    int kx, ky, kz;
+    float sx, sy, sz;
+  };
+
+  static RayData prepare(const Ray& r) {
+    RayData d;
+    d.org = r.org;
+    const Vec3 a = abs(r.dir);
+    d.kz = max_dimension(a);
+    d.kx = d.kz == 2 ? 0 : d.kz + 1;
+    d.ky = d.kx == 2 ? 0 : d.kx + 1;
+    if (r.dir[d.kz] < 0.0f) std::swap(d.kx, d.ky);  // keep winding
+    d.sx = r.dir[d.kx] / r.dir[d.kz];
+    d.sy = r.dir[d.ky] / r.dir[d.kz];
+    d.sz = 1.0f / r.dir[d.kz];
+    return d;
+  }
+
+  static bool intersect(const RayData& d, const Vec3& v0, const Vec3& v1, const Vec3& v2,
+                        float tmin, float tmax, float& t_out, float& u_out, float& v_out) {
+    const Vec3 A = v0 - d.org, B = v1 - d.org, C = v2 - d.org;
+    const float ax = A[d.kx] - d.sx * A[d.kz], ay = A[d.ky] - d.sy * A[d.kz];
+    const float bx = B[d.kx] - d.sx * B[d.kz], by = B[d.ky] - d.sy * B[d.kz];
+    const float cx = C[d.kx] - d.sx * C[d.kz], cy = C[d.ky] - d.sy * C[d.kz];
+    float U = cx * by - cy * bx;
+    float V = ax * cy - ay * cx;
+    float W = bx * ay - by * ax;
+    if (U == 0.0f || V == 0.0f || W == 0.0f) {
+      U = float(double(cx) * double(by) - double(cy) * double(bx));
+      V = float(double(ax) * double(cy) - double(ay) * double(cx));
+      W = float(double(bx) * double(ay) - double(by) * double(ax));
+    }
+    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return false;
+    const float det = U + V + W;
+    if (det == 0.0f) return false;
+    const float az = d.sz * A[d.kz], bz = d.sz * B[d.kz], cz = d.sz * C[d.kz];
+    const float T = U * az + V * bz + W * cz;
+    const float inv_det = 1.0f / det;
+    const float t = T * inv_det;
+    if (!(t >= tmin && t < tmax)) return false;  // also rejects NaN
+    t_out = t;
+    u_out = V * inv_det;
+    v_out = W * inv_det;
+    return true;
+  }
+};
+
+/// Möller-Trumbore (1997): the common fast test. Not watertight: rays through shared edges
+/// or vertices can slip between triangles (measured by `kdgrid sweep triangle`).
+struct MollerTest {
+  struct RayData {
+    Vec3 org, dir;
+  };
+  static RayData prepare(const Ray& r) { return {r.org, r.dir}; }
+
+  static bool intersect(const RayData& d, const Vec3& v0, const Vec3& v1, const Vec3& v2,
+                        float tmin, float tmax, float& t_out, float& u_out, float& v_out) {
+    const Vec3 e1 = v1 - v0, e2 = v2 - v0;
+    const Vec3 p = cross(d.dir, e2);
+    const float det = dot(e1, p);
+    if (det == 0.0f) return false;
+    const float inv = 1.0f / det;
+    const Vec3 s = d.org - v0;
+    const float u = dot(s, p) * inv;
+    if (u < 0.0f || u > 1.0f) return false;
+    const Vec3 q = cross(s, e1);
+    const float v = dot(d.dir, q) * inv;
+    if (v < 0.0f || u + v > 1.0f) return false;
+    const float t = dot(e2, q) * inv;
+    if (!(t >= tmin && t < tmax)) return false;
+    t_out = t;
+    u_out = u;
+    v_out = v;
+    return true;
+  }
+};
+
+/// Double-precision reference test, for the extreme-ray suite's brute force: edge functions
+/// in double about the ray; returns t in double. Not watertight by construction but exact
+/// enough (53-bit) that disagreements with float structures are attributable to them.
+bool intersect_triangle_double(const Ray& ray, const Vec3& v0, const Vec3& v1, const Vec3& v2,
+                               double tmin, double tmax, double& t, double& u, double& v);
+
+}  // namespace kdgrid

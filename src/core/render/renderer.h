@@ -1,0 +1,91 @@
+// Progressive Whitted renderer. Each pass adds one jittered sample per pixel to a float
+// accumulation film; tiles of a pass are spread over all cores with oneTBB. Deterministic for
+// a given seed (each pixel's sample k uses a generator seeded by (seed, pixel, k)).
+// A pass can be cancelled through an atomic flag; reset() restarts accumulation (the viewer
+// calls it on every camera move).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <vector>
+
+#include "accel/accelerator.h"
+#include "render/camera.h"
+#include "scene/scene.h"
+
+namespace kdgrid {
+
+enum class RenderMode {
+  Shaded,      ///< Whitted shading
+  HeatSteps,   ///< per-pixel traversal steps of the primary ray (counted traversal)
+  HeatTests,   ///< per-pixel triangle tests of the primary ray
+};
+
+struct RenderSettings {
+  int width = 640;            ///< pixels, >= 1
+  int height = 480;           ///< pixels, >= 1
+  int max_depth = 5;          ///< reflection/refraction bounces after the primary hit
+  uint64_t seed = 1;          ///< sample pattern seed
+  int tile_size = 16;         ///< pixels per tile edge (the unit of work of a thread)
+  bool shadows = true;        ///< trace shadow rays to lights
+  bool jitter = true;         ///< jitter samples inside the pixel (false: pixel centres)
+  RenderMode mode = RenderMode::Shaded;
+};
+
+/// Rays traced so far, by kind; updated after every pass.
+struct RenderCounters {
+  uint64_t primary = 0, shadow = 0, reflection = 0, refraction = 0;
+  uint64_t total() const { return primary + shadow + reflection + refraction; }
+};
+
+class Renderer {
+ public:
+  /// scene and accel must outlive the renderer (the viewer swaps accel via set_accelerator).
+  Renderer(const Scene& scene, const Accelerator& accel, const RenderSettings& settings);
+
+  /// Change the camera / accelerator / settings; each restarts accumulation. Not to be called
+  /// while render_pass() runs on another thread.
+  void set_camera(const Camera& cam);
+  void set_accelerator(const Accelerator& accel);
+  void set_settings(const RenderSettings& settings);
+  void reset();
+
+  /// Renders one sample per pixel over the whole image. Returns false (and leaves the film as
+  /// it was before the pass) if *cancel became true during the pass.
+  bool render_pass(const std::atomic<bool>* cancel = nullptr);
+
+  int samples() const { return samples_; }
+  const RenderSettings& settings() const { return settings_; }
+  const Camera& camera() const { return camera_; }
+  const RenderCounters& counters() const { return counters_; }
+  double seconds() const { return seconds_; }  ///< wall time of all passes so far
+
+  /// Averaged linear RGB (3 floats per pixel, row 0 at the top). In heat map modes the
+  /// channels hold the raw per-pixel count in all three.
+  void resolve(std::vector<float>& rgb) const;
+
+  /// Radiance along one ray (used by render_pass; public for tests and the viewer's pick).
+  Vec3 radiance(const Ray& ray, int depth, RenderCounters& counters) const;
+
+ private:
+  const Scene* scene_;
+  const Accelerator* accel_;
+  RenderSettings settings_;
+  Camera camera_;
+  CameraFrame frame_;
+  std::vector<float> accum_;  // RGB sums
+  int samples_ = 0;
+  RenderCounters counters_;
+  double seconds_ = 0;
+  bool need_reflection_ = false, need_refraction_ = false;
+};
+
+/// Maps linear RGB to 8-bit sRGB with a simple exposure + clamp (PNG output, viewer).
+void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure = 1.0f);
+
+/// Offsets a hit point along the geometric normal so that a ray leaving it cannot re-hit
+/// the same surface (Wächter & Binder, Ray Tracing Gems ch. 6: integer ULP offset scaled
+/// with the magnitude of the coordinates, fixed offset near the origin).
+Vec3 offset_ray_origin(const Vec3& p, const Vec3& geometric_normal);
+
+}  // namespace kdgrid
