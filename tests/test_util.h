@@ -1,0 +1,33 @@
+// Helpers shared by the test files: locating the shared scenes and the project's assets.
+#pragma once
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <string>
+
+#include "util/paths.h"
+
+namespace kdgrid::test {
+
+/// Absolute path of a file under the shared scenes directory ($KDGRID_SCENES or
+/// ../shared/scenes beside the checkout), or "" if it is not there.
+inline std::string shared_scene(const std::string& rel) {
+  const std::string dir = scenes_dir(KDGRID_SOURCE_DIR);
+  if (dir.empty()) return "";
+  const auto p = std::filesystem::path(dir) / rel;
+  return std::filesystem::exists(p) ? p.string() : "";
+}
+
+inline std::string source_path(const std::string& rel) {
+  return (std::filesystem::path(KDGRID_SOURCE_DIR) / rel).string();
+}
+
+}  // namespace kdgrid::test
+
+/// Declares `var` as the path of shared scene `rel`, or skips the test saying what is missing.
+#define KDGRID_REQUIRE_SCENE(var, rel)                                                         \
+  const std::string var = ::kdgrid::test::shared_scene(rel);                                   \
+  if (var.empty())                                                                             \
+  GTEST_SKIP() << "shared scene '" << (rel) << "' not found: set KDGRID_SCENES or place the "  \
+               << "scenes in ../shared/scenes beside the checkout"
