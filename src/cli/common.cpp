@@ -1,0 +1,145 @@
+#include "cli/common.h"
+
+#include <cmath>
+#include <cstdlib>
+#include <sstream>
+
+#include "util/error.h"
+
+namespace kdgrid::cli {
+
+void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
+  accel = default_accel;
+  const std::string g = "Acceleration structure";
+  cmd->add_option("--accel", accel, "Structure: brute, bvh, grid, kdtree, hybrid, irregular, embree")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--cell-size", cell_size,
+                  "Hybrid basic cell size in scene units, or 'auto' (percentile rule)")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--cell-percentile", params.cell_percentile,
+                  "Auto cell size: percentile of triangle extents that fit one cell (0-100]")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_flag("--dense-matrix", params.hybrid_dense_matrix,
+                "Hybrid: dense cell matrix of the paper instead of bricked storage")
+      ->group(g);
+  cmd->add_option("--triangle-test", triangle_test, "watertight (default) or moller")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--grid-lambda", params.grid_lambda, "Uniform grid: cells per triangle")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--kd-cost-ratio", params.kd_intersection_cost,
+                  "kd-tree: triangle test cost relative to a traversal step")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--bvh-leaf", params.bvh_max_leaf, "BVH: max triangles per leaf")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--irr-top-density", params.irregular_top_density,
+                  "Irregular grid: top-level cells per triangle")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--irr-sub-density", params.irregular_sub_density,
+                  "Irregular grid: second-level cells per reference")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--embree-quality", params.embree_quality, "Embree build quality: low, medium, high")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--memory-budget-mb", budget_mb_,
+                  "Refuse structures larger than this (MiB); 0 = half of physical memory")
+      ->group(g);
+}
+
+BuildParams AccelOptions::resolve() const {
+  BuildParams p = params;
+  p.cell_size = parse_cell_size(cell_size);
+  p.triangle_test = parse_triangle_test(triangle_test);
+  if (!(p.cell_percentile > 0.0f && p.cell_percentile <= 100.0f))
+    throw ParamError("--cell-percentile " + std::to_string(p.cell_percentile) +
+                     " is out of range: give a value in (0, 100]");
+  if (!(p.grid_lambda > 0.0f) || !std::isfinite(p.grid_lambda))
+    throw ParamError("--grid-lambda must be a positive number (cells per triangle), e.g. 4");
+  if (!(p.kd_intersection_cost > 0.0f) || !std::isfinite(p.kd_intersection_cost))
+    throw ParamError("--kd-cost-ratio must be a positive number, e.g. 1.5");
+  if (p.bvh_max_leaf < 1 || p.bvh_max_leaf > 255)
+    throw ParamError("--bvh-leaf must be between 1 and 255");
+  if (!(p.irregular_top_density > 0.0f) || !(p.irregular_sub_density > 0.0f))
+    throw ParamError("--irr-top-density and --irr-sub-density must be positive");
+  if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
+  if (budget_mb_ > 0) p.memory_budget = uint64_t(budget_mb_) << 20;
+  return p;
+}
+
+void CameraOptions::add_to(CLI::App* cmd) {
+  const std::string g = "Camera (default: the scene's, else the canonical camera)";
+  cmd->add_option("--eye", eye, "Camera position x,y,z")->group(g);
+  cmd->add_option("--target", target, "Point looked at x,y,z")->group(g);
+  cmd->add_option("--fov", fov, "Vertical field of view in degrees")->group(g);
+}
+
+Camera CameraOptions::apply(const Camera& base) const {
+  Camera c = base;
+  if (!eye.empty()) c.eye = parse_vec3(eye, "--eye");
+  if (!target.empty()) c.target = parse_vec3(target, "--target");
+  if (fov != 0.0f) {
+    if (!(fov > 0.0f && fov < 180.0f))
+      throw ParamError("--fov " + std::to_string(fov) + " must be between 0 and 180 degrees");
+    c.fov_deg = fov;
+  }
+  if (!eye.empty() || !target.empty()) c.name = "command line";
+  if (length(c.target - c.eye) == 0.0f)
+    throw ParamError("--eye and --target are the same point: the camera has no view direction");
+  return c;
+}
+
+Vec3 parse_vec3(const std::string& s, const std::string& what) {
+  Vec3 v;
+  std::stringstream ss(s);
+  std::string item;
+  int i = 0;
+  while (std::getline(ss, item, ',')) {
+    char* end = nullptr;
+    const float f = std::strtof(item.c_str(), &end);
+    if (i >= 3 || end == item.c_str() || *end != '\0' || !std::isfinite(f))
+      throw ParamError(what + " '" + s + "' is not three finite numbers x,y,z");
+    v[i++] = f;
+  }
+  if (i != 3) throw ParamError(what + " '" + s + "' is not three finite numbers x,y,z");
+  return v;
+}
+
+void parse_resolution(const std::string& s, int& width, int& height) {
+  const auto x = s.find('x');
+  char* end = nullptr;
+  const long w = std::strtol(s.c_str(), &end, 10);
+  long h = w;
+  bool ok = end != s.c_str();
+  if (ok && x != std::string::npos) {
+    ok = end == s.c_str() + x;
+    const char* hs = s.c_str() + x + 1;
+    h = std::strtol(hs, &end, 10);
+    ok = ok && end != hs && *end == '\0';
+  } else {
+    ok = ok && *end == '\0';
+  }
+  if (!ok || w < 1 || h < 1 || w > 16384 || h > 16384)
+    throw ParamError("resolution '" + s + "' must be W or WxH with 1 <= W, H <= 16384, e.g. 800x600");
+  width = int(w);
+  height = int(h);
+}
+
+float parse_cell_size(const std::string& s) {
+  if (s == "auto") return 0.0f;
+  char* end = nullptr;
+  const float f = std::strtof(s.c_str(), &end);
+  if (end == s.c_str() || *end != '\0' || !std::isfinite(f) || f <= 0.0f)
+    throw ParamError("--cell-size '" + s +
+                     "' must be 'auto' or a positive finite size in scene units, e.g. 0.01");
+  return f;
+}
+
+}  // namespace kdgrid::cli

@@ -1,0 +1,46 @@
+// Options shared by several subcommands: accelerator choice and build knobs, camera flags.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "accel/params.h"
+#include "math/vec.h"
+#include "scene/scene.h"
+
+namespace kdgrid::cli {
+
+/// --accel and every build knob, parsed into BuildParams.
+struct AccelOptions {
+  std::string accel = "bvh";
+  std::string cell_size = "auto";
+  std::string triangle_test = "watertight";
+  BuildParams params;
+  long budget_mb_ = 0;
+
+  /// Adds the options to `cmd` (in an "Acceleration structure" group).
+  void add_to(CLI::App* cmd, const std::string& default_accel = "bvh");
+  /// BuildParams with cell size / triangle test parsed and validated (ParamError on bad input).
+  BuildParams resolve() const;
+};
+
+/// --eye x,y,z --target x,y,z --fov DEG overriding the scene's camera.
+struct CameraOptions {
+  std::string eye, target;
+  float fov = 0.0f;
+  void add_to(CLI::App* cmd);
+  /// The scene's camera with the given flags applied. Throws ParamError on malformed values.
+  Camera apply(const Camera& base) const;
+};
+
+/// Parses "x,y,z" (ParamError naming `what` on failure).
+Vec3 parse_vec3(const std::string& s, const std::string& what);
+/// Parses "W" or "WxH" (ParamError on failure or out of 1..16384).
+void parse_resolution(const std::string& s, int& width, int& height);
+/// Parses a cell size: "auto" -> 0, else a finite positive number.
+float parse_cell_size(const std::string& s);
+
+}  // namespace kdgrid::cli
