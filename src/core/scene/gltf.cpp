@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <map>
 
 #include "scene/image_io.h"
@@ -514,6 +515,20 @@ Scene load_gltf(const std::string& path) {
   const bool ok = ext == ".glb" ? loader.LoadBinaryFromFile(&model, &err, &warn, path)
                                 : loader.LoadASCIIFromFile(&model, &err, &warn, path);
   if (!ok) {
+    if (ext == ".glb") {
+      // tinygltf says only "Invalid glTF binary" for a cut file; say what is wrong.
+      std::error_code ec;
+      const auto size = fs::file_size(path, ec);
+      std::ifstream in(path, std::ios::binary);
+      unsigned char h[12] = {};
+      if (!ec && in.read(reinterpret_cast<char*>(h), 12) && std::memcmp(h, "glTF", 4) == 0) {
+        const uint64_t declared = uint64_t(h[8]) | uint64_t(h[9]) << 8 | uint64_t(h[10]) << 16 |
+                                  uint64_t(h[11]) << 24;
+        if (declared > size)
+          throw LoadError(path + ": truncated .glb: its header declares " + std::to_string(declared) +
+                          " bytes but the file has " + std::to_string(size));
+      }
+    }
     std::string e = err.empty() ? warn : err;
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
     std::replace(e.begin(), e.end(), '\n', ' ');

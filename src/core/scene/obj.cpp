@@ -72,8 +72,6 @@ Scene load_obj(const std::string& path) {
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
     throw LoadError(path + ": cannot parse OBJ: " + e);
   }
-  // With a successful parse, err holds non-fatal problems (e.g. a missing .mtl file).
-  print_warnings(path, warn + err);
 
   Scene scene;
   const size_t nv = attrib.vertices.size() / 3;
@@ -119,6 +117,10 @@ Scene load_obj(const std::string& path) {
       num_tris += m - 2;
     }
   }
+  // With a successful parse, err holds non-fatal problems (e.g. a missing .mtl file); they
+  // are printed only once the faces are known to be valid, so a fatal error stands alone.
+  print_warnings(path, warn + err);
+
   // Normals are used only when every corner has one (the renderer falls back to the
   // geometric normal otherwise); missing uvs read as (0, 0).
   const bool use_normals = all_normals && nn > 0;

@@ -14,6 +14,7 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -418,14 +419,14 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
           }
           const int64_t m = r.read_int(pr.count_type);
           if (m < 3)
-            r.fail("face has " + std::to_string(m) + " vertices; a face needs at least 3");
+            r.fail("has " + std::to_string(m) + " vertices; a face needs at least 3");
           if (uint64_t(m) > r.remaining()) r.fail_eof();
           // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (BENCHMARK.md).
           uint32_t first = 0, prev = 0;
           for (int64_t j = 0; j < m; ++j) {
             const int64_t idx = r.read_int(pr.type);
             if (idx < 0 || uint64_t(idx) >= nv)
-              r.fail("face references vertex " + std::to_string(idx) + " but the file has " +
+              r.fail("references vertex " + std::to_string(idx) + " but the file has " +
                      std::to_string(nv) + " vertices");
             const uint32_t u = uint32_t(idx);
             if (j == 0)
@@ -453,10 +454,12 @@ Scene load_ply(const std::string& path) {
   const std::streamoff len = in.tellg();
   if (len < 0) throw LoadError(path + ": cannot determine the file size");
   in.seekg(0, std::ios::beg);
-  std::vector<char> buf(static_cast<size_t>(len));
-  if (len > 0 && !in.read(buf.data(), len))
+  // Uninitialised buffer: zero-filling 33 MB first would only cost time.
+  const size_t size = static_cast<size_t>(len);
+  std::unique_ptr<char[]> buf(new char[std::max<size_t>(size, 1)]);
+  if (size > 0 && !in.read(buf.get(), len))
     throw LoadError(path + ": read error after " + std::to_string(in.gcount()) + " bytes");
-  return parse_ply(buf.data(), buf.size(), path);
+  return parse_ply(buf.get(), size, path);
 }
 
 }  // namespace kdgrid
