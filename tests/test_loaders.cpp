@@ -36,9 +36,9 @@ class TempDir {
   TempDir() {
     static std::atomic<int> counter{0};
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("kdgrid_loaders_" + std::to_string(::getpid()) + "_" + std::to_string(counter++) + "_" +
-            (info ? info->name() : "x"));
+    dir_ =
+        fs::temp_directory_path() / ("kdgrid_loaders_" + std::to_string(::getpid()) + "_" +
+                                     std::to_string(counter++) + "_" + (info ? info->name() : "x"));
     fs::create_directories(dir_);
   }
   ~TempDir() {
@@ -71,8 +71,8 @@ std::string load_error(const std::function<void()>& f) {
   return "";
 }
 
-#define EXPECT_CONTAINS(haystack, needle)                                                  \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos)                         \
+#define EXPECT_CONTAINS(haystack, needle)                          \
+  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
       << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
 
 using Tri = std::array<uint32_t, 3>;
@@ -128,7 +128,8 @@ TEST(PlyLoader, AsciiFanTriangulationInFileOrder) {
   // triangle -> 1, quad -> 2, pentagon -> 3 triangles (v0, v_{i-1}, v_i), in file order.
   const std::vector<Tri> want = {{0, 1, 2}, {0, 1, 2}, {0, 2, 3}, {6, 5, 4}, {6, 4, 3}, {6, 3, 2}};
   ASSERT_EQ(s.mesh.triangles.size(), want.size());
-  for (size_t i = 0; i < want.size(); ++i) EXPECT_EQ(s.mesh.triangles[i], want[i]) << "triangle " << i;
+  for (size_t i = 0; i < want.size(); ++i)
+    EXPECT_EQ(s.mesh.triangles[i], want[i]) << "triangle " << i;
   expect_near(s.mesh.positions[4], {-1, 2.5f, 3});
   expect_near(s.mesh.positions[5], {0.5f, -0.125f, 7});
   EXPECT_TRUE(s.mesh.normals.empty());
@@ -250,10 +251,12 @@ std::string binary_ply(bool big_endian) {
 void check_binary_scene(const Scene& s) {
   ASSERT_EQ(s.mesh.num_vertices(), 5u);
   for (size_t i = 0; i < 5; ++i)
-    expect_near(s.mesh.positions[i], {float(kBinVerts[i].x), float(kBinVerts[i].y), float(kBinVerts[i].z)});
+    expect_near(s.mesh.positions[i],
+                {float(kBinVerts[i].x), float(kBinVerts[i].y), float(kBinVerts[i].z)});
   const std::vector<Tri> want = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {4, 3, 2}, {4, 2, 1}, {0, 2, 4}};
   ASSERT_EQ(s.mesh.triangles.size(), want.size());
-  for (size_t i = 0; i < want.size(); ++i) EXPECT_EQ(s.mesh.triangles[i], want[i]) << "triangle " << i;
+  for (size_t i = 0; i < want.size(); ++i)
+    EXPECT_EQ(s.mesh.triangles[i], want[i]) << "triangle " << i;
 }
 
 TEST(PlyLoader, BinaryLittleEndianOddOrderAndTypes) {
@@ -306,13 +309,15 @@ TEST(PlyErrors, BadMagic) {
 }
 
 TEST(PlyErrors, UnknownFormat) {
-  const std::string msg = ply_error("ply\nformat binary_middle_endian 1.0\nend_header\n", "fmt.ply");
+  const std::string msg =
+      ply_error("ply\nformat binary_middle_endian 1.0\nend_header\n", "fmt.ply");
   EXPECT_CONTAINS(msg, "fmt.ply");
   EXPECT_CONTAINS(msg, "unknown format 'binary_middle_endian'");
 }
 
 TEST(PlyErrors, TruncatedHeader) {
-  const std::string msg = ply_error("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n", "hdr.ply");
+  const std::string msg =
+      ply_error("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n", "hdr.ply");
   EXPECT_CONTAINS(msg, "hdr.ply");
   EXPECT_CONTAINS(msg, "end_header");
 }
@@ -340,8 +345,8 @@ const char* kTinyHeader =
     "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n";
 
 TEST(PlyErrors, MalformedNumber) {
-  const std::string msg =
-      ply_error(std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1z 0\n0 1 0\n3 0 1 2\n3 0 2 3\n", "num.ply");
+  const std::string msg = ply_error(
+      std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1z 0\n0 1 0\n3 0 1 2\n3 0 2 3\n", "num.ply");
   EXPECT_CONTAINS(msg, "num.ply");
   EXPECT_CONTAINS(msg, "vertex 2 of 4");
   EXPECT_CONTAINS(msg, "line 12");
@@ -349,22 +354,22 @@ TEST(PlyErrors, MalformedNumber) {
 }
 
 TEST(PlyErrors, FaceIndexOutOfRange) {
-  const std::string msg =
-      ply_error(std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 7\n", "range.ply");
+  const std::string msg = ply_error(
+      std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 7\n", "range.ply");
   EXPECT_CONTAINS(msg, "range.ply");
   EXPECT_CONTAINS(msg, "face 1 of 2");
   EXPECT_CONTAINS(msg, "references vertex 7 but the file has 4 vertices");
 }
 
 TEST(PlyErrors, NegativeFaceIndex) {
-  const std::string msg =
-      ply_error(std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 -1\n3 0 2 3\n", "neg.ply");
+  const std::string msg = ply_error(
+      std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 -1\n3 0 2 3\n", "neg.ply");
   EXPECT_CONTAINS(msg, "references vertex -1");
 }
 
 TEST(PlyErrors, FaceWithTwoVertices) {
-  const std::string msg =
-      ply_error(std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n2 0 2\n", "two.ply");
+  const std::string msg = ply_error(
+      std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n2 0 2\n", "two.ply");
   EXPECT_CONTAINS(msg, "two.ply");
   EXPECT_CONTAINS(msg, "face 1 of 2");
   EXPECT_CONTAINS(msg, "at least 3");
@@ -372,7 +377,8 @@ TEST(PlyErrors, FaceWithTwoVertices) {
 
 TEST(PlyErrors, MissingCoordinate) {
   const std::string msg = ply_error(
-      "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n",
+      "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 "
+      "0\n",
       "noz.ply");
   EXPECT_CONTAINS(msg, "noz.ply");
   EXPECT_CONTAINS(msg, "x, y, z");
@@ -380,8 +386,8 @@ TEST(PlyErrors, MissingCoordinate) {
 
 TEST(PlyErrors, NanVertex) {
   TempDir tmp;
-  const std::string p =
-      tmp.write("nan.ply", std::string(kTinyHeader) + "0 0 0\n1 nan 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n");
+  const std::string p = tmp.write(
+      "nan.ply", std::string(kTinyHeader) + "0 0 0\n1 nan 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n");
   const std::string msg = load_error([&] { load_scene(p); });
   EXPECT_CONTAINS(msg, "nan.ply");
   EXPECT_CONTAINS(msg, "vertex 1 has a NaN or infinite coordinate");
@@ -389,26 +395,26 @@ TEST(PlyErrors, NanVertex) {
 
 TEST(PlyErrors, InfVertex) {
   TempDir tmp;
-  const std::string p =
-      tmp.write("inf.ply", std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 -inf\n0 1 0\n3 0 1 2\n3 0 2 3\n");
+  const std::string p = tmp.write(
+      "inf.ply", std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 -inf\n0 1 0\n3 0 1 2\n3 0 2 3\n");
   const std::string msg = load_error([&] { load_scene(p); });
   EXPECT_CONTAINS(msg, "inf.ply");
   EXPECT_CONTAINS(msg, "vertex 2 has a NaN or infinite coordinate");
 }
 
 TEST(PlyErrors, HugeFloatIsAnError) {
-  const std::string msg =
-      ply_error(std::string(kTinyHeader) + "0 0 0\n1 0 1e999\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n", "big.ply");
+  const std::string msg = ply_error(
+      std::string(kTinyHeader) + "0 0 0\n1 0 1e999\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n", "big.ply");
   EXPECT_CONTAINS(msg, "big.ply");
   EXPECT_CONTAINS(msg, "malformed number '1e999'");
 }
 
 TEST(PlyErrors, VerticesOnlyHasNoTriangles) {
   TempDir tmp;
-  const std::string p = tmp.write(
-      "points.ply",
-      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-      "end_header\n0 0 0\n1 0 0\n0 1 0\n");
+  const std::string p = tmp.write("points.ply",
+                                  "ply\nformat ascii 1.0\nelement vertex 3\nproperty float "
+                                  "x\nproperty float y\nproperty float z\n"
+                                  "end_header\n0 0 0\n1 0 0\n0 1 0\n");
   const std::string msg = load_error([&] { load_scene(p); });
   EXPECT_CONTAINS(msg, "points.ply");
   EXPECT_CONTAINS(msg, "no triangles");
@@ -458,11 +464,19 @@ TEST(PlyFuzz, RandomMutationsThrowOrLoad) {
     for (int e = 0; e < edits && !d.empty(); ++e) {
       const size_t pos = rng() % d.size();
       switch (kind) {
-        case 0: d[pos] = char(rng() & 0xff); break;                      // byte flip
-        case 1: d.resize(pos); break;                                     // truncation
-        case 2: d.insert(pos, 1, " 0123456789-+.eE\nxyz"[rng() % 20]); break;  // ascii noise
-        case 3: d.erase(pos, 1 + rng() % 8); break;                       // deletion
-        default: {                                                        // garbage tail
+        case 0:
+          d[pos] = char(rng() & 0xff);
+          break;  // byte flip
+        case 1:
+          d.resize(pos);
+          break;  // truncation
+        case 2:
+          d.insert(pos, 1, " 0123456789-+.eE\nxyz"[rng() % 20]);
+          break;  // ascii noise
+        case 3:
+          d.erase(pos, 1 + rng() % 8);
+          break;    // deletion
+        default: {  // garbage tail
           d.resize(pos);
           for (int k = int(rng() % 64); k > 0; --k) d += char(rng() & 0xff);
         }
@@ -483,8 +497,8 @@ TEST(PlyFuzz, RandomMutationsThrowOrLoad) {
     }
   }
   const double sec = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  std::printf("[ fuzz     ] 3000 mutations: %d loaded, %d rejected with LoadError, %.3f s\n", loaded,
-              rejected, sec);
+  std::printf("[ fuzz     ] 3000 mutations: %d loaded, %d rejected with LoadError, %.3f s\n",
+              loaded, rejected, sec);
   EXPECT_GT(rejected, 0);
 }
 
@@ -501,29 +515,29 @@ TEST(ObjLoader, MaterialsTexturesAndFanOrder) {
             "newmtl lamp\nKd 0 0 0\nKe 5 4 3\n"
             "newmtl textured\nKd 1 1 1\nmap_Kd tex.ppm\n"
             "newmtl lost\nKd 1 1 1\nmap_Kd does_not_exist.png\n");
-  const std::string p = tmp.write(
-      "scene.obj",
-      "mtllib scene.mtl\n"
-      "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 2 0\n"
-      "vt 0 0\nvt 1 0\nvt 1 1\n"
-      "vn 0 0 1\nvn 0 0 -1\n"
-      "usemtl mirror\n"
-      "f 1 2 3 4\n"                        // quad -> (0,1,2) (0,2,3)
-      "usemtl glass\n"
-      "f 5 4 3 2 1\n"                      // pentagon -> 3 triangles
-      "usemtl lamp\n"
-      "f 1/1/1 2/2/1 3/3/2\n"              // differing indices per corner
-      "usemtl textured\n"
-      "f -5 -4 -3\n"                       // relative indices
-      "usemtl lost\n"
-      "f 1 3 4\n");
+  const std::string p = tmp.write("scene.obj",
+                                  "mtllib scene.mtl\n"
+                                  "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0.5 2 0\n"
+                                  "vt 0 0\nvt 1 0\nvt 1 1\n"
+                                  "vn 0 0 1\nvn 0 0 -1\n"
+                                  "usemtl mirror\n"
+                                  "f 1 2 3 4\n"  // quad -> (0,1,2) (0,2,3)
+                                  "usemtl glass\n"
+                                  "f 5 4 3 2 1\n"  // pentagon -> 3 triangles
+                                  "usemtl lamp\n"
+                                  "f 1/1/1 2/2/1 3/3/2\n"  // differing indices per corner
+                                  "usemtl textured\n"
+                                  "f -5 -4 -3\n"  // relative indices
+                                  "usemtl lost\n"
+                                  "f 1 3 4\n");
   const Scene s = load_scene(p);
   ASSERT_EQ(s.mesh.num_triangles(), 2u + 3u + 1u + 1u + 1u);
   // Fan order, by corner positions (the loader may re-index vertices).
-  const std::vector<std::array<Vec3, 3>> want = {
-      {{{0, 0, 0}, {1, 0, 0}, {1, 1, 0}}}, {{{0, 0, 0}, {1, 1, 0}, {0, 1, 0}}},
-      {{{0.5f, 2, 0}, {0, 1, 0}, {1, 1, 0}}}, {{{0.5f, 2, 0}, {1, 1, 0}, {1, 0, 0}}},
-      {{{0.5f, 2, 0}, {1, 0, 0}, {0, 0, 0}}}};
+  const std::vector<std::array<Vec3, 3>> want = {{{{0, 0, 0}, {1, 0, 0}, {1, 1, 0}}},
+                                                 {{{0, 0, 0}, {1, 1, 0}, {0, 1, 0}}},
+                                                 {{{0.5f, 2, 0}, {0, 1, 0}, {1, 1, 0}}},
+                                                 {{{0.5f, 2, 0}, {1, 1, 0}, {1, 0, 0}}},
+                                                 {{{0.5f, 2, 0}, {1, 0, 0}, {0, 0, 0}}}};
   for (size_t i = 0; i < want.size(); ++i) {
     const auto c = s.mesh.corners(i);
     for (int k = 0; k < 3; ++k) expect_near(c[size_t(k)], want[i][size_t(k)]);
@@ -564,9 +578,9 @@ TEST(ObjLoader, MaterialsTexturesAndFanOrder) {
 
 TEST(ObjLoader, PerCornerNormalsAreDeindexed) {
   TempDir tmp;
-  const std::string p = tmp.write(
-      "n.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 1 0\n"
-               "f 1//1 2//1 3//1\nf 2//2 4//2 3//2\n");
+  const std::string p = tmp.write("n.obj",
+                                  "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 1 0\n"
+                                  "f 1//1 2//1 3//1\nf 2//2 4//2 3//2\n");
   const Scene s = load_scene(p);
   ASSERT_EQ(s.mesh.num_triangles(), 2u);
   ASSERT_EQ(s.mesh.normals.size(), s.mesh.num_vertices());
@@ -689,7 +703,8 @@ std::string gltf_json(const std::string& buffer, const std::string& accessor_ext
     {"attributes": {"POSITION": 0}, "mode": 5, "material": 1},
     {"attributes": {"POSITION": 0}, "mode": 0}
   ]}],
-  "buffers": [)" + buffer + R"(],
+  "buffers": [)" +
+         buffer + R"(],
   "bufferViews": [
     {"buffer": 0, "byteOffset": 0, "byteLength": 96, "byteStride": 24},
     {"buffer": 0, "byteOffset": 96, "byteLength": 6},
@@ -697,7 +712,8 @@ std::string gltf_json(const std::string& buffer, const std::string& accessor_ext
   ],
   "accessors": [
     {"bufferView": 0, "byteOffset": 0, "componentType": 5126, "count": 4, "type": "VEC3",
-     "min": [0, 0, 0], "max": [1, 1, 0])" + accessor_extra + R"(},
+     "min": [0, 0, 0], "max": [1, 1, 0])" +
+         accessor_extra + R"(},
     {"bufferView": 0, "byteOffset": 12, "componentType": 5126, "count": 4, "type": "VEC3"},
     {"bufferView": 1, "componentType": 5121, "count": 6, "type": "SCALAR"},
     {"bufferView": 2, "componentType": 5123, "normalized": true, "count": 4, "type": "VEC2"}
@@ -794,14 +810,41 @@ TEST(GltfLoader, BinaryGlb) {
   TempDir tmp;
   const std::string bin = gltf_buffer();
   const std::string p =
-      tmp.write("test.glb", make_glb(gltf_json(R"({"byteLength": )" + std::to_string(bin.size()) + "}"), bin));
+      tmp.write("test.glb",
+                make_glb(gltf_json(R"({"byteLength": )" + std::to_string(bin.size()) + "}"), bin));
   check_test_gltf(load_scene(p));
+}
+
+// A texture whose image file is missing only warns; a TRIANGLE_FAN primitive is converted
+// as (v0, v_i, v_i+1).
+TEST(GltfLoader, MissingImageAndTriangleFan) {
+  TempDir tmp;
+  std::string json = gltf_json(embedded_buffer(gltf_buffer()));
+  auto replace = [&](const std::string& from, const std::string& to) {
+    const size_t at = json.find(from);
+    ASSERT_NE(at, std::string::npos) << from;
+    json.replace(at, from.size(), to);
+  };
+  replace(R"("metallicFactor": 0.3)", R"("metallicFactor": 0.3, "baseColorTexture": {"index": 0})");
+  replace(R"("scene": 0,)",
+          R"("scene": 0, "images": [{"uri": "missing.png"}], "textures": [{"source": 0}],)");
+  replace(R"("mode": 0)", R"("mode": 6)");
+  const Scene s = load_scene(tmp.write("fan.gltf", json));
+  ASSERT_EQ(s.mesh.num_triangles(), 18u);  // 3 instances of 2 + 2 + 2
+  EXPECT_TRUE(s.textures.empty());
+  EXPECT_EQ(s.materials[s.mesh.material_of(0)].base_color_texture, -1);
+  // Instance 1's fan: triangles 4 and 5 = (0,1,2), (0,2,3) of the quad scaled by 2 at x=10.
+  expect_near(s.mesh.corners(4)[1], {12, 0, 0});
+  expect_near(s.mesh.corners(5)[0], {10, 0, 0});
+  expect_near(s.mesh.corners(5)[1], {12, 2, 0});
+  expect_near(s.mesh.corners(5)[2], {10, 2, 0});
 }
 
 TEST(GltfErrors, TruncatedGlb) {
   TempDir tmp;
   const std::string bin = gltf_buffer();
-  std::string glb = make_glb(gltf_json(R"({"byteLength": )" + std::to_string(bin.size()) + "}"), bin);
+  std::string glb =
+      make_glb(gltf_json(R"({"byteLength": )" + std::to_string(bin.size()) + "}"), bin);
   for (size_t keep : {size_t(10), glb.size() / 2, glb.size() - 40}) {
     const std::string p = tmp.write("cut.glb", glb.substr(0, keep));
     const std::string msg = load_error([&] { load_scene(p); });
@@ -815,7 +858,8 @@ TEST(GltfErrors, TruncatedGlb) {
 
 TEST(GltfErrors, MalformedJson) {
   TempDir tmp;
-  const std::string p = tmp.write("broken.gltf", R"({"asset": {"version": "2.0"}, "nodes": [ {"mesh": 0 )");
+  const std::string p =
+      tmp.write("broken.gltf", R"({"asset": {"version": "2.0"}, "nodes": [ {"mesh": 0 )");
   const std::string msg = load_error([&] { load_scene(p); });
   EXPECT_CONTAINS(msg, "broken.gltf");
   EXPECT_CONTAINS(msg, "cannot parse glTF");
@@ -829,7 +873,8 @@ TEST(GltfErrors, AccessorPastEndOfBuffer) {
   const std::string needle = R"("componentType": 5126, "count": 4, "type": "VEC3",
      "min")";
   ASSERT_NE(json.find(needle), std::string::npos);
-  json.replace(json.find(needle), needle.size(), R"("componentType": 5126, "count": 5, "type": "VEC3",
+  json.replace(json.find(needle), needle.size(),
+               R"("componentType": 5126, "count": 5, "type": "VEC3",
      "min")");
   const std::string p = tmp.write("overrun.gltf", json);
   const std::string msg = load_error([&] { load_scene(p); });
@@ -898,8 +943,9 @@ TEST(SharedScenes, BoxTextured) {
   EXPECT_EQ(s.mesh.num_triangles(), 12u);
   ASSERT_EQ(s.textures.size(), 1u);
   EXPECT_GT(s.textures[0].width, 0);
-  EXPECT_EQ(s.textures[0].pixels.size(),
-            size_t(s.textures[0].width) * size_t(s.textures[0].height) * size_t(s.textures[0].channels));
+  EXPECT_EQ(
+      s.textures[0].pixels.size(),
+      size_t(s.textures[0].width) * size_t(s.textures[0].height) * size_t(s.textures[0].channels));
   EXPECT_GE(s.materials[s.mesh.material_of(0)].base_color_texture, 0);
   EXPECT_EQ(s.mesh.uvs.size(), s.mesh.num_vertices());
 }
@@ -941,7 +987,8 @@ std::string read_all(const std::string& path) {
 
 CliResult run_cli(const std::string& args, const TempDir& tmp) {
   const std::string out = tmp.path("stdout.txt"), err = tmp.path("stderr.txt");
-  const std::string cmd = std::string("\"") + KDGRID_CLI_PATH + "\" " + args + " >\"" + out + "\" 2>\"" + err + "\"";
+  const std::string cmd =
+      std::string("\"") + KDGRID_CLI_PATH + "\" " + args + " >\"" + out + "\" 2>\"" + err + "\"";
   const int status = std::system(cmd.c_str());
   CliResult r;
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
@@ -959,8 +1006,8 @@ TEST(CliInfo, MissingFileFailsNamingIt) {
 
 TEST(CliInfo, BadFileFailsWithLoaderMessage) {
   TempDir tmp;
-  const std::string p =
-      tmp.write("range.ply", std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 7\n");
+  const std::string p = tmp.write(
+      "range.ply", std::string(kTinyHeader) + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 7\n");
   const CliResult r = run_cli("info \"" + p + "\"", tmp);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_CONTAINS(r.err, "range.ply");
