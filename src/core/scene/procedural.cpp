@@ -127,8 +127,8 @@ Scene cornell(const ProceduralParams& p) {
   add_part(left, kRed);
   add_part(right, kGreen);
   add_part(panel, kLight);
-  add_part(make_box({-0.38f, 0.6f, -0.35f}, {0.28f, 0.6f, 0.28f}, 0.38f), kMirror);
-  add_part(make_icosphere(level, {0.42f, 0.36f, 0.3f}, 0.36f), kGlass);
+  add_part(make_icosphere(level, {-0.42f, 0.45f, -0.4f}, 0.45f), kMirror);
+  add_part(make_icosphere(level, {0.45f, 0.36f, 0.3f}, 0.36f), kGlass);
 
   Light l;
   l.type = LightType::Point;
