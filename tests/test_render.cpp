@@ -566,7 +566,7 @@ TEST(RenderCli, ReportsBadArgumentsBeforeRendering) {
   const std::string scene = test::source_path("assets/cornell.gltf");
   const std::string out = dir.file("out.png");
 
-  CliResult r = run_cli("render " + dir.file("missing.gltf") + " -o " + out);
+  CliResult r = run_cli("render " + dir.file("missing.gltf") + " -o " + out + " --accel brute");
   EXPECT_EQ(r.code, 1) << r.output;
   EXPECT_TRUE(contains(r.output, "missing.gltf")) << r.output;
 
@@ -589,6 +589,10 @@ TEST(RenderCli, ReportsBadArgumentsBeforeRendering) {
   r = run_cli("render " + scene + " -o " + out + " --accel brute --heatmap nodes");
   EXPECT_EQ(r.code, 1) << r.output;
   EXPECT_TRUE(contains(r.output, "steps or tests")) << r.output;
+
+  r = run_cli("render " + scene + " -o " + out + " --accel nope");
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_TRUE(contains(r.output, "nope") && contains(r.output, "brute")) << r.output;
 
   EXPECT_FALSE(fs::exists(out)) << "no image may be written when the arguments are wrong";
 }

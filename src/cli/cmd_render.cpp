@@ -87,6 +87,7 @@ void run_render(const RenderArgs& a) {
   check_image_extension(a.output);
   check_output_directory(a.output);
   const BuildParams params = a.accel.resolve();
+  make_accelerator(a.accel.accel);  // an unknown --accel fails here, before the scene loads
   settings.max_depth = a.max_depth;
   settings.seed = a.seed;
   if (a.heatmap == "steps")
@@ -142,8 +143,9 @@ void run_render(const RenderArgs& a) {
   }
   std::vector<float> rgb;
   renderer.resolve(rgb);
-  if (settings.mode != RenderMode::Shaded && std::filesystem::path(a.output).extension() != ".exr")
-    heat_ramp(rgb);
+  std::string ext = std::filesystem::path(a.output).extension().string();
+  for (char& ch : ext) ch = char(std::tolower(static_cast<unsigned char>(ch)));
+  if (settings.mode != RenderMode::Shaded && ext != ".exr") heat_ramp(rgb);
   char secs[32];
   std::snprintf(secs, sizeof secs, "%.3f", renderer.seconds());
   char bsecs[32];
@@ -161,7 +163,7 @@ void run_render(const RenderArgs& a) {
 
   const double mrays = renderer.seconds() > 0 ? double(c.total()) / renderer.seconds() / 1e6 : 0.0;
   std::printf("%s: %dx%d, %d spp, %.3f s, rays %s (primary %s, shadow %s, reflection %s, "
-              "refraction %s), %.2f Mrays/s, %s build %.3f s\n",
+              "refraction %s), %.3g Mrays/s, %s build %.3f s\n",
               a.output.c_str(), settings.width, settings.height, renderer.samples(),
               renderer.seconds(), mega(c.total()).c_str(), mega(c.primary).c_str(),
               mega(c.shadow).c_str(), mega(c.reflection).c_str(), mega(c.refraction).c_str(),
