@@ -19,8 +19,8 @@ namespace fs = std::filesystem;
 
 std::string temp_file(const std::string& name) {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  return (fs::temp_directory_path() / ("kdgrid_" + std::string(info->name()) + "_" +
-                                       std::to_string(::getpid()) + "_" + name))
+  return (fs::temp_directory_path() /
+          ("kdgrid_" + std::string(info->name()) + "_" + std::to_string(::getpid()) + "_" + name))
       .string();
 }
 
@@ -31,8 +31,9 @@ std::string check_closed(const Mesh& m) {
   for (const auto& t : m.triangles)
     for (int k = 0; k < 3; ++k) ++directed[{t[k], t[(k + 1) % 3]}];
   for (const auto& [e, n] : directed) {
-    if (n != 1) return "edge " + std::to_string(e.first) + "-" + std::to_string(e.second) +
-                       " used " + std::to_string(n) + " times in one direction";
+    if (n != 1)
+      return "edge " + std::to_string(e.first) + "-" + std::to_string(e.second) + " used " +
+             std::to_string(n) + " times in one direction";
     if (!directed.count({e.second, e.first}))
       return "edge " + std::to_string(e.first) + "-" + std::to_string(e.second) +
              " has no opposite triangle (open boundary)";
@@ -74,11 +75,13 @@ TEST(Procedural, RandomGeneratorsFollowTheSeed) {
     p.seed = 7;
     const Scene a = generate_scene(name, p), b = generate_scene(name, p);
     EXPECT_EQ(a.mesh.positions.size(), b.mesh.positions.size());
-    EXPECT_TRUE(std::equal(a.mesh.positions.begin(), a.mesh.positions.end(), b.mesh.positions.begin()));
+    EXPECT_TRUE(
+        std::equal(a.mesh.positions.begin(), a.mesh.positions.end(), b.mesh.positions.begin()));
     p.seed = 8;
     const Scene c = generate_scene(name, p);
-    EXPECT_FALSE(a.mesh.positions.size() == c.mesh.positions.size() &&
-                 std::equal(a.mesh.positions.begin(), a.mesh.positions.end(), c.mesh.positions.begin()));
+    EXPECT_FALSE(
+        a.mesh.positions.size() == c.mesh.positions.size() &&
+        std::equal(a.mesh.positions.begin(), a.mesh.positions.end(), c.mesh.positions.begin()));
   }
   ProceduralParams p;
   p.count = 1234;
@@ -296,9 +299,13 @@ TEST(GenCli, WritesFilesAndRejectsBadInput) {
   EXPECT_EQ(std::system((cli + " gen sphere --level 2 -o " + out + " > /dev/null").c_str()), 0);
   EXPECT_EQ(load_ply(out).mesh.num_triangles(), 320u);
   fs::remove(out);
-  EXPECT_NE(std::system((cli + " gen sphere -o " + temp_file("x.stl") + " 2> /dev/null").c_str()), 0);
-  EXPECT_NE(std::system((cli + " gen bogus -o " + temp_file("x.ply") + " 2> /dev/null").c_str()), 0);
-  EXPECT_NE(std::system((cli + " gen soup --count -5 -o " + temp_file("x.ply") + " 2> /dev/null").c_str()), 0);
+  EXPECT_NE(std::system((cli + " gen sphere -o " + temp_file("x.stl") + " 2> /dev/null").c_str()),
+            0);
+  EXPECT_NE(std::system((cli + " gen bogus -o " + temp_file("x.ply") + " 2> /dev/null").c_str()),
+            0);
+  EXPECT_NE(std::system(
+                (cli + " gen soup --count -5 -o " + temp_file("x.ply") + " 2> /dev/null").c_str()),
+            0);
 }
 
 }  // namespace

@@ -35,9 +35,8 @@ class TempDir {
  public:
   TempDir() {
     const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            ("kdgrid_test_" + std::string(info->test_suite_name()) + "_" + info->name() + "_" +
-             std::to_string(::getpid()));
+    path_ = fs::temp_directory_path() / ("kdgrid_test_" + std::string(info->test_suite_name()) +
+                                         "_" + info->name() + "_" + std::to_string(::getpid()));
     fs::remove_all(path_);
     fs::create_directories(path_);
   }
@@ -227,7 +226,9 @@ Vec3 look(const Renderer& r, const Vec3& eye, const Vec3& target) {
   return r.radiance(Ray{eye, 0.0f, normalize(target - eye), kInf}, 0, c);
 }
 
-float luminance(const Vec3& c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+float luminance(const Vec3& c) {
+  return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z;
+}
 
 TEST(Shading, LitSideBrighterThanShadowedSide) {
   const Scene scene = floor_and_blocker();
@@ -627,11 +628,12 @@ TEST(RenderCli, InterruptWritesWhatIsDone) {
   // background job of sh starts with SIGINT ignored, so signals that arrive before the
   // renderer installs its handler are lost): it must stop, write the image of the finished
   // passes and say so, with exit code 130. After 60 s it is killed and the test fails.
-  const std::string cmd = "sh -c '" + std::string(KDGRID_CLI_PATH) + " render " + scene + " -o " +
-                          out + " --accel brute --res 32x24 --spp 100000 --threads 1 & pid=$!; "
-                          "i=0; while kill -0 $pid 2>/dev/null && [ $i -lt 120 ]; do sleep 0.5; "
-                          "kill -INT $pid 2>/dev/null; i=$((i+1)); done; kill -KILL $pid 2>/dev/null; "
-                          "wait $pid; echo rc=$?' 2>&1";
+  const std::string cmd =
+      "sh -c '" + std::string(KDGRID_CLI_PATH) + " render " + scene + " -o " + out +
+      " --accel brute --res 32x24 --spp 100000 --threads 1 & pid=$!; "
+      "i=0; while kill -0 $pid 2>/dev/null && [ $i -lt 120 ]; do sleep 0.5; "
+      "kill -INT $pid 2>/dev/null; i=$((i+1)); done; kill -KILL $pid 2>/dev/null; "
+      "wait $pid; echo rc=$?' 2>&1";
   FILE* pipe = ::popen(cmd.c_str(), "r");
   ASSERT_NE(pipe, nullptr);
   std::string output;
