@@ -317,8 +317,14 @@ inline int check_counted_and_trace(const Accelerator& acc, const std::vector<Ray
     else if (acc.has_counters() && r.dir != Vec3(0.0f) && c.steps == 0 && bf)
       why = "a hit without a step";
     else {
+      // Intervals are computed in float from coordinates as large as the origin's (and
+      // widened by that much), so tolerances are relative to the coordinates in units of t.
+      const float scale = max_component(abs(r.org)) / max_component(abs(r.dir));
+      const float tol_order = 1e-5f * (std::fabs(fast.valid() ? fast.t : 0.0f) + scale);
       for (size_t k = 1; k < tr.steps.size(); ++k)
-        if (tr.steps[k].t_in < tr.steps[k - 1].t_in) why = "trace steps out of t order";
+        if (tr.steps[k].t_in < tr.steps[k - 1].t_in - tol_order &&
+            tr.steps[k].t_in < tr.steps[k - 1].t_in * (1 - 1e-5f))
+          why = "trace steps out of t order";
       uint64_t tested = 0;
       for (const auto& st : tr.steps) tested += st.num_tested;
       if (tested != tr.tested.size() || tr.tested.size() != c.tri_tests)
@@ -328,9 +334,6 @@ inline int check_counted_and_trace(const Accelerator& acc, const std::vector<Ray
         const TraceStep* last = nullptr;
         for (const auto& st : tr.steps)
           if (st.kind != StepKind::Inner) last = &st;
-        // Boundaries are computed in float from coordinates as large as the origin's, so
-        // the tolerance is relative to the scene's coordinates in units of t.
-        const float scale = max_component(abs(r.org)) / max_component(abs(r.dir));
         const float tol = 1e-5f * (std::max(1.0f, std::fabs(fast.t)) + scale);
         if (!last || fast.t > last->t_out + tol || fast.t < last->t_in - tol)
           why = "hit t outside the last leaf's interval";
