@@ -146,8 +146,9 @@ inline std::vector<Ray> random_rays(const Mesh& m, uint32_t seed, int n) {
 /// Agreement of `acc` with brute force on `rays`: closest t within 1e-5 relative, the same
 /// triangle unless tied (the reported triangle's own t equals the reference t), identical
 /// any-hit. Returns the number of rays that disagree; reports the first few.
+/// `t_tol` is the relative t tolerance (Embree's own triangle test needs a looser one).
 inline int count_disagreements(const Mesh& mesh, const Accelerator& acc, const std::vector<Ray>& rays,
-                               int report = 5, int* hits_out = nullptr) {
+                               int report = 5, int* hits_out = nullptr, double t_tol = 1e-5) {
   BruteForce brute;
   BuildParams p;
   brute.build(mesh, p);
@@ -159,7 +160,7 @@ inline int count_disagreements(const Mesh& mesh, const Accelerator& acc, const s
     bool ok = br == ba;
     if (ok && br) {
       ++hits;
-      const double tol = 1e-5 * std::max(1.0, std::fabs(double(hr.t)));
+      const double tol = t_tol * std::max(1.0, std::fabs(double(hr.t)));
       ok = std::fabs(double(ha.t) - double(hr.t)) <= tol;
       if (ok && ha.prim != hr.prim) {
         // A tie: the reported triangle must itself be hit at the reference t.
