@@ -42,8 +42,9 @@ inline Mesh sphere(int rings, int segments, const Vec3& center = Vec3(0.0f), flo
     const float th = 3.14159265f * float(i) / float(rings);
     for (int j = 0; j < segments; ++j) {
       const float ph = 2.0f * 3.14159265f * float(j) / float(segments);
-      m.positions.push_back(center + Vec3(std::sin(th) * std::cos(ph), std::cos(th),
-                                          std::sin(th) * std::sin(ph)) * r);
+      m.positions.push_back(
+          center +
+          Vec3(std::sin(th) * std::cos(ph), std::cos(th), std::sin(th) * std::sin(ph)) * r);
     }
   }
   auto id = [&](int i, int j) { return uint32_t(i * segments + (j % segments)); };
@@ -147,8 +148,9 @@ inline std::vector<Ray> random_rays(const Mesh& m, uint32_t seed, int n) {
 /// triangle unless tied (the reported triangle's own t equals the reference t), identical
 /// any-hit. Returns the number of rays that disagree; reports the first few.
 /// `t_tol` is the relative t tolerance (Embree's own triangle test needs a looser one).
-inline int count_disagreements(const Mesh& mesh, const Accelerator& acc, const std::vector<Ray>& rays,
-                               int report = 5, int* hits_out = nullptr, double t_tol = 1e-5) {
+inline int count_disagreements(const Mesh& mesh, const Accelerator& acc,
+                               const std::vector<Ray>& rays, int report = 5,
+                               int* hits_out = nullptr, double t_tol = 1e-5) {
   BruteForce brute;
   BuildParams p;
   brute.build(mesh, p);
@@ -216,7 +218,8 @@ namespace kdgrid::test {
 /// boundaries, split planes, box faces), rays lying exactly in it with a +0 or -0 direction
 /// component, axis-parallel rays with origins on it, and rays starting exactly on it;
 /// plus axis-parallel rays from outside, rays from box corners, and rays missing the box.
-inline std::vector<Ray> extreme_rays(const Mesh& m, const std::vector<std::pair<int, float>>& planes,
+inline std::vector<Ray> extreme_rays(const Mesh& m,
+                                     const std::vector<std::pair<int, float>>& planes,
                                      uint32_t seed, int per_plane) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u01(0.0f, 1.0f);
@@ -239,17 +242,22 @@ inline std::vector<Ray> extreme_rays(const Mesh& m, const std::vector<std::pair<
       r.org[axis] = pos;
       r.dir = rand_dir();
       switch (k % 5) {
-        case 0: r.dir[axis] = 0.0f; break;   // in the plane, +0
-        case 1: r.dir[axis] = -0.0f; break;  // in the plane, -0
-        case 2: {                              // axis-parallel within the plane
+        case 0:
+          r.dir[axis] = 0.0f;
+          break;  // in the plane, +0
+        case 1:
+          r.dir[axis] = -0.0f;
+          break;   // in the plane, -0
+        case 2: {  // axis-parallel within the plane
           const int other = (axis + 1 + int(rng() % 2)) % 3;
           r.dir = Vec3(0.0f);
           r.dir[other] = (rng() % 2) ? 1.0f : -1.0f;
           if (rng() % 2) r.dir[axis] = -0.0f;
           break;
         }
-        case 3: break;                       // leaves the plane in a random direction
-        case 4:                              // crosses the plane along its normal
+        case 3:
+          break;  // leaves the plane in a random direction
+        case 4:   // crosses the plane along its normal
           r.dir = Vec3(-0.0f, 0.0f, -0.0f);
           r.dir[axis] = (rng() % 2) ? 1.0f : -1.0f;
           r.org[axis] = pos - r.dir[axis] * e[axis] * 0.25f * u01(rng);

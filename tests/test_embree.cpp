@@ -79,7 +79,8 @@ TEST(Embree, ExtremeRays) {
   EXPECT_LE(bad, int(crossing.size() / 100)) << bad << " of " << crossing.size();
   Hit h;
   for (const Ray& r : degenerate)
-    if (e.intersect(r, h)) EXPECT_TRUE(h.t >= r.tmin && h.t < r.tmax && h.prim < mesh.num_triangles());
+    if (e.intersect(r, h))
+      EXPECT_TRUE(h.t >= r.tmin && h.t < r.tmax && h.prim < mesh.num_triangles());
 }
 
 TEST(Embree, AllQualitiesBuildAndBadQualityIsRejected) {
@@ -163,7 +164,9 @@ TEST(Embree, ReportsMemoryAndRebuilds) {
   EXPECT_GT(sb.bytes, b_small);
   EXPECT_GT(sb.bytes_by_part.at(0).second, 0u);  // Embree's own allocations were seen
   EXPECT_EQ(e.memory_bytes(), sb.bytes);
-  EXPECT_EQ(test::count_disagreements(big, e, test::random_rays(big, 6, 2000), 0, nullptr, kTol) <= 1, true);
+  EXPECT_EQ(
+      test::count_disagreements(big, e, test::random_rays(big, 6, 2000), 0, nullptr, kTol) <= 1,
+      true);
 }
 
 TEST(Embree, RegisteredInFactory) {

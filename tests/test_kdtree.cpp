@@ -181,9 +181,7 @@ TEST(KdTree, BuildStatisticsAreConsistent) {
   EXPECT_EQ(leaves, st.leaves);
   EXPECT_EQ(refs, st.references);
   // Every triangle of a leaf touches the leaf's box (perfect splits never add strays).
-  kd.for_each_box([&](const StructureBox& b) {
-    EXPECT_FALSE(b.box.empty());
-  });
+  kd.for_each_box([&](const StructureBox& b) { EXPECT_FALSE(b.box.empty()); });
 
   // A higher intersection cost buys a deeper, finer tree.
   BuildParams p;

@@ -66,7 +66,9 @@ float to_rtc(const Ray& r, RTCRay& out) {
 }  // namespace
 
 EmbreeAccel::EmbreeAccel() : state_(std::make_unique<State>()) {}
-EmbreeAccel::~EmbreeAccel() { release(); }
+EmbreeAccel::~EmbreeAccel() {
+  release();
+}
 
 void EmbreeAccel::release() {
   if (state_->scene) rtcReleaseScene(state_->scene);
@@ -88,7 +90,8 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   st.error.clear();
   st.device = rtcNewDevice(config.empty() ? nullptr : config.c_str());
   if (!st.device)
-    throw Error("embree: cannot create a device (" + std::to_string(int(rtcGetDeviceError(nullptr))) +
+    throw Error("embree: cannot create a device (" +
+                std::to_string(int(rtcGetDeviceError(nullptr))) +
                 "); is libembree3 installed for this CPU?");
   rtcSetDeviceErrorFunction(st.device, error_callback, &st.error);
   rtcSetDeviceMemoryMonitorFunction(st.device, memory_monitor, &st.bytes);
@@ -109,8 +112,8 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
     }
     RTCGeometry geom = rtcNewGeometry(st.device, RTC_GEOMETRY_TYPE_TRIANGLE);
     rtcSetGeometryBuildQuality(geom, quality);
-    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                               vertices_.data(), 0, 3 * sizeof(float), nv);
+    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, vertices_.data(),
+                               0, 3 * sizeof(float), nv);
     rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                mesh.triangles.data(), 0, 3 * sizeof(uint32_t), nt);
     rtcCommitGeometry(geom);
@@ -122,7 +125,8 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
     throw Error("embree: building the scene failed: " +
                 (st.error.empty() ? std::string("unknown error") : st.error));
 
-  stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  stats_.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   const uint64_t embree_bytes = uint64_t(std::max<int64_t>(0, st.bytes.load()));
   const uint64_t copy_bytes = vertices_.size() * sizeof(float);
   stats_.bytes = embree_bytes + copy_bytes;

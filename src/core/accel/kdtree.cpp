@@ -156,9 +156,12 @@ Builder::Split Builder::find_split(const std::vector<Event>& events, uint32_t n,
     while (i < size && events[i].axis == a) {
       const float p = events[i].pos;
       uint32_t pe = 0, pp = 0, ps = 0;
-      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kEnd) ++pe, ++i;
-      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kPlanar) ++pp, ++i;
-      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kStart) ++ps, ++i;
+      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kEnd)
+        ++pe, ++i;
+      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kPlanar)
+        ++pp, ++i;
+      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kStart)
+        ++ps, ++i;
       const uint32_t np = pp;
       nr -= pp + pe;
       if (p >= lo && p <= hi) {
@@ -210,11 +213,15 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
     if (e.axis == 0 && e.type != kEnd) flags[e.prim] = kBoth;
   for (const Event& e : events) {
     if (e.axis != sp.axis) continue;
-    if (e.type == kEnd && e.pos <= sp.pos) flags[e.prim] = kLeft;
-    else if (e.type == kStart && e.pos >= sp.pos) flags[e.prim] = kRight;
+    if (e.type == kEnd && e.pos <= sp.pos)
+      flags[e.prim] = kLeft;
+    else if (e.type == kStart && e.pos >= sp.pos)
+      flags[e.prim] = kRight;
     else if (e.type == kPlanar) {
-      if (e.pos < sp.pos || (e.pos == sp.pos && sp.planar_left)) flags[e.prim] = kLeft;
-      else flags[e.prim] = kRight;
+      if (e.pos < sp.pos || (e.pos == sp.pos && sp.planar_left))
+        flags[e.prim] = kLeft;
+      else
+        flags[e.prim] = kRight;
     }
   }
   std::vector<Event> left, right;
@@ -256,8 +263,8 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
     std::sort(extra.begin(), extra.end(), event_less);
     std::vector<Event> merged;
     merged.reserve(sorted.size() + extra.size());
-    std::merge(sorted.begin(), sorted.end(), extra.begin(), extra.end(),
-               std::back_inserter(merged), event_less);
+    std::merge(sorted.begin(), sorted.end(), extra.begin(), extra.end(), std::back_inserter(merged),
+               event_less);
     sorted.swap(merged);
   };
   merge_in(left, new_l);
@@ -278,8 +285,10 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
       const uint32_t node_base = uint32_t(out.nodes.size());
       const uint32_t prim_base = uint32_t(out.prims.size());
       for (KdNode nd : s.nodes) {
-        if (!nd.leaf()) nd.bits += node_base << 2;
-        else if (nd.count() > 1) nd.prim_offset += prim_base;
+        if (!nd.leaf())
+          nd.bits += node_base << 2;
+        else if (nd.count() > 1)
+          nd.prim_offset += prim_base;
         out.nodes.push_back(nd);
       }
       out.prims.insert(out.prims.end(), s.prims.begin(), s.prims.end());
@@ -297,8 +306,9 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
     out.nodes[self].bits = (above << 2) | uint32_t(sp.axis);
   }
   if (out.nodes.size() >= (size_t(1) << 30))
-    throw ParamError("kdtree: more than 2^30 nodes; lower kd_max_depth or raise "
-                     "kd_intersection_cost relative to kd_traversal_cost");
+    throw ParamError(
+        "kdtree: more than 2^30 nodes; lower kd_max_depth or raise "
+        "kd_intersection_cost relative to kd_traversal_cost");
 }
 
 }  // namespace
@@ -307,8 +317,9 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   const auto t_start = std::chrono::steady_clock::now();
   if (!(params.kd_intersection_cost > 0.0f) || !(params.kd_traversal_cost >= 0.0f) ||
       !std::isfinite(params.kd_intersection_cost) || !std::isfinite(params.kd_traversal_cost))
-    throw ParamError("kdtree: kd_traversal_cost must be >= 0 and kd_intersection_cost > 0 "
-                     "(--kd-cost-ratio), e.g. 1 and 1.5");
+    throw ParamError(
+        "kdtree: kd_traversal_cost must be >= 0 and kd_intersection_cost > 0 "
+        "(--kd-cost-ratio), e.g. 1 and 1.5");
   if (!(params.kd_empty_bonus >= 0.0f && params.kd_empty_bonus < 1.0f))
     throw ParamError("kdtree: kd_empty_bonus must be in [0, 1), e.g. 0.2; got " +
                      std::to_string(params.kd_empty_bonus));
@@ -324,7 +335,8 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   bounds_ = mesh.bounds();
   if (n == 0 || bounds_.empty()) {
     bounds_ = Box3();
-    stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+    stats_.seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
     return stats_;
   }
   max_abs_ = std::max(max_component(abs(bounds_.lo)), max_component(abs(bounds_.hi)));
@@ -370,7 +382,8 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
       todo.push_back({nd.above(), it.depth + 1});
     }
   }
-  const uint64_t b_nodes = nodes_.size() * sizeof(KdNode), b_refs = prims_.size() * sizeof(uint32_t);
+  const uint64_t b_nodes = nodes_.size() * sizeof(KdNode),
+                 b_refs = prims_.size() * sizeof(uint32_t);
   stats_.bytes = b_nodes + b_refs;
   stats_.bytes_by_part = {{"nodes", b_nodes}, {"references", b_refs}};
   stats_.extra = {{"max_depth_limit", std::to_string(max_depth)}};

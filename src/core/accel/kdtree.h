@@ -156,7 +156,8 @@ bool KdTree::traverse(const Ray& ray, Hit& hit, S& s) const {
       const uint32_t below = node + 1, above = n.above();
       uint32_t first, second;
       bool visit_first = true, visit_second = true;
-      float first_max = t_max, second_min = t_min;  // first: [t_min, first_max], second: [second_min, t_max]
+      float first_max = t_max,
+            second_min = t_min;  // first: [t_min, first_max], second: [second_min, t_max]
       if (d == 0.0f) {
         // Parallel to the plane: the origin's side, or both when the ray lies in it.
         first = o <= split ? below : above;
