@@ -78,9 +78,11 @@ TEST(Embree, ExtremeRays) {
   const int bad = test::count_disagreements(mesh, e, crossing, 6, nullptr, kTol);
   EXPECT_LE(bad, int(crossing.size() / 100)) << bad << " of " << crossing.size();
   Hit h;
-  for (const Ray& r : degenerate)
-    if (e.intersect(r, h))
+  for (const Ray& r : degenerate) {
+    if (e.intersect(r, h)) {
       EXPECT_TRUE(h.t >= r.tmin && h.t < r.tmax && h.prim < mesh.num_triangles());
+    }
+  }
 }
 
 TEST(Embree, AllQualitiesBuildAndBadQualityIsRejected) {
