@@ -2,6 +2,7 @@
 // plus the extreme-ray suite, memory bound, parameter errors and counter/trace consistency.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -273,17 +274,19 @@ void check_mesh_agreement(const Mesh& m, const std::string& name, int num_rays, 
       const std::string label = name + " top=" + std::to_string(d[0]) + " sub=" +
                                 std::to_string(d[1]) + " merge=" + std::to_string(merge) +
                                 " expand=" + std::to_string(expand);
+      const auto t0 = std::chrono::steady_clock::now();
       EXPECT_EQ(count_disagreements(g, m, rays, ref, label), 0) << label;
+      const double query_s =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       EXPECT_EQ(g.step_bound_hits(), 0u) << label;
-      if (d[0] == 0.12f && merge && expand)
-        std::printf("[ info ] %s: %s cells before merge, %s after merge, %s expanded, %llu refs, "
-                    "%llu bytes (map %llu, cells %llu, refs %llu), %.3f s\n",
-                    name.c_str(), stat(s, "cells before merge").c_str(),
-                    stat(s, "cells after merge").c_str(), stat(s, "cells expanded").c_str(),
-                    (unsigned long long)s.references, (unsigned long long)s.bytes,
-                    (unsigned long long)s.bytes_by_part[0].second,
-                    (unsigned long long)s.bytes_by_part[1].second,
-                    (unsigned long long)s.bytes_by_part[2].second, s.seconds);
+      std::printf("[ info ] %s: cells %s -> %s merged, %s expanded; %llu refs; %llu bytes "
+                  "(map %llu, cells %llu, refs %llu); build %.3f s, queries %.3f s\n",
+                  label.c_str(), stat(s, "cells before merge").c_str(),
+                  stat(s, "cells after merge").c_str(), stat(s, "cells expanded").c_str(),
+                  (unsigned long long)s.references, (unsigned long long)s.bytes,
+                  (unsigned long long)s.bytes_by_part[0].second,
+                  (unsigned long long)s.bytes_by_part[1].second,
+                  (unsigned long long)s.bytes_by_part[2].second, s.seconds, query_s);
     }
 }
 

@@ -530,8 +530,10 @@ struct IrregularGrid::Builder {
   // Step 5: expansion. A face of a cell's exit box moves one layer of neighbouring cells
   // outwards when every voxel of that layer belongs to cells whose references are a subset of
   // this cell's (so a ray inside the grown box can only meet triangles already tested). The
-  // six faces take turns, one layer each, until none can grow; a face that failed can never
-  // succeed later, since growing other faces only adds voxels to its layer.
+  // six faces take turns, one layer each, for kExpansionRounds rounds (the paper's fixed
+  // iteration count, which keeps the cost linear in the cells: without it an unmerged empty
+  // cell would sweep the whole empty space around it). A face that failed is not retried:
+  // growing other faces only adds voxels to its layer, so it cannot succeed later.
   bool subset_of(const BCell& small, const BCell& big) const {
     if (small.count == 0) return true;
     if (small.count > big.count) return false;
@@ -585,15 +587,16 @@ struct IrregularGrid::Builder {
       uint64_t local = 0;
       for (size_t i = rg.begin(); i < rg.end(); ++i) {
         bool open[6] = {true, true, true, true, true, true};
-        bool any_open = true, grew = false;
-        while (any_open) {
-          any_open = false;
+        bool grew = false;
+        for (int round = 0; round < kExpansionRounds; ++round) {
+          bool any = false;
           for (int f = 0; f < 6; ++f) {
             if (!open[f]) continue;
             open[f] = grow_face(cells[i], exit_boxes[i], f >> 1, f & 1);
-            any_open |= open[f];
-            grew |= open[f];
+            any |= open[f];
           }
+          if (!any) break;
+          grew = true;
         }
         local += grew;
       }

@@ -53,8 +53,8 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
   static constexpr uint64_t kMergeMinCells = 4;
   /// Upper bound on merge rounds, a safety net; convergence is normally reached far earlier.
   static constexpr int kMergeMaxRounds = 64;
-  /// Rounds of expansion over the six faces (the paper and hagrid use 3 iterations); each
-  /// face grows as far as the subset rule allows within a round.
+  /// Rounds of expansion: in each round every face of a cell's exit box tries to move out by
+  /// one layer of neighbouring cells (the paper and hagrid use 3 iterations).
   static constexpr int kExpansionRounds = 3;
 
   std::string name() const override { return "irregular"; }
