@@ -56,6 +56,9 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
   /// Rounds of expansion: in each round every face of a cell's exit box tries to move out by
   /// one layer of neighbouring cells (the paper and hagrid use 3 iterations).
   static constexpr int kExpansionRounds = 3;
+  /// Mailbox slots per ray (direct-mapped by triangle index): a triangle referenced by several
+  /// cells along the ray is tested once while it stays in its slot. A power of two.
+  static constexpr uint32_t kMailboxSlots = 8;
 
   std::string name() const override { return "irregular"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
@@ -179,6 +182,9 @@ bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
   float best = ray.tmax;
   bool found = false;
   double t_in = t0;
+  // Re-testing a triangle cannot change the result (best only decreases), so skip repeats.
+  uint32_t mailbox[kMailboxSlots];
+  std::fill(mailbox, mailbox + kMailboxSlots, kInvalidPrim);
   // Each step moves the exit-axis coordinate by at least one voxel and no coordinate ever
   // moves backwards, so a traversal takes at most res_x + res_y + res_z steps.
   const int64_t bound = int64_t(res_[0]) + res_[1] + res_[2] + 2;
@@ -210,6 +216,12 @@ bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
       s.leaf();
       for (uint32_t i = c.begin; i < c.end; ++i) {
         const uint32_t prim = refs_[i];
+        uint32_t& slot = mailbox[prim & (kMailboxSlots - 1)];
+        if (slot == prim) {
+          s.mailbox_skip();
+          continue;
+        }
+        slot = prim;
         const auto& tri = tris[prim];
         s.tri_test(prim);
         float t, u, w;
