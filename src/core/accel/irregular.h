@@ -16,7 +16,8 @@
 //   4. Merge: passes along x, y, z join aligned neighbours when the cost of the union is no
 //      larger than the two apart (cost below), until a round of three passes merges < 0.1%.
 //   5. Expansion: each cell's exit box grows over neighbouring cells whose references are a
-//      subset of its own, so rays leave it later and skip cells that cannot add a hit.
+//      subset of its own, so rays leave it later and skip cells that cannot add a hit. The
+//      cell count does not change; BuildStats::extra "cells expanded" counts grown boxes.
 //
 // Traversal: clip to the grid box, look up the voxel of the entry point, test the cell's
 // triangles, intersect the far planes of its exit box; stop if the closest hit is before the
@@ -111,8 +112,8 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
     const int32_t lx = (v[0] & m) >> (shift_ - e.log[0]);
     const int32_t ly = (v[1] & m) >> (shift_ - e.log[1]);
     const int32_t lz = (v[2] & m) >> (shift_ - e.log[2]);
-    return sub_[e.base + ((size_t(lz) << (e.log[1] + e.log[0])) | (size_t(ly) << e.log[0]) |
-                          size_t(lx))];
+    return sub_[e.base +
+                ((size_t(lz) << (e.log[1] + e.log[0])) | (size_t(ly) << e.log[0]) | size_t(lx))];
   }
 
   /// Lattice coordinate of world coordinate p on `axis`, clamped into the lattice.
@@ -134,11 +135,11 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
   bool walk(const Ray& ray, Hit* hit, S& s) const;
 
   const Mesh* mesh_ = nullptr;
-  double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0};  ///< grid box (padded scene box)
+  double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0};      ///< grid box (padded scene box)
   double vs_[3] = {1, 1, 1}, inv_vs_[3] = {1, 1, 1};  ///< finest voxel size and its inverse
-  int32_t res_[3] = {0, 0, 0};      ///< finest lattice resolution = top_res_ << shift_
+  int32_t res_[3] = {0, 0, 0};  ///< finest lattice resolution = top_res_ << shift_
   int32_t top_res_[3] = {0, 0, 0};
-  int shift_ = 0;                   ///< S: log2 of the finest voxels per top cell per axis
+  int shift_ = 0;  ///< S: log2 of the finest voxels per top cell per axis
   std::vector<TopEntry> top_;
   std::vector<uint32_t> sub_;
   std::vector<Cell> cells_;
