@@ -5,6 +5,7 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include "render/image_io.h"
 #include "viewer/overlay.h"
 
 namespace kdgrid::viewer {
@@ -64,15 +65,12 @@ std::string write_png(const std::string& path, int w, int h, const std::vector<u
 
 std::string write_counts_exr(const std::string& path, const RenderedImage& img,
                              const std::string& description) {
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out) return path + ": cannot create an image writer (" + OIIO::geterror() + ")";
-  OIIO::ImageSpec spec(img.width, img.height, 3, OIIO::TypeDesc::FLOAT);
-  spec.attribute("ImageDescription", description);
-  if (!out->open(path, spec) || !out->write_image(OIIO::TypeDesc::FLOAT, img.rgb.data())) {
-    const std::string err = out->geterror();
-    return path + ": write failed (" + err + ")";
+  try {
+    write_image(path, img.width, img.height, img.rgb,
+                {{"description", description}, {"samples", std::to_string(img.samples)}});
+  } catch (const std::exception& e) {
+    return e.what();
   }
-  out->close();
   return "";
 }
 

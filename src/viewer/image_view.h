@@ -23,9 +23,10 @@ float heat_position(float count, HeatRange r, HeatScale scale);
 /// RGBA8, row 0 at the top: tonemapped radiance (Shaded) or the colour ramp (heat modes).
 void colorize(const RenderedImage& img, HeatScale scale, HeatRange range, std::vector<uint8_t>& rgba);
 
-/// Writes RGB8 (row 0 at the top) as PNG; returns an error message or "".
+/// Writes RGB8 (row 0 at the top) as PNG, byte for byte (write_image would round-trip the
+/// bytes through linear floats); returns an error message or "".
 std::string write_png(const std::string& path, int w, int h, const std::vector<uint8_t>& rgb);
-/// Writes the raw per-pixel counts (one float channel per RGB channel) as EXR.
+/// Writes the raw per-pixel counts (the same count in R, G and B) as EXR via write_image.
 std::string write_counts_exr(const std::string& path, const RenderedImage& img,
                              const std::string& description);
 
