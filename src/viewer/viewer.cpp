@@ -458,9 +458,18 @@ void Viewer::sync_render_job() {
   int fw, fh;
   glfwGetFramebufferSize(window_, &fw, &fh);
   if (fw <= 0 || fh <= 0) return;  // minimised
-  const int w = std::max(1, int(std::lround(fw * opts_.resolution_scale)));
-  const int h = std::max(1, int(std::lround(fh * opts_.resolution_scale)));
   const Camera& c = cam_.camera();
+  // While the camera moves, render a coarse preview so that passes finish between moves; the
+  // full resolution follows once it has been still for a moment.
+  const auto now = Clock::now();
+  if (!same_camera(c, last_seen_camera_)) {
+    last_seen_camera_ = c;
+    last_move_ = now;
+  }
+  const bool preview = !opts_.scripted() && now - last_move_ < std::chrono::milliseconds(150);
+  const float scale = opts_.resolution_scale * (preview ? kPreviewScale : 1.0f);
+  const int w = std::max(1, int(std::lround(fw * scale)));
+  const int h = std::max(1, int(std::lround(fh * scale)));
   if (world_.get() == posted_world_ && w == posted_w_ && h == posted_h_ && mode_ == posted_mode_ &&
       opts_.max_samples == posted_max_samples_ && same_camera(c, posted_camera_))
     return;
@@ -576,7 +585,7 @@ void Viewer::save_screenshot(const std::string& path) {
 void Viewer::draw_panels() {
   ImGuiIO& io = ImGui::GetIO();
   ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
-  ImGui::SetNextWindowSize(ImVec2(380 * io.FontGlobalScale, 0), ImGuiCond_FirstUseEver);
+  ImGui::SetNextWindowSize(ImVec2(330 * io.FontGlobalScale, 0), ImGuiCond_FirstUseEver);
   ImGui::Begin("kdgrid");
 
   if (task_) {
@@ -685,7 +694,7 @@ void Viewer::draw_panels() {
     ImGui::SameLine();
     ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
     mode_ = RenderMode(m);
-    ImGui::Text("%d x %d, %d samples, %.1f Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
+    ImGui::Text("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
                 last_mrays_);
     ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d", ImGuiSliderFlags_Logarithmic);
     if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {

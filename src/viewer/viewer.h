@@ -116,6 +116,9 @@ class Viewer {
   bool scripted_rebuild_started_ = false, scripted_rebuild_done_ = false;
 
   // Render job tracking.
+  static constexpr float kPreviewScale = 0.35f;  ///< resolution factor while the camera moves
+  Camera last_seen_camera_;
+  std::chrono::steady_clock::time_point last_move_{};
   Camera posted_camera_;
   int posted_w_ = 0, posted_h_ = 0;
   RenderMode posted_mode_ = RenderMode::Shaded;
