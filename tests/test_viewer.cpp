@@ -192,6 +192,31 @@ TEST(Viewer, PickDrawsTraversalAtThePickedPixel) {
   EXPECT_EQ(changed_pixels_near(a, read_image(dir + "/again.png"), px, py, 10), 0);
 }
 
+TEST(Viewer, HeatMapExportsRawCountsAsExr) {
+  KDGRID_REQUIRE_XVFB();
+  const std::string scene = small_scene();
+  if (scene.empty()) GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
+  const std::string accel = fast_accel();
+  if (accel.empty()) GTEST_SKIP() << "no structure faster than brute force is built in yet";
+  const std::string dir = scratch_dir();
+  const RunResult r = run_viewer(dir, "'" + scene + "' --accel " + accel + kSmall +
+                                          "--heatmap tests --export-heatmap tests.exr --screenshot shot.png");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const ImageRGB img = read_image(dir + "/tests.exr");
+  ASSERT_EQ(img.width, 320);
+  float lo = kInf, hi = 0;
+  for (size_t i = 0; i < img.rgb.size(); i += 3) {
+    lo = std::min(lo, img.rgb[i]);
+    hi = std::max(hi, img.rgb[i]);
+    // One sample per pixel: each value is a whole number of triangle tests, the same in R, G, B.
+    ASSERT_EQ(img.rgb[i], std::floor(img.rgb[i]));
+    ASSERT_EQ(img.rgb[i], img.rgb[i + 1]);
+  }
+  EXPECT_GE(lo, 0.0f);
+  EXPECT_GE(hi, 1.0f) << "no pixel tested a triangle";
+  EXPECT_GT(hi, lo) << "the heat map is flat";
+}
+
 TEST(Viewer, LiveRebuildCompletes) {
   KDGRID_REQUIRE_XVFB();
   const std::string scene = small_scene();

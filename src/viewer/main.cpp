@@ -8,8 +8,11 @@
 #include <GLFW/glfw3.h>
 
 #include <CLI/CLI.hpp>
+#include <tbb/global_control.h>
+#include <memory>
 
 #include "accel/accelerator.h"
+#include "render/image_io.h"
 #include "util/error.h"
 #include "util/paths.h"
 #include "viewer/viewer.h"
@@ -62,6 +65,13 @@ int main(int argc, char** argv) {
       ->group(gw)
       ->check(CLI::Range(1, 1 << 20))
       ->capture_default_str();
+  int threads = 0;
+  app.add_option("--threads", threads,
+                 "Threads for rendering and builds; 0 = all. 1 runs everything on the calling "
+                 "threads, which ThreadSanitizer can follow (libtbb itself is not instrumented)")
+      ->group(gw)
+      ->check(CLI::Range(0, 4096))
+      ->capture_default_str();
   const std::string gs = "Scripted runs (tests, reports)";
   app.add_option("--frames", o.frames, "Run at least N frames, then write --screenshot and exit 0")
       ->group(gs)
@@ -86,6 +96,9 @@ int main(int argc, char** argv) {
   app.add_option("--rebuild-cell-size", o.rebuild_cell_size,
                  "After start-up, rebuild live with this cell size ('auto' or a size) and wait for it")
       ->group(gs);
+  app.add_option("--export-heatmap", o.export_heatmap,
+                 "Scripted: write the heat map's raw per-pixel counts to this EXR (needs --heatmap)")
+      ->group(gs);
   app.add_flag("--hide-ui", o.hide_ui, "Hide the ImGui panels (reproducible screenshots)")->group(gs);
 
   try {
@@ -107,6 +120,9 @@ int main(int argc, char** argv) {
     }
     if (!o.screenshot.empty() && !o.scripted())
       throw kdgrid::ParamError("--screenshot needs --frames N (the number of frames to run first)");
+    if (!o.export_heatmap.empty() && (o.heatmap.empty() || !o.scripted()))
+      throw kdgrid::ParamError("--export-heatmap needs --heatmap steps|tests and --frames N");
+    if (!o.export_heatmap.empty()) kdgrid::check_image_extension(o.export_heatmap);
     if (o.max_samples < o.min_samples) o.max_samples = o.min_samples;
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
@@ -115,6 +131,10 @@ int main(int argc, char** argv) {
     return 2;
   }
 
+  std::unique_ptr<tbb::global_control> thread_limit;
+  if (threads > 0)
+    thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                         size_t(threads));
   glfwSetErrorCallback(glfw_error);
   if (!env_set("DISPLAY") && !env_set("WAYLAND_DISPLAY")) {
     print_no_display("neither DISPLAY nor WAYLAND_DISPLAY is set");

@@ -947,6 +947,13 @@ int Viewer::run() {
           std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
           exit_code = 1;
         }
+        if (!opts_.export_heatmap.empty()) {
+          const std::string err = write_counts_exr(opts_.export_heatmap, image_,
+                                                   std::string("kdgrid ") + mode_name(image_.mode) +
+                                                       " per pixel, " + accel_name_);
+          std::printf("kdgrid-viewer: %s\n", err.empty() ? ("wrote " + opts_.export_heatmap).c_str() : err.c_str());
+          if (!err.empty()) exit_code = 1;
+        }
         if (!opts_.screenshot.empty()) {
           save_screenshot(opts_.screenshot);
           if (message_.rfind("wrote ", 0) != 0) exit_code = 1;

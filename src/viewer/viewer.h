@@ -43,6 +43,7 @@ struct ViewerOptions {
   std::string heatmap;               ///< "", "steps" or "tests"
   std::vector<std::string> overlays; ///< "splits", "cells", "boxes"
   std::string rebuild_cell_size;     ///< scripted live rebuild after start-up
+  std::string export_heatmap;        ///< scripted: EXR of the heat map's raw counts at the end
   bool hide_ui = false;              ///< no ImGui panels (reproducible screenshots)
   bool scripted() const { return frames > 0; }
 };
