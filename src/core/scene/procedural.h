@@ -5,9 +5,9 @@
 //   cornell            Cornell-style box 2 x 2 x 2 (x in [-1,1], y in [0,2], z in [-1,1], open
 //                      at z = +1): red left wall, green right wall, white floor, ceiling and
 //                      back; a square emissive ceiling panel with a point light just below it;
-//                      a tall mirror box (metallic 1) at the back left and a glass sphere
-//                      (transmission 1, ior 1.5) front right; camera looking in from +z.
-//                      level = sphere subdivision (default 3: 1280 triangles).
+//                      a mirror sphere (metallic 1, roughness 0) at the back left and a glass
+//                      sphere (transmission 1, ior 1.5) front right; camera looking in from +z.
+//                      level = sphere subdivision (default 3: 1280 triangles per sphere).
 //   teapot-in-stadium  A dense closed torus (count triangles, default 20000, ~2.7 units wide)
 //                      at the origin inside a huge box (12 triangles, 3000 units wide, ~1100x
 //                      larger): the classic case where uniform grids waste their cells.
