@@ -457,6 +457,7 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
 
 uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
                                    uint64_t budget, uint64_t* count_only) {
+  static_assert(kMaxNodeEntryLeaves >= 2 && kMaxNodeEntryDepth >= 1);
   const int64_t side = int64_t(1) << (kBrickLog * level);
   const int32_t r0[3] = {x0, y0, z0};
   int32_t r1[3];
@@ -474,14 +475,16 @@ uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level
       break;
   }
   if (nodes_[node].axis == 3) return kLeafTag | uint32_t(nodes_[node].split);
-  // Crossed by a split: refine into a brick (level >= 1 here, a single cell is never split).
+  // Crossed by a few splits only: keep the node, resolved by a short descent at lookup.
+  if (count_region_leaves(node, r0, r1, kMaxNodeEntryLeaves + 1, 0) <= kMaxNodeEntryLeaves) return kNodeTag | node;
+  // Crossed by many: refine into a brick (level >= 1 here, a single cell is never split).
   const int32_t sub = int32_t(side >> kBrickLog);
   uint64_t b = 0;
   if (count_only) {
     ++*count_only;
   } else {
     b = bricks_.size() / kBrickEntries;
-    if ((bricks_.size() + kBrickEntries) * sizeof(uint32_t) > budget || b >= kLeafTag)
+    if ((bricks_.size() + kBrickEntries) * sizeof(uint32_t) > budget || b >= kNodeTag)
       throw ParamError("hybrid: the bricked cell matrix of the " + std::to_string(dims_[0]) + "x" +
                        std::to_string(dims_[1]) + "x" + std::to_string(dims_[2]) +
                        " grid exceeds the memory budget of " + bytes_str(double(budget)) +
@@ -496,6 +499,19 @@ uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level
         if (!count_only) bricks_[b * kBrickEntries + uint64_t(i + kBrickSide * (j + kBrickSide * k))] = e;
       }
   return uint32_t(b);
+}
+
+/// Leaves of the subtree at `node` that intersect the region [r0, r1), counting up to `limit`;
+/// a path longer than kMaxNodeEntryDepth counts as `limit` (too deep for a node entry).
+int Hybrid::count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit,
+                                int depth) const {
+  if (depth > kMaxNodeEntryDepth) return limit;
+  const Node& n = nodes_[node];
+  if (n.axis == 3) return 1;
+  int count = 0;
+  if (r0[n.axis] < n.split) count += count_region_leaves(node + 1, r0, r1, limit, depth + 1);
+  if (count < limit && r1[n.axis] > n.split) count += count_region_leaves(n.right, r0, r1, limit - count, depth + 1);
+  return std::min(count, limit);
 }
 
 void Hybrid::build_matrix(uint64_t budget) {

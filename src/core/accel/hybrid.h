@@ -78,7 +78,17 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     Vec3 v0, v1, v2;
   };
 
+  /// Bricked matrix entries: kLeafTag | leaf id, kNodeTag | kd node index, or a brick index.
   static constexpr uint32_t kLeafTag = 0x80000000u;
+  static constexpr uint32_t kNodeTag = 0x40000000u;
+  static constexpr uint32_t kTagMask = kLeafTag | kNodeTag;
+  /// A region crossed by split planes whose kd subtree, restricted to the region, reaches at
+  /// most kMaxNodeEntryLeaves leaves within kMaxNodeEntryDepth levels keeps a kd node entry,
+  /// resolved at lookup by a descent of at most that many steps, instead of refining into a
+  /// brick. This keeps memory proportional to content: a lone split plane across a huge empty
+  /// stadium would otherwise refine every brick it crosses (its area, not content).
+  static constexpr int kMaxNodeEntryLeaves = 8;
+  static constexpr int kMaxNodeEntryDepth = 16;
   static constexpr int kBrickLog = 2;                          ///< 4 cells per brick axis
   static constexpr int kBrickSide = 1 << kBrickLog;
   static constexpr int kBrickEntries = kBrickSide * kBrickSide * kBrickSide;
@@ -123,14 +133,19 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     if (dense_) return matrix_[uint64_t(x) + uint64_t(dims_[0]) * (uint64_t(y) + uint64_t(dims_[1]) * uint64_t(z))];
     uint32_t e = root_entry_;
     int shift = (levels_ - 1) * kBrickLog;
-    while (!(e & kLeafTag)) {
+    while (!(e & kTagMask)) {
       const uint32_t local = ((uint32_t(x) >> shift) & (kBrickSide - 1)) |
                              (((uint32_t(y) >> shift) & (kBrickSide - 1)) << kBrickLog) |
                              (((uint32_t(z) >> shift) & (kBrickSide - 1)) << (2 * kBrickLog));
       e = bricks_[uint64_t(e) * kBrickEntries + local];
       shift -= kBrickLog;
     }
-    return e & ~kLeafTag;
+    if (e & kLeafTag) return e & ~kTagMask;
+    // A sparse region: finish with a short kd descent from the stored node.
+    const int32_t c[3] = {x, y, z};
+    const Node* n = nodes_.data() + (e & ~kTagMask);
+    while (n->axis != 3) n = c[n->axis] < n->split ? n + 1 : nodes_.data() + n->right;
+    return uint32_t(n->split);
   }
 
   template <class Tri, class S, bool kAny>
@@ -140,6 +155,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   void build_matrix(uint64_t budget);
   uint32_t build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
                              uint64_t budget, uint64_t* count_only);
+  int count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit, int depth) const;
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
