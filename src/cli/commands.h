@@ -8,5 +8,7 @@ namespace kdgrid::cli {
 void add_info_command(CLI::App& app);
 void add_render_command(CLI::App& app);
 void add_gen_command(CLI::App& app);
+void add_rays_command(CLI::App& app);
+void add_trace_command(CLI::App& app);
 
 }  // namespace kdgrid::cli

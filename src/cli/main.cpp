@@ -12,6 +12,8 @@ int main(int argc, char** argv) {
   kdgrid::cli::add_info_command(app);
   kdgrid::cli::add_render_command(app);
   kdgrid::cli::add_gen_command(app);
+  kdgrid::cli::add_rays_command(app);
+  kdgrid::cli::add_trace_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

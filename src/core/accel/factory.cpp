@@ -2,15 +2,17 @@
 
 #include "accel/accelerator.h"
 #include "accel/brute.h"
+#include "accel/bvh.h"
 #include "accel/hybrid.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
-std::vector<std::string> accelerator_names() { return {"brute", "hybrid"}; }
+std::vector<std::string> accelerator_names() { return {"brute", "bvh", "hybrid"}; }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "brute") return std::make_unique<BruteForce>();
+  if (name == "bvh") return std::make_unique<Bvh>();
   if (name == "hybrid") return std::make_unique<Hybrid>();
   std::string valid;
   for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;
