@@ -280,7 +280,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaves_.clear();
   leaf_depth_.clear();
   refs_.clear();
-  tris_.clear();
+  ref_tris_.clear();
   matrix_.clear();
   bricks_.clear();
   root_entry_ = kLeafTag;
@@ -382,15 +382,15 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
 
   tbb::task_arena arena(threads);
   arena.execute([&] {
-    tris_.resize(ntri);
-    tbb::parallel_for(size_t(0), ntri, [&](size_t i) {
-      const auto c = mesh.corners(i);
-      tris_[i] = {c[0], c[1], c[2]};
-    });
     build_tree(mesh, params);
+    ref_tris_.resize(refs_.size());
+    tbb::parallel_for(size_t(0), refs_.size(), [&](size_t i) {
+      const auto c = mesh.corners(refs_[i]);
+      ref_tris_[i] = {c[0], c[1], c[2]};
+    });
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * sizeof(Leaf) + leaf_depth_.size() +
-             refs_.size() * 4 + tris_.size() * sizeof(TriVerts);
+             refs_.size() * (4 + sizeof(TriVerts));
     build_matrix(budget > other ? budget - other : 0);
   });
 
@@ -402,13 +402,13 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
-  const uint64_t b_tris = tris_.size() * sizeof(TriVerts);
+  const uint64_t b_tris = ref_tris_.size() * sizeof(TriVerts);
   const uint64_t b_matrix = (dense_ ? matrix_.size() : bricks_.size()) * sizeof(uint32_t);
   stats_.bytes = b_tree + b_leaves + b_refs + b_tris + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
                           {"references", b_refs},
-                          {"triangles", b_tris},
+                          {"triangles (per reference)", b_tris},
                           {dense_ ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
   stats_.extra = {{"cell_size", fmt("%.6g", cell_)},
@@ -475,8 +475,10 @@ uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level
       break;
   }
   if (nodes_[node].axis == 3) return kLeafTag | uint32_t(nodes_[node].split);
-  // Crossed by a few splits only: keep the node, resolved by a short descent at lookup.
-  if (count_region_leaves(node, r0, r1, kMaxNodeEntryLeaves + 1, 0) <= kMaxNodeEntryLeaves) return kNodeTag | node;
+  // Crossed by a few splits only, in a region coarser than one brick of cells: keep the node,
+  // resolved by a short descent at lookup. Regions of 4^3 cells always refine, so lookups
+  // near the geometry end in a leaf entry.
+  if (level > 1 && count_region_leaves(node, r0, r1, kMaxNodeEntryLeaves + 1, 0) <= kMaxNodeEntryLeaves) return kNodeTag | node;
   // Crossed by many: refine into a brick (level >= 1 here, a single cell is never split).
   const int32_t sub = int32_t(side >> kBrickLog);
   uint64_t b = 0;

@@ -72,8 +72,8 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     uint32_t right;     ///< interior: index of the right child (left child = this + 1)
     uint32_t axis;      ///< 0..2 interior, 3 leaf
   };
-  /// The three corners of a triangle, copied in mesh order so the leaf test reads 36
-  /// contiguous bytes instead of chasing the index buffer.
+  /// The three corners of a referenced triangle, stored per reference in leaf order so a
+  /// leaf's test streams through contiguous memory instead of chasing prim -> index -> vertex.
   struct TriVerts {
     Vec3 v0, v1, v2;
   };
@@ -169,7 +169,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   std::vector<Leaf> leaves_;
   std::vector<uint8_t> leaf_depth_;
   std::vector<uint32_t> refs_;
-  std::vector<TriVerts> tris_;
+  std::vector<TriVerts> ref_tris_;  ///< parallel to refs_
   std::vector<uint32_t> matrix_;   ///< dense storage
   std::vector<uint32_t> bricks_;   ///< bricked storage, kBrickEntries per brick
   uint32_t root_entry_ = kLeafTag;
@@ -248,6 +248,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     if (L.count) {
       s.leaf();
       const uint32_t* r = refs_.data() + L.first;
+      const TriVerts* tri = ref_tris_.data() + L.first;
       for (uint32_t i = 0; i < L.count; ++i) {
         const uint32_t prim = r[i];
         uint32_t& slot = mailbox[prim & (kMailbox - 1)];
@@ -257,7 +258,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
         }
         slot = prim;
         s.tri_test(prim);
-        const TriVerts& tv = tris_[prim];
+        const TriVerts& tv = tri[i];
         float t, u, v;
         if (Tri::intersect(rd, tv.v0, tv.v1, tv.v2, ray.tmin, best, t, u, v)) {
           if constexpr (kAny) {
