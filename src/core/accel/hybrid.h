@@ -28,10 +28,13 @@
 //
 // Matrix. Each basic cell maps to the id of the leaf covering it. Dense storage (the paper,
 // BuildParams::hybrid_dense_matrix): one uint32 per cell. Default bricked storage: a sparse
-// hierarchy of 4x4x4 bricks over a cube of 4^L cells; an entry is a tagged uint32, either a
-// leaf id (kLeafTag set: the whole region belongs to that leaf) or the index of a child
-// brick, so a large empty leaf costs one entry and only bricks crossed by leaf boundaries
-// are refined. Lookup = at most L dependent loads, no search.
+// hierarchy of 4x4x4 bricks over a cube of 4^L cells; an entry is a tagged uint32: a leaf id
+// (the whole region belongs to that leaf), the index of a child brick, or, for a region of
+// more than 4^3 cells crossed by only a few split planes, the kd node whose short descent (at
+// most kMaxNodeEntryDepth nodes) resolves it. A large empty leaf costs O(1) entries and only
+// regions where many leaves meet (where the triangles are) are refined, so memory follows the
+// content, not the volume nor the area of split planes across empty space. Lookup = at most
+// L dependent loads (plus a few node tests in sparse regions), no search.
 //
 // Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
 // leaf's triangles, compute the exit over the leaf's far planes, stop once the closest hit
