@@ -27,14 +27,15 @@
 // capped at 64). Subtrees build in parallel (oneTBB); output is deterministic.
 //
 // Matrix. Each basic cell maps to the id of the leaf covering it. Dense storage (the paper,
-// BuildParams::hybrid_dense_matrix): one uint32 per cell. Default bricked storage: a sparse
-// hierarchy of 4x4x4 bricks over a cube of 4^L cells; an entry is a tagged uint32: a leaf id
+// BuildParams::hybrid_dense_matrix): one uint32 per cell. Default bricked storage: a dense
+// top array over blocks of 4^k cells (at most kMaxTopEntries), each the root of a sparse
+// hierarchy of 4x4x4 bricks; an entry is a tagged uint32: a leaf id
 // (the whole region belongs to that leaf), the index of a child brick, or, for a region of
 // more than 4^3 cells crossed by only a few split planes, the kd node whose short descent (at
 // most kMaxNodeEntryDepth nodes) resolves it. A large empty leaf costs O(1) entries and only
 // regions where many leaves meet (where the triangles are) are refined, so memory follows the
 // content, not the volume nor the area of split planes across empty space. Lookup = at most
-// L dependent loads (plus a few node tests in sparse regions), no search.
+// k dependent loads (plus a few node tests in sparse regions), no search.
 //
 // Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
 // leaf's triangles, compute the exit over the leaf's far planes, stop once the closest hit
@@ -92,6 +93,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// stadium would otherwise refine every brick it crosses (its area, not content).
   static constexpr int kMaxNodeEntryLeaves = 8;
   static constexpr int kMaxNodeEntryDepth = 16;
+  /// The bricked matrix starts from a dense top array over blocks of 4^k cells, k >= 1 the
+  /// smallest giving at most this many blocks (128 KiB), so a lookup skips the upper levels.
+  static constexpr int kMaxTopEntries = 32768;
   static constexpr int kBrickLog = 2;                          ///< 4 cells per brick axis
   static constexpr int kBrickSide = 1 << kBrickLog;
   static constexpr int kBrickEntries = kBrickSide * kBrickSide * kBrickSide;
@@ -134,8 +138,10 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
  private:
   uint32_t lookup(int32_t x, int32_t y, int32_t z) const {
     if (dense_) return matrix_[uint64_t(x) + uint64_t(dims_[0]) * (uint64_t(y) + uint64_t(dims_[1]) * uint64_t(z))];
-    uint32_t e = root_entry_;
-    int shift = (levels_ - 1) * kBrickLog;
+    uint32_t e = top_[uint64_t(uint32_t(x) >> top_shift_) +
+                      uint64_t(top_dims_[0]) * (uint64_t(uint32_t(y) >> top_shift_) +
+                                                uint64_t(top_dims_[1]) * uint64_t(uint32_t(z) >> top_shift_))];
+    int shift = top_shift_ - kBrickLog;
     while (!(e & kTagMask)) {
       const uint32_t local = ((uint32_t(x) >> shift) & (kBrickSide - 1)) |
                              (((uint32_t(y) >> shift) & (kBrickSide - 1)) << kBrickLog) |
@@ -156,15 +162,22 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 
   void build_tree(const Mesh& mesh, const BuildParams& params);
   void build_matrix(uint64_t budget);
+  struct BrickBudget {
+    std::atomic<uint64_t> bytes{0};
+    uint64_t limit = ~uint64_t(0);
+  };
+  /// The entry for the region of 4^level cells at (x0, y0, z0), appending bricks to `out`
+  /// (nullptr: only count their bytes in `budget`). Brick indices are local to `out`.
   uint32_t build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
-                             uint64_t budget, uint64_t* count_only);
+                             std::vector<uint32_t>* out, BrickBudget& budget) const;
   int count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit, int depth) const;
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
   double cell_ = 1.0, inv_cell_ = 1.0;
   int32_t dims_[3] = {1, 1, 1};
-  int levels_ = 1;
+  int top_shift_ = kBrickLog;       ///< log2 of the top blocks' side in cells
+  int32_t top_dims_[3] = {1, 1, 1};
   bool dense_ = false;
   uint64_t max_steps_ = 0;
 
@@ -175,7 +188,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   std::vector<TriVerts> ref_tris_;  ///< parallel to refs_
   std::vector<uint32_t> matrix_;   ///< dense storage
   std::vector<uint32_t> bricks_;   ///< bricked storage, kBrickEntries per brick
-  uint32_t root_entry_ = kLeafTag;
+  std::vector<uint32_t> top_;      ///< bricked storage: entries of the top blocks
   mutable std::atomic<uint64_t> step_errors_{0};
 };
 
@@ -185,9 +198,12 @@ template <class Tri, class S, bool kAny>
 bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
   if (leaves_.empty()) return false;
   // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
-  // negative-zero) direction components never exit on their axis.
-  double o[3], dg[3], inv[3];
-  bool pos[3], moving[3];
+  // negative-zero) direction components never exit on their axis: their inv is 0 and their
+  // bias +inf, so their exit t is +inf without a branch.
+  constexpr double kDInf = std::numeric_limits<double>::infinity();
+  double o[3], dg[3], inv[3], bias[3];
+  int pos[3];
+  bool moving[3];
   for (int a = 0; a < 3; ++a) {
     o[a] = (double(ray.org[a]) - origin_[a]) * inv_cell_;
     const double d = double(ray.dir[a]);
@@ -195,6 +211,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     pos[a] = d > 0.0;
     dg[a] = d * inv_cell_;
     inv[a] = moving[a] ? cell_ / d : 0.0;
+    bias[a] = moving[a] ? 0.0 : kDInf;
   }
   // Clip to the root box [0, dims].
   double t0 = ray.tmin, t1 = ray.tmax;
@@ -212,8 +229,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
 
   int32_t c[3];
   for (int a = 0; a < 3; ++a) {
-    const double p = moving[a] ? o[a] + t0 * dg[a] : o[a];
-    const double f = std::floor(p);
+    const double f = std::floor(o[a] + t0 * dg[a]);
     c[a] = f < 0.0 ? 0 : (f >= double(dims_[a]) ? dims_[a] - 1 : int32_t(f));
   }
 
@@ -233,16 +249,11 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     }
     const Leaf& L = leaves_[leaf_id];
     s.step();
-    double t_exit = std::numeric_limits<double>::infinity();
-    int axis = -1;
-    for (int a = 0; a < 3; ++a) {
-      if (!moving[a]) continue;
-      const double t = (double(pos[a] ? L.hi[a] : L.lo[a]) - o[a]) * inv[a];
-      if (t < t_exit) {
-        t_exit = t;
-        axis = a;
-      }
-    }
+    // Exit: the nearest far plane (first axis wins ties).
+    double tf[3];
+    for (int a = 0; a < 3; ++a) tf[a] = (double(pos[a] ? L.hi[a] : L.lo[a]) - o[a]) * inv[a] + bias[a];
+    const int axis = tf[0] <= tf[1] ? (tf[0] <= tf[2] ? 0 : 2) : (tf[1] <= tf[2] ? 1 : 2);
+    const double t_exit = tf[axis];
     if constexpr (S::kTrace) {
       const float tin = float(t_cur);
       s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, leaf_box(leaf_id), tin,
@@ -276,22 +287,17 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     }
     if (found && double(best) <= t_exit) break;
     if (t_exit >= t1) break;
-    // Next cell: exact integers on the exit axis; on the others the exit point's cell,
-    // clamped into the leaf (it lies on the leaf's face) and never moving against the ray.
+    // Next cell: on the other axes the exit point's cell, clamped into the leaf (the point
+    // lies on the leaf's face, so this only removes rounding) and never moving against the
+    // ray; on the exit axis the integer cell just past the leaf's face.
     int32_t n[3];
     for (int b = 0; b < 3; ++b) {
-      if (b == axis) {
-        n[b] = pos[b] ? L.hi[b] : L.lo[b] - 1;
-      } else if (!moving[b]) {
-        n[b] = c[b];
-      } else {
-        const double f = std::floor(o[b] + t_exit * dg[b]);
-        int32_t v = f < double(L.lo[b]) ? L.lo[b] : (f >= double(L.hi[b]) ? L.hi[b] - 1 : int32_t(f));
-        v = pos[b] ? std::max(v, c[b]) : std::min(v, c[b]);
-        n[b] = v;
-      }
+      const double f = std::floor(o[b] + t_exit * dg[b]);
+      int32_t v = f < double(L.lo[b]) ? L.lo[b] : (f >= double(L.hi[b]) ? L.hi[b] - 1 : int32_t(f));
+      n[b] = pos[b] ? std::max(v, c[b]) : std::min(v, c[b]);
     }
-    if (n[axis] < 0 || n[axis] >= dims_[axis]) break;
+    n[axis] = pos[axis] ? L.hi[axis] : L.lo[axis] - 1;
+    if (uint32_t(n[axis]) >= uint32_t(dims_[axis])) break;
     c[0] = n[0];
     c[1] = n[1];
     c[2] = n[2];
