@@ -719,11 +719,23 @@ TEST(HybridParams, AutoRuleIsReported) {
   EXPECT_EQ(st.extra[1].first, "auto rule");
   EXPECT_NE(st.extra[1].second.find("p90"), std::string::npos);
   EXPECT_EQ(st.extra[2].first, "grid");
-  // The auto cell is the 90th percentile of the triangles' largest extents.
+  // The auto cell is the 90th percentile of the triangles' largest extents, unless the
+  // density floor (16 cells per triangle) asks for a smaller one.
   std::vector<float> e;
   for (size_t i = 0; i < m.num_triangles(); ++i) e.push_back(max_component(m.triangle_bounds(i).extent()));
   std::sort(e.begin(), e.end());
-  EXPECT_FLOAT_EQ(float(h.cell_size()), e[size_t(std::ceil(0.9 * double(e.size()))) - 1]);
+  const double p90 = e[size_t(std::ceil(0.9 * double(e.size()))) - 1];
+  const Vec3 ext = m.bounds().extent();
+  const double dens = std::cbrt(double(ext.x) * ext.y * ext.z / (kHybridAutoCellsPerTriangle * m.num_triangles()));
+  EXPECT_NEAR(h.cell_size(), std::min(p90, dens), 1e-6 * p90);
+  // A few large triangles among many small ones: the percentile rule alone would keep them
+  // in a handful of cells; the density floor gives at least 16 cells per triangle.
+  Mesh mixed = random_soup(4, 200, Vec3(-1), Vec3(1), 0.9f);
+  mixed.append(random_soup(5, 20, Vec3(-1), Vec3(1), 0.002f));
+  Hybrid hm;
+  hm.build(mixed, params_with(0.0f, false));
+  EXPECT_GE(double(hm.dims()[0]) * hm.dims()[1] * hm.dims()[2], 16.0 * 220.0);
+  EXPECT_NE(hm.stats().extra[1].second.find("lowered"), std::string::npos) << hm.stats().extra[1].second;
 }
 
 TEST(HybridParams, FlatScenesAndOversizedCells) {

@@ -321,9 +321,28 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       c = double(e[k]);
     }
     rule = "p" + fmt("%g", params.cell_percentile) + " of triangle extents = " + fmt("%.6g", c);
+    // Density floor: scenes mixing huge and tiny triangles (Sponza) would otherwise get a
+    // handful of cells holding hundreds of triangles each.
+    double vol = 1.0;
+    int flat_axes = 0;
+    for (int a = 0; a < 3; ++a) {
+      if (ext[a] > 0.0)
+        vol *= ext[a];
+      else
+        ++flat_axes;
+    }
+    if (ntri > 0 && flat_axes < 3) {
+      const double cd =
+          std::pow(vol / (kHybridAutoCellsPerTriangle * double(ntri)), 1.0 / double(3 - flat_axes));
+      if (cd < c || !(c > 0.0)) {
+        c = cd;
+        rule += "; lowered to " + fmt("%.6g", c) + " for >= " + fmt("%g", kHybridAutoCellsPerTriangle) +
+                " cells per triangle";
+      }
+    }
     if (!(c > 0.0)) {
-      c = max_ext > 0.0 ? max_ext / std::max(1.0, std::cbrt(double(ntri))) : 1.0;
-      rule += "; degenerate, using scene extent / cbrt(N) = " + fmt("%.6g", c);
+      c = 1.0;
+      rule += "; degenerate scene, using 1";
     }
     const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
     if (c < axis_floor) {
