@@ -109,8 +109,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
   /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
   static constexpr double kRangeEps = 1e-6;
-  /// Direct-mapped per-ray mailbox of recently tested triangles (power of two).
-  static constexpr int kMailbox = 8;
+  /// Direct-mapped per-ray mailbox of recently tested triangles (power of two). 32 entries
+  /// cut the bunny's tests per primary ray from 3.42 (8 entries) to 3.12 at no measurable cost.
+  static constexpr int kMailbox = 32;
 
   std::string name() const override { return "hybrid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
