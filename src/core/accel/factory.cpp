@@ -5,6 +5,7 @@
 #include "accel/bvh.h"
 #include "accel/embree.h"
 #include "accel/grid.h"
+#include "accel/hybrid.h"
 #include "accel/irregular.h"
 #include "accel/kdtree.h"
 #include "util/error.h"
@@ -12,7 +13,7 @@
 namespace kdgrid {
 
 std::vector<std::string> accelerator_names() {
-  return {"brute", "bvh", "kdtree", "grid", "irregular", "embree"};
+  return {"brute", "bvh", "kdtree", "grid", "hybrid", "irregular", "embree"};
 }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
@@ -20,6 +21,7 @@ std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "bvh") return std::make_unique<Bvh>();
   if (name == "kdtree") return std::make_unique<KdTree>();
   if (name == "grid") return std::make_unique<UniformGrid>();
+  if (name == "hybrid") return std::make_unique<Hybrid>();
   if (name == "irregular") return std::make_unique<IrregularGrid>();
   if (name == "embree") return std::make_unique<EmbreeAccel>();
   std::string valid;
