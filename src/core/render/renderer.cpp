@@ -1,0 +1,324 @@
+// Progressive tiled Whitted renderer (renderer.h). Shading lives in radiance(); passes and
+// tiles in render_pass().
+#include "render/renderer.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cmath>
+
+#include "util/error.h"
+
+namespace kdgrid {
+
+namespace {
+
+constexpr float kPi = 3.14159265358979f;
+
+// Uniform ambient radiance, reflected by the diffuse part of every surface. It stands in for
+// the indirect light Whitted shading ignores, so that faces no light sees are dark grey
+// rather than pure black (useful when inspecting geometry). Units: radiance, same as lights.
+constexpr float kAmbient = 0.03f;
+
+// Secondary rays whose contribution weight is below this are not traced: they could change
+// a pixel by less than 1e-4 of the light they carry.
+constexpr float kMinWeight = 1e-4f;
+
+// Highlight exponent bounds: below 1 the lobe is flat; above 1e4 it is smaller than a pixel.
+constexpr float kMinExponent = 1.0f, kMaxExponent = 1e4f;
+
+/// splitmix64 finaliser: a well-mixed 64-bit hash, the basis of the per-pixel generators.
+uint64_t mix64(uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+  return z ^ (z >> 31);
+}
+
+/// Per-pixel sample generator seeded from (seed, pixel, sample), so a pixel's samples do not
+/// depend on which thread renders it or in what order.
+class SampleRng {
+ public:
+  SampleRng(uint64_t seed, uint64_t pixel, uint64_t sample)
+      : state_(mix64(mix64(seed ^ 0x9e3779b97f4a7c15ull) ^ pixel) + mix64(sample + 0x632be59bd9b4e019ull)) {}
+  /// Uniform in [0, 1).
+  float next() {
+    state_ += 0x9e3779b97f4a7c15ull;
+    return float(mix64(state_) >> 40) * (1.0f / 16777216.0f);
+  }
+
+ private:
+  uint64_t state_;
+};
+
+float saturate(float x) { return std::min(1.0f, std::max(0.0f, x)); }
+
+float highlight_exponent(const Material& m) {
+  if (m.shininess > 0.0f) return std::clamp(m.shininess, kMinExponent, kMaxExponent);
+  // Blinn-Phong exponent matching a GGX-like lobe of width alpha = roughness^2.
+  const float alpha = std::max(m.roughness * m.roughness, 1e-3f);
+  return std::clamp(2.0f / (alpha * alpha) - 2.0f, kMinExponent, kMaxExponent);
+}
+
+Vec3 specular_color(const Material& m, const Vec3& albedo) {
+  if (max_component(m.specular) > 0.0f) return m.specular;
+  // glTF metallic-roughness: dielectrics reflect 4% achromatically, metals their base colour.
+  return lerp(Vec3(0.04f), albedo, saturate(m.metallic));
+}
+
+}  // namespace
+
+Renderer::Renderer(const Scene& scene, const Accelerator& accel, const RenderSettings& settings)
+    : scene_(&scene), accel_(&accel) {
+  camera_ = scene.camera ? *scene.camera : canonical_camera(scene.mesh.bounds());
+  need_reflection_ = scene.has_reflective_material();
+  need_refraction_ = scene.has_refractive_material();
+  set_settings(settings);
+}
+
+void Renderer::set_camera(const Camera& cam) {
+  camera_ = cam;
+  reset();
+}
+
+void Renderer::set_accelerator(const Accelerator& accel) {
+  accel_ = &accel;
+  reset();
+}
+
+void Renderer::set_settings(const RenderSettings& s) {
+  if (s.width < 1 || s.height < 1)
+    throw ParamError("render size " + std::to_string(s.width) + "x" + std::to_string(s.height) +
+                     " is invalid: width and height must be >= 1");
+  if (s.tile_size < 1)
+    throw ParamError("tile size " + std::to_string(s.tile_size) + " must be >= 1 pixel");
+  if (s.max_depth < 0)
+    throw ParamError("max depth " + std::to_string(s.max_depth) + " must be >= 0");
+  settings_ = s;
+  reset();
+}
+
+void Renderer::reset() {
+  frame_ = CameraFrame::make(camera_, settings_.width, settings_.height);
+  accum_.assign(size_t(settings_.width) * settings_.height * 3, 0.0f);
+  samples_ = 0;
+  counters_ = {};
+  seconds_ = 0;
+}
+
+bool Renderer::render_pass(const std::atomic<bool>* cancel) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const int w = settings_.width, h = settings_.height, ts = settings_.tile_size;
+  const int tiles_x = (w + ts - 1) / ts, tiles_y = (h + ts - 1) / ts;
+  const int num_tiles = tiles_x * tiles_y;
+  // The pass renders into scratch and is committed only when every tile is done, so a
+  // cancelled pass leaves the film exactly as it was.
+  std::vector<float> scratch(accum_.size());
+  std::vector<RenderCounters> tile_counters(num_tiles);
+  std::atomic<bool> skipped{false};
+  const uint64_t sample = uint64_t(samples_);
+
+  tbb::parallel_for(tbb::blocked_range<int>(0, num_tiles, 1), [&](const tbb::blocked_range<int>& r) {
+    for (int tile = r.begin(); tile != r.end(); ++tile) {
+      if (cancel && cancel->load(std::memory_order_relaxed)) {
+        skipped.store(true, std::memory_order_relaxed);
+        return;
+      }
+      RenderCounters& c = tile_counters[tile];
+      const int x0 = (tile % tiles_x) * ts, y0 = (tile / tiles_x) * ts;
+      const int x1 = std::min(x0 + ts, w), y1 = std::min(y0 + ts, h);
+      for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x) {
+          const uint64_t pixel = uint64_t(y) * w + x;
+          SampleRng rng(settings_.seed, pixel, sample);
+          float jx = 0.5f, jy = 0.5f;
+          if (settings_.jitter) {
+            jx = rng.next();
+            jy = rng.next();
+          }
+          const Ray ray = frame_.ray(float(x) + jx, float(y) + jy);
+          ++c.primary;
+          Vec3 value;
+          if (settings_.mode == RenderMode::Shaded) {
+            value = radiance(ray, 0, c);
+            if (!is_finite(value)) value = Vec3(0.0f);  // never let one bad sample poison the film
+          } else {
+            RayCounters rc;
+            Hit hit;
+            accel_->intersect_counted(ray, hit, rc);
+            value = Vec3(float(settings_.mode == RenderMode::HeatSteps ? rc.steps : rc.tri_tests));
+          }
+          float* dst = &scratch[pixel * 3];
+          dst[0] = value.x;
+          dst[1] = value.y;
+          dst[2] = value.z;
+        }
+    }
+  });
+  if (skipped.load()) return false;
+
+  for (size_t i = 0; i < accum_.size(); ++i) accum_[i] += scratch[i];
+  for (const RenderCounters& c : tile_counters) {
+    counters_.primary += c.primary;
+    counters_.shadow += c.shadow;
+    counters_.reflection += c.reflection;
+    counters_.refraction += c.refraction;
+  }
+  ++samples_;
+  seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return true;
+}
+
+void Renderer::resolve(std::vector<float>& rgb) const {
+  rgb.resize(accum_.size());
+  const float inv = samples_ > 0 ? 1.0f / float(samples_) : 0.0f;
+  for (size_t i = 0; i < accum_.size(); ++i) rgb[i] = accum_[i] * inv;
+}
+
+Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) const {
+  Hit hit;
+  if (!accel_->intersect(ray, hit)) return scene_->background;
+
+  const Mesh& mesh = scene_->mesh;
+  const auto& tri = mesh.triangles[hit.prim];
+  const auto c = mesh.corners(hit.prim);
+  const float b0 = 1.0f - hit.u - hit.v, b1 = hit.u, b2 = hit.v;
+  // The hit point from barycentrics is accurate relative to the triangle's coordinates
+  // (what offset_ray_origin assumes), unlike org + t*dir.
+  const Vec3 p = c[0] * b0 + c[1] * b1 + c[2] * b2;
+  const Vec3 d = normalize(ray.dir);
+
+  Vec3 ng = normalize(mesh.geometric_normal(hit.prim));
+  const bool front = dot(ng, d) < 0.0f;  // entering a closed object through its outside
+  if (!front) ng = -ng;                  // ng now faces the incoming ray
+  Vec3 n = ng;
+  if (!mesh.normals.empty()) {
+    const Vec3 ns = mesh.normals[tri[0]] * b0 + mesh.normals[tri[1]] * b1 + mesh.normals[tri[2]] * b2;
+    if (dot(ns, ns) > 0.0f && is_finite(ns)) {
+      n = normalize(ns);
+      if (dot(n, ng) < 0.0f) n = -n;
+    }
+  }
+
+  const uint32_t mat_id = mesh.material_of(hit.prim);
+  const Material& m = scene_->materials[mat_id < scene_->materials.size() ? mat_id : 0];
+  Vec3 albedo = m.base_color;
+  if (m.base_color_texture >= 0 && size_t(m.base_color_texture) < scene_->textures.size() &&
+      !mesh.uvs.empty()) {
+    const auto& uv0 = mesh.uvs[tri[0]];
+    const auto& uv1 = mesh.uvs[tri[1]];
+    const auto& uv2 = mesh.uvs[tri[2]];
+    const float tu = uv0[0] * b0 + uv1[0] * b1 + uv2[0] * b2;
+    const float tv = uv0[1] * b0 + uv1[1] * b1 + uv2[1] * b2;
+    albedo = albedo * scene_->textures[size_t(m.base_color_texture)].sample(tu, tv);
+  }
+
+  const float transmission = need_refraction_ ? saturate(m.transmission) : 0.0f;
+  const Vec3 diffuse = albedo * ((1.0f - saturate(m.metallic)) * (1.0f - transmission));
+  const Vec3 spec = specular_color(m, albedo);
+  const float exponent = highlight_exponent(m);
+  const Vec3 to_eye = -d;
+
+  Vec3 result = m.emission + diffuse * kAmbient;
+  const Vec3 shadow_org = offset_ray_origin(p, ng);
+
+  for (const Light& light : scene_->lights) {
+    Vec3 wi;
+    float dist = kInf;
+    Vec3 irradiance = light.color * light.intensity;  // at normal incidence
+    if (light.type == LightType::Directional) {
+      wi = -normalize(light.direction);
+    } else {
+      const Vec3 to_light = light.position - p;
+      const float d2 = dot(to_light, to_light);
+      if (!(d2 > 0.0f)) continue;
+      dist = std::sqrt(d2);
+      wi = to_light / dist;
+      irradiance = irradiance / d2;
+      if (light.type == LightType::Spot) {
+        // glTF KHR_lights_punctual: smooth falloff between the inner and outer cone.
+        const float cos_outer = std::cos(light.outer_cone), cos_inner = std::cos(light.inner_cone);
+        const float scale = 1.0f / std::max(1e-3f, cos_inner - cos_outer);
+        const float cd = dot(normalize(light.direction), -wi);
+        const float a = saturate((cd - cos_outer) * scale);
+        if (a <= 0.0f) continue;
+        irradiance = irradiance * (a * a);
+      }
+    }
+    // Lights behind the geometric surface cannot reach it, whatever the shading normal says.
+    if (dot(wi, ng) <= 0.0f) continue;
+    const float cos_l = dot(n, wi);
+    if (cos_l <= 0.0f) continue;
+    if (settings_.shadows) {
+      ++counters.shadow;
+      Ray shadow{shadow_org, 0.0f, wi, kInf};
+      if (light.type != LightType::Directional) {
+        // Aim at the light itself and stop just short of it.
+        shadow.dir = light.position - shadow_org;
+        shadow.tmax = 1.0f - 1e-4f;
+      }
+      if (accel_->occluded(shadow)) continue;
+    }
+    const Vec3 half = normalize(wi + to_eye);
+    const float cos_h = std::max(0.0f, dot(n, half));
+    // Energy-normalised Blinn-Phong lobe so that the exponent changes shape, not brightness.
+    const float lobe = (exponent + 8.0f) / (8.0f * kPi) * std::pow(cos_h, exponent);
+    result += (diffuse * (1.0f / kPi) + spec * lobe) * irradiance * cos_l;
+  }
+
+  if (depth >= settings_.max_depth) return result;
+
+  // Mirror reflection, only for materials that reflect (and only when the scene has one).
+  if (need_reflection_ && m.reflects()) {
+    const Vec3 weight = m.reflectance();
+    if (max_component(weight) > kMinWeight) {
+      Vec3 r = reflect(d, n);
+      if (dot(r, ng) <= 0.0f) r = reflect(d, ng);  // shading normal bent it below the surface
+      ++counters.reflection;
+      result += weight * radiance(Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, depth + 1, counters);
+    }
+  }
+
+  // Refraction with Fresnel (Schlick) and total internal reflection.
+  if (transmission > 0.0f) {
+    const float eta = front ? 1.0f / m.ior : m.ior;  // n_incident / n_transmitted
+    const float cos_i = std::min(1.0f, std::max(0.0f, -dot(d, n)));
+    const float k = 1.0f - eta * eta * (1.0f - cos_i * cos_i);
+    Vec3 reflect_weight(transmission);
+    if (k > 0.0f) {
+      const float cos_t = std::sqrt(k);
+      const float f0 = ((m.ior - 1.0f) / (m.ior + 1.0f)) * ((m.ior - 1.0f) / (m.ior + 1.0f));
+      // Schlick's approximation uses the angle on the optically thinner side.
+      const float cos_thin = front ? cos_i : cos_t;
+      const float fresnel = f0 + (1.0f - f0) * std::pow(1.0f - cos_thin, 5.0f);
+      reflect_weight = Vec3(transmission * fresnel);
+      const Vec3 t = normalize(d * eta + n * (eta * cos_i - cos_t));
+      const Vec3 tweight = albedo * (transmission * (1.0f - fresnel));
+      if (dot(t, ng) < 0.0f && max_component(tweight) > kMinWeight) {
+        ++counters.refraction;
+        result += tweight * radiance(Ray{offset_ray_origin(p, -ng), 0.0f, t, kInf}, depth + 1, counters);
+      }
+    }
+    // Fresnel reflection of transparent surfaces (all of it under total internal reflection).
+    if (max_component(reflect_weight) > kMinWeight) {
+      Vec3 r = reflect(d, n);
+      if (dot(r, ng) <= 0.0f) r = reflect(d, ng);
+      ++counters.reflection;
+      result += reflect_weight *
+                radiance(Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, depth + 1, counters);
+    }
+  }
+  return result;
+}
+
+void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure) {
+  out.resize(rgb.size());
+  for (size_t i = 0; i < rgb.size(); ++i) {
+    float c = rgb[i] * exposure;
+    c = (c == c) ? saturate(c) : 0.0f;  // NaN -> black
+    const float s = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
+    out[i] = static_cast<uint8_t>(std::lround(s * 255.0f));
+  }
+}
+
+}  // namespace kdgrid
