@@ -6,5 +6,6 @@
 namespace kdgrid::cli {
 
 void add_info_command(CLI::App& app);
+void add_bench_command(CLI::App& app);
 
 }  // namespace kdgrid::cli
