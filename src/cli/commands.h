@@ -7,5 +7,7 @@ namespace kdgrid::cli {
 
 void add_info_command(CLI::App& app);
 void add_bench_command(CLI::App& app);
+void add_render_command(CLI::App& app);
+void add_gen_command(CLI::App& app);
 
 }  // namespace kdgrid::cli

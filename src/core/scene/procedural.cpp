@@ -1,0 +1,430 @@
+#include "scene/procedural.h"
+
+#include <cmath>
+#include <map>
+#include <utility>
+
+#include "util/error.h"
+
+namespace kdgrid {
+
+namespace {
+
+constexpr float kPi = 3.14159265358979f;
+
+/// splitmix64: small, fast and identical on every platform (std distributions are not).
+class Rng {
+ public:
+  explicit Rng(uint64_t seed) : state_(seed) {}
+  uint64_t next_u64() {
+    uint64_t z = (state_ += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+  }
+  /// Uniform in [0, 1).
+  float uniform() { return float(next_u64() >> 40) * (1.0f / 16777216.0f); }
+  float uniform(float lo, float hi) { return lo + (hi - lo) * uniform(); }
+  int integer(int lo, int hi_exclusive) {
+    return lo + int(next_u64() % uint64_t(hi_exclusive - lo));
+  }
+  Vec3 in_box(float lo, float hi) { return {uniform(lo, hi), uniform(lo, hi), uniform(lo, hi)}; }
+  Vec3 unit_vector() {
+    const float z = uniform(-1.0f, 1.0f), phi = uniform(0.0f, 2.0f * kPi);
+    const float s = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    return {s * std::cos(phi), s * std::sin(phi), z};
+  }
+
+ private:
+  uint64_t state_;
+};
+
+Material make_material(const std::string& name, const Vec3& color) {
+  Material m;
+  m.name = name;
+  m.base_color = color;
+  return m;
+}
+
+/// Appends a quad (a, b, c, d counter-clockwise seen from the side its normal points to) with
+/// flat normals.
+void add_quad(Mesh& mesh, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
+  const uint32_t base = uint32_t(mesh.positions.size());
+  const Vec3 n = normalize(cross(b - a, c - a));
+  for (const Vec3& p : {a, b, c, d}) {
+    mesh.positions.push_back(p);
+    mesh.normals.push_back(n);
+  }
+  mesh.triangles.push_back({base, base + 1, base + 2});
+  mesh.triangles.push_back({base, base + 2, base + 3});
+}
+
+void check_count(const std::string& name, int count, int max_count) {
+  if (count < 0 || count > max_count)
+    throw ParamError("gen " + name + ": --count " + std::to_string(count) +
+                     " is out of range; give 1.." + std::to_string(max_count) +
+                     " (0 = the default)");
+}
+
+int pick_count(const std::string& name, const ProceduralParams& p, int def,
+               int max_count = 50'000'000) {
+  check_count(name, p.count, max_count);
+  return p.count > 0 ? p.count : def;
+}
+
+int pick_level(const std::string& name, const ProceduralParams& p, int def) {
+  if (p.level < -1 || p.level > 8)
+    throw ParamError("gen " + name + ": --level " + std::to_string(p.level) +
+                     " is out of range; give 0..8 (each level multiplies triangles by 4)");
+  return p.level >= 0 ? p.level : def;
+}
+
+/// Torus segment counts giving about `triangles` triangles with roughly square facets
+/// (the major circle is ~3x the minor one for radii 1 and 0.35).
+std::pair<int, int> torus_segments(int triangles) {
+  const int major = std::max(3, int(std::lround(std::sqrt(triangles / 2.0 * 2.86))));
+  const int minor = std::max(3, int(std::lround(triangles / 2.0 / major)));
+  return {major, minor};
+}
+
+// ---- generators ----------------------------------------------------------------------
+
+Scene cornell(const ProceduralParams& p) {
+  const int level = pick_level("cornell", p, 3);
+  Scene s;
+  s.source = "procedural:cornell";
+  enum : uint32_t { kWhite, kRed, kGreen, kLight, kMirror, kGlass };
+  s.materials.push_back(make_material("white", {0.73f, 0.73f, 0.73f}));
+  s.materials.push_back(make_material("red", {0.65f, 0.05f, 0.05f}));
+  s.materials.push_back(make_material("green", {0.12f, 0.45f, 0.15f}));
+  Material light = make_material("light", {0.78f, 0.78f, 0.78f});
+  light.emission = Vec3(6.0f, 5.6f, 4.8f);
+  s.materials.push_back(light);
+  Material mirror = make_material("mirror", {0.95f, 0.95f, 0.95f});
+  mirror.metallic = 1.0f;
+  mirror.roughness = 0.0f;
+  s.materials.push_back(mirror);
+  Material glass = make_material("glass", {1.0f, 1.0f, 1.0f});
+  glass.transmission = 1.0f;
+  glass.ior = 1.5f;
+  glass.roughness = 0.0f;
+  s.materials.push_back(glass);
+
+  // Walls face into the box. Each part is appended with its material id.
+  auto add_part = [&](const Mesh& part, uint32_t mat) { s.mesh.append(part, mat); };
+  Mesh floor, ceiling, back, left, right, panel;
+  add_quad(floor, {-1, 0, 1}, {1, 0, 1}, {1, 0, -1}, {-1, 0, -1});
+  add_quad(ceiling, {-1, 2, -1}, {1, 2, -1}, {1, 2, 1}, {-1, 2, 1});
+  add_quad(back, {-1, 0, -1}, {1, 0, -1}, {1, 2, -1}, {-1, 2, -1});
+  add_quad(left, {-1, 0, 1}, {-1, 0, -1}, {-1, 2, -1}, {-1, 2, 1});
+  add_quad(right, {1, 0, -1}, {1, 0, 1}, {1, 2, 1}, {1, 2, -1});
+  // The panel hangs just below the ceiling, facing down.
+  const float h = 0.28f, y = 1.995f;
+  add_quad(panel, {-h, y, -h}, {h, y, -h}, {h, y, h}, {-h, y, h});
+  add_part(floor, kWhite);
+  add_part(ceiling, kWhite);
+  add_part(back, kWhite);
+  add_part(left, kRed);
+  add_part(right, kGreen);
+  add_part(panel, kLight);
+  add_part(make_icosphere(level, {-0.42f, 0.45f, -0.4f}, 0.45f), kMirror);
+  add_part(make_icosphere(level, {0.45f, 0.36f, 0.3f}, 0.36f), kGlass);
+
+  Light l;
+  l.type = LightType::Point;
+  l.position = {0.0f, 1.9f, 0.0f};
+  l.color = Vec3(1.0f, 0.93f, 0.8f);
+  l.intensity = 6.0f;
+  l.name = "ceiling light";
+  s.lights.push_back(l);
+
+  Camera cam;
+  cam.eye = {0.0f, 1.0f, 3.9f};
+  cam.target = {0.0f, 1.0f, 0.0f};
+  cam.fov_deg = 40.0f;
+  cam.name = "cornell";
+  s.camera = cam;
+  return s;
+}
+
+Scene teapot_in_stadium(const ProceduralParams& p) {
+  const int count = pick_count("teapot-in-stadium", p, 20000);
+  const auto [major, minor] = torus_segments(count);
+  Scene s;
+  s.source = "procedural:teapot-in-stadium";
+  s.materials.push_back(make_material("stadium", {0.6f, 0.6f, 0.6f}));
+  s.materials.push_back(make_material("teapot", {0.8f, 0.55f, 0.2f}));
+  Mesh stadium = make_box(Vec3(0.0f, 1490.0f, 0.0f), Vec3(1500.0f), 0.0f, /*inward=*/true);
+  s.mesh.append(stadium, 0);
+  s.mesh.append(make_torus(major, minor, 1.0f, 0.35f, {0.0f, 0.0f, 0.0f}), 1);
+  Light l;
+  l.position = {2.0f, 5.0f, 4.0f};
+  l.intensity = 40.0f;
+  l.name = "key light";
+  s.lights.push_back(l);
+  Camera cam;
+  cam.eye = {0.0f, 2.2f, 4.0f};
+  cam.target = {0.0f, 0.0f, 0.0f};
+  cam.fov_deg = 45.0f;
+  cam.name = "teapot";
+  s.camera = cam;
+  return s;
+}
+
+Scene thin_triangles(const ProceduralParams& p) {
+  const int count = pick_count("thin-triangles", p, 10000);
+  Rng rng(p.seed);
+  Scene s;
+  s.source = "procedural:thin-triangles";
+  for (int i = 0; i < count; ++i) {
+    const Vec3 c = rng.in_box(-1.0f, 1.0f);
+    const Vec3 u = rng.unit_vector();
+    Vec3 v = normalize(cross(u, rng.unit_vector()));
+    if (!(length(v) > 0.5f)) v = normalize(cross(u, Vec3(0.577f, 0.577f, 0.577f)));
+    const float len = rng.uniform(0.5f, 2.0f), width = rng.uniform(1e-4f, 1e-3f);
+    const uint32_t b = uint32_t(s.mesh.positions.size());
+    s.mesh.positions.push_back(c - u * (len * 0.5f));
+    s.mesh.positions.push_back(c + u * (len * 0.5f));
+    s.mesh.positions.push_back(c + v * width);
+    s.mesh.triangles.push_back({b, b + 1, b + 2});
+  }
+  return s;
+}
+
+Scene coplanar_quads(const ProceduralParams& p) {
+  const int count = pick_count("coplanar-quads", p, 2000);
+  Rng rng(p.seed);
+  Scene s;
+  s.source = "procedural:coplanar-quads";
+  // (axis of the plane normal, exact plane coordinate): all representable exactly.
+  const std::pair<int, float> planes[] = {{2, 0.0f}, {2, 3.0f}, {0, 0.0f}, {1, 1.5f}};
+  for (int i = 0; i < count; ++i) {
+    const auto [axis, k] = planes[i % 4];
+    float a0, a1, b0, b1;
+    if ((i / 4) % 2 == 0) {  // unit lattice quad: every corner on integer coordinates
+      a0 = float(rng.integer(-8, 8));
+      b0 = float(rng.integer(-8, 8));
+      a1 = a0 + 1.0f;
+      b1 = b0 + 1.0f;
+    } else {  // random rectangle, overlapping others in the same plane
+      a0 = rng.uniform(-8.0f, 7.0f);
+      b0 = rng.uniform(-8.0f, 7.0f);
+      a1 = a0 + rng.uniform(0.05f, 3.0f);
+      b1 = b0 + rng.uniform(0.05f, 3.0f);
+    }
+    const int ua = (axis + 1) % 3, ub = (axis + 2) % 3;
+    auto corner = [&](float a, float b) {
+      Vec3 q;
+      q[axis] = k;
+      q[ua] = a;
+      q[ub] = b;
+      return q;
+    };
+    const uint32_t base = uint32_t(s.mesh.positions.size());
+    for (const Vec3& q : {corner(a0, b0), corner(a1, b0), corner(a1, b1), corner(a0, b1)})
+      s.mesh.positions.push_back(q);
+    s.mesh.triangles.push_back({base, base + 1, base + 2});
+    s.mesh.triangles.push_back({base, base + 2, base + 3});
+  }
+  return s;
+}
+
+Scene duplicates(const ProceduralParams& p) {
+  const int count = pick_count("duplicates", p, 2000);
+  Rng rng(p.seed);
+  Scene s;
+  s.source = "procedural:duplicates";
+  Mesh& m = s.mesh;
+  for (int i = 0; i < count; ++i) {
+    const Vec3 c = rng.in_box(-1.0f, 1.0f);
+    const uint32_t b = uint32_t(m.positions.size());
+    for (int k = 0; k < 3; ++k) m.positions.push_back(c + rng.unit_vector() * 0.15f);
+    m.triangles.push_back({b, b + 1, b + 2});
+    m.triangles.push_back({b, b + 1, b + 2});  // exact duplicate, same indices
+    if (i % 4 == 0) {
+      // A nearly identical copy: 1 ULP away per coordinate, or 1e-6 along the normal.
+      const Vec3 n = normalize(m.geometric_normal(m.triangles.size() - 1));
+      const uint32_t d = uint32_t(m.positions.size());
+      for (int k = 0; k < 3; ++k) {
+        Vec3 q = m.positions[b + k];
+        if ((i / 4) % 2 == 0)
+          q = {next_float_up(q.x), next_float_up(q.y), next_float_up(q.z)};
+        else
+          q = q + n * 1e-6f;
+        m.positions.push_back(q);
+      }
+      m.triangles.push_back({d, d + 1, d + 2});
+    }
+  }
+  return s;
+}
+
+Scene soup(const ProceduralParams& p) {
+  const int count = pick_count("soup", p, 10000);
+  Rng rng(p.seed);
+  Scene s;
+  s.source = "procedural:soup";
+  for (int i = 0; i < count; ++i) {
+    const Vec3 c = rng.in_box(-1.0f, 1.0f);
+    const uint32_t b = uint32_t(s.mesh.positions.size());
+    for (int k = 0; k < 3; ++k) s.mesh.positions.push_back(c + rng.in_box(-0.1f, 0.1f));
+    s.mesh.triangles.push_back({b, b + 1, b + 2});
+  }
+  return s;
+}
+
+Scene sphere(const ProceduralParams& p) {
+  Scene s;
+  s.source = "procedural:sphere";
+  s.mesh = make_icosphere(pick_level("sphere", p, 4));
+  return s;
+}
+
+Scene torus(const ProceduralParams& p) {
+  const auto [major, minor] = torus_segments(pick_count("torus", p, 5000));
+  Scene s;
+  s.source = "procedural:torus";
+  s.mesh = make_torus(major, minor);
+  return s;
+}
+
+struct Generator {
+  const char* name;
+  const char* description;
+  Scene (*fn)(const ProceduralParams&);
+};
+
+const Generator kGenerators[] = {
+    {"cornell", "Cornell box with mirror box, glass sphere and ceiling light (--level: sphere)",
+     cornell},
+    {"teapot-in-stadium", "dense torus (--count triangles) inside a ~1100x larger box",
+     teapot_in_stadium},
+    {"thin-triangles", "--count long thin random triangles (--seed)", thin_triangles},
+    {"coplanar-quads", "--count axis-aligned quads in 4 shared planes, many on integer coords",
+     coplanar_quads},
+    {"duplicates", "--count random triangles, each twice, some shifted by 1 ULP or 1e-6",
+     duplicates},
+    {"soup", "--count random small triangles in [-1,1]^3 (--seed)", soup},
+    {"sphere", "closed icosphere, 20*4^level triangles (--level, default 4)", sphere},
+    {"torus", "closed torus of about --count triangles (default 5000)", torus},
+};
+
+}  // namespace
+
+std::vector<ProceduralInfo> procedural_generators() {
+  std::vector<ProceduralInfo> out;
+  for (const Generator& g : kGenerators) out.push_back({g.name, g.description});
+  return out;
+}
+
+Scene generate_scene(const std::string& name, const ProceduralParams& params) {
+  for (const Generator& g : kGenerators)
+    if (name == g.name) {
+      Scene s = g.fn(params);
+      s.mesh.validate(s.source);
+      return s;
+    }
+  std::string valid;
+  for (const Generator& g : kGenerators) valid += (valid.empty() ? "" : ", ") + std::string(g.name);
+  throw ParamError("unknown procedural scene '" + name + "': choose one of " + valid);
+}
+
+Mesh make_icosphere(int level, const Vec3& center, float radius) {
+  // Regular icosahedron, then each level splits every triangle into four, pushing the new
+  // midpoints onto the sphere. Midpoints are shared through an edge map so the mesh stays
+  // closed (every edge used by exactly two triangles).
+  const float t = (1.0f + std::sqrt(5.0f)) * 0.5f;
+  std::vector<Vec3> unit = {{-1, t, 0}, {1, t, 0},  {-1, -t, 0}, {1, -t, 0},
+                            {0, -1, t}, {0, 1, t},  {0, -1, -t}, {0, 1, -t},
+                            {t, 0, -1}, {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
+  for (Vec3& v : unit) v = normalize(v);
+  std::vector<std::array<uint32_t, 3>> tris = {
+      {0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+      {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
+      {3, 8, 9},  {4, 9, 5},  {2, 4, 11},  {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
+  for (int l = 0; l < level; ++l) {
+    std::map<std::pair<uint32_t, uint32_t>, uint32_t> midpoints;
+    auto midpoint = [&](uint32_t a, uint32_t b) {
+      const auto key = std::minmax(a, b);
+      auto it = midpoints.find(key);
+      if (it != midpoints.end()) return it->second;
+      unit.push_back(normalize(unit[a] + unit[b]));
+      const uint32_t id = uint32_t(unit.size() - 1);
+      midpoints.emplace(key, id);
+      return id;
+    };
+    std::vector<std::array<uint32_t, 3>> next;
+    next.reserve(tris.size() * 4);
+    for (const auto& f : tris) {
+      const uint32_t a = midpoint(f[0], f[1]), b = midpoint(f[1], f[2]), c = midpoint(f[2], f[0]);
+      next.push_back({f[0], a, c});
+      next.push_back({f[1], b, a});
+      next.push_back({f[2], c, b});
+      next.push_back({a, b, c});
+    }
+    tris = std::move(next);
+  }
+  Mesh m;
+  m.triangles = std::move(tris);
+  m.positions.reserve(unit.size());
+  for (const Vec3& u : unit) m.positions.push_back(center + u * radius);
+  m.normals = std::move(unit);
+  return m;
+}
+
+Mesh make_torus(int major_segments, int minor_segments, float major_radius, float minor_radius,
+                const Vec3& center) {
+  const int n = std::max(3, major_segments), k = std::max(3, minor_segments);
+  Mesh m;
+  m.positions.reserve(size_t(n) * k);
+  m.normals.reserve(size_t(n) * k);
+  for (int i = 0; i < n; ++i) {
+    const float phi = 2.0f * kPi * float(i) / float(n);
+    const Vec3 radial(std::cos(phi), 0.0f, std::sin(phi));
+    for (int j = 0; j < k; ++j) {
+      const float theta = 2.0f * kPi * float(j) / float(k);
+      const Vec3 normal = radial * std::cos(theta) + Vec3(0.0f, std::sin(theta), 0.0f);
+      m.positions.push_back(center + radial * major_radius + normal * minor_radius);
+      m.normals.push_back(normal);
+    }
+  }
+  // Indices wrap around both circles, so the surface is closed without seam vertices.
+  auto id = [&](int i, int j) { return uint32_t((i % n) * k + (j % k)); };
+  m.triangles.reserve(size_t(2) * n * k);
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < k; ++j) {
+      const uint32_t a = id(i, j), b = id(i + 1, j), c = id(i + 1, j + 1), d = id(i, j + 1);
+      m.triangles.push_back({a, d, c});
+      m.triangles.push_back({a, c, b});
+    }
+  return m;
+}
+
+Mesh make_box(const Vec3& center, const Vec3& he, float rotation_y, bool inward) {
+  const float cs = std::cos(rotation_y), sn = std::sin(rotation_y);
+  auto place = [&](float x, float y, float z) {
+    const Vec3 local(x * he.x, y * he.y, z * he.z);
+    return center + Vec3(cs * local.x + sn * local.z, local.y, -sn * local.x + cs * local.z);
+  };
+  Mesh m;
+  // Six faces, corners counter-clockwise seen from outside.
+  const float faces[6][4][3] = {
+      {{1, -1, -1}, {1, 1, -1}, {1, 1, 1}, {1, -1, 1}},      // +x
+      {{-1, -1, 1}, {-1, 1, 1}, {-1, 1, -1}, {-1, -1, -1}},  // -x
+      {{-1, 1, -1}, {-1, 1, 1}, {1, 1, 1}, {1, 1, -1}},      // +y
+      {{-1, -1, 1}, {-1, -1, -1}, {1, -1, -1}, {1, -1, 1}},  // -y
+      {{-1, -1, 1}, {1, -1, 1}, {1, 1, 1}, {-1, 1, 1}},      // +z
+      {{1, -1, -1}, {-1, -1, -1}, {-1, 1, -1}, {1, 1, -1}},  // -z
+  };
+  for (const auto& f : faces) {
+    Vec3 q[4];
+    for (int c = 0; c < 4; ++c) q[c] = place(f[c][0], f[c][1], f[c][2]);
+    if (inward)
+      add_quad(m, q[3], q[2], q[1], q[0]);
+    else
+      add_quad(m, q[0], q[1], q[2], q[3]);
+  }
+  return m;
+}
+
+}  // namespace kdgrid
