@@ -3,15 +3,17 @@
 #include "accel/accelerator.h"
 #include "accel/brute.h"
 #include "accel/bvh.h"
+#include "accel/grid.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
-std::vector<std::string> accelerator_names() { return {"brute", "bvh"}; }
+std::vector<std::string> accelerator_names() { return {"brute", "bvh", "grid"}; }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "brute") return std::make_unique<BruteForce>();
   if (name == "bvh") return std::make_unique<Bvh>();
+  if (name == "grid") return std::make_unique<UniformGrid>();
   std::string valid;
   for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;
   throw ParamError("unknown accelerator '" + name + "': choose one of " + valid);

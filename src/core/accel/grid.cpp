@@ -1,0 +1,263 @@
+#include "accel/grid.h"
+
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <string>
+
+#include "util/error.h"
+
+namespace kdgrid {
+namespace {
+
+// Cells are enlarged by this fraction of their size (plus a few ulps of the scene's largest
+// coordinate) before the triangle/cell overlap test. The traversal computes cell boundaries
+// in float; a triangle within rounding distance of a cell is then referenced by it too, so a
+// DDA that rounds a corner the "wrong" way still finds every hit. It costs a few references.
+constexpr double kCellPad = 1e-3;
+constexpr double kCoordPad = 1.0 / (1 << 18);
+
+/// Akenine-Möller (2001) triangle/box overlap by the separating axis theorem, in double:
+/// box axes, the triangle normal, and the nine edge x box-axis cross products. Touching
+/// counts as overlapping.
+bool triangle_box_overlap(const double center[3], const double half[3], const Vec3& a,
+                          const Vec3& b, const Vec3& c) {
+  double v[3][3];
+  for (int k = 0; k < 3; ++k) {
+    v[0][k] = double(a[k]) - center[k];
+    v[1][k] = double(b[k]) - center[k];
+    v[2][k] = double(c[k]) - center[k];
+  }
+  // Box face normals: the triangle's bounds against the box.
+  for (int k = 0; k < 3; ++k) {
+    const double lo = std::min({v[0][k], v[1][k], v[2][k]});
+    const double hi = std::max({v[0][k], v[1][k], v[2][k]});
+    if (lo > half[k] || hi < -half[k]) return false;
+  }
+  double e[3][3];
+  for (int k = 0; k < 3; ++k) {
+    e[0][k] = v[1][k] - v[0][k];
+    e[1][k] = v[2][k] - v[1][k];
+    e[2][k] = v[0][k] - v[2][k];
+  }
+  // Edge x axis: axis_i x e = the vector with components permuted; project all three vertices.
+  for (int j = 0; j < 3; ++j) {
+    for (int i = 0; i < 3; ++i) {
+      double ax[3] = {0, 0, 0};
+      const int i1 = (i + 1) % 3, i2 = (i + 2) % 3;
+      ax[i1] = -e[j][i2];
+      ax[i2] = e[j][i1];
+      const double p0 = ax[0] * v[0][0] + ax[1] * v[0][1] + ax[2] * v[0][2];
+      const double p1 = ax[0] * v[1][0] + ax[1] * v[1][1] + ax[2] * v[1][2];
+      const double p2 = ax[0] * v[2][0] + ax[1] * v[2][1] + ax[2] * v[2][2];
+      const double r = half[0] * std::fabs(ax[0]) + half[1] * std::fabs(ax[1]) +
+                       half[2] * std::fabs(ax[2]);
+      if (std::min({p0, p1, p2}) > r || std::max({p0, p1, p2}) < -r) return false;
+    }
+  }
+  // Triangle plane against the box.
+  const double n[3] = {e[0][1] * e[1][2] - e[0][2] * e[1][1], e[0][2] * e[1][0] - e[0][0] * e[1][2],
+                       e[0][0] * e[1][1] - e[0][1] * e[1][0]};
+  const double d = n[0] * v[0][0] + n[1] * v[0][1] + n[2] * v[0][2];
+  const double r = half[0] * std::fabs(n[0]) + half[1] * std::fabs(n[1]) + half[2] * std::fabs(n[2]);
+  return std::fabs(d) <= r;
+}
+
+std::string format_bytes(double b) {
+  char buf[64];
+  if (b >= double(1ull << 30))
+    std::snprintf(buf, sizeof buf, "%.2f GiB", b / double(1ull << 30));
+  else
+    std::snprintf(buf, sizeof buf, "%.1f MiB", b / double(1ull << 20));
+  return buf;
+}
+
+}  // namespace
+
+BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
+  const auto t_start = std::chrono::steady_clock::now();
+  if (!(params.grid_lambda > 0.0f) || !std::isfinite(params.grid_lambda))
+    throw ParamError("grid: grid_lambda (--grid-lambda) must be a positive number of cells per "
+                     "triangle, e.g. 4; got " + std::to_string(params.grid_lambda));
+  if (params.grid_max_resolution < 1)
+    throw ParamError("grid: grid_max_resolution must be >= 1; got " +
+                     std::to_string(params.grid_max_resolution));
+  mesh_ = &mesh;
+  test_ = params.triangle_test;
+  stats_ = {};
+  offsets_.clear();
+  refs_.clear();
+  const size_t n_tris = mesh.num_triangles();
+
+  // Box, padded on degenerate axes so that every cell has a positive size.
+  box_ = mesh.bounds();
+  if (n_tris == 0 || box_.empty()) box_ = Box3(Vec3(0.0f), Vec3(1.0f));
+  const float max_ext = max_component(box_.extent());
+  const float max_abs = std::max(max_component(abs(box_.lo)), max_component(abs(box_.hi)));
+  for (int a = 0; a < 3; ++a) {
+    if (box_.hi[a] - box_.lo[a] <= 1e-6f * max_ext || box_.hi[a] <= box_.lo[a]) {
+      const float pad = std::max({1e-3f * max_ext, 1e-5f * max_abs, 1e-30f});
+      box_.lo[a] = next_float_down(box_.lo[a] - pad);
+      box_.hi[a] = next_float_up(box_.hi[a] + pad);
+    }
+  }
+
+  // Density heuristic (see grid.h): cubical cells, lambda * N of them; axes that would get
+  // less than one cell are dropped from the volume and get exactly one.
+  const Vec3 ext = box_.extent();
+  const double target = double(params.grid_lambda) * double(std::max<size_t>(n_tris, 1));
+  bool active[3] = {true, true, true};
+  double k = 0.0;
+  for (int iter = 0; iter < 3; ++iter) {
+    double vol = 1.0;
+    int m = 0;
+    for (int a = 0; a < 3; ++a)
+      if (active[a]) vol *= double(ext[a]), ++m;
+    if (m == 0) break;
+    k = std::pow(target / vol, 1.0 / m);
+    bool changed = false;
+    for (int a = 0; a < 3; ++a)
+      if (active[a] && double(ext[a]) * k < 1.0) active[a] = false, changed = true;
+    if (!changed) break;
+  }
+  uint64_t cells = 1;
+  for (int a = 0; a < 3; ++a) {
+    const double n = active[a] ? std::round(double(ext[a]) * k) : 1.0;
+    res_[a] = int(std::clamp(n, 1.0, double(params.grid_max_resolution)));
+    cells *= uint64_t(res_[a]);
+    cell_[a] = ext[a] / float(res_[a]);
+    inv_cell_[a] = float(res_[a]) / ext[a];
+  }
+
+  // Memory guard: refuse before allocating anything proportional to the cell count.
+  const std::string res_str =
+      std::to_string(res_[0]) + "x" + std::to_string(res_[1]) + "x" + std::to_string(res_[2]);
+  const uint64_t budget = effective_memory_budget(params);
+  const double cell_bytes = double(cells + 1) * sizeof(uint32_t);
+  if (cell_bytes > double(budget) || cells >= 0xFFFFFFFFull) {
+    const double limit = std::min(double(budget), 4.0 * double(0xFFFFFFFEull));
+    const double fit = double(params.grid_lambda) * limit / cell_bytes * 0.9;
+    char lam[32];
+    std::snprintf(lam, sizeof lam, "%.3g", fit);
+    throw ParamError("grid: resolution " + res_str + " (" + std::to_string(cells) +
+                     " cells) needs " + format_bytes(cell_bytes) +
+                     " of cell offsets, over the memory budget of " + format_bytes(double(budget)) +
+                     " (or the 2^32 cell limit); use --grid-lambda " + lam +
+                     " or less, a lower grid_max_resolution, or a larger --memory-budget-mb");
+  }
+
+  tbb::task_arena arena(effective_threads(params.threads));
+  std::vector<uint32_t> counts(cells + 1, 0);
+  double pad[3];
+  for (int a = 0; a < 3; ++a) pad[a] = kCellPad * double(cell_[a]) + kCoordPad * double(max_abs);
+
+  // Visits every cell that triangle i overlaps (exact test), calling fn(linear cell index).
+  auto for_cells_of = [&](size_t i, auto&& fn) {
+    const auto c = mesh.corners(i);
+    const Box3 tb = mesh.triangle_bounds(i);
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+      const double l = (double(tb.lo[a]) - pad[a] - box_.lo[a]) / double(cell_[a]);
+      const double h = (double(tb.hi[a]) + pad[a] - box_.lo[a]) / double(cell_[a]);
+      lo[a] = int(std::clamp(std::floor(l), 0.0, double(res_[a] - 1)));
+      hi[a] = int(std::clamp(std::floor(h), 0.0, double(res_[a] - 1)));
+    }
+    const bool single = lo[0] == hi[0] && lo[1] == hi[1] && lo[2] == hi[2];
+    for (int z = lo[2]; z <= hi[2]; ++z)
+      for (int y = lo[1]; y <= hi[1]; ++y)
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+          const int cc[3] = {x, y, z};
+          if (!single) {
+            double center[3], half[3];
+            for (int a = 0; a < 3; ++a) {
+              const double l = double(box_.lo[a]) + double(cc[a]) * double(cell_[a]);
+              half[a] = 0.5 * double(cell_[a]) + pad[a];
+              center[a] = l + 0.5 * double(cell_[a]);
+            }
+            if (!triangle_box_overlap(center, half, c[0], c[1], c[2])) continue;
+          }
+          fn(uint64_t(x) + uint64_t(res_[0]) * (uint64_t(y) + uint64_t(res_[1]) * uint64_t(z)));
+        }
+  };
+
+  // Count pass.
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tris, 256), [&](const auto& r) {
+      for (size_t i = r.begin(); i < r.end(); ++i)
+        for_cells_of(i, [&](uint64_t cidx) {
+          std::atomic_ref<uint32_t>(counts[cidx]).fetch_add(1, std::memory_order_relaxed);
+        });
+    });
+  });
+  // Prefix sum into offsets (counts becomes the offsets array in place).
+  uint64_t total = 0;
+  uint64_t empty = 0;
+  for (uint64_t c = 0; c < cells; ++c) {
+    const uint64_t n = counts[c];
+    empty += n == 0;
+    counts[c] = uint32_t(total);
+    total += n;
+    if (total >= 0xFFFFFFFFull)
+      throw ParamError("grid: more than 2^32 triangle references at resolution " + res_str +
+                       "; use a smaller --grid-lambda");
+  }
+  counts[cells] = uint32_t(total);
+  if (double(cell_bytes) + double(total) * sizeof(uint32_t) > double(budget))
+    throw ParamError("grid: " + std::to_string(total) + " references at resolution " + res_str +
+                     " need " + format_bytes(cell_bytes + double(total) * 4) +
+                     ", over the memory budget of " + format_bytes(double(budget)) +
+                     "; use a smaller --grid-lambda or a larger --memory-budget-mb");
+  offsets_ = std::move(counts);
+
+  // Fill pass: a cursor per cell, then sort each cell's references so the structure (and
+  // the order of triangle tests) does not depend on thread scheduling.
+  refs_.assign(total, 0);
+  std::vector<uint32_t> cursor(offsets_.begin(), offsets_.end() - 1);
+  arena.execute([&] {
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tris, 256), [&](const auto& r) {
+      for (size_t i = r.begin(); i < r.end(); ++i)
+        for_cells_of(i, [&](uint64_t cidx) {
+          const uint32_t at =
+              std::atomic_ref<uint32_t>(cursor[cidx]).fetch_add(1, std::memory_order_relaxed);
+          refs_[at] = uint32_t(i);
+        });
+    });
+    tbb::parallel_for(tbb::blocked_range<uint64_t>(0, cells, 1024), [&](const auto& r) {
+      for (uint64_t c = r.begin(); c < r.end(); ++c)
+        if (offsets_[c + 1] - offsets_[c] > 1)
+          std::sort(refs_.begin() + offsets_[c], refs_.begin() + offsets_[c + 1]);
+    });
+  });
+  std::vector<uint32_t>().swap(cursor);
+
+  stats_.nodes = cells;
+  stats_.leaves = cells;
+  stats_.empty_leaves = empty;
+  stats_.references = total;
+  const uint64_t b_cells = offsets_.size() * sizeof(uint32_t);
+  const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
+  stats_.bytes = b_cells + b_refs;
+  stats_.bytes_by_part = {{"cells", b_cells}, {"references", b_refs}};
+  stats_.extra = {{"resolution", res_str}};
+  stats_.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  return stats_;
+}
+
+void UniformGrid::for_each_box(const std::function<void(const StructureBox&)>& fn) const {
+  if (offsets_.empty()) return;
+  int c[3];
+  uint64_t idx = 0;
+  for (c[2] = 0; c[2] < res_[2]; ++c[2])
+    for (c[1] = 0; c[1] < res_[1]; ++c[1])
+      for (c[0] = 0; c[0] < res_[0]; ++c[0], ++idx) {
+        const uint32_t n = offsets_[idx + 1] - offsets_[idx];
+        if (n) fn({cell_box(c), 0, true, n});
+      }
+}
+
+}  // namespace kdgrid

@@ -1,0 +1,241 @@
+// Uniform grid: agreement with brute force on procedural meshes and on extreme rays, the
+// DDA's step bound, counted/traced traversal, resolution heuristic, exact overlap filter and
+// memory guard.
+#include <gtest/gtest.h>
+
+#include "accel/grid.h"
+#include "comparator_meshes.h"
+#include "util/error.h"
+
+namespace kdgrid {
+namespace {
+
+using test::count_disagreements;
+
+// The planes of the grid's cell boundaries (every one, or every k-th on fine grids) and the
+// box faces, for the extreme-ray suite.
+std::vector<std::pair<int, float>> cell_planes(const UniformGrid& g) {
+  std::vector<std::pair<int, float>> planes;
+  const Box3 b = g.bounds();
+  for (int a = 0; a < 3; ++a) {
+    const int n = g.resolution()[a];
+    const int every = std::max(1, n / 12);
+    const float cs = b.extent()[a] / float(n);
+    for (int k = 0; k <= n; k += every) planes.push_back({a, b.lo[a] + float(k) * cs});
+    planes.push_back({a, b.hi[a]});
+  }
+  return planes;
+}
+
+// Every cell visited by a counted traversal stays under the bound nx+ny+nz+3.
+int steps_over_bound(const UniformGrid& g, const std::vector<Ray>& rays) {
+  int over = 0;
+  for (const Ray& r : rays) {
+    RayCounters c, o;
+    Hit h;
+    g.intersect_counted(r, h, c);
+    g.occluded_counted(r, o);
+    if (c.steps > g.max_steps() || o.steps > g.max_steps()) ++over;
+  }
+  return over;
+}
+
+TEST(Grid, AgreesWithBruteForceOnProceduralMeshes) {
+  for (const auto& [name, mesh] : test::test_meshes()) {
+    SCOPED_TRACE(name);
+    UniformGrid g;
+    const BuildStats st = g.build(mesh, BuildParams{});
+    EXPECT_GT(st.references, 0u);
+    const auto rays = test::random_rays(mesh, 17, 20000);
+    int hits = 0;
+    EXPECT_EQ(count_disagreements(mesh, g, rays, 5, &hits), 0);
+    EXPECT_GT(hits, 2000) << "the ray set should hit the mesh often";
+    EXPECT_EQ(steps_over_bound(g, rays), 0);
+  }
+}
+
+TEST(Grid, MollerVariantAgreesWithBruteForceMoller) {
+  const Mesh mesh = test::random_soup(5, 2000);
+  BuildParams p;
+  p.triangle_test = TriangleTestKind::Moller;
+  UniformGrid g;
+  g.build(mesh, p);
+  BruteForce b;
+  b.build(mesh, p);
+  int bad = 0;
+  for (const Ray& r : test::random_rays(mesh, 9, 10000)) {
+    Hit hg, hb;
+    const bool a = g.intersect(r, hg), c = b.intersect(r, hb);
+    if (a != c || (a && hg.t != hb.t)) ++bad;
+  }
+  EXPECT_EQ(bad, 0);
+}
+
+// Cell boundaries on the integer planes where the quads lie, at several scales and offsets.
+TEST(Grid, ExtremeRaysOnCellBoundaries) {
+  struct Case {
+    const char* name;
+    float scale;
+    Vec3 offset;
+  };
+  const Case cases[] = {{"unit", 1.0f, Vec3(0.0f)},
+                        {"scale 1e-6", 1e-6f, Vec3(0.0f)},
+                        {"scale 1e6", 1e6f, Vec3(0.0f)},
+                        {"translated 1e5", 1.0f, Vec3(1e5f, 1e5f, -1e5f)}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Mesh base = test::integer_quads(8);
+    const Mesh mesh = test::transformed(base, c.scale, c.offset);
+    BuildParams p;
+    // 8 cells per axis: cell boundaries coincide with the planes of the quads.
+    p.grid_lambda = 512.0f / float(mesh.num_triangles());
+    UniformGrid g;
+    g.build(mesh, p);
+    ASSERT_EQ(g.resolution()[0], 8);
+    ASSERT_EQ(g.resolution()[2], 8);
+    const auto rays = test::extreme_rays(mesh, cell_planes(g), 23, 60);
+    EXPECT_EQ(count_disagreements(mesh, g, rays), 0);
+    EXPECT_EQ(steps_over_bound(g, rays), 0);
+    EXPECT_EQ(test::check_counted_and_trace(g, rays), 0);
+  }
+}
+
+TEST(Grid, ExtremeRaysOnSphereAndSoup) {
+  for (const auto& [name, mesh] : test::test_meshes()) {
+    SCOPED_TRACE(name);
+    UniformGrid g;
+    g.build(mesh, BuildParams{});
+    const auto rays = test::extreme_rays(mesh, cell_planes(g), 29, 20);
+    EXPECT_EQ(count_disagreements(mesh, g, rays), 0);
+    EXPECT_EQ(steps_over_bound(g, rays), 0);
+  }
+}
+
+// Rays with +0 and -0 direction components from origins inside, outside and on the box.
+TEST(Grid, SignedZeroDirections) {
+  const Mesh mesh = test::sphere(16, 32);
+  UniformGrid g;
+  g.build(mesh, BuildParams{});
+  std::vector<Ray> rays;
+  const float zs[2] = {0.0f, -0.0f};
+  for (float z0 : zs)
+    for (float z1 : zs)
+      for (float o : {-3.0f, -1.0f, 0.0f, 0.25f, 1.0f, 3.0f}) {
+        rays.push_back({Vec3(o, 0.1f, 0.2f), 0.0f, Vec3(1.0f, z0, z1), kInf});
+        rays.push_back({Vec3(0.1f, o, 0.2f), 0.0f, Vec3(z0, -1.0f, z1), kInf});
+        rays.push_back({Vec3(0.3f, 0.2f, o), 0.0f, Vec3(z0, z1, 1.0f), kInf});
+        rays.push_back({Vec3(o, 1.0f, 0.0f), 0.0f, Vec3(z0, z1, -1.0f), kInf});
+      }
+  EXPECT_EQ(count_disagreements(mesh, g, rays), 0);
+  EXPECT_EQ(steps_over_bound(g, rays), 0);
+  EXPECT_EQ(test::check_counted_and_trace(g, rays), 0);
+}
+
+TEST(Grid, CountedAndTracedTraversalMatchFastPath) {
+  const Mesh mesh = test::random_soup(11, 3000);
+  UniformGrid g;
+  g.build(mesh, BuildParams{});
+  const auto rays = test::random_rays(mesh, 3, 5000);
+  EXPECT_EQ(test::check_counted_and_trace(g, rays), 0);
+  // Mailboxing does skip repeated tests of triangles spanning several cells.
+  RayCounters sum;
+  for (const Ray& r : rays) {
+    Hit h;
+    g.intersect_counted(r, h, sum);
+  }
+  EXPECT_GT(sum.mailbox_skips, 0u);
+  EXPECT_EQ(sum.lookups, sum.steps);
+}
+
+TEST(Grid, ResolutionFollowsDensityHeuristic) {
+  const Mesh mesh = test::random_soup(1, 4000);  // roughly a cube
+  BuildParams p;
+  UniformGrid g;
+  const BuildStats st = g.build(mesh, p);
+  const double cells = double(st.nodes), target = p.grid_lambda * 4000.0;
+  EXPECT_GT(cells, 0.7 * target);
+  EXPECT_LT(cells, 1.4 * target);
+  const auto r = g.resolution();
+  EXPECT_EQ(st.extra.at(0).second,
+            std::to_string(r[0]) + "x" + std::to_string(r[1]) + "x" + std::to_string(r[2]));
+  EXPECT_EQ(st.bytes, (st.nodes + 1) * 4 + st.references * 4);
+  EXPECT_EQ(st.bytes_by_part.size(), 2u);
+
+  // A flat mesh (all z = 0) gets one cell along z and the density in x, y.
+  Mesh flat;
+  for (int i = 0; i < 100; ++i)
+    for (int j = 0; j < 100; ++j)
+      test::add_tri(flat, Vec3(i, j, 0), Vec3(i + 1, j, 0), Vec3(i, j + 1, 0));
+  UniformGrid gf;
+  const BuildStats sf = gf.build(flat, p);
+  EXPECT_EQ(gf.resolution()[2], 1);
+  EXPECT_GT(double(sf.nodes), 0.7 * p.grid_lambda * 10000);
+  EXPECT_LT(double(sf.nodes), 1.4 * p.grid_lambda * 10000);
+
+  // The clamp.
+  p.grid_max_resolution = 4;
+  UniformGrid gc;
+  gc.build(mesh, p);
+  for (int a = 0; a < 3; ++a) EXPECT_LE(gc.resolution()[a], 4);
+}
+
+// The exact triangle/cell test keeps a diagonal sliver out of the cells its box covers but
+// it does not touch.
+TEST(Grid, ExactOverlapFilterBeatsBoundingBoxes) {
+  Mesh m;
+  test::add_tri(m, Vec3(0, 0, 0), Vec3(1, 1, 1), Vec3(1.001f, 1, 1));
+  // Corner triangles fix the box to the unit cube.
+  test::add_tri(m, Vec3(0, 0, 0), Vec3(0.01f, 0, 0), Vec3(0, 0.01f, 0));
+  test::add_tri(m, Vec3(1, 1, 1), Vec3(0.99f, 1, 1), Vec3(1, 0.99f, 1));
+  BuildParams p;
+  p.grid_lambda = 20.0f * 20 * 20 / 3.0f;  // 20^3 cells
+  UniformGrid g;
+  const BuildStats st = g.build(m, p);
+  ASSERT_EQ(g.resolution()[0], 20);
+  // A bounding-box grid would reference 8000 cells for the sliver; the diagonal touches a
+  // few per step along it.
+  EXPECT_LT(st.references, 200u);
+  EXPECT_GE(st.references, 20u);
+  uint64_t boxes = 0;
+  g.for_each_box([&](const StructureBox& b) {
+    ++boxes;
+    EXPECT_GT(b.num_triangles, 0u);
+  });
+  EXPECT_EQ(boxes, st.nodes - st.empty_leaves);
+  EXPECT_EQ(count_disagreements(m, g, test::random_rays(m, 5, 3000)), 0);
+}
+
+TEST(Grid, MemoryGuardFailsFastWithClearMessage) {
+  const Mesh mesh = test::random_soup(1, 1000);
+  BuildParams p;
+  p.grid_lambda = 1e7f;
+  p.grid_max_resolution = 100000;
+  p.memory_budget = uint64_t(64) << 20;
+  UniformGrid g;
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    g.build(mesh, p);
+    FAIL() << "expected ParamError";
+  } catch (const ParamError& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("memory budget"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("--grid-lambda"), std::string::npos) << msg;
+    // The suggested lambda fits.
+    const auto at = msg.find("--grid-lambda ");
+    const double fit = std::stod(msg.substr(at + 14));
+    p.grid_lambda = float(fit);
+    UniformGrid ok;
+    EXPECT_NO_THROW(ok.build(mesh, p)) << msg;
+  }
+  EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 30.0);
+  p.grid_lambda = -1.0f;
+  EXPECT_THROW(g.build(mesh, p), ParamError);
+}
+
+TEST(Grid, RegisteredInFactory) {
+  auto a = make_accelerator("grid");
+  EXPECT_EQ(a->name(), "grid");
+}
+
+}  // namespace
+}  // namespace kdgrid
