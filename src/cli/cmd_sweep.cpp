@@ -18,7 +18,7 @@ namespace {
 struct SweepArgs {
   std::string kind, scene, out, values, accel;
   int threads = 0, reps = 3;
-  std::string res = "512";
+  std::string res;
   int spp_max = 64, spp_reference = 256;
   bool quiet = false;
   AccelOptions knobs;
@@ -55,7 +55,7 @@ void add_sweep_command(CLI::App& app) {
   cmd->add_option("--threads", a->threads, "Threads; 0 = all")->capture_default_str();
   cmd->add_option("--reps", a->reps, "Timed repetitions per row (median reported)")
       ->capture_default_str();
-  cmd->add_option("--res", a->res, "Primary rays / spp image size: W or WxH")->capture_default_str();
+  cmd->add_option("--res", a->res, "Primary rays / spp image size: W or WxH (default 512; spp 200)");
   cmd->add_option("--spp-max", a->spp_max, "spp: largest sample count (powers of two from 1)")
       ->capture_default_str();
   cmd->add_option("--spp-reference", a->spp_reference, "spp: samples of the reference image")
@@ -72,7 +72,7 @@ void add_sweep_command(CLI::App& app) {
     o.reps = a->reps;
     o.spp_max = a->spp_max;
     o.spp_reference = a->spp_reference;
-    parse_resolution(a->res, o.width, o.height);
+    if (!a->res.empty()) parse_resolution(a->res, o.width, o.height);
     o.params = a->knobs.resolve();
     if (!a->camera.eye.empty() || !a->camera.target.empty() || a->camera.fov != 0.0f) {
       if (a->camera.eye.empty() || a->camera.target.empty())

@@ -42,12 +42,16 @@ struct SweepOptions {
   int threads = 0;
   /// Timed repetitions of the primary set per row (median reported).
   int reps = 3;
-  /// Primary rays (canonical camera), and the image size of the spp sweep.
-  int width = 512, height = 512;
+  /// Primary rays (canonical camera), and the image size of the spp sweep; 0 x 0 = the
+  /// kind's default: 512 x 512 rays, 200 x 200 pixels for spp (its 256-spp reference is the
+  /// costly part).
+  int width = 0, height = 0;
   BuildParams params;
   /// spp: largest sample count measured (powers of two from 1), and the reference's count.
   int spp_max = 64;
   int spp_reference = 256;
+  /// triangle: rays per edge point / vertex of the leak meshes (directions differ).
+  int leak_rays_per_target = 4;
   std::function<void(const std::string&)> progress;
 };
 
@@ -82,8 +86,9 @@ std::string sweep_to_json(const SweepTable& t);
 
 /// Rays aimed exactly at the shared edges (at 1/4, 1/2, 3/4 of each edge used by two
 /// triangles) and vertices of a closed mesh, `per_target` rays per point, each from a point
-/// outside, on the side all adjacent faces face, and going on into the inside: t = 1 at the
-/// target, tmax = inf. A closed mesh must be hit by every one of them.
+/// outside (two scene diagonals away), on the side all adjacent faces face: t = 1 at the
+/// target and tmax = 1.001, so the segment ends just inside the mesh. A watertight test must
+/// hit every one of them; a ray that hits nothing has leaked through the edge or vertex.
 std::vector<Ray> edge_vertex_rays(const Mesh& mesh, int per_target, uint64_t seed);
 
 }  // namespace kdgrid
