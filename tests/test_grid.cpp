@@ -210,7 +210,7 @@ TEST(Grid, MemoryGuardFailsFastWithClearMessage) {
   BuildParams p;
   p.grid_lambda = 1e7f;
   p.grid_max_resolution = 100000;
-  p.memory_budget = uint64_t(64) << 20;
+  p.memory_budget = uint64_t(8) << 20;
   UniformGrid g;
   const auto t0 = std::chrono::steady_clock::now();
   try {

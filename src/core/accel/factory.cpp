@@ -3,17 +3,23 @@
 #include "accel/accelerator.h"
 #include "accel/brute.h"
 #include "accel/bvh.h"
+#include "accel/embree.h"
 #include "accel/grid.h"
+#include "accel/kdtree.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
-std::vector<std::string> accelerator_names() { return {"brute", "bvh", "grid"}; }
+std::vector<std::string> accelerator_names() {
+  return {"brute", "bvh", "grid", "kdtree", "embree"};
+}
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "brute") return std::make_unique<BruteForce>();
   if (name == "bvh") return std::make_unique<Bvh>();
   if (name == "grid") return std::make_unique<UniformGrid>();
+  if (name == "kdtree") return std::make_unique<KdTree>();
+  if (name == "embree") return std::make_unique<EmbreeAccel>();
   std::string valid;
   for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;
   throw ParamError("unknown accelerator '" + name + "': choose one of " + valid);

@@ -54,8 +54,8 @@ bool triangle_box_overlap(const double center[3], const double half[3], const Ve
       const double p0 = ax[0] * v[0][0] + ax[1] * v[0][1] + ax[2] * v[0][2];
       const double p1 = ax[0] * v[1][0] + ax[1] * v[1][1] + ax[2] * v[1][2];
       const double p2 = ax[0] * v[2][0] + ax[1] * v[2][1] + ax[2] * v[2][2];
-      const double r = half[0] * std::fabs(ax[0]) + half[1] * std::fabs(ax[1]) +
-                       half[2] * std::fabs(ax[2]);
+      const double r =
+          half[0] * std::fabs(ax[0]) + half[1] * std::fabs(ax[1]) + half[2] * std::fabs(ax[2]);
       if (std::min({p0, p1, p2}) > r || std::max({p0, p1, p2}) < -r) return false;
     }
   }
@@ -63,7 +63,8 @@ bool triangle_box_overlap(const double center[3], const double half[3], const Ve
   const double n[3] = {e[0][1] * e[1][2] - e[0][2] * e[1][1], e[0][2] * e[1][0] - e[0][0] * e[1][2],
                        e[0][0] * e[1][1] - e[0][1] * e[1][0]};
   const double d = n[0] * v[0][0] + n[1] * v[0][1] + n[2] * v[0][2];
-  const double r = half[0] * std::fabs(n[0]) + half[1] * std::fabs(n[1]) + half[2] * std::fabs(n[2]);
+  const double r =
+      half[0] * std::fabs(n[0]) + half[1] * std::fabs(n[1]) + half[2] * std::fabs(n[2]);
   return std::fabs(d) <= r;
 }
 
@@ -81,8 +82,10 @@ std::string format_bytes(double b) {
 BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   const auto t_start = std::chrono::steady_clock::now();
   if (!(params.grid_lambda > 0.0f) || !std::isfinite(params.grid_lambda))
-    throw ParamError("grid: grid_lambda (--grid-lambda) must be a positive number of cells per "
-                     "triangle, e.g. 4; got " + std::to_string(params.grid_lambda));
+    throw ParamError(
+        "grid: grid_lambda (--grid-lambda) must be a positive number of cells per "
+        "triangle, e.g. 4; got " +
+        std::to_string(params.grid_lambda));
   if (params.grid_max_resolution < 1)
     throw ParamError("grid: grid_max_resolution must be >= 1; got " +
                      std::to_string(params.grid_max_resolution));

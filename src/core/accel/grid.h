@@ -140,7 +140,8 @@ bool UniformGrid::traverse(const Ray& ray, Hit& hit, S& s) const {
     // Rounding can put a boundary a hair before the entry point; keep intervals monotone.
     const float t_exit =
         std::max(t_in, std::min(std::min(std::min(t_next[0], t_next[1]), t_next[2]), t1));
-    if constexpr (S::kTrace) s.visit({StepKind::Cell, 0, uint64_t(idx), cell_box(cell), t_in, t_exit});
+    if constexpr (S::kTrace)
+      s.visit({StepKind::Cell, 0, uint64_t(idx), cell_box(cell), t_in, t_exit});
     const uint32_t begin = offsets_[idx], end = offsets_[idx + 1];
     if (begin != end) {
       s.leaf();

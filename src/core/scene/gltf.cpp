@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <map>
 
 #include "scene/image_io.h"
@@ -96,7 +97,8 @@ Mat4 local_transform(const tinygltf::Node& n) {
 /// element lies inside its buffer view and buffer.
 class AccessorReader {
  public:
-  AccessorReader(const tinygltf::Model& model, const std::string& path) : model_(model), path_(path) {}
+  AccessorReader(const tinygltf::Model& model, const std::string& path)
+      : model_(model), path_(path) {}
 
   [[noreturn]] void fail(const std::string& what) const { throw LoadError(path_ + ": " + what); }
 
@@ -108,8 +110,9 @@ class AccessorReader {
     const tinygltf::Accessor& a = model_.accessors[size_t(index)];
     const std::string name = "accessor " + std::to_string(index) + " (" + what + ")";
     if (a.sparse.isSparse)
-      fail(name + " uses sparse storage, which kdgrid does not read; re-export the file "
-                  "without sparse accessors");
+      fail(name +
+           " uses sparse storage, which kdgrid does not read; re-export the file "
+           "without sparse accessors");
     if (want_type >= 0 && a.type != want_type)
       fail(name + " has the wrong element type " + std::to_string(a.type));
     const int csize = tinygltf::GetComponentSizeInBytes(uint32_t(a.componentType));
@@ -123,7 +126,8 @@ class AccessorReader {
     const tinygltf::BufferView& bv = model_.bufferViews[size_t(a.bufferView)];
     if (bv.buffer < 0 || size_t(bv.buffer) >= model_.buffers.size())
       fail("buffer view " + std::to_string(a.bufferView) + " refers to buffer " +
-           std::to_string(bv.buffer) + " but the file has " + std::to_string(model_.buffers.size()));
+           std::to_string(bv.buffer) + " but the file has " +
+           std::to_string(model_.buffers.size()));
     const size_t buf_size = model_.buffers[size_t(bv.buffer)].data.size();
     if (bv.byteOffset > buf_size || bv.byteLength > buf_size - bv.byteOffset)
       fail("buffer view " + std::to_string(a.bufferView) + " (bytes " +
@@ -132,7 +136,8 @@ class AccessorReader {
            std::to_string(buf_size) + " bytes; the file is truncated or corrupt");
     const size_t elem = size_t(csize) * size_t(ncomp);
     const size_t stride = bv.byteStride ? bv.byteStride : elem;
-    if (stride < elem) fail(name + ": byteStride " + std::to_string(stride) + " is smaller than an element");
+    if (stride < elem)
+      fail(name + ": byteStride " + std::to_string(stride) + " is smaller than an element");
     if (a.count > 0) {
       // offset + (count-1)*stride + elem <= byteLength, written so that nothing overflows.
       const size_t len = bv.byteLength;
@@ -155,8 +160,8 @@ class AccessorReader {
     const int csize = tinygltf::GetComponentSizeInBytes(uint32_t(a.componentType));
     const int ncomp = tinygltf::GetNumComponentsInType(uint32_t(a.type));
     const size_t stride = bv.byteStride ? bv.byteStride : size_t(csize) * size_t(ncomp);
-    const uint8_t* p = model.buffers[size_t(bv.buffer)].data.data() + bv.byteOffset +
-                       a.byteOffset + i * stride + size_t(c) * size_t(csize);
+    const uint8_t* p = model.buffers[size_t(bv.buffer)].data.data() + bv.byteOffset + a.byteOffset +
+                       i * stride + size_t(c) * size_t(csize);
     switch (a.componentType) {
       case TINYGLTF_COMPONENT_TYPE_FLOAT: {
         float f;
@@ -167,7 +172,8 @@ class AccessorReader {
         const int8_t v = int8_t(p[0]);
         return a.normalized ? std::max(v / 127.0, -1.0) : v;
       }
-      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE: return a.normalized ? p[0] / 255.0 : p[0];
+      case TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE:
+        return a.normalized ? p[0] / 255.0 : p[0];
       case TINYGLTF_COMPONENT_TYPE_SHORT: {
         int16_t v;
         std::memcpy(&v, p, 2);
@@ -188,11 +194,14 @@ class AccessorReader {
         std::memcpy(&v, p, 4);
         return a.normalized ? v / 4294967295.0 : double(v);
       }
-      default: return 0.0;
+      default:
+        return 0.0;
     }
   }
 
-  double get(const tinygltf::Accessor& a, size_t i, int c) const { return component(model_, a, i, c); }
+  double get(const tinygltf::Accessor& a, size_t i, int c) const {
+    return component(model_, a, i, c);
+  }
 
  private:
   const tinygltf::Model& model_;
@@ -241,7 +250,8 @@ class GltfBuilder {
     on_path_.assign(model_.nodes.size(), false);
     for (int r : roots) visit(r, Mat4(), 0);
     if (skipped_prims_ > 0)
-      std::fprintf(stderr, "%s: note: skipped %zu point/line primitives (kdgrid renders triangles)\n",
+      std::fprintf(stderr,
+                   "%s: note: skipped %zu point/line primitives (kdgrid renders triangles)\n",
                    path_.c_str(), skipped_prims_);
   }
 
@@ -261,7 +271,8 @@ class GltfBuilder {
       if (extension_number(gm.extensions, "KHR_materials_transmission", "transmissionFactor", v))
         m.transmission = std::clamp(float(v), 0.0f, 1.0f);
       if (extension_number(gm.extensions, "KHR_materials_ior", "ior", v) && v > 0) m.ior = float(v);
-      if (pbr.baseColorTexture.index >= 0) m.base_color_texture = texture(pbr.baseColorTexture.index);
+      if (pbr.baseColorTexture.index >= 0)
+        m.base_color_texture = texture(pbr.baseColorTexture.index);
       scene_.materials.push_back(std::move(m));
     }
   }
@@ -283,7 +294,8 @@ class GltfBuilder {
     const int bytes = img.bits == 16 ? 2 : 1;
     if (px == 0 || img.component < 1 || img.component > 4 || (img.bits != 8 && img.bits != 16) ||
         img.image.size() < px * size_t(img.component) * size_t(bytes)) {
-      std::fprintf(stderr, "%s: warning: image %d ('%s') was not decoded; material left untextured\n",
+      std::fprintf(stderr,
+                   "%s: warning: image %d ('%s') was not decoded; material left untextured\n",
                    path_.c_str(), src, img.uri.c_str());
     } else {
       std::vector<uint8_t> eight(px * size_t(img.component));
@@ -396,7 +408,8 @@ class GltfBuilder {
     const bool flip = world.det3() < 0;  // mirroring transforms reverse the winding
     for (size_t pi = 0; pi < gm.primitives.size(); ++pi) {
       const tinygltf::Primitive& prim = gm.primitives[pi];
-      const std::string where = "mesh " + std::to_string(mesh_index) + " primitive " + std::to_string(pi);
+      const std::string where =
+          "mesh " + std::to_string(mesh_index) + " primitive " + std::to_string(pi);
       const int mode = prim.mode < 0 ? TINYGLTF_MODE_TRIANGLES : prim.mode;
       if (mode != TINYGLTF_MODE_TRIANGLES && mode != TINYGLTF_MODE_TRIANGLE_STRIP &&
           mode != TINYGLTF_MODE_TRIANGLE_FAN) {
@@ -405,10 +418,12 @@ class GltfBuilder {
       }
       const auto pos_it = prim.attributes.find("POSITION");
       if (pos_it == prim.attributes.end()) {
-        std::fprintf(stderr, "%s: warning: %s has no POSITION; skipped\n", path_.c_str(), where.c_str());
+        std::fprintf(stderr, "%s: warning: %s has no POSITION; skipped\n", path_.c_str(),
+                     where.c_str());
         continue;
       }
-      const tinygltf::Accessor& pos = acc_.check(pos_it->second, where + " POSITION", TINYGLTF_TYPE_VEC3);
+      const tinygltf::Accessor& pos =
+          acc_.check(pos_it->second, where + " POSITION", TINYGLTF_TYPE_VEC3);
       const size_t nv = pos.count;
       if (nv > std::numeric_limits<uint32_t>::max() - scene_.mesh.positions.size())
         throw LoadError(path_ + ": " + where + " has too many vertices for 32-bit indices");
@@ -419,8 +434,10 @@ class GltfBuilder {
                                              float(acc_.get(pos, i, 2))));
       const auto nrm_it = prim.attributes.find("NORMAL");
       if (nrm_it != prim.attributes.end()) {
-        const tinygltf::Accessor& nrm = acc_.check(nrm_it->second, where + " NORMAL", TINYGLTF_TYPE_VEC3);
-        if (nrm.count != nv) throw LoadError(path_ + ": " + where + ": NORMAL count differs from POSITION count");
+        const tinygltf::Accessor& nrm =
+            acc_.check(nrm_it->second, where + " NORMAL", TINYGLTF_TYPE_VEC3);
+        if (nrm.count != nv)
+          throw LoadError(path_ + ": " + where + ": NORMAL count differs from POSITION count");
         part.normals.resize(nv);
         for (size_t i = 0; i < nv; ++i) {
           const Vec3 n = nmat.vector(Vec3(float(acc_.get(nrm, i, 0)), float(acc_.get(nrm, i, 1)),
@@ -431,16 +448,20 @@ class GltfBuilder {
       }
       const auto uv_it = prim.attributes.find("TEXCOORD_0");
       if (uv_it != prim.attributes.end()) {
-        const tinygltf::Accessor& uv = acc_.check(uv_it->second, where + " TEXCOORD_0", TINYGLTF_TYPE_VEC2);
-        if (uv.count != nv) throw LoadError(path_ + ": " + where + ": TEXCOORD_0 count differs from POSITION count");
+        const tinygltf::Accessor& uv =
+            acc_.check(uv_it->second, where + " TEXCOORD_0", TINYGLTF_TYPE_VEC2);
+        if (uv.count != nv)
+          throw LoadError(path_ + ": " + where + ": TEXCOORD_0 count differs from POSITION count");
         part.uvs.resize(nv);
-        for (size_t i = 0; i < nv; ++i) part.uvs[i] = {float(acc_.get(uv, i, 0)), float(acc_.get(uv, i, 1))};
+        for (size_t i = 0; i < nv; ++i)
+          part.uvs[i] = {float(acc_.get(uv, i, 0)), float(acc_.get(uv, i, 1))};
       }
 
       // Vertex order of the primitive: the index accessor, or 0..n-1.
       std::vector<uint32_t> order;
       if (prim.indices >= 0) {
-        const tinygltf::Accessor& ia = acc_.check(prim.indices, where + " indices", TINYGLTF_TYPE_SCALAR);
+        const tinygltf::Accessor& ia =
+            acc_.check(prim.indices, where + " indices", TINYGLTF_TYPE_SCALAR);
         if (ia.componentType != TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE &&
             ia.componentType != TINYGLTF_COMPONENT_TYPE_UNSIGNED_SHORT &&
             ia.componentType != TINYGLTF_COMPONENT_TYPE_UNSIGNED_INT)
@@ -449,9 +470,9 @@ class GltfBuilder {
         for (size_t i = 0; i < ia.count; ++i) {
           const double v = acc_.get(ia, i, 0);
           if (v >= double(nv))
-            throw LoadError(path_ + ": " + where + ": index " + std::to_string(i) + " references vertex " +
-                            std::to_string(uint64_t(v)) + " but the primitive has " +
-                            std::to_string(nv) + " vertices");
+            throw LoadError(path_ + ": " + where + ": index " + std::to_string(i) +
+                            " references vertex " + std::to_string(uint64_t(v)) +
+                            " but the primitive has " + std::to_string(nv) + " vertices");
           order[i] = uint32_t(v);
         }
       } else {
@@ -465,7 +486,8 @@ class GltfBuilder {
       const size_t n = order.size();
       if (mode == TINYGLTF_MODE_TRIANGLES) {
         if (n % 3 != 0)
-          std::fprintf(stderr, "%s: warning: %s has %zu indices, not a multiple of 3; ignoring the rest\n",
+          std::fprintf(stderr,
+                       "%s: warning: %s has %zu indices, not a multiple of 3; ignoring the rest\n",
                        path_.c_str(), where.c_str(), n);
         for (size_t i = 0; i + 2 < n; i += 3) tri(order[i], order[i + 1], order[i + 2]);
       } else if (mode == TINYGLTF_MODE_TRIANGLE_STRIP) {
@@ -497,7 +519,8 @@ void print_lines(const std::string& path, const char* kind, const std::string& t
     size_t end = text.find('\n', start);
     if (end == std::string::npos) end = text.size();
     if (end > start)
-      std::fprintf(stderr, "%s: %s: %s\n", path.c_str(), kind, text.substr(start, end - start).c_str());
+      std::fprintf(stderr, "%s: %s: %s\n", path.c_str(), kind,
+                   text.substr(start, end - start).c_str());
     start = end + 1;
   }
 }
@@ -507,13 +530,29 @@ void print_lines(const std::string& path, const char* kind, const std::string& t
 Scene load_gltf(const std::string& path) {
   namespace fs = std::filesystem;
   std::string ext = fs::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   tinygltf::TinyGLTF loader;
   tinygltf::Model model;
   std::string err, warn;
   const bool ok = ext == ".glb" ? loader.LoadBinaryFromFile(&model, &err, &warn, path)
                                 : loader.LoadASCIIFromFile(&model, &err, &warn, path);
   if (!ok) {
+    if (ext == ".glb") {
+      // tinygltf says only "Invalid glTF binary" for a cut file; say what is wrong.
+      std::error_code ec;
+      const auto size = fs::file_size(path, ec);
+      std::ifstream in(path, std::ios::binary);
+      unsigned char h[12] = {};
+      if (!ec && in.read(reinterpret_cast<char*>(h), 12) && std::memcmp(h, "glTF", 4) == 0) {
+        const uint64_t declared =
+            uint64_t(h[8]) | uint64_t(h[9]) << 8 | uint64_t(h[10]) << 16 | uint64_t(h[11]) << 24;
+        if (declared > size)
+          throw LoadError(path + ": truncated .glb: its header declares " +
+                          std::to_string(declared) + " bytes but the file has " +
+                          std::to_string(size));
+      }
+    }
     std::string e = err.empty() ? warn : err;
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
     std::replace(e.begin(), e.end(), '\n', ' ');

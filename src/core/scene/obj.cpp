@@ -2,10 +2,10 @@
 // are fan-triangulated here, in file order, exactly as BENCHMARK.md numbers triangles.
 #include <tiny_obj_loader.h>
 
-#include <cstdio>
-#include <filesystem>
 #include <algorithm>
 #include <array>
+#include <cstdio>
+#include <filesystem>
 #include <map>
 #include <sstream>
 #include <unordered_map>
@@ -34,7 +34,9 @@ void print_warnings(const std::string& path, const std::string& text) {
   }
 }
 
-Vec3 vec3(const tinyobj::real_t* v) { return {float(v[0]), float(v[1]), float(v[2])}; }
+Vec3 vec3(const tinyobj::real_t* v) {
+  return {float(v[0]), float(v[1]), float(v[2])};
+}
 
 Material convert_material(const tinyobj::material_t& m) {
   Material out;
@@ -72,8 +74,6 @@ Scene load_obj(const std::string& path) {
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
     throw LoadError(path + ": cannot parse OBJ: " + e);
   }
-  // With a successful parse, err holds non-fatal problems (e.g. a missing .mtl file).
-  print_warnings(path, warn + err);
 
   Scene scene;
   const size_t nv = attrib.vertices.size() / 3;
@@ -119,6 +119,10 @@ Scene load_obj(const std::string& path) {
       num_tris += m - 2;
     }
   }
+  // With a successful parse, err holds non-fatal problems (e.g. a missing .mtl file); they
+  // are printed only once the faces are known to be valid, so a fatal error stands alone.
+  print_warnings(path, warn + err);
+
   // Normals are used only when every corner has one (the renderer falls back to the
   // geometric normal otherwise); missing uvs read as (0, 0).
   const bool use_normals = all_normals && nn > 0;
@@ -147,10 +151,11 @@ Scene load_obj(const std::string& path) {
       mesh.positions.push_back(vec3(&attrib.vertices[3 * size_t(ix.vertex_index)]));
       if (use_normals) mesh.normals.push_back(vec3(&attrib.normals[3 * size_t(ix.normal_index)]));
       if (use_uvs)
-        mesh.uvs.push_back(ix.texcoord_index >= 0
-                               ? std::array<float, 2>{float(attrib.texcoords[2 * size_t(ix.texcoord_index)]),
-                                                      float(attrib.texcoords[2 * size_t(ix.texcoord_index) + 1])}
-                               : std::array<float, 2>{0.f, 0.f});
+        mesh.uvs.push_back(
+            ix.texcoord_index >= 0
+                ? std::array<float, 2>{float(attrib.texcoords[2 * size_t(ix.texcoord_index)]),
+                                       float(attrib.texcoords[2 * size_t(ix.texcoord_index) + 1])}
+                : std::array<float, 2>{0.f, 0.f});
     }
     return it->second;
   };
@@ -207,9 +212,10 @@ Scene load_obj(const std::string& path) {
           index = int(scene.textures.size());
           scene.textures.push_back(std::move(*tex));
         } else {
-          std::fprintf(stderr, "%s: warning: material '%s': cannot read texture %s (%s); "
-                       "rendering it untextured\n", path.c_str(), m.name.c_str(), tex_path.c_str(),
-                       why.c_str());
+          std::fprintf(stderr,
+                       "%s: warning: material '%s': cannot read texture %s (%s); "
+                       "rendering it untextured\n",
+                       path.c_str(), m.name.c_str(), tex_path.c_str(), why.c_str());
         }
         it = texture_of.emplace(tex_path, index).first;
       }

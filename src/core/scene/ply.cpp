@@ -14,6 +14,7 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -44,11 +45,11 @@ struct Element {
 
 bool parse_type(std::string_view s, Type& t) {
   static constexpr std::pair<std::string_view, Type> kNames[] = {
-      {"char", Type::Int8},     {"int8", Type::Int8},       {"uchar", Type::UInt8},
-      {"uint8", Type::UInt8},   {"short", Type::Int16},     {"int16", Type::Int16},
-      {"ushort", Type::UInt16}, {"uint16", Type::UInt16},   {"int", Type::Int32},
-      {"int32", Type::Int32},   {"uint", Type::UInt32},     {"uint32", Type::UInt32},
-      {"float", Type::Float32}, {"float32", Type::Float32}, {"double", Type::Float64},
+      {"char", Type::Int8},      {"int8", Type::Int8},       {"uchar", Type::UInt8},
+      {"uint8", Type::UInt8},    {"short", Type::Int16},     {"int16", Type::Int16},
+      {"ushort", Type::UInt16},  {"uint16", Type::UInt16},   {"int", Type::Int32},
+      {"int32", Type::Int32},    {"uint", Type::UInt32},     {"uint32", Type::UInt32},
+      {"float", Type::Float32},  {"float32", Type::Float32}, {"double", Type::Float64},
       {"float64", Type::Float64}};
   for (const auto& [name, type] : kNames)
     if (s == name) {
@@ -61,18 +62,24 @@ bool parse_type(std::string_view s, Type& t) {
 size_t type_size(Type t) {
   switch (t) {
     case Type::Int8:
-    case Type::UInt8: return 1;
+    case Type::UInt8:
+      return 1;
     case Type::Int16:
-    case Type::UInt16: return 2;
+    case Type::UInt16:
+      return 2;
     case Type::Int32:
     case Type::UInt32:
-    case Type::Float32: return 4;
-    case Type::Float64: return 8;
+    case Type::Float32:
+      return 4;
+    case Type::Float64:
+      return 8;
   }
   return 1;
 }
 
-bool is_integer(Type t) { return t != Type::Float32 && t != Type::Float64; }
+bool is_integer(Type t) {
+  return t != Type::Float32 && t != Type::Float64;
+}
 
 std::vector<std::string_view> split_words(std::string_view line) {
   std::vector<std::string_view> words;
@@ -103,13 +110,15 @@ class Reader {
     std::string msg = name_ + ": ";
     if (elem_)
       msg += elem_->name + " " + std::to_string(index_) + " of " + std::to_string(elem_->count);
-    if (fmt_ == Format::Ascii) msg += std::string(elem_ ? " (" : "(") + "line " + std::to_string(line_) + ")";
+    if (fmt_ == Format::Ascii)
+      msg += std::string(elem_ ? " (" : "(") + "line " + std::to_string(line_) + ")";
     throw LoadError(msg + ": " + problem);
   }
 
   [[noreturn]] void fail_eof() const {
-    fail("file ends early; the file is truncated or its header declares more data than it "
-         "holds");
+    fail(
+        "file ends early; the file is truncated or its header declares more data than it "
+        "holds");
   }
 
   size_t remaining() const { return size_t(end_ - p_); }
@@ -147,13 +156,20 @@ class Reader {
     else
       for (size_t i = 0; i < n; ++i) u = (u << 8) | b[i];
     switch (t) {
-      case Type::Int8: return int8_t(u);
-      case Type::UInt8: return uint8_t(u);
-      case Type::Int16: return int16_t(u);
-      case Type::UInt16: return uint16_t(u);
-      case Type::Int32: return int32_t(u);
-      case Type::UInt32: return uint32_t(u);
-      default: return 0;
+      case Type::Int8:
+        return int8_t(u);
+      case Type::UInt8:
+        return uint8_t(u);
+      case Type::Int16:
+        return int16_t(u);
+      case Type::UInt16:
+        return uint16_t(u);
+      case Type::Int32:
+        return int32_t(u);
+      case Type::UInt32:
+        return uint32_t(u);
+      default:
+        return 0;
     }
   }
 
@@ -268,8 +284,9 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
 
   std::string_view line;
   if (size < 3 || std::memcmp(data, "ply", 3) != 0 || !next_line(line) || line != "ply")
-    throw LoadError(name + ": not a PLY file (it does not start with the line 'ply'); check "
-                           "the file or its extension");
+    throw LoadError(name +
+                    ": not a PLY file (it does not start with the line 'ply'); check "
+                    "the file or its extension");
   bool have_format = false, have_end = false;
   Format fmt = Format::Ascii;
   std::vector<Element> elements;
@@ -298,7 +315,8 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
       e.name = std::string(w[1]);
       auto [ptr, ec] = std::from_chars(w[2].data(), w[2].data() + w[2].size(), e.count);
       if (ec != std::errc() || ptr != w[2].data() + w[2].size())
-        throw header_error("element '" + e.name + "' has malformed count '" + std::string(w[2]) + "'");
+        throw header_error("element '" + e.name + "' has malformed count '" + std::string(w[2]) +
+                           "'");
       elements.push_back(std::move(e));
     } else if (w[0] == "property") {
       if (elements.empty()) throw header_error("'property' before any 'element'");
@@ -307,7 +325,8 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
         if (!parse_type(w[2], prop.count_type) || !parse_type(w[3], prop.type))
           throw header_error("unknown type in '" + std::string(line) + "'");
         if (!is_integer(prop.count_type))
-          throw header_error("list count type must be an integer type in '" + std::string(line) + "'");
+          throw header_error("list count type must be an integer type in '" + std::string(line) +
+                             "'");
         prop.is_list = true;
         prop.name = std::string(w[4]);
       } else if (w.size() >= 3 && w[1] != "list") {
@@ -323,7 +342,8 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
     }
   }
   if (!have_end)
-    throw LoadError(name + ": the header has no 'end_header' line; the file is truncated or not PLY");
+    throw LoadError(name +
+                    ": the header has no 'end_header' line; the file is truncated or not PLY");
   if (!have_format) throw LoadError(name + ": the header has no 'format' line");
 
   // --- Locate the vertex and face elements and map their properties. ---
@@ -345,10 +365,9 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
     const Property& pr = vert_elem->props[i];
     if (pr.is_list) continue;
     static constexpr std::pair<std::string_view, int> kSlots[] = {
-        {"x", 0},         {"y", 1},         {"z", 2},         {"nx", 3},
-        {"ny", 4},        {"nz", 5},        {"u", 6},         {"v", 7},
-        {"s", 6},         {"t", 7},         {"texture_u", 6}, {"texture_v", 7},
-        {"texture_s", 6}, {"texture_t", 7}};
+        {"x", 0},         {"y", 1},         {"z", 2},         {"nx", 3},       {"ny", 4},
+        {"nz", 5},        {"u", 6},         {"v", 7},         {"s", 6},        {"t", 7},
+        {"texture_u", 6}, {"texture_v", 7}, {"texture_s", 6}, {"texture_t", 7}};
     for (const auto& [n, slot] : kSlots)
       if (pr.name == n && !have[slot]) {
         vslot[i] = slot;
@@ -370,8 +389,9 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
       }
     }
     if (face_list < 0 && face_elem->count > 0)
-      throw LoadError(name + ": the face element has no list property 'vertex_indices' or "
-                             "'vertex_index'");
+      throw LoadError(name +
+                      ": the face element has no list property 'vertex_indices' or "
+                      "'vertex_index'");
     if (face_list >= 0 && !is_integer(face_elem->props[size_t(face_list)].type))
       throw LoadError(name + ": face indices must have an integer type");
   }
@@ -417,15 +437,14 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
             continue;
           }
           const int64_t m = r.read_int(pr.count_type);
-          if (m < 3)
-            r.fail("face has " + std::to_string(m) + " vertices; a face needs at least 3");
+          if (m < 3) r.fail("has " + std::to_string(m) + " vertices; a face needs at least 3");
           if (uint64_t(m) > r.remaining()) r.fail_eof();
           // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (BENCHMARK.md).
           uint32_t first = 0, prev = 0;
           for (int64_t j = 0; j < m; ++j) {
             const int64_t idx = r.read_int(pr.type);
             if (idx < 0 || uint64_t(idx) >= nv)
-              r.fail("face references vertex " + std::to_string(idx) + " but the file has " +
+              r.fail("references vertex " + std::to_string(idx) + " but the file has " +
                      std::to_string(nv) + " vertices");
             const uint32_t u = uint32_t(idx);
             if (j == 0)
@@ -453,10 +472,12 @@ Scene load_ply(const std::string& path) {
   const std::streamoff len = in.tellg();
   if (len < 0) throw LoadError(path + ": cannot determine the file size");
   in.seekg(0, std::ios::beg);
-  std::vector<char> buf(static_cast<size_t>(len));
-  if (len > 0 && !in.read(buf.data(), len))
+  // Uninitialised buffer: zero-filling 33 MB first would only cost time.
+  const size_t size = static_cast<size_t>(len);
+  std::unique_ptr<char[]> buf(new char[std::max<size_t>(size, 1)]);
+  if (size > 0 && !in.read(buf.get(), len))
     throw LoadError(path + ": read error after " + std::to_string(in.gcount()) + " bytes");
-  return parse_ply(buf.data(), buf.size(), path);
+  return parse_ply(buf.get(), size, path);
 }
 
 }  // namespace kdgrid

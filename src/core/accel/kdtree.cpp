@@ -1,0 +1,425 @@
+#include "accel/kdtree.h"
+
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_invoke.h>
+#include <tbb/parallel_sort.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <string>
+
+#include "util/error.h"
+
+namespace kdgrid {
+namespace {
+
+// Event types in sweep order at equal positions: triangles ending at p are left of a plane
+// at p, planar ones are in it, starting ones are right of it (Wald & Havran, sec. 4.2).
+enum EventType : uint8_t { kEnd = 0, kPlanar = 1, kStart = 2 };
+
+struct Event {
+  float pos;
+  uint32_t prim;
+  uint8_t axis;
+  uint8_t type;
+};
+
+inline bool event_less(const Event& a, const Event& b) {
+  if (a.axis != b.axis) return a.axis < b.axis;
+  if (a.pos != b.pos) return a.pos < b.pos;
+  if (a.type != b.type) return a.type < b.type;
+  return a.prim < b.prim;
+}
+
+/// Appends the events of a triangle whose (clipped) bounds are `b`.
+inline void add_events(std::vector<Event>& out, uint32_t prim, const Box3& b) {
+  for (int a = 0; a < 3; ++a) {
+    if (b.lo[a] == b.hi[a]) {
+      out.push_back({b.lo[a], prim, uint8_t(a), kPlanar});
+    } else {
+      out.push_back({b.lo[a], prim, uint8_t(a), kStart});
+      out.push_back({b.hi[a], prim, uint8_t(a), kEnd});
+    }
+  }
+}
+
+/// Bounds of triangle `c` clipped to `box` (Sutherland-Hodgman against the six box planes),
+/// clamped into the box. Returns false if nothing is left.
+bool clipped_bounds(const std::array<Vec3, 3>& c, const Box3& box, Box3& out) {
+  Vec3d poly[12], tmp[12];
+  int n = 3;
+  for (int k = 0; k < 3; ++k) poly[k] = Vec3d(c[k]);
+  for (int a = 0; a < 3 && n > 0; ++a) {
+    for (int side = 0; side < 2 && n > 0; ++side) {
+      const double plane = side == 0 ? box.lo[a] : box.hi[a];
+      auto inside = [&](const Vec3d& p) { return side == 0 ? p[a] >= plane : p[a] <= plane; };
+      int m = 0;
+      for (int i = 0; i < n; ++i) {
+        const Vec3d& p = poly[i];
+        const Vec3d& q = poly[(i + 1) % n];
+        const bool ip = inside(p), iq = inside(q);
+        if (ip) tmp[m++] = p;
+        if (ip != iq) {
+          const double t = (plane - p[a]) / (q[a] - p[a]);
+          Vec3d x = p + (q - p) * t;
+          double xs[3] = {x.x, x.y, x.z};
+          xs[a] = plane;  // exactly on the plane
+          tmp[m++] = Vec3d(xs[0], xs[1], xs[2]);
+        }
+      }
+      n = m;
+      std::copy(tmp, tmp + m, poly);
+    }
+  }
+  if (n == 0) return false;
+  Box3 b;
+  for (int i = 0; i < n; ++i) {
+    // Round outwards so the float bounds contain the exact clipped polygon.
+    const Vec3 lo(float(poly[i].x), float(poly[i].y), float(poly[i].z));
+    b.grow(lo);
+    for (int a = 0; a < 3; ++a) {
+      if (double(b.lo[a]) > poly[i][a]) b.lo[a] = next_float_down(b.lo[a]);
+      if (double(b.hi[a]) < poly[i][a]) b.hi[a] = next_float_up(b.hi[a]);
+    }
+  }
+  out = b.intersect(box);
+  return !out.empty();
+}
+
+struct Subtree {
+  std::vector<KdNode> nodes;
+  std::vector<uint32_t> prims;
+};
+
+KdNode make_leaf(Subtree& out, std::vector<uint32_t>& ids) {
+  KdNode n;
+  n.bits = (uint32_t(ids.size()) << 2) | 3u;
+  if (ids.size() == 1) {
+    n.one_prim = ids[0];
+  } else {
+    n.prim_offset = uint32_t(out.prims.size());
+    out.prims.insert(out.prims.end(), ids.begin(), ids.end());
+  }
+  return n;
+}
+
+class Builder {
+ public:
+  Builder(const Mesh& mesh, const BuildParams& p, int max_depth)
+      : mesh_(mesh),
+        kt_(p.kd_traversal_cost),
+        ki_(p.kd_intersection_cost),
+        empty_mult_(1.0f - p.kd_empty_bonus),
+        max_depth_(max_depth) {}
+
+  void build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth, Subtree& out);
+  uint64_t sah_evaluations() const { return sah_evals_.load(); }
+
+ private:
+  struct Split {
+    float cost = kInf;
+    int axis = -1;
+    float pos = 0;
+    bool planar_left = true;
+  };
+  Split find_split(const std::vector<Event>& events, uint32_t n, const Box3& box);
+  void leaf(const std::vector<Event>& events, Subtree& out);
+
+  // Node builds of at least this many triangles, above this depth, run their children in
+  // parallel; below, the recursion is sequential (task overhead and subtree copies win).
+  static constexpr uint32_t kParallelPrims = 4096;
+  static constexpr int kParallelDepth = 12;
+
+  const Mesh& mesh_;
+  float kt_, ki_, empty_mult_;
+  int max_depth_;
+  std::atomic<uint64_t> sah_evals_{0};
+  // Per-thread classification flags indexed by triangle: a node writes and reads them within
+  // one task, so concurrent subtrees never see each other's flags.
+  tbb::enumerable_thread_specific<std::vector<uint8_t>> flags_;
+};
+
+Builder::Split Builder::find_split(const std::vector<Event>& events, uint32_t n, const Box3& box) {
+  Split best;
+  const float area = box.area();
+  if (!(area > 0.0f)) return best;
+  const float inv_area = 1.0f / area;
+  uint64_t evals = 0;
+  size_t i = 0;
+  const size_t size = events.size();
+  for (int a = 0; a < 3; ++a) {
+    uint32_t nl = 0, nr = n;
+    const float lo = box.lo[a], hi = box.hi[a];
+    while (i < size && events[i].axis == a) {
+      const float p = events[i].pos;
+      uint32_t pe = 0, pp = 0, ps = 0;
+      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kEnd)
+        ++pe, ++i;
+      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kPlanar)
+        ++pp, ++i;
+      while (i < size && events[i].axis == a && events[i].pos == p && events[i].type == kStart)
+        ++ps, ++i;
+      const uint32_t np = pp;
+      nr -= pp + pe;
+      if (p >= lo && p <= hi) {
+        ++evals;
+        Box3 bl = box, br = box;
+        bl.hi[a] = p;
+        br.lo[a] = p;
+        const float pl = bl.area() * inv_area, pr = br.area() * inv_area;
+        const bool boundary = p == lo || p == hi;
+        auto cost = [&](uint32_t cl, uint32_t cr) {
+          if (boundary && (cl == 0 || cr == 0)) return kInf;
+          float c = kt_ + ki_ * (pl * float(cl) + pr * float(cr));
+          if (!boundary && (cl == 0 || cr == 0)) c *= empty_mult_;
+          return c;
+        };
+        const float c_left = cost(nl + np, nr), c_right = cost(nl, nr + np);
+        const bool left = c_left <= c_right;
+        const float c = left ? c_left : c_right;
+        if (c < best.cost) best = {c, a, p, left};
+      }
+      nl += ps + pp;
+    }
+  }
+  sah_evals_.fetch_add(evals, std::memory_order_relaxed);
+  return best;
+}
+
+void Builder::leaf(const std::vector<Event>& events, Subtree& out) {
+  std::vector<uint32_t> ids;
+  for (const Event& e : events)
+    if (e.axis == 0 && e.type != kEnd) ids.push_back(e.prim);
+  std::sort(ids.begin(), ids.end());
+  out.nodes.push_back(make_leaf(out, ids));
+}
+
+void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth,
+                    Subtree& out) {
+  if (n == 0 || depth >= max_depth_) return leaf(events, out);
+  const Split sp = find_split(events, n, box);
+  if (sp.axis < 0 || !(sp.cost < ki_ * float(n))) return leaf(events, out);
+
+  // Classify (Wald & Havran sec. 5.1): on the split axis, a triangle ending at or before
+  // the plane is left only, one starting at or after it right only, planar ones by position
+  // and the chosen side; everything else straddles and goes to both.
+  enum : uint8_t { kBoth = 0, kLeft = 1, kRight = 2 };
+  auto& flags = flags_.local();
+  if (flags.size() < mesh_.num_triangles()) flags.assign(mesh_.num_triangles(), kBoth);
+  for (const Event& e : events)
+    if (e.axis == 0 && e.type != kEnd) flags[e.prim] = kBoth;
+  for (const Event& e : events) {
+    if (e.axis != sp.axis) continue;
+    if (e.type == kEnd && e.pos <= sp.pos)
+      flags[e.prim] = kLeft;
+    else if (e.type == kStart && e.pos >= sp.pos)
+      flags[e.prim] = kRight;
+    else if (e.type == kPlanar) {
+      if (e.pos < sp.pos || (e.pos == sp.pos && sp.planar_left))
+        flags[e.prim] = kLeft;
+      else
+        flags[e.prim] = kRight;
+    }
+  }
+  std::vector<Event> left, right;
+  std::vector<uint32_t> both;
+  uint32_t n_left_only = 0, n_right_only = 0;
+  for (const Event& e : events) {
+    const uint8_t f = flags[e.prim];
+    if (f == kLeft) {
+      left.push_back(e);
+      n_left_only += e.axis == 0 && e.type != kEnd;
+    } else if (f == kRight) {
+      right.push_back(e);
+      n_right_only += e.axis == 0 && e.type != kEnd;
+    } else if (e.axis == 0 && e.type != kEnd) {
+      both.push_back(e.prim);
+    }
+  }
+  std::vector<Event>().swap(events);
+
+  // Perfect splits: straddling triangles get new events from their bounds clipped to each
+  // child; only these are sorted, then merged with the (already sorted) one-sided events.
+  Box3 box_l = box, box_r = box;
+  box_l.hi[sp.axis] = sp.pos;
+  box_r.lo[sp.axis] = sp.pos;
+  std::vector<Event> new_l, new_r;
+  for (uint32_t prim : both) {
+    const auto c = mesh_.corners(prim);
+    for (int side = 0; side < 2; ++side) {
+      const Box3& cb = side == 0 ? box_l : box_r;
+      Box3 b;
+      // Rounding may clip away a triangle that touches the child: keep its bounds instead.
+      if (!clipped_bounds(c, cb, b)) b = mesh_.triangle_bounds(prim).intersect(cb);
+      if (b.empty()) b = cb;
+      add_events(side == 0 ? new_l : new_r, prim, b);
+    }
+  }
+  auto merge_in = [](std::vector<Event>& sorted, std::vector<Event>& extra) {
+    if (extra.empty()) return;
+    std::sort(extra.begin(), extra.end(), event_less);
+    std::vector<Event> merged;
+    merged.reserve(sorted.size() + extra.size());
+    std::merge(sorted.begin(), sorted.end(), extra.begin(), extra.end(), std::back_inserter(merged),
+               event_less);
+    sorted.swap(merged);
+  };
+  merge_in(left, new_l);
+  merge_in(right, new_r);
+  std::vector<Event>().swap(new_l);
+  std::vector<Event>().swap(new_r);
+  const uint32_t nb = uint32_t(both.size());
+  std::vector<uint32_t>().swap(both);
+  const uint32_t nl = n_left_only + nb, nr = n_right_only + nb;
+
+  const size_t self = out.nodes.size();
+  out.nodes.push_back({});
+  if (depth < kParallelDepth && n >= kParallelPrims) {
+    Subtree sl, sr;
+    tbb::parallel_invoke([&] { build(left, nl, box_l, depth + 1, sl); },
+                         [&] { build(right, nr, box_r, depth + 1, sr); });
+    auto append = [&](const Subtree& s) {
+      const uint32_t node_base = uint32_t(out.nodes.size());
+      const uint32_t prim_base = uint32_t(out.prims.size());
+      for (KdNode nd : s.nodes) {
+        if (!nd.leaf())
+          nd.bits += node_base << 2;
+        else if (nd.count() > 1)
+          nd.prim_offset += prim_base;
+        out.nodes.push_back(nd);
+      }
+      out.prims.insert(out.prims.end(), s.prims.begin(), s.prims.end());
+    };
+    append(sl);
+    const uint32_t above = uint32_t(out.nodes.size());
+    append(sr);
+    out.nodes[self].split = sp.pos;
+    out.nodes[self].bits = (above << 2) | uint32_t(sp.axis);
+  } else {
+    build(left, nl, box_l, depth + 1, out);
+    const uint32_t above = uint32_t(out.nodes.size());
+    build(right, nr, box_r, depth + 1, out);
+    out.nodes[self].split = sp.pos;
+    out.nodes[self].bits = (above << 2) | uint32_t(sp.axis);
+  }
+  if (out.nodes.size() >= (size_t(1) << 30))
+    throw ParamError(
+        "kdtree: more than 2^30 nodes; lower kd_max_depth or raise "
+        "kd_intersection_cost relative to kd_traversal_cost");
+}
+
+}  // namespace
+
+BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
+  const auto t_start = std::chrono::steady_clock::now();
+  if (!(params.kd_intersection_cost > 0.0f) || !(params.kd_traversal_cost >= 0.0f) ||
+      !std::isfinite(params.kd_intersection_cost) || !std::isfinite(params.kd_traversal_cost))
+    throw ParamError(
+        "kdtree: kd_traversal_cost must be >= 0 and kd_intersection_cost > 0 "
+        "(--kd-cost-ratio), e.g. 1 and 1.5");
+  if (!(params.kd_empty_bonus >= 0.0f && params.kd_empty_bonus < 1.0f))
+    throw ParamError("kdtree: kd_empty_bonus must be in [0, 1), e.g. 0.2; got " +
+                     std::to_string(params.kd_empty_bonus));
+  if (params.kd_max_depth < 0 || params.kd_max_depth > kMaxDepth)
+    throw ParamError("kdtree: kd_max_depth must be 0 (auto) or 1.." + std::to_string(kMaxDepth) +
+                     " (the traversal stack's size); got " + std::to_string(params.kd_max_depth));
+  mesh_ = &mesh;
+  test_ = params.triangle_test;
+  stats_ = {};
+  nodes_.clear();
+  prims_.clear();
+  const size_t n = mesh.num_triangles();
+  bounds_ = mesh.bounds();
+  if (n == 0 || bounds_.empty()) {
+    bounds_ = Box3();
+    stats_.seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+    return stats_;
+  }
+  max_abs_ = std::max(max_component(abs(bounds_.lo)), max_component(abs(bounds_.hi)));
+  const int max_depth =
+      params.kd_max_depth > 0
+          ? params.kd_max_depth
+          : std::min(kMaxDepth, int(std::lround(8.0 + 1.3 * std::log2(double(n)))));
+
+  tbb::task_arena arena(effective_threads(params.threads));
+  Subtree tree;
+  Builder builder(mesh, params, max_depth);
+  arena.execute([&] {
+    std::vector<Event> events;
+    events.reserve(n * 6);
+    for (size_t i = 0; i < n; ++i) add_events(events, uint32_t(i), mesh.triangle_bounds(i));
+    tbb::parallel_sort(events.begin(), events.end(), event_less);
+    builder.build(events, uint32_t(n), bounds_, 0, tree);
+  });
+  nodes_ = std::move(tree.nodes);
+  prims_ = std::move(tree.prims);
+  nodes_.shrink_to_fit();
+  prims_.shrink_to_fit();
+
+  // Statistics from a walk of the finished tree.
+  stats_.sah_evaluations = builder.sah_evaluations();
+  stats_.nodes = nodes_.size();
+  struct Item {
+    uint32_t node;
+    uint32_t depth;
+  };
+  std::vector<Item> todo{{0, 0}};
+  while (!todo.empty()) {
+    const Item it = todo.back();
+    todo.pop_back();
+    const KdNode& nd = nodes_[it.node];
+    stats_.max_depth = std::max(stats_.max_depth, it.depth);
+    if (nd.leaf()) {
+      ++stats_.leaves;
+      stats_.empty_leaves += nd.count() == 0;
+      stats_.references += nd.count();
+    } else {
+      todo.push_back({it.node + 1, it.depth + 1});
+      todo.push_back({nd.above(), it.depth + 1});
+    }
+  }
+  const uint64_t b_nodes = nodes_.size() * sizeof(KdNode),
+                 b_refs = prims_.size() * sizeof(uint32_t);
+  stats_.bytes = b_nodes + b_refs;
+  stats_.bytes_by_part = {{"nodes", b_nodes}, {"references", b_refs}};
+  stats_.extra = {{"max_depth_limit", std::to_string(max_depth)}};
+  stats_.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  return stats_;
+}
+
+namespace {
+template <class Fn>
+void walk(const std::vector<KdNode>& nodes, uint32_t node, const Box3& box, int depth, Fn&& fn) {
+  fn(node, box, depth);
+  const KdNode& n = nodes[node];
+  if (n.leaf()) return;
+  Box3 lo = box, hi = box;
+  lo.hi[n.axis()] = n.split;
+  hi.lo[n.axis()] = n.split;
+  walk(nodes, node + 1, lo, depth + 1, fn);
+  walk(nodes, n.above(), hi, depth + 1, fn);
+}
+}  // namespace
+
+void KdTree::for_each_split(const std::function<void(const SplitPlane&)>& fn) const {
+  if (nodes_.empty()) return;
+  walk(nodes_, 0, bounds_, 0, [&](uint32_t i, const Box3& box, int depth) {
+    const KdNode& n = nodes_[i];
+    if (!n.leaf()) fn({n.axis(), n.split, box, depth});
+  });
+}
+
+void KdTree::for_each_box(const std::function<void(const StructureBox&)>& fn) const {
+  if (nodes_.empty()) return;
+  walk(nodes_, 0, bounds_, 0, [&](uint32_t i, const Box3& box, int depth) {
+    const KdNode& n = nodes_[i];
+    if (n.leaf()) fn({box, depth, true, n.count()});
+  });
+}
+
+}  // namespace kdgrid

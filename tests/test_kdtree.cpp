@@ -1,0 +1,239 @@
+// SAH kd-tree: agreement with brute force on procedural meshes and on extreme rays lying in
+// split planes, counted/traced traversal, node layout and build statistics.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <set>
+
+#include "accel/kdtree.h"
+#include "comparator_meshes.h"
+#include "util/error.h"
+
+namespace kdgrid {
+namespace {
+
+using test::count_disagreements;
+
+std::vector<std::pair<int, float>> split_planes(const KdTree& kd, size_t max_planes) {
+  std::vector<std::pair<int, float>> planes;
+  std::set<std::pair<int, float>> seen;
+  kd.for_each_split([&](const SplitPlane& p) {
+    if (planes.size() < max_planes && seen.insert({p.axis, p.position}).second)
+      planes.push_back({p.axis, p.position});
+  });
+  for (int a = 0; a < 3; ++a) {
+    planes.push_back({a, kd.bounds().lo[a]});
+    planes.push_back({a, kd.bounds().hi[a]});
+  }
+  return planes;
+}
+
+TEST(KdTree, AgreesWithBruteForceOnProceduralMeshes) {
+  for (const auto& [name, mesh] : test::test_meshes()) {
+    SCOPED_TRACE(name);
+    KdTree kd;
+    const BuildStats st = kd.build(mesh, BuildParams{});
+    EXPECT_GT(st.nodes, 1u);
+    const auto rays = test::random_rays(mesh, 17, 20000);
+    int hits = 0;
+    EXPECT_EQ(count_disagreements(mesh, kd, rays, 5, &hits), 0);
+    EXPECT_GT(hits, 2000);
+  }
+}
+
+TEST(KdTree, MollerVariantAgreesWithBruteForceMoller) {
+  const Mesh mesh = test::random_soup(5, 2000);
+  BuildParams p;
+  p.triangle_test = TriangleTestKind::Moller;
+  KdTree kd;
+  kd.build(mesh, p);
+  BruteForce b;
+  b.build(mesh, p);
+  int bad = 0;
+  for (const Ray& r : test::random_rays(mesh, 9, 10000)) {
+    Hit hk, hb;
+    const bool a = kd.intersect(r, hk), c = b.intersect(r, hb);
+    if (a != c || (a && hk.t != hb.t)) ++bad;
+  }
+  EXPECT_EQ(bad, 0);
+}
+
+// Rays lying exactly in split planes (with +0 and -0 components), axis-parallel rays,
+// origins on the planes and on the box, at several scales and offsets. The integer quads
+// make the SAH put many splits exactly on planes full of coplanar triangles.
+TEST(KdTree, ExtremeRaysInSplitPlanes) {
+  struct Case {
+    const char* name;
+    float scale;
+    Vec3 offset;
+  };
+  const Case cases[] = {{"unit", 1.0f, Vec3(0.0f)},
+                        {"scale 1e-6", 1e-6f, Vec3(0.0f)},
+                        {"scale 1e6", 1e6f, Vec3(0.0f)},
+                        {"translated 1e5", 1.0f, Vec3(1e5f, 1e5f, -1e5f)}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Mesh mesh = test::transformed(test::integer_quads(8), c.scale, c.offset);
+    KdTree kd;
+    kd.build(mesh, BuildParams{});
+    const auto planes = split_planes(kd, 60);
+    // The tree does split on the planes of the quads.
+    int on_quads = 0;
+    for (const auto& [a, p] : planes) {
+      const float q = (p - c.offset[a]) / c.scale;
+      on_quads += std::fabs(q - std::round(q)) < 1e-3f;
+    }
+    EXPECT_GT(on_quads, 10);
+    const auto rays = test::extreme_rays(mesh, planes, 23, 40);
+    EXPECT_EQ(count_disagreements(mesh, kd, rays), 0);
+    // Rays in a split plane visit both children over one interval, so trace order is only
+    // checked on the other rays.
+    std::vector<Ray> off_plane;
+    for (const Ray& r : rays)
+      if (r.dir.x != 0 && r.dir.y != 0 && r.dir.z != 0) off_plane.push_back(r);
+    EXPECT_EQ(test::check_counted_and_trace(kd, off_plane), 0);
+  }
+}
+
+TEST(KdTree, ExtremeRaysOnProceduralMeshes) {
+  for (const auto& [name, mesh] : test::test_meshes()) {
+    SCOPED_TRACE(name);
+    KdTree kd;
+    kd.build(mesh, BuildParams{});
+    const auto rays = test::extreme_rays(mesh, split_planes(kd, 40), 29, 20);
+    EXPECT_EQ(count_disagreements(mesh, kd, rays), 0);
+  }
+}
+
+// A ray lying exactly in a plane full of coplanar triangles must find them whichever side
+// the builder put them on.
+TEST(KdTree, RayInPlaneOfCoplanarTriangles) {
+  Mesh m = test::integer_quads(6);
+  KdTree kd;
+  kd.build(m, BuildParams{});
+  std::vector<Ray> rays;
+  for (int a = 0; a <= 6; ++a)
+    for (float z : {0.0f, -0.0f})
+      for (float s : {1.0f, -1.0f}) {
+        rays.push_back({Vec3(float(a), -1.0f, 2.5f), 0.0f, Vec3(z, s * 1.0f, 0.3f), kInf});
+        rays.push_back({Vec3(2.5f, float(a), 7.0f), 0.0f, Vec3(0.2f, z, -s), kInf});
+        rays.push_back({Vec3(0.5f, 3.5f, float(a)), 0.0f, Vec3(s, 0.1f, z), kInf});
+        rays.push_back({Vec3(float(a), 3.0f, 3.0f), 0.0f, Vec3(z, s, z), kInf});
+      }
+  EXPECT_EQ(count_disagreements(m, kd, rays), 0);
+}
+
+TEST(KdTree, SignedZeroDirections) {
+  const Mesh mesh = test::sphere(16, 32);
+  KdTree kd;
+  kd.build(mesh, BuildParams{});
+  std::vector<Ray> rays;
+  const float zs[2] = {0.0f, -0.0f};
+  for (float z0 : zs)
+    for (float z1 : zs)
+      for (float o : {-3.0f, -1.0f, 0.0f, 0.25f, 1.0f, 3.0f}) {
+        rays.push_back({Vec3(o, 0.1f, 0.2f), 0.0f, Vec3(1.0f, z0, z1), kInf});
+        rays.push_back({Vec3(0.1f, o, 0.2f), 0.0f, Vec3(z0, -1.0f, z1), kInf});
+        rays.push_back({Vec3(0.3f, 0.2f, o), 0.0f, Vec3(z0, z1, 1.0f), kInf});
+        rays.push_back({Vec3(o, 1.0f, 0.0f), 0.0f, Vec3(z0, z1, -1.0f), kInf});
+      }
+  EXPECT_EQ(count_disagreements(mesh, kd, rays), 0);
+}
+
+TEST(KdTree, CountedAndTracedTraversalMatchFastPath) {
+  const Mesh mesh = test::random_soup(11, 3000);
+  KdTree kd;
+  kd.build(mesh, BuildParams{});
+  const auto rays = test::random_rays(mesh, 3, 5000);
+  EXPECT_EQ(test::check_counted_and_trace(kd, rays), 0);
+  // Interior and leaf steps are both reported, leaves deeper than the root.
+  const Trace t = kd.trace(rays[0]);
+  ASSERT_FALSE(t.steps.empty());
+  EXPECT_EQ(t.steps.front().kind, StepKind::Inner);
+  EXPECT_EQ(t.steps.front().depth, 0);
+}
+
+TEST(KdTree, BuildStatisticsAreConsistent) {
+  const Mesh mesh = test::sphere(60, 120);
+  KdTree kd;
+  const BuildStats st = kd.build(mesh, BuildParams{});
+  EXPECT_EQ(st.nodes, kd.nodes().size());
+  EXPECT_EQ(st.nodes, 2 * st.leaves - 1);  // a full binary tree
+  EXPECT_GT(st.sah_evaluations, st.nodes);
+  EXPECT_GE(st.references, mesh.num_triangles());
+  EXPECT_GT(st.empty_leaves, 0u);
+  const int limit = int(std::lround(8 + 1.3 * std::log2(double(mesh.num_triangles()))));
+  EXPECT_LE(int(st.max_depth), limit);
+  EXPECT_GT(st.max_depth, 8u);
+  EXPECT_EQ(st.bytes, st.nodes * 8 + (st.bytes_by_part.at(1).second));
+  uint64_t splits = 0, leaves = 0, refs = 0;
+  kd.for_each_split([&](const SplitPlane& p) {
+    ++splits;
+    EXPECT_GE(p.position, p.node_box.lo[p.axis]);
+    EXPECT_LE(p.position, p.node_box.hi[p.axis]);
+  });
+  kd.for_each_box([&](const StructureBox& b) {
+    ++leaves;
+    refs += b.num_triangles;
+    EXPECT_TRUE(b.leaf);
+  });
+  EXPECT_EQ(splits + leaves, st.nodes);
+  EXPECT_EQ(leaves, st.leaves);
+  EXPECT_EQ(refs, st.references);
+  // Every triangle of a leaf touches the leaf's box (perfect splits never add strays).
+  kd.for_each_box([&](const StructureBox& b) { EXPECT_FALSE(b.box.empty()); });
+
+  // A higher intersection cost buys a deeper, finer tree.
+  BuildParams p;
+  p.kd_intersection_cost = 20.0f;
+  KdTree fine;
+  const BuildStats sf = fine.build(mesh, p);
+  EXPECT_LT(double(sf.references) / double(sf.leaves), double(st.references) / double(st.leaves));
+}
+
+TEST(KdTree, PlanarTrianglesAreNotDuplicated) {
+  // A flat grid of triangles in z = 0: splits cut between triangles, and the coplanar
+  // triangles are never referenced twice merely for lying in a split plane.
+  Mesh flat;
+  for (int i = 0; i < 64; ++i)
+    for (int j = 0; j < 64; ++j)
+      test::add_tri(flat, Vec3(i, j, 0), Vec3(i + 1, j, 0), Vec3(i, j + 1, 0));
+  KdTree kd;
+  const BuildStats st = kd.build(flat, BuildParams{});
+  EXPECT_LT(double(st.references), 1.6 * double(flat.num_triangles()));
+  EXPECT_EQ(count_disagreements(flat, kd, test::random_rays(flat, 4, 5000)), 0);
+}
+
+TEST(KdTree, RejectsBadParameters) {
+  const Mesh mesh = test::sphere(4, 8);
+  KdTree kd;
+  BuildParams p;
+  p.kd_max_depth = 1000;
+  EXPECT_THROW(kd.build(mesh, p), ParamError);
+  p = {};
+  p.kd_intersection_cost = 0.0f;
+  EXPECT_THROW(kd.build(mesh, p), ParamError);
+  p = {};
+  p.kd_empty_bonus = 1.0f;
+  EXPECT_THROW(kd.build(mesh, p), ParamError);
+}
+
+TEST(KdTree, BuildsLargeMeshQuickly) {
+  // 300K triangles: checks the O(N log N) build stays far from quadratic (about 3 s of CPU).
+  const Mesh mesh = test::sphere(400, 375);
+  KdTree kd;
+  const BuildStats st = kd.build(mesh, BuildParams{});
+  std::printf("kd-tree over %zu triangles: %.2f s, %llu nodes, %llu refs, depth %u\n",
+              mesh.num_triangles(), st.seconds, (unsigned long long)st.nodes,
+              (unsigned long long)st.references, st.max_depth);
+  EXPECT_LT(st.seconds, 60.0);
+  EXPECT_EQ(count_disagreements(mesh, kd, test::random_rays(mesh, 8, 200)), 0);
+}
+
+TEST(KdTree, RegisteredInFactory) {
+  auto a = make_accelerator("kdtree");
+  EXPECT_EQ(a->name(), "kdtree");
+}
+
+}  // namespace
+}  // namespace kdgrid
