@@ -5,13 +5,14 @@
 #include "accel/bvh.h"
 #include "accel/embree.h"
 #include "accel/grid.h"
+#include "accel/hybrid.h"
 #include "accel/kdtree.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
 std::vector<std::string> accelerator_names() {
-  return {"brute", "bvh", "grid", "kdtree", "embree"};
+  return {"brute", "bvh", "grid", "kdtree", "hybrid", "embree"};
 }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
@@ -19,6 +20,7 @@ std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "bvh") return std::make_unique<Bvh>();
   if (name == "grid") return std::make_unique<UniformGrid>();
   if (name == "kdtree") return std::make_unique<KdTree>();
+  if (name == "hybrid") return std::make_unique<Hybrid>();
   if (name == "embree") return std::make_unique<EmbreeAccel>();
   std::string valid;
   for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;

@@ -1,0 +1,577 @@
+#include "accel/hybrid.h"
+
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+#include <tbb/task_group.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include "util/error.h"
+
+namespace kdgrid {
+
+namespace {
+
+/// Nodes with more references than this build their children as parallel tasks.
+constexpr size_t kParallelThreshold = 2048;
+
+std::string fmt(const char* f, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+
+std::string bytes_str(double b) {
+  if (b >= double(uint64_t(1) << 30)) return fmt("%.3g GiB", b / double(uint64_t(1) << 30));
+  if (b >= double(1 << 20)) return fmt("%.3g MiB", b / double(1 << 20));
+  return fmt("%.0f bytes", b);
+}
+
+/// A triangle reference during the build: its inclusive integer cell range in the node.
+struct Ref {
+  uint32_t prim;
+  int32_t lo[3], hi[3];
+};
+
+struct BuildNode {
+  int axis = -1;  ///< -1 leaf
+  int32_t split = 0;
+  int32_t lo[3], hi[3];
+  int depth = 0;
+  std::unique_ptr<BuildNode> kid[2];
+  std::vector<uint32_t> prims;
+};
+
+struct P3 {
+  double v[3];
+};
+
+class TreeBuilder {
+ public:
+  TreeBuilder(const Mesh& mesh, const double origin[3], double cell, const int32_t dims[3],
+              const BuildParams& p)
+      : mesh_(mesh), inv_cell_(1.0 / cell) {
+    for (int a = 0; a < 3; ++a) {
+      origin_[a] = origin[a];
+      dims_[a] = dims[a];
+    }
+    kt_ = p.hybrid_traversal_cost;
+    ki_ = p.hybrid_intersection_cost;
+    bonus_ = std::clamp(double(p.kd_empty_bonus), 0.0, 1.0);
+    const double n = double(std::max<size_t>(1, mesh.num_triangles()));
+    max_depth_ = p.kd_max_depth > 0 ? p.kd_max_depth : int(8.0 + 1.3 * std::log2(n));
+    max_depth_ = std::clamp(max_depth_, 1, 64);
+  }
+
+  std::unique_ptr<BuildNode> build_root() {
+    const size_t n = mesh_.num_triangles();
+    std::vector<Ref> refs(n);
+    const int32_t lo[3] = {0, 0, 0};
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i < r.end(); ++i) clip_range(uint32_t(i), lo, dims_, refs[i]);
+    });
+    return build(std::move(refs), lo, dims_, 0);
+  }
+
+  uint64_t sah_evaluations() const { return evals_.load(); }
+
+ private:
+  P3 grid_vertex(uint32_t v) const {
+    const Vec3& p = mesh_.positions[v];
+    return {{(double(p.x) - origin_[0]) * inv_cell_, (double(p.y) - origin_[1]) * inv_cell_,
+             (double(p.z) - origin_[2]) * inv_cell_}};
+  }
+
+  /// The triangle clipped to the node box [lo, hi) widened by kRangeEps (Sutherland-Hodgman),
+  /// as an inclusive integer cell range. False if the triangle misses the box.
+  bool clip_range(uint32_t prim, const int32_t lo[3], const int32_t hi[3], Ref& out) const {
+    constexpr double eps = Hybrid::kRangeEps;
+    P3 poly[16], tmp[16];
+    int n = 3;
+    const auto& tri = mesh_.triangles[prim];
+    for (int k = 0; k < 3; ++k) poly[k] = grid_vertex(tri[k]);
+    double bl[3], bh[3];
+    auto bounds = [&] {
+      for (int a = 0; a < 3; ++a) {
+        bl[a] = bh[a] = poly[0].v[a];
+        for (int k = 1; k < n; ++k) {
+          bl[a] = std::min(bl[a], poly[k].v[a]);
+          bh[a] = std::max(bh[a], poly[k].v[a]);
+        }
+      }
+    };
+    bounds();
+    bool inside = true;
+    for (int a = 0; a < 3; ++a)
+      inside = inside && bl[a] >= double(lo[a]) - eps && bh[a] <= double(hi[a]) + eps;
+    if (!inside) {
+      for (int a = 0; a < 3 && n > 0; ++a) {
+        for (int side = 0; side < 2 && n > 0; ++side) {
+          const double plane = side == 0 ? double(lo[a]) - eps : double(hi[a]) + eps;
+          auto in = [&](const P3& q) { return side == 0 ? q.v[a] >= plane : q.v[a] <= plane; };
+          int m = 0;
+          for (int k = 0; k < n; ++k) {
+            const P3& p = poly[k];
+            const P3& q = poly[(k + 1) % n];
+            const bool pin = in(p), qin = in(q);
+            if (pin) tmp[m++] = p;
+            if (pin != qin) {
+              const double t = (plane - p.v[a]) / (q.v[a] - p.v[a]);
+              P3 x;
+              for (int b = 0; b < 3; ++b) x.v[b] = p.v[b] + (q.v[b] - p.v[b]) * t;
+              x.v[a] = plane;
+              tmp[m++] = x;
+            }
+          }
+          n = m;
+          for (int k = 0; k < n; ++k) poly[k] = tmp[k];
+        }
+      }
+      if (n == 0) return false;
+      bounds();
+    }
+    out.prim = prim;
+    for (int a = 0; a < 3; ++a) {
+      const double l = std::floor(bl[a] - eps), h = std::floor(bh[a] + eps);
+      out.lo[a] = l < lo[a] ? lo[a] : (l > hi[a] - 1 ? hi[a] - 1 : int32_t(l));
+      out.hi[a] = h < lo[a] ? lo[a] : (h > hi[a] - 1 ? hi[a] - 1 : int32_t(h));
+    }
+    return true;
+  }
+
+  std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3], const int32_t hi[3],
+                                   int depth) {
+    auto node = std::make_unique<BuildNode>();
+    for (int a = 0; a < 3; ++a) {
+      node->lo[a] = lo[a];
+      node->hi[a] = hi[a];
+    }
+    node->depth = depth;
+    const size_t n = refs.size();
+    int best_axis = -1;
+    int32_t best_split = 0;
+    if (n > 0 && depth < max_depth_) find_split(refs, lo, hi, best_axis, best_split);
+    if (best_axis < 0) {
+      node->prims.reserve(n);
+      for (const Ref& r : refs) node->prims.push_back(r.prim);
+      return node;
+    }
+    node->axis = best_axis;
+    node->split = best_split;
+    int32_t llo[3], lhi[3], rlo[3], rhi[3];
+    for (int a = 0; a < 3; ++a) {
+      llo[a] = rlo[a] = lo[a];
+      lhi[a] = rhi[a] = hi[a];
+    }
+    lhi[best_axis] = best_split;
+    rlo[best_axis] = best_split;
+    std::vector<Ref> left, right;
+    left.reserve(n / 2 + 16);
+    right.reserve(n / 2 + 16);
+    for (const Ref& r : refs) {
+      if (r.hi[best_axis] < best_split) {
+        left.push_back(r);
+      } else if (r.lo[best_axis] >= best_split) {
+        right.push_back(r);
+      } else {
+        Ref c;
+        if (clip_range(r.prim, llo, lhi, c)) left.push_back(c);
+        if (clip_range(r.prim, rlo, rhi, c)) right.push_back(c);
+      }
+    }
+    std::vector<Ref>().swap(refs);
+    if (n > kParallelThreshold) {
+      tbb::task_group tg;
+      tg.run([&] { node->kid[0] = build(std::move(left), llo, lhi, depth + 1); });
+      node->kid[1] = build(std::move(right), rlo, rhi, depth + 1);
+      tg.wait();
+    } else {
+      node->kid[0] = build(std::move(left), llo, lhi, depth + 1);
+      node->kid[1] = build(std::move(right), rlo, rhi, depth + 1);
+    }
+    return node;
+  }
+
+  /// Exact per-cell SAH binning over every interior cell boundary of the node.
+  void find_split(const std::vector<Ref>& refs, const int32_t lo[3], const int32_t hi[3], int& best_axis,
+                  int32_t& best_split) {
+    thread_local std::vector<uint32_t> starts, ends;
+    const size_t n = refs.size();
+    const double w[3] = {double(hi[0] - lo[0]), double(hi[1] - lo[1]), double(hi[2] - lo[2])};
+    const double area = w[0] * w[1] + w[1] * w[2] + w[2] * w[0];
+    const double inv_area = 1.0 / area;
+    double best_cost = ki_ * double(n);
+    uint64_t evals = 0;
+    for (int a = 0; a < 3; ++a) {
+      const int32_t width = hi[a] - lo[a];
+      if (width < 2) continue;
+      starts.assign(size_t(width), 0);
+      ends.assign(size_t(width), 0);
+      for (const Ref& r : refs) {
+        ++starts[size_t(r.lo[a] - lo[a])];
+        ++ends[size_t(r.hi[a] - lo[a])];
+      }
+      const double wb = w[(a + 1) % 3], wc = w[(a + 2) % 3];
+      const double cross = wb * wc, perim = wb + wc;
+      size_t nl = 0, nr = n;
+      for (int32_t j = 1; j < width; ++j) {
+        nl += starts[size_t(j - 1)];
+        nr -= ends[size_t(j - 1)];
+        const double al = double(j) * perim + cross, ar = double(width - j) * perim + cross;
+        double cost = kt_ + ki_ * (al * double(nl) + ar * double(nr)) * inv_area;
+        if (nl == 0 || nr == 0) cost *= 1.0 - bonus_;
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_split = lo[a] + j;
+        }
+      }
+      evals += uint64_t(width - 1);
+    }
+    evals_.fetch_add(evals, std::memory_order_relaxed);
+  }
+
+  const Mesh& mesh_;
+  double origin_[3];
+  double inv_cell_;
+  int32_t dims_[3];
+  double kt_, ki_, bonus_;
+  int max_depth_;
+  std::atomic<uint64_t> evals_{0};
+};
+
+void dims_for(const double ext[3], double cell, double out[3]) {
+  for (int a = 0; a < 3; ++a) out[a] = std::max(1.0, std::ceil(ext[a] / cell));
+}
+
+}  // namespace
+
+// ---- build ------------------------------------------------------------------------------
+
+BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
+  const auto t_start = std::chrono::steady_clock::now();
+  // Validate parameters before touching any state.
+  if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
+    throw ParamError("hybrid: cell_size " + fmt("%g", params.cell_size) +
+                     " is not a finite number: give a positive size in scene units, or 0 "
+                     "(--cell-size auto) for the percentile rule");
+  if (!(params.cell_percentile > 0.0f && params.cell_percentile <= 100.0f))
+    throw ParamError("hybrid: cell_percentile " + fmt("%g", params.cell_percentile) +
+                     " is out of range: give a value in (0, 100], e.g. 90");
+  if (!(params.hybrid_traversal_cost > 0.0f) || !std::isfinite(params.hybrid_traversal_cost) ||
+      !(params.hybrid_intersection_cost > 0.0f) || !std::isfinite(params.hybrid_intersection_cost))
+    throw ParamError("hybrid: hybrid_traversal_cost and hybrid_intersection_cost must be positive "
+                     "finite numbers, e.g. 1 and 1.5");
+  const size_t ntri = mesh.num_triangles();
+  for (size_t i = 0; i < ntri; ++i)
+    for (uint32_t v : mesh.triangles[i])
+      if (v >= mesh.positions.size() || !is_finite(mesh.positions[v]))
+        throw ParamError("hybrid: triangle " + std::to_string(i) +
+                         " has an out-of-range or non-finite vertex: validate the mesh first");
+
+  mesh_ = &mesh;
+  test_ = params.triangle_test;
+  dense_ = params.hybrid_dense_matrix;
+  nodes_.clear();
+  leaves_.clear();
+  leaf_depth_.clear();
+  refs_.clear();
+  tris_.clear();
+  matrix_.clear();
+  bricks_.clear();
+  root_entry_ = kLeafTag;
+  step_errors_.store(0);
+  stats_ = {};
+
+  const uint64_t budget = effective_memory_budget(params);
+  const int threads = effective_threads(params.threads);
+
+  // Scene box over the triangles' vertices.
+  Box3 sb;
+  for (const auto& t : mesh.triangles)
+    for (uint32_t v : t) sb.grow(mesh.positions[v]);
+  if (ntri == 0) sb = Box3(Vec3(0.0f), Vec3(0.0f));
+  double ext[3];
+  for (int a = 0; a < 3; ++a) {
+    origin_[a] = double(sb.lo[a]);
+    ext[a] = double(sb.hi[a]) - double(sb.lo[a]);
+  }
+  const double max_ext = std::max({ext[0], ext[1], ext[2]});
+
+  // ---- cell size ----
+  std::string rule;
+  double cell = double(params.cell_size);
+  if (cell <= 0.0) {
+    double c = 0.0;
+    if (ntri > 0) {
+      std::vector<float> e(ntri);
+      for (size_t i = 0; i < ntri; ++i) e[i] = max_component(mesh.triangle_bounds(i).extent());
+      const double p = double(params.cell_percentile) / 100.0;
+      const size_t k = size_t(std::clamp(std::ceil(p * double(ntri)) - 1.0, 0.0, double(ntri - 1)));
+      std::nth_element(e.begin(), e.begin() + ptrdiff_t(k), e.end());
+      c = double(e[k]);
+    }
+    rule = "p" + fmt("%g", params.cell_percentile) + " of triangle extents = " + fmt("%.6g", c);
+    if (!(c > 0.0)) {
+      c = max_ext > 0.0 ? max_ext / std::max(1.0, std::cbrt(double(ntri))) : 1.0;
+      rule += "; degenerate, using scene extent / cbrt(N) = " + fmt("%.6g", c);
+    }
+    const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
+    if (c < axis_floor) {
+      c = axis_floor;
+      rule += "; raised to " + fmt("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
+              " cells per axis";
+    }
+    double limit = kHybridAutoMaxCells;
+    if (dense_) limit = std::min(limit, double(budget) / 4.0);
+    bool raised = false;
+    for (int it = 0; it < 200; ++it) {
+      double d[3];
+      dims_for(ext, c, d);
+      const double cells = d[0] * d[1] * d[2];
+      if (cells <= limit) break;
+      c *= std::max(1.0001, std::cbrt(cells / limit));
+      raised = true;
+    }
+    if (raised) rule += "; raised to " + fmt("%.6g", c) + " for <= " + fmt("%.0f", limit) + " cells";
+    cell = c;
+  } else {
+    rule = "explicit";
+  }
+  cell_ = cell;
+  inv_cell_ = 1.0 / cell;
+
+  // ---- memory guard before any allocation ----
+  double d[3];
+  dims_for(ext, cell, d);
+  const double cells = d[0] * d[1] * d[2];
+  const double max_axis = std::max({d[0], d[1], d[2]});
+  auto dims_text = [&] { return fmt("%.0f", d[0]) + "x" + fmt("%.0f", d[1]) + "x" + fmt("%.0f", d[2]); };
+  const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 3 * sizeof(uint32_t));
+  if (dense_) {
+    const double need = cells * 4.0 + tri_bytes;
+    if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
+      const double fit = cell * std::max(std::cbrt(need / double(budget)), max_axis / double(kHybridMaxAxisCells)) * 1.05;
+      throw ParamError("hybrid: cell size " + fmt("%g", cell) + " gives a " + dims_text() +
+                       " grid whose dense matrix needs " + bytes_str(need) + ", above the memory budget of " +
+                       bytes_str(double(budget)) + ": use a cell size of at least " + fmt("%.3g", fit) +
+                       ", 'auto', or the default bricked storage");
+    }
+  } else {
+    // The bricked matrix is guarded while it is built; before that, the build bins every
+    // node per cell along each axis (2 x 4 bytes per cell per axis per thread).
+    const double need = 8.0 * (d[0] + d[1] + d[2]) * double(threads) + tri_bytes;
+    if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
+      const double fit =
+          cell * std::max(need / double(budget), max_axis / double(kHybridMaxAxisCells)) * 1.05;
+      throw ParamError("hybrid: cell size " + fmt("%g", cell) + " gives a " + dims_text() +
+                       " grid; building it needs at least " + bytes_str(need) +
+                       " (per-cell binning arrays) and at most " + std::to_string(kHybridMaxAxisCells) +
+                       " cells per axis are supported (memory budget " + bytes_str(double(budget)) +
+                       "): use a cell size of at least " + fmt("%.3g", fit) + " or 'auto'");
+    }
+  }
+  for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
+  max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
+  levels_ = 1;
+  while ((int64_t(1) << (kBrickLog * levels_)) < int64_t(max_axis)) ++levels_;
+
+  tbb::task_arena arena(threads);
+  arena.execute([&] {
+    tris_.resize(ntri);
+    tbb::parallel_for(size_t(0), ntri, [&](size_t i) {
+      const auto c = mesh.corners(i);
+      tris_[i] = {c[0], c[1], c[2]};
+    });
+    build_tree(mesh, params);
+    uint64_t other = 0;
+    other += nodes_.size() * sizeof(Node) + leaves_.size() * sizeof(Leaf) + leaf_depth_.size() +
+             refs_.size() * 4 + tris_.size() * sizeof(TriVerts);
+    build_matrix(budget > other ? budget - other : 0);
+  });
+
+  // ---- stats ----
+  stats_.nodes = nodes_.size();
+  stats_.leaves = leaves_.size();
+  for (const Leaf& l : leaves_) stats_.empty_leaves += l.count == 0;
+  stats_.references = refs_.size();
+  const uint64_t b_tree = nodes_.size() * sizeof(Node);
+  const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);
+  const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
+  const uint64_t b_tris = tris_.size() * sizeof(TriVerts);
+  const uint64_t b_matrix = (dense_ ? matrix_.size() : bricks_.size()) * sizeof(uint32_t);
+  stats_.bytes = b_tree + b_leaves + b_refs + b_tris + b_matrix + sizeof(*this);
+  stats_.bytes_by_part = {{"tree nodes", b_tree},
+                          {"leaves", b_leaves},
+                          {"references", b_refs},
+                          {"triangles", b_tris},
+                          {dense_ ? "matrix (dense)" : "matrix (bricked)", b_matrix},
+                          {"object", sizeof(*this)}};
+  stats_.extra = {{"cell_size", fmt("%.6g", cell_)},
+                  {"auto rule", rule},
+                  {"grid", std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" +
+                               std::to_string(dims_[2])},
+                  {"matrix", dense_ ? "dense" : "bricked 4x4x4, " + std::to_string(levels_) + " levels, " +
+                                                    std::to_string(bricks_.size() / kBrickEntries) + " bricks"}};
+  stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  return stats_;
+}
+
+void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
+  TreeBuilder tb(mesh, origin_, cell_, dims_, params);
+  std::unique_ptr<BuildNode> root = tb.build_root();
+  stats_.sah_evaluations = tb.sah_evaluations();
+  // Flatten depth-first: left child follows its parent, leaves numbered in that order.
+  uint32_t max_depth = 0;
+  auto flatten = [&](auto&& self, BuildNode* n) -> void {
+    const size_t idx = nodes_.size();
+    nodes_.push_back({});
+    max_depth = std::max(max_depth, uint32_t(n->depth));
+    if (n->axis < 0) {
+      Leaf l;
+      for (int a = 0; a < 3; ++a) {
+        l.lo[a] = n->lo[a];
+        l.hi[a] = n->hi[a];
+      }
+      l.first = uint32_t(refs_.size());
+      l.count = uint32_t(n->prims.size());
+      refs_.insert(refs_.end(), n->prims.begin(), n->prims.end());
+      nodes_[idx] = {int32_t(leaves_.size()), 0, 3};
+      leaves_.push_back(l);
+      leaf_depth_.push_back(uint8_t(std::min(n->depth, 255)));
+      return;
+    }
+    self(self, n->kid[0].get());
+    nodes_[idx] = {n->split, uint32_t(nodes_.size()), uint32_t(n->axis)};
+    self(self, n->kid[1].get());
+  };
+  flatten(flatten, root.get());
+  stats_.max_depth = max_depth;
+}
+
+// ---- matrix -----------------------------------------------------------------------------
+
+uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
+                                   uint64_t budget, uint64_t* count_only) {
+  const int64_t side = int64_t(1) << (kBrickLog * level);
+  const int32_t r0[3] = {x0, y0, z0};
+  int32_t r1[3];
+  for (int a = 0; a < 3; ++a) {
+    if (r0[a] >= dims_[a]) return kLeafTag;  // padding beyond the grid: never looked up
+    r1[a] = int32_t(std::min<int64_t>(int64_t(r0[a]) + side, dims_[a]));
+  }
+  while (nodes_[node].axis != 3) {
+    const Node& nd = nodes_[node];
+    if (r1[nd.axis] <= nd.split)
+      node = node + 1;
+    else if (r0[nd.axis] >= nd.split)
+      node = nd.right;
+    else
+      break;
+  }
+  if (nodes_[node].axis == 3) return kLeafTag | uint32_t(nodes_[node].split);
+  // Crossed by a split: refine into a brick (level >= 1 here, a single cell is never split).
+  const int32_t sub = int32_t(side >> kBrickLog);
+  uint64_t b = 0;
+  if (count_only) {
+    ++*count_only;
+  } else {
+    b = bricks_.size() / kBrickEntries;
+    if ((bricks_.size() + kBrickEntries) * sizeof(uint32_t) > budget || b >= kLeafTag)
+      throw ParamError("hybrid: the bricked cell matrix of the " + std::to_string(dims_[0]) + "x" +
+                       std::to_string(dims_[1]) + "x" + std::to_string(dims_[2]) +
+                       " grid exceeds the memory budget of " + bytes_str(double(budget)) +
+                       ": use a larger cell size or 'auto'");
+    bricks_.resize(bricks_.size() + kBrickEntries);
+  }
+  for (int k = 0; k < kBrickSide; ++k)
+    for (int j = 0; j < kBrickSide; ++j)
+      for (int i = 0; i < kBrickSide; ++i) {
+        const uint32_t e = build_brick_entry(x0 + i * sub, y0 + j * sub, z0 + k * sub, level - 1, node,
+                                             budget, count_only);
+        if (!count_only) bricks_[b * kBrickEntries + uint64_t(i + kBrickSide * (j + kBrickSide * k))] = e;
+      }
+  return uint32_t(b);
+}
+
+void Hybrid::build_matrix(uint64_t budget) {
+  if (dense_) {
+    const uint64_t nx = uint64_t(dims_[0]), ny = uint64_t(dims_[1]), nz = uint64_t(dims_[2]);
+    matrix_.assign(nx * ny * nz, 0);
+    tbb::parallel_for(size_t(0), leaves_.size(), [&](size_t li) {
+      const Leaf& l = leaves_[li];
+      for (int32_t z = l.lo[2]; z < l.hi[2]; ++z)
+        for (int32_t y = l.lo[1]; y < l.hi[1]; ++y) {
+          uint32_t* row = matrix_.data() + (uint64_t(y) + ny * uint64_t(z)) * nx;
+          std::fill(row + l.lo[0], row + l.hi[0], uint32_t(li));
+        }
+    });
+    return;
+  }
+  root_entry_ = build_brick_entry(0, 0, 0, levels_, 0, budget, nullptr);
+}
+
+uint64_t Hybrid::matrix_bytes(bool dense) const {
+  if (dense) return uint64_t(dims_[0]) * uint64_t(dims_[1]) * uint64_t(dims_[2]) * 4;
+  if (nodes_.empty()) return 0;
+  uint64_t count = 0;
+  const_cast<Hybrid*>(this)->build_brick_entry(0, 0, 0, levels_, 0, 0, &count);
+  return count * kBrickEntries * sizeof(uint32_t);
+}
+
+// ---- walks ------------------------------------------------------------------------------
+
+Box3 Hybrid::leaf_box(uint32_t leaf) const {
+  const Leaf& l = leaves_[leaf];
+  Box3 b;
+  for (int a = 0; a < 3; ++a) {
+    b.lo[a] = float(origin_[a] + double(l.lo[a]) * cell_);
+    b.hi[a] = float(origin_[a] + double(l.hi[a]) * cell_);
+  }
+  return b;
+}
+
+void Hybrid::for_each_split(const std::function<void(const SplitPlane&)>& fn) const {
+  if (nodes_.empty()) return;
+  struct Item {
+    uint32_t node;
+    int32_t lo[3], hi[3];
+    int depth;
+  };
+  std::vector<Item> stack;
+  stack.push_back({0, {0, 0, 0}, {dims_[0], dims_[1], dims_[2]}, 0});
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    const Node& n = nodes_[it.node];
+    if (n.axis == 3) continue;
+    SplitPlane sp;
+    sp.axis = int(n.axis);
+    sp.position = float(origin_[n.axis] + double(n.split) * cell_);
+    for (int a = 0; a < 3; ++a) {
+      sp.node_box.lo[a] = float(origin_[a] + double(it.lo[a]) * cell_);
+      sp.node_box.hi[a] = float(origin_[a] + double(it.hi[a]) * cell_);
+    }
+    sp.depth = it.depth;
+    fn(sp);
+    Item l = it, r = it;
+    l.node = it.node + 1;
+    l.hi[n.axis] = n.split;
+    r.node = n.right;
+    r.lo[n.axis] = n.split;
+    l.depth = r.depth = it.depth + 1;
+    stack.push_back(r);  // left popped first: depth-first, left before right
+    stack.push_back(l);
+  }
+}
+
+void Hybrid::for_each_box(const std::function<void(const StructureBox&)>& fn) const {
+  for (uint32_t i = 0; i < leaves_.size(); ++i)
+    if (leaves_[i].count) fn({leaf_box(i), int(leaf_depth_[i]), true, leaves_[i].count});
+}
+
+}  // namespace kdgrid

@@ -1,0 +1,285 @@
+// The hybrid regular grid / kd-tree (DESIGN.md "The hybrid", after D. Muñoz Díaz): an SAH
+// kd-tree whose split planes lie only on the boundaries of a regular lattice of basic cells,
+// plus a cell -> leaf matrix so that a ray steps from leaf to leaf by index arithmetic, like
+// a uniform grid, instead of descending the tree.
+//
+// Grid. Basic cell edge `cell` (BuildParams::cell_size, scene units). The root box starts at
+// the scene's low corner and has dims[a] = max(1, ceil(extent[a] / cell)) cells per axis,
+// computed in double so that every vertex lies inside it. All stepping arithmetic happens in
+// "grid space", g = (p - origin) / cell, in double: cell boundaries are the integers.
+//
+// Auto cell size (cell_size <= 0), the rule reported in BuildStats::extra "auto rule":
+//   1. c = the cell_percentile-th percentile (default 90) of the triangles' largest
+//      bounding-box extent: "the minimum cell size that can fit most of the primitives".
+//      If that is 0 (all triangles degenerate to points) c = largest scene extent / cbrt(N).
+//   2. c is raised until no axis has more than kHybridAutoMaxAxisCells cells and the grid has
+//      at most kHybridAutoMaxCells cells (the build bins per cell along each axis, and the
+//      dense matrix costs 4 bytes per cell), and, for the dense matrix, until cells * 4 bytes
+//      fit the memory budget.
+//
+// Tree. A node is an integer box [lo, hi) of cells. Candidates are the interior cell
+// boundaries; for each axis the references' integer cell ranges are binned per cell (starts
+// and ends), so one prefix sum gives N_left/N_right for every boundary: the SAH is exact, in
+// O(n + cells) per node. Reference ranges come from the triangle clipped to the node box
+// (Sutherland-Hodgman, "perfect splits"), widened by kRangeEps cells so that geometry lying
+// on a boundary is referenced on both sides. Leaf when no split beats the leaf cost, when the
+// node is one cell on every axis, or at the maximum depth 8 + 1.3 log2(N) (pbrt's rule,
+// capped at 64). Subtrees build in parallel (oneTBB); output is deterministic.
+//
+// Matrix. Each basic cell maps to the id of the leaf covering it. Dense storage (the paper,
+// BuildParams::hybrid_dense_matrix): one uint32 per cell. Default bricked storage: a sparse
+// hierarchy of 4x4x4 bricks over a cube of 4^L cells; an entry is a tagged uint32, either a
+// leaf id (kLeafTag set: the whole region belongs to that leaf) or the index of a child
+// brick, so a large empty leaf costs one entry and only bricks crossed by leaf boundaries
+// are refined. Lookup = at most L dependent loads, no search.
+//
+// Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
+// leaf's triangles, compute the exit over the leaf's far planes, stop once the closest hit
+// lies before the exit; else step to the cell just past the exit face (exact integers on the
+// exit axis, the exit point's floor clamped into the leaf on the others and never moving
+// against the ray), look up its leaf. Every cell coordinate moves monotonically along the
+// ray, so at most nx+ny+nz+1 steps: the loop enforces that bound and counts violations.
+#pragma once
+
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "accel/accelerator.h"
+
+namespace kdgrid {
+
+/// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
+constexpr int64_t kHybridAutoMaxAxisCells = 2048;
+/// Auto rule cap on the total cell count (a dense matrix of 2^24 cells is 64 MiB).
+constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 24);
+/// Explicit cell sizes may give at most this many cells along one axis (int32 coordinates,
+/// at most 12 brick levels).
+constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
+
+class Hybrid final : public AcceleratorBase<Hybrid> {
+ public:
+  /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 32 bytes.
+  struct Leaf {
+    int32_t lo[3], hi[3];
+    uint32_t first, count;
+  };
+  /// Tree node kept for split walks and the matrix construction; leaves point into leaves_.
+  struct Node {
+    int32_t split;      ///< interior: the split boundary (cell index); leaf: leaf id
+    uint32_t right;     ///< interior: index of the right child (left child = this + 1)
+    uint32_t axis;      ///< 0..2 interior, 3 leaf
+  };
+  /// The three corners of a triangle, copied in mesh order so the leaf test reads 36
+  /// contiguous bytes instead of chasing the index buffer.
+  struct TriVerts {
+    Vec3 v0, v1, v2;
+  };
+
+  static constexpr uint32_t kLeafTag = 0x80000000u;
+  static constexpr int kBrickLog = 2;                          ///< 4 cells per brick axis
+  static constexpr int kBrickSide = 1 << kBrickLog;
+  static constexpr int kBrickEntries = kBrickSide * kBrickSide * kBrickSide;
+  /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
+  /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
+  static constexpr double kRangeEps = 1e-6;
+  /// Direct-mapped per-ray mailbox of recently tested triangles (power of two).
+  static constexpr int kMailbox = 8;
+
+  std::string name() const override { return "hybrid"; }
+  BuildStats build(const Mesh& mesh, const BuildParams& params) override;
+
+  template <class Tri, class S>
+  bool closest(const Ray& ray, Hit& hit, S& s) const {
+    return walk<Tri, S, false>(ray, &hit, s);
+  }
+  template <class Tri, class S>
+  bool any(const Ray& ray, S& s) const {
+    return walk<Tri, S, true>(ray, nullptr, s);
+  }
+
+  void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
+  void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
+
+  // ---- introspection (tests, viewer) ----
+  double cell_size() const { return cell_; }
+  const int32_t* dims() const { return dims_; }
+  Vec3 origin() const { return {float(origin_[0]), float(origin_[1]), float(origin_[2])}; }
+  /// The leaf covering cell (x, y, z) (must lie inside the grid).
+  uint32_t leaf_at(int32_t x, int32_t y, int32_t z) const { return lookup(x, y, z); }
+  const std::vector<Leaf>& leaves() const { return leaves_; }
+  /// Rays whose traversal reached the nx+ny+nz+1 step bound (a correct traversal never does).
+  uint64_t step_bound_errors() const { return step_errors_.load(std::memory_order_relaxed); }
+  /// World box of a leaf.
+  Box3 leaf_box(uint32_t leaf) const;
+  /// Bytes the storage selected by `dense` would take for the current tree (computed, not
+  /// allocated; the bricked figure is exact).
+  uint64_t matrix_bytes(bool dense) const;
+
+ private:
+  uint32_t lookup(int32_t x, int32_t y, int32_t z) const {
+    if (dense_) return matrix_[uint64_t(x) + uint64_t(dims_[0]) * (uint64_t(y) + uint64_t(dims_[1]) * uint64_t(z))];
+    uint32_t e = root_entry_;
+    int shift = (levels_ - 1) * kBrickLog;
+    while (!(e & kLeafTag)) {
+      const uint32_t local = ((uint32_t(x) >> shift) & (kBrickSide - 1)) |
+                             (((uint32_t(y) >> shift) & (kBrickSide - 1)) << kBrickLog) |
+                             (((uint32_t(z) >> shift) & (kBrickSide - 1)) << (2 * kBrickLog));
+      e = bricks_[uint64_t(e) * kBrickEntries + local];
+      shift -= kBrickLog;
+    }
+    return e & ~kLeafTag;
+  }
+
+  template <class Tri, class S, bool kAny>
+  bool walk(const Ray& ray, Hit* hit, S& s) const;
+
+  void build_tree(const Mesh& mesh, const BuildParams& params);
+  void build_matrix(uint64_t budget);
+  uint32_t build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
+                             uint64_t budget, uint64_t* count_only);
+
+  const Mesh* mesh_ = nullptr;
+  double origin_[3] = {0, 0, 0};
+  double cell_ = 1.0, inv_cell_ = 1.0;
+  int32_t dims_[3] = {1, 1, 1};
+  int levels_ = 1;
+  bool dense_ = false;
+  uint64_t max_steps_ = 0;
+
+  std::vector<Node> nodes_;
+  std::vector<Leaf> leaves_;
+  std::vector<uint8_t> leaf_depth_;
+  std::vector<uint32_t> refs_;
+  std::vector<TriVerts> tris_;
+  std::vector<uint32_t> matrix_;   ///< dense storage
+  std::vector<uint32_t> bricks_;   ///< bricked storage, kBrickEntries per brick
+  uint32_t root_entry_ = kLeafTag;
+  mutable std::atomic<uint64_t> step_errors_{0};
+};
+
+// ---- traversal --------------------------------------------------------------------------
+
+template <class Tri, class S, bool kAny>
+bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
+  if (leaves_.empty()) return false;
+  // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
+  // negative-zero) direction components never exit on their axis.
+  double o[3], dg[3], inv[3];
+  bool pos[3], moving[3];
+  for (int a = 0; a < 3; ++a) {
+    o[a] = (double(ray.org[a]) - origin_[a]) * inv_cell_;
+    const double d = double(ray.dir[a]);
+    moving[a] = d != 0.0;
+    pos[a] = d > 0.0;
+    dg[a] = d * inv_cell_;
+    inv[a] = moving[a] ? cell_ / d : 0.0;
+  }
+  // Clip to the root box [0, dims].
+  double t0 = ray.tmin, t1 = ray.tmax;
+  for (int a = 0; a < 3; ++a) {
+    if (!moving[a]) {
+      if (!(o[a] >= 0.0 && o[a] <= double(dims_[a]))) return false;
+      continue;
+    }
+    double ta = (0.0 - o[a]) * inv[a], tb = (double(dims_[a]) - o[a]) * inv[a];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = ta > t0 ? ta : t0;
+    t1 = tb < t1 ? tb : t1;
+  }
+  if (!(t0 <= t1)) return false;
+
+  int32_t c[3];
+  for (int a = 0; a < 3; ++a) {
+    const double p = moving[a] ? o[a] + t0 * dg[a] : o[a];
+    const double f = std::floor(p);
+    c[a] = f < 0.0 ? 0 : (f >= double(dims_[a]) ? dims_[a] - 1 : int32_t(f));
+  }
+
+  const auto rd = Tri::prepare(ray);
+  float best = ray.tmax;
+  bool found = false;
+  uint32_t mailbox[kMailbox];
+  for (auto& m : mailbox) m = kInvalidPrim;
+
+  uint32_t leaf_id = lookup(c[0], c[1], c[2]);
+  s.lookup();
+  double t_cur = t0;
+  for (uint64_t iter = 0;; ++iter) {
+    if (iter > max_steps_) {
+      step_errors_.fetch_add(1, std::memory_order_relaxed);
+      break;
+    }
+    const Leaf& L = leaves_[leaf_id];
+    s.step();
+    double t_exit = std::numeric_limits<double>::infinity();
+    int axis = -1;
+    for (int a = 0; a < 3; ++a) {
+      if (!moving[a]) continue;
+      const double t = (double(pos[a] ? L.hi[a] : L.lo[a]) - o[a]) * inv[a];
+      if (t < t_exit) {
+        t_exit = t;
+        axis = a;
+      }
+    }
+    if constexpr (S::kTrace) {
+      const float tin = float(t_cur);
+      s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, leaf_box(leaf_id), tin,
+                        std::max(tin, float(std::min(t_exit, double(ray.tmax))))});
+    }
+    if (L.count) {
+      s.leaf();
+      const uint32_t* r = refs_.data() + L.first;
+      for (uint32_t i = 0; i < L.count; ++i) {
+        const uint32_t prim = r[i];
+        uint32_t& slot = mailbox[prim & (kMailbox - 1)];
+        if (slot == prim) {
+          s.mailbox_skip();
+          continue;
+        }
+        slot = prim;
+        s.tri_test(prim);
+        const TriVerts& tv = tris_[prim];
+        float t, u, v;
+        if (Tri::intersect(rd, tv.v0, tv.v1, tv.v2, ray.tmin, best, t, u, v)) {
+          if constexpr (kAny) {
+            return true;
+          } else {
+            best = t;
+            *hit = {t, prim, u, v};
+            found = true;
+          }
+        }
+      }
+    }
+    if (found && double(best) <= t_exit) break;
+    if (t_exit >= t1) break;
+    // Next cell: exact integers on the exit axis; on the others the exit point's cell,
+    // clamped into the leaf (it lies on the leaf's face) and never moving against the ray.
+    int32_t n[3];
+    for (int b = 0; b < 3; ++b) {
+      if (b == axis) {
+        n[b] = pos[b] ? L.hi[b] : L.lo[b] - 1;
+      } else if (!moving[b]) {
+        n[b] = c[b];
+      } else {
+        const double f = std::floor(o[b] + t_exit * dg[b]);
+        int32_t v = f < double(L.lo[b]) ? L.lo[b] : (f >= double(L.hi[b]) ? L.hi[b] - 1 : int32_t(f));
+        v = pos[b] ? std::max(v, c[b]) : std::min(v, c[b]);
+        n[b] = v;
+      }
+    }
+    if (n[axis] < 0 || n[axis] >= dims_[axis]) break;
+    c[0] = n[0];
+    c[1] = n[1];
+    c[2] = n[2];
+    t_cur = t_exit;
+    leaf_id = lookup(c[0], c[1], c[2]);
+    s.lookup();
+  }
+  return found;
+}
+
+}  // namespace kdgrid

@@ -1,0 +1,789 @@
+// The hybrid grid/kd-tree against brute force on procedural meshes at several cell sizes and
+// both matrix storages, the extreme rays of DESIGN.md's numerical rules, memory behaviour on
+// a teapot-in-a-stadium scene, counters and traces, and parameter validation.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "accel/brute.h"
+#include "accel/hybrid.h"
+#include "util/error.h"
+
+namespace kdgrid {
+namespace {
+
+// ---- procedural meshes -------------------------------------------------------------------
+
+void add_tri(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c) {
+  const uint32_t base = uint32_t(m.positions.size());
+  m.positions.push_back(a);
+  m.positions.push_back(b);
+  m.positions.push_back(c);
+  m.triangles.push_back({base, base + 1, base + 2});
+}
+
+void add_quad(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
+  add_tri(m, a, b, c);
+  add_tri(m, a, c, d);
+}
+
+/// Random triangles of size ~`size` with corners inside [lo, hi].
+Mesh random_soup(uint32_t seed, int n, Vec3 lo, Vec3 hi, float size) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
+  Mesh m;
+  for (int i = 0; i < n; ++i) {
+    const Vec3 c = lo + (hi - lo) * Vec3(u(rng), u(rng), u(rng));
+    Vec3 p[3];
+    for (auto& q : p) {
+      q = c + Vec3(s(rng), s(rng), s(rng)) * size;
+      q = max(lo, min(hi, q));
+    }
+    add_tri(m, p[0], p[1], p[2]);
+  }
+  return m;
+}
+
+/// Icosphere-like: an octahedron subdivided `levels` times and projected on the sphere.
+Mesh subdivided_sphere(Vec3 center, float radius, int levels) {
+  std::vector<std::array<Vec3, 3>> tris;
+  const Vec3 v[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+  const int f[8][3] = {{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4}, {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
+  for (const auto& t : f) tris.push_back({v[t[0]], v[t[1]], v[t[2]]});
+  for (int l = 0; l < levels; ++l) {
+    std::vector<std::array<Vec3, 3>> next;
+    for (const auto& t : tris) {
+      const Vec3 a = normalize(t[0] + t[1]), b = normalize(t[1] + t[2]), c = normalize(t[2] + t[0]);
+      next.push_back({t[0], a, c});
+      next.push_back({a, t[1], b});
+      next.push_back({c, b, t[2]});
+      next.push_back({a, b, c});
+    }
+    tris.swap(next);
+  }
+  Mesh m;
+  for (const auto& t : tris) add_tri(m, center + t[0] * radius, center + t[1] * radius, center + t[2] * radius);
+  return m;
+}
+
+/// Axis-aligned quads lying exactly on the boundaries of a lattice of `cell` (exact in float)
+/// over [0, n*cell]^3: with cell_size = cell the quads sit on cell planes and split planes.
+Mesh lattice_quads(float cell, int n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<int> k(0, n), span(1, 3);
+  Mesh m;
+  for (int i = 0; i < 300; ++i) {
+    const int axis = i % 3, b = (axis + 1) % 3, c = (axis + 2) % 3;
+    const float plane = float(k(rng)) * cell;
+    const int b0 = std::min(n - 1, k(rng)), c0 = std::min(n - 1, k(rng));
+    const int b1 = std::min(n, b0 + span(rng)), c1 = std::min(n, c0 + span(rng));
+    Vec3 p[4];
+    const int corner[4][2] = {{b0, c0}, {b1, c0}, {b1, c1}, {b0, c1}};
+    for (int q = 0; q < 4; ++q) {
+      p[q][axis] = plane;
+      p[q][b] = float(corner[q][0]) * cell;
+      p[q][c] = float(corner[q][1]) * cell;
+    }
+    add_quad(m, p[0], p[1], p[2], p[3]);
+  }
+  return m;
+}
+
+/// Long thin slivers crossing the whole box in random directions, plus a few small ones.
+Mesh long_thin(uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  Mesh m;
+  for (int i = 0; i < 400; ++i) {
+    const Vec3 a(u(rng), u(rng), u(rng)), b(u(rng), u(rng), u(rng));
+    const Vec3 w = Vec3(u(rng), u(rng), u(rng)) * 0.01f;
+    add_tri(m, a, b, b + w);
+  }
+  const Mesh small = random_soup(seed + 1, 300, Vec3(-1), Vec3(1), 0.03f);
+  m.append(small);
+  return m;
+}
+
+/// A tiny dense sphere (the teapot) in the middle of a huge empty box (the stadium).
+Mesh teapot_in_stadium(float stadium, int sphere_levels) {
+  Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, sphere_levels);
+  const float s = stadium;
+  // Floor and the four walls and the roof of the stadium.
+  add_quad(m, {-s, -s, -s}, {s, -s, -s}, {s, -s, s}, {-s, -s, s});
+  add_quad(m, {-s, s, -s}, {-s, s, s}, {s, s, s}, {s, s, -s});
+  add_quad(m, {-s, -s, -s}, {-s, s, -s}, {s, s, -s}, {s, -s, -s});
+  add_quad(m, {-s, -s, s}, {s, -s, s}, {s, s, s}, {-s, s, s});
+  add_quad(m, {-s, -s, -s}, {-s, -s, s}, {-s, s, s}, {-s, s, -s});
+  add_quad(m, {s, -s, -s}, {s, s, -s}, {s, s, s}, {s, -s, s});
+  return m;
+}
+
+Mesh transformed(const Mesh& in, float scale, Vec3 offset) {
+  Mesh m = in;
+  for (auto& p : m.positions) p = p * scale + offset;
+  return m;
+}
+
+// ---- rays --------------------------------------------------------------------------------
+
+/// Seeded rays: from anywhere around the box in random directions, aimed at triangle
+/// interiors, axis-parallel ones, and segments with finite tmax (for any-hit).
+std::vector<Ray> random_rays(const Mesh& m, int n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
+  const Box3 b = m.bounds();
+  const Vec3 c = b.center(), e = b.extent() * 0.75f + Vec3(1e-3f * max_component(b.extent()));
+  std::vector<Ray> rays;
+  rays.reserve(size_t(n));
+  for (int i = 0; i < n; ++i) {
+    Ray r;
+    r.org = c + e * Vec3(s(rng), s(rng), s(rng)) * 1.5f;
+    switch (i % 4) {
+      case 0:
+        r.dir = Vec3(s(rng), s(rng), s(rng));
+        break;
+      case 1: {
+        const auto t = m.corners(size_t(rng() % m.num_triangles()));
+        float a = u(rng), bb = u(rng);
+        if (a + bb > 1) { a = 1 - a; bb = 1 - bb; }
+        r.dir = t[0] * (1 - a - bb) + t[1] * a + t[2] * bb - r.org;
+        break;
+      }
+      case 2: {
+        r.dir = Vec3(0.0f);
+        r.dir[int(rng() % 3)] = (rng() & 1) ? 1.0f : -1.0f;
+        break;
+      }
+      default:
+        r.dir = Vec3(s(rng), s(rng), s(rng));
+        r.tmin = u(rng) * 0.5f;
+        r.tmax = r.tmin + u(rng) * 2.0f;
+        break;
+    }
+    if (r.dir == Vec3(0.0f)) r.dir = Vec3(1, 0, 0);
+    rays.push_back(r);
+  }
+  return rays;
+}
+
+struct Reference {
+  std::vector<Hit> hits;
+  std::vector<char> occluded;
+};
+
+Reference brute_reference(const Mesh& m, const std::vector<Ray>& rays) {
+  BruteForce bf;
+  bf.build(m, BuildParams{});
+  Reference ref;
+  ref.hits.resize(rays.size());
+  ref.occluded.resize(rays.size());
+  for (size_t i = 0; i < rays.size(); ++i) {
+    Hit h;
+    bf.intersect(rays[i], h);
+    ref.hits[i] = h;
+    ref.occluded[i] = bf.occluded(rays[i]);
+  }
+  return ref;
+}
+
+/// The triangle's own t for the ray (the reported prim's t must equal the reference t).
+float own_t(const Mesh& m, const Ray& r, uint32_t prim) {
+  const auto c = m.corners(prim);
+  float t = kInf, u, v;
+  WatertightTest::intersect(WatertightTest::prepare(r), c[0], c[1], c[2], r.tmin, r.tmax, t, u, v);
+  return t;
+}
+
+/// Checks every ray; returns the number of failures (and reports the first few).
+int compare(const Hybrid& h, const Mesh& m, const std::vector<Ray>& rays, const Reference& ref,
+            const std::string& label) {
+  int failures = 0;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    Hit hh;
+    const bool got = h.intersect(rays[i], hh);
+    const Hit& rh = ref.hits[i];
+    bool ok = got == rh.valid();
+    if (ok && got) {
+      const float tol = 1e-5f * std::max(1.0f, std::abs(rh.t));
+      ok = std::abs(hh.t - rh.t) <= tol;
+      if (ok && hh.prim != rh.prim) ok = std::abs(own_t(m, rays[i], hh.prim) - rh.t) <= tol;
+    }
+    const bool occ = h.occluded(rays[i]);
+    ok = ok && occ == bool(ref.occluded[i]);
+    if (!ok && ++failures <= 5) {
+      const Ray& r = rays[i];
+      ADD_FAILURE() << label << ": ray " << i << " org (" << r.org.x << "," << r.org.y << "," << r.org.z
+                    << ") dir (" << r.dir.x << "," << r.dir.y << "," << r.dir.z << ") [" << r.tmin << ","
+                    << r.tmax << "]: hybrid " << (got ? "hit" : "miss") << " t=" << hh.t << " prim=" << hh.prim
+                    << " occ=" << occ << "; brute " << (rh.valid() ? "hit" : "miss") << " t=" << rh.t
+                    << " prim=" << rh.prim << " occ=" << int(ref.occluded[i]);
+    }
+  }
+  EXPECT_EQ(h.step_bound_errors(), 0u) << label;
+  return failures;
+}
+
+BuildParams params_with(float cell, bool dense) {
+  BuildParams p;
+  p.cell_size = cell;
+  p.hybrid_dense_matrix = dense;
+  p.threads = 2;
+  return p;
+}
+
+float min_triangle_extent(const Mesh& m) {
+  float mn = kInf;
+  for (size_t i = 0; i < m.num_triangles(); ++i) {
+    const float e = max_component(m.triangle_bounds(i).extent());
+    if (e > 0) mn = std::min(mn, e);
+  }
+  return mn;
+}
+
+/// Agreement at auto, one cell, a cell smaller than the smallest triangle, and an explicit
+/// cell, for both storages.
+void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int nrays = 20000) {
+  const auto rays = random_rays(m, nrays, 1234);
+  const Reference ref = brute_reference(m, rays);
+  const float big = 10.0f * max_component(m.bounds().extent());
+  const float tiny = 0.5f * min_triangle_extent(m);
+  struct Case {
+    float cell;
+    const char* what;
+  };
+  const Case cases[] = {{0.0f, "auto"}, {big, "one cell"}, {tiny, "cell < smallest triangle"},
+                        {explicit_cell, "explicit"}};
+  for (const Case& c : cases) {
+    for (bool dense : {false, true}) {
+      Hybrid h;
+      BuildParams p = params_with(c.cell, dense);
+      p.memory_budget = uint64_t(2) << 30;
+      if (dense && c.cell > 0.0f) {
+        // A dense matrix over the budget must be refused, not allocated.
+        const Vec3 e = m.bounds().extent();
+        double cells = 1.0;
+        for (int a = 0; a < 3; ++a) cells *= std::max(1.0, std::ceil(double(e[a]) / double(c.cell)));
+        if (cells * 4.0 > double(p.memory_budget)) {
+          EXPECT_THROW(h.build(m, p), ParamError) << name << " " << c.what;
+          continue;
+        }
+      }
+      const BuildStats st = h.build(m, p);
+      if (c.cell == big) {
+        EXPECT_EQ(h.dims()[0] * h.dims()[1] * h.dims()[2], 1) << name;
+      }
+      const std::string label = name + " / " + c.what + " (" + st.extra[2].second + ", " +
+                                (dense ? "dense" : "bricked") + ")";
+      EXPECT_EQ(compare(h, m, rays, ref, label), 0) << label;
+    }
+  }
+}
+
+// ---- agreement with brute force ---------------------------------------------------------
+
+TEST(Hybrid, AgreesWithBruteForceRandomSoup) {
+  check_mesh(random_soup(1, 3000, Vec3(-1), Vec3(1), 0.08f), "soup", 0.13f);
+}
+
+TEST(Hybrid, AgreesWithBruteForceSphere) {
+  check_mesh(subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5), "sphere", 0.05f);
+}
+
+TEST(Hybrid, AgreesWithBruteForceLatticeQuads) {
+  // cell 0.25 puts every quad exactly on cell boundaries (and so on split planes).
+  check_mesh(lattice_quads(0.25f, 8, 3), "lattice", 0.25f);
+}
+
+TEST(Hybrid, AgreesWithBruteForceLongThinTriangles) {
+  check_mesh(long_thin(5), "thin", 0.07f);
+}
+
+TEST(Hybrid, AgreesWithBruteForceTeapotInStadium) {
+  check_mesh(teapot_in_stadium(100.0f, 4), "stadium", 0.5f, 10000);
+}
+
+TEST(Hybrid, NonCubicGrid7x3x11) {
+  const Mesh m = random_soup(9, 2000, Vec3(0.0f), Vec3(6.9f, 2.9f, 10.9f), 0.3f);
+  const auto rays = random_rays(m, 20000, 77);
+  const Reference ref = brute_reference(m, rays);
+  for (bool dense : {false, true}) {
+    Hybrid h;
+    h.build(m, params_with(1.0f, dense));
+    ASSERT_EQ(h.dims()[0], 7);
+    ASSERT_EQ(h.dims()[1], 3);
+    ASSERT_EQ(h.dims()[2], 11);
+    EXPECT_EQ(compare(h, m, rays, ref, dense ? "7x3x11 dense" : "7x3x11 bricked"), 0);
+  }
+}
+
+TEST(Hybrid, DenseAndBrickedMapEveryCellToTheSameCoveringLeaf) {
+  const Mesh m = random_soup(4, 1500, Vec3(-1), Vec3(1), 0.1f);
+  Hybrid d, b;
+  d.build(m, params_with(0.05f, true));
+  b.build(m, params_with(0.05f, false));
+  ASSERT_EQ(d.leaves().size(), b.leaves().size());
+  const int32_t* n = d.dims();
+  for (int32_t z = 0; z < n[2]; ++z)
+    for (int32_t y = 0; y < n[1]; ++y)
+      for (int32_t x = 0; x < n[0]; ++x) {
+        const uint32_t l = b.leaf_at(x, y, z);
+        ASSERT_EQ(l, d.leaf_at(x, y, z));
+        const auto& L = b.leaves()[l];
+        ASSERT_TRUE(x >= L.lo[0] && x < L.hi[0] && y >= L.lo[1] && y < L.hi[1] && z >= L.lo[2] && z < L.hi[2]);
+      }
+}
+
+// ---- extreme rays -------------------------------------------------------------------------
+
+/// A cell-aligned scene with cell 0.25 (boxes of quads on cell planes and a sphere).
+Mesh extreme_scene() {
+  Mesh m = lattice_quads(0.25f, 8, 11);
+  m.append(subdivided_sphere(Vec3(1.0f, 1.0f, 1.0f), 0.6f, 3));
+  return m;
+}
+
+void check_rays(const Mesh& m, const std::vector<Ray>& rays, float cell, const std::string& label) {
+  const Reference ref = brute_reference(m, rays);
+  for (bool dense : {false, true}) {
+    Hybrid h;
+    h.build(m, params_with(cell, dense));
+    EXPECT_EQ(compare(h, m, rays, ref, label + (dense ? " dense" : " bricked")), 0);
+    // And no ray reaches the step bound when counted either.
+    for (const Ray& r : rays) {
+      RayCounters c;
+      Hit hit;
+      h.intersect_counted(r, hit, c);
+      ASSERT_LE(c.steps, uint64_t(h.dims()[0] + h.dims()[1] + h.dims()[2] + 1)) << label;
+    }
+    EXPECT_EQ(h.step_bound_errors(), 0u) << label;
+  }
+}
+
+TEST(HybridExtremeRays, AxisParallel) {
+  const Mesh m = extreme_scene();
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<float> u(-0.5f, 2.5f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 6000; ++i) {
+    Ray r;
+    r.org = Vec3(u(rng), u(rng), u(rng));
+    r.dir = Vec3(0.0f);
+    r.dir[i % 3] = (i / 3) % 2 ? 1.0f : -1.0f;
+    rays.push_back(r);
+  }
+  check_rays(m, rays, 0.25f, "axis-parallel");
+}
+
+TEST(HybridExtremeRays, PositiveAndNegativeZeroComponents) {
+  const Mesh m = extreme_scene();
+  std::mt19937 rng(2);
+  std::uniform_real_distribution<float> u(-0.5f, 2.5f), s(-1.0f, 1.0f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 6000; ++i) {
+    Ray r;
+    r.org = Vec3(u(rng), u(rng), u(rng));
+    r.dir = Vec3(s(rng), s(rng), s(rng));
+    const int zero_axis = i % 3;
+    r.dir[zero_axis] = (i / 3) % 2 ? 0.0f : -0.0f;
+    if ((i / 6) % 2) r.dir[(zero_axis + 1) % 3] = -0.0f;  // two zero components
+    if (r.dir == Vec3(0.0f)) r.dir[(zero_axis + 2) % 3] = 1.0f;
+    rays.push_back(r);
+  }
+  check_rays(m, rays, 0.25f, "+0/-0 components");
+}
+
+TEST(HybridExtremeRays, RaysInCellPlanes) {
+  const Mesh m = extreme_scene();
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(-0.5f, 2.5f), s(-1.0f, 1.0f);
+  std::uniform_int_distribution<int> k(-1, 9);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 6000; ++i) {
+    Ray r;
+    r.org = Vec3(u(rng), u(rng), u(rng));
+    r.dir = Vec3(s(rng), s(rng), s(rng));
+    const int a = i % 3;
+    r.org[a] = float(k(rng)) * 0.25f;  // exactly on a cell plane, moving inside it
+    r.dir[a] = (i / 3) % 2 ? 0.0f : -0.0f;
+    if (i % 5 == 0) {  // in two planes: along a cell edge line
+      const int b = (a + 1) % 3;
+      r.org[b] = float(k(rng)) * 0.25f;
+      r.dir[b] = 0.0f;
+    }
+    if (r.dir == Vec3(0.0f)) r.dir[(a + 2) % 3] = 1.0f;
+    rays.push_back(r);
+  }
+  check_rays(m, rays, 0.25f, "in cell planes");
+}
+
+TEST(HybridExtremeRays, RaysInSplitPlanes) {
+  const Mesh m = extreme_scene();
+  Hybrid h;
+  h.build(m, params_with(0.25f, false));
+  std::vector<SplitPlane> splits;
+  h.for_each_split([&](const SplitPlane& sp) { splits.push_back(sp); });
+  ASSERT_FALSE(splits.empty());
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 6000; ++i) {
+    const SplitPlane& sp = splits[size_t(rng()) % splits.size()];
+    Ray r;
+    r.org = sp.node_box.lo + sp.node_box.extent() * Vec3(u(rng), u(rng), u(rng));
+    r.org[sp.axis] = sp.position;
+    r.dir = Vec3(s(rng), s(rng), s(rng));
+    r.dir[sp.axis] = 0.0f;
+    if (i % 2) r.org = r.org - r.dir * 3.0f;  // start outside the node, still in the plane
+    if (r.dir == Vec3(0.0f)) r.dir[(sp.axis + 1) % 3] = 1.0f;
+    rays.push_back(r);
+  }
+  check_rays(m, rays, 0.25f, "in split planes");
+}
+
+TEST(HybridExtremeRays, OriginsOnCellBoundaries) {
+  const Mesh m = extreme_scene();
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> k(-1, 9);
+  std::uniform_real_distribution<float> s(-1.0f, 1.0f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 6000; ++i) {
+    Ray r;
+    r.org = Vec3(float(k(rng)), float(k(rng)), float(k(rng))) * 0.25f;  // lattice points
+    r.dir = Vec3(s(rng), s(rng), s(rng));
+    if (i % 3 == 0) r.dir = Vec3(1.0f, 1.0f, 1.0f) * (i % 2 ? 1.0f : -1.0f);  // through cell corners
+    rays.push_back(r);
+  }
+  check_rays(m, rays, 0.25f, "origins on cell boundaries");
+}
+
+TEST(HybridExtremeRays, OriginsInsideAndOutsideRootBox) {
+  const Mesh m = extreme_scene();
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<float> in(0.01f, 1.99f), out(4.0f, 10.0f), s(-1.0f, 1.0f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 6000; ++i) {
+    Ray r;
+    if (i % 2) {
+      r.org = Vec3(in(rng), in(rng), in(rng));
+      r.dir = Vec3(s(rng), s(rng), s(rng));
+    } else {
+      r.org = Vec3(1.0f) + normalize(Vec3(s(rng), s(rng), s(rng))) * out(rng);
+      r.dir = Vec3(1.0f) + Vec3(s(rng), s(rng), s(rng)) - r.org;  // towards the box
+    }
+    rays.push_back(r);
+  }
+  check_rays(m, rays, 0.25f, "origins inside/outside");
+}
+
+TEST(HybridExtremeRays, RaysMissingTheBox) {
+  const Mesh m = extreme_scene();
+  Hybrid h;
+  h.build(m, params_with(0.25f, false));
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> s(-1.0f, 1.0f);
+  for (int i = 0; i < 5000; ++i) {
+    Ray r;
+    // From beside the box, pointing away or passing by.
+    r.org = Vec3(5.0f + s(rng), s(rng), s(rng));
+    r.dir = Vec3(std::abs(s(rng)) + 0.01f, s(rng), s(rng));
+    if (i % 3 == 0) r.dir = Vec3(0.0f, 1.0f, -0.0f);  // parallel to the box, outside its slab
+    if (i % 3 == 1) {  // pointing at the box but ending before it
+      r.dir = Vec3(-1.0f, 0.0f, 0.0f);
+      r.org = Vec3(5.0f, 1.0f, 1.0f);
+      r.tmax = 2.0f;
+    }
+    Hit hit;
+    RayCounters c;
+    EXPECT_FALSE(h.intersect_counted(r, hit, c));
+    EXPECT_FALSE(h.occluded(r));
+    EXPECT_EQ(c.steps, 0u);  // rejected by the root-box clip without a lookup
+  }
+}
+
+TEST(HybridExtremeRays, Scales1eMinus6And1e6AndTranslation1e5) {
+  const Mesh base = extreme_scene();
+  struct Case {
+    float scale;
+    Vec3 offset;
+    const char* what;
+  };
+  const Case cases[] = {{1e-6f, Vec3(0.0f), "scale 1e-6"},
+                        {1e6f, Vec3(0.0f), "scale 1e6"},
+                        {50.0f, Vec3(1e5f, -1e5f, 1e5f), "translation 1e5"}};
+  for (const Case& c : cases) {
+    const Mesh m = transformed(base, c.scale, c.offset);
+    auto rays = random_rays(m, 8000, 99);
+    // Plus exactly-in-plane rays at the transformed cell planes.
+    std::mt19937 rng(8);
+    std::uniform_int_distribution<int> k(0, 8);
+    std::uniform_real_distribution<float> s(-1.0f, 1.0f);
+    for (int i = 0; i < 2000; ++i) {
+      Ray r;
+      r.org = Vec3(float(k(rng)), float(k(rng)), float(k(rng))) * (0.25f * c.scale) + c.offset;
+      r.dir = Vec3(s(rng), s(rng), s(rng));
+      r.dir[i % 3] = 0.0f;
+      rays.push_back(r);
+    }
+    check_rays(m, rays, 0.25f * c.scale, c.what);
+    // And with the auto cell size.
+    const Reference ref = brute_reference(m, rays);
+    Hybrid h;
+    h.build(m, params_with(0.0f, false));
+    EXPECT_EQ(compare(h, m, rays, ref, std::string(c.what) + " auto"), 0);
+  }
+}
+
+// ---- memory -----------------------------------------------------------------------------
+
+TEST(HybridMemory, TeapotInStadiumBrickedStaysSmall) {
+  // Sphere of radius 1 with 8192 triangles (edges ~0.05) inside a stadium of side 2000.
+  const Mesh m = teapot_in_stadium(1000.0f, 6);
+  Hybrid h;
+  BuildParams p = params_with(0.05f, false);  // 40000 cells per axis: 6.4e13 cells
+  const BuildStats st = h.build(m, p);
+  const double cells = double(h.dims()[0]) * h.dims()[1] * h.dims()[2];
+  EXPECT_GT(cells, 6e13);
+  uint64_t matrix = 0;
+  for (const auto& part : st.bytes_by_part)
+    if (part.first.rfind("matrix", 0) == 0) matrix = part.second;
+  // Stated bound: the bricked matrix of this scene stays under 16 MiB (content: ~8K
+  // triangles), while the dense matrix at the same cell size would need 4 bytes per cell.
+  EXPECT_LT(matrix, uint64_t(16) << 20) << "bricked matrix bytes";
+  EXPECT_LT(st.bytes, uint64_t(32) << 20) << "whole structure";
+  EXPECT_EQ(h.matrix_bytes(false), matrix);
+  EXPECT_GT(double(h.matrix_bytes(true)), 1e7 * double(matrix));
+  // The dense storage at this size is refused by the memory guard instead of allocated.
+  Hybrid d;
+  BuildParams pd = p;
+  pd.hybrid_dense_matrix = true;
+  EXPECT_THROW(d.build(m, pd), ParamError);
+  // And the structure still answers rays correctly.
+  const auto rays = random_rays(m, 5000, 5);
+  EXPECT_EQ(compare(h, m, rays, brute_reference(m, rays), "stadium fine"), 0);
+}
+
+TEST(HybridMemory, DenseVersusBrickedWhereDenseStillFits) {
+  const Mesh m = teapot_in_stadium(100.0f, 5);
+  Hybrid d, b;
+  const BuildStats sd = d.build(m, params_with(0.5f, true));  // 400^3 = 64M cells = 256 MB
+  const BuildStats sb = b.build(m, params_with(0.5f, false));
+  EXPECT_GT(sd.bytes, 100 * sb.bytes) << "dense " << sd.bytes << " bricked " << sb.bytes;
+}
+
+TEST(HybridMemory, GuardRejectsAbsurdCellSize) {
+  const Mesh m = random_soup(2, 500, Vec3(-1), Vec3(1), 0.1f);
+  for (bool dense : {false, true}) {
+    Hybrid h;
+    try {
+      h.build(m, params_with(2e-9f, dense));
+      ADD_FAILURE() << "expected ParamError";
+    } catch (const ParamError& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find("cell size"), std::string::npos) << msg;
+      EXPECT_NE(msg.find("at least"), std::string::npos) << msg;
+      EXPECT_NE(msg.find("budget"), std::string::npos) << msg;
+    }
+  }
+  // A small explicit budget also trips the dense guard at a size that would otherwise work.
+  Hybrid h;
+  BuildParams p = params_with(0.001f, true);  // 2000^3 cells = 32 GB dense
+  p.memory_budget = uint64_t(64) << 20;
+  EXPECT_THROW(h.build(m, p), ParamError);
+}
+
+// ---- counters and traces -----------------------------------------------------------------
+
+TEST(Hybrid, CountedAndFastTraversalAgree) {
+  const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 4);
+  Hybrid h;
+  h.build(m, params_with(0.0f, false));
+  const auto rays = random_rays(m, 5000, 3);
+  RayCounters total;
+  for (const Ray& r : rays) {
+    Hit a, b;
+    RayCounters c;
+    const bool ha = h.intersect(r, a), hb = h.intersect_counted(r, b, c);
+    ASSERT_EQ(ha, hb);
+    if (ha) {
+      EXPECT_EQ(a.t, b.t);
+      EXPECT_EQ(a.prim, b.prim);
+    }
+    EXPECT_EQ(h.occluded(r), h.occluded_counted(r, c));
+    total += c;
+  }
+  EXPECT_GT(total.steps, 0u);
+  EXPECT_GT(total.tri_tests, 0u);
+  EXPECT_GE(total.lookups, total.steps / 2);
+}
+
+TEST(Hybrid, TraceVisitsLeavesInRayOrder) {
+  const Mesh m = random_soup(8, 2000, Vec3(-1), Vec3(1), 0.08f);
+  Hybrid h;
+  h.build(m, params_with(0.0f, false));
+  const auto rays = random_rays(m, 3000, 4);
+  int hits = 0;
+  for (const Ray& r : rays) {
+    const Trace tr = h.trace(r);
+    Hit hit;
+    const bool got = h.intersect(r, hit);
+    ASSERT_EQ(got, tr.hit.valid());
+    if (got) {
+      EXPECT_EQ(hit.t, tr.hit.t);
+    }
+    for (size_t i = 1; i < tr.steps.size(); ++i) ASSERT_GE(tr.steps[i].t_in, tr.steps[i - 1].t_in);
+    for (const TraceStep& s : tr.steps) ASSERT_LE(s.t_in, s.t_out);
+    EXPECT_EQ(tr.counters.steps, tr.steps.size());
+    if (got) {
+      ASSERT_FALSE(tr.steps.empty());
+      const TraceStep& last = tr.steps.back();
+      const float tol = 1e-5f * std::max(1.0f, hit.t);
+      EXPECT_GE(hit.t, last.t_in - tol);
+      EXPECT_LE(hit.t, last.t_out + tol);
+      // The hit point lies inside the last leaf's box.
+      const Vec3 p = r.at(hit.t);
+      const Vec3 slack(1e-4f);
+      EXPECT_TRUE(Box3(last.box.lo - slack, last.box.hi + slack).contains(p));
+      ++hits;
+    }
+  }
+  EXPECT_GT(hits, 500);
+}
+
+TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
+  const Mesh m = random_soup(6, 1000, Vec3(-1), Vec3(1), 0.1f);
+  Hybrid h;
+  const BuildStats st = h.build(m, params_with(0.0f, false));
+  uint64_t splits = 0, boxes = 0, refs = 0;
+  const double cell = h.cell_size();
+  h.for_each_split([&](const SplitPlane& sp) {
+    ++splits;
+    // Split planes lie on whole cells.
+    const double k = (double(sp.position) - double(h.origin()[sp.axis])) / cell;
+    EXPECT_NEAR(k, std::round(k), 1e-3);
+    EXPECT_GT(sp.position, sp.node_box.lo[sp.axis]);
+    EXPECT_LT(sp.position, sp.node_box.hi[sp.axis]);
+  });
+  h.for_each_box([&](const StructureBox& b) {
+    ++boxes;
+    refs += b.num_triangles;
+  });
+  EXPECT_EQ(splits, st.nodes - st.leaves);
+  EXPECT_EQ(boxes, st.leaves - st.empty_leaves);
+  EXPECT_EQ(refs, st.references);
+  EXPECT_GT(st.sah_evaluations, 0u);
+  uint64_t sum = 0;
+  for (const auto& part : st.bytes_by_part) sum += part.second;
+  EXPECT_EQ(sum, st.bytes);
+}
+
+// ---- parameters and degenerate scenes ----------------------------------------------------
+
+TEST(HybridParams, CellSizeValidation) {
+  const Mesh m = random_soup(3, 300, Vec3(-1), Vec3(1), 0.1f);
+  Hybrid ref;
+  ref.build(m, params_with(0.0f, false));
+  for (float bad : {std::nanf(""), kInf, -kInf}) {
+    Hybrid h;
+    EXPECT_THROW(h.build(m, params_with(bad, false)), ParamError) << bad;
+  }
+  // 0 and negative sizes mean auto.
+  for (float autoish : {0.0f, -1.0f}) {
+    Hybrid h;
+    h.build(m, params_with(autoish, false));
+    EXPECT_EQ(h.cell_size(), ref.cell_size());
+  }
+  for (float pct : {0.0f, -5.0f, 150.0f, std::nanf("")}) {
+    Hybrid h;
+    BuildParams p = params_with(0.0f, false);
+    p.cell_percentile = pct;
+    EXPECT_THROW(h.build(m, p), ParamError) << pct;
+  }
+  Hybrid h;
+  BuildParams p;
+  p.hybrid_intersection_cost = 0.0f;
+  EXPECT_THROW(h.build(m, p), ParamError);
+}
+
+TEST(HybridParams, AutoRuleIsReported) {
+  const Mesh m = random_soup(3, 3000, Vec3(-1), Vec3(1), 0.05f);
+  Hybrid h;
+  const BuildStats st = h.build(m, params_with(0.0f, false));
+  ASSERT_GE(st.extra.size(), 3u);
+  EXPECT_EQ(st.extra[0].first, "cell_size");
+  EXPECT_EQ(st.extra[1].first, "auto rule");
+  EXPECT_NE(st.extra[1].second.find("p90"), std::string::npos);
+  EXPECT_EQ(st.extra[2].first, "grid");
+  // The auto cell is the 90th percentile of the triangles' largest extents.
+  std::vector<float> e;
+  for (size_t i = 0; i < m.num_triangles(); ++i) e.push_back(max_component(m.triangle_bounds(i).extent()));
+  std::sort(e.begin(), e.end());
+  EXPECT_FLOAT_EQ(float(h.cell_size()), e[size_t(std::ceil(0.9 * double(e.size()))) - 1]);
+}
+
+TEST(HybridParams, FlatScenesAndOversizedCells) {
+  // All triangles in the plane z = 3: zero extent on z still gives one cell there.
+  Mesh flat;
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (int i = 0; i < 500; ++i) {
+    const Vec3 c(u(rng), u(rng), 3.0f);
+    add_tri(flat, c, c + Vec3(0.05f, 0.0f, 0.0f), c + Vec3(0.0f, 0.05f, 0.0f));
+  }
+  Hybrid h;
+  h.build(flat, params_with(0.0f, false));
+  EXPECT_EQ(h.dims()[2], 1);
+  EXPECT_GT(h.dims()[0], 1);
+  const auto rays = random_rays(flat, 5000, 2);
+  EXPECT_EQ(compare(h, flat, rays, brute_reference(flat, rays), "flat"), 0);
+  // A cell larger than the scene gives one cell.
+  Hybrid one;
+  one.build(flat, params_with(100.0f, true));
+  EXPECT_EQ(one.dims()[0] * one.dims()[1] * one.dims()[2], 1);
+  EXPECT_EQ(compare(one, flat, rays, brute_reference(flat, rays), "flat one cell"), 0);
+  // An empty mesh builds and misses everything.
+  Mesh empty;
+  Hybrid e;
+  e.build(empty, params_with(0.0f, false));
+  Hit hit;
+  EXPECT_FALSE(e.intersect(Ray{Vec3(0.0f), 0.0f, Vec3(1, 0, 0), kInf}, hit));
+}
+
+TEST(HybridParams, RejectsNonFiniteGeometryAndInvalidRays) {
+  Mesh m = random_soup(3, 10, Vec3(-1), Vec3(1), 0.1f);
+  Hybrid ok;
+  ok.build(m, params_with(0.0f, false));
+  Hit hit;
+  EXPECT_FALSE(ok.intersect(Ray{Vec3(std::nanf("")), 0.0f, Vec3(1, 0, 0), kInf}, hit));
+  EXPECT_FALSE(ok.intersect(Ray{Vec3(0.0f), 0.0f, Vec3(0.0f), kInf}, hit));
+  m.positions[4].y = std::nanf("");
+  Hybrid h;
+  EXPECT_THROW(h.build(m, params_with(0.0f, false)), ParamError);
+}
+
+TEST(Hybrid, BuildIsDeterministic) {
+  const Mesh m = random_soup(12, 20000, Vec3(-1), Vec3(1), 0.03f);
+  Hybrid a, b;
+  BuildParams p = params_with(0.0f, false);
+  const BuildStats sa = a.build(m, p);
+  p.threads = 1;
+  const BuildStats sb = b.build(m, p);
+  EXPECT_EQ(sa.nodes, sb.nodes);
+  EXPECT_EQ(sa.references, sb.references);
+  EXPECT_EQ(sa.bytes, sb.bytes);
+  ASSERT_EQ(a.leaves().size(), b.leaves().size());
+  for (size_t i = 0; i < a.leaves().size(); ++i) {
+    ASSERT_EQ(a.leaves()[i].first, b.leaves()[i].first);
+    ASSERT_EQ(a.leaves()[i].count, b.leaves()[i].count);
+  }
+}
+
+TEST(Hybrid, RegisteredInFactory) {
+  auto acc = make_accelerator("hybrid");
+  EXPECT_EQ(acc->name(), "hybrid");
+}
+
+}  // namespace
+}  // namespace kdgrid
