@@ -6,13 +6,14 @@
 #include "accel/embree.h"
 #include "accel/grid.h"
 #include "accel/hybrid.h"
+#include "accel/irregular.h"
 #include "accel/kdtree.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
 std::vector<std::string> accelerator_names() {
-  return {"brute", "bvh", "grid", "kdtree", "hybrid", "embree"};
+  return {"brute", "bvh", "grid", "kdtree", "hybrid", "irregular", "embree"};
 }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
@@ -21,6 +22,7 @@ std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "grid") return std::make_unique<UniformGrid>();
   if (name == "kdtree") return std::make_unique<KdTree>();
   if (name == "hybrid") return std::make_unique<Hybrid>();
+  if (name == "irregular") return std::make_unique<IrregularGrid>();
   if (name == "embree") return std::make_unique<EmbreeAccel>();
   std::string valid;
   for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;

@@ -1,0 +1,685 @@
+// The irregular grid (Pérard-Gayot et al. 2017) against brute force on procedural meshes,
+// plus the extreme-ray suite, memory bound, parameter errors and counter/trace consistency.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "accel/brute.h"
+#include "accel/irregular.h"
+#include "util/error.h"
+
+namespace kdgrid {
+namespace {
+
+// ---- procedural meshes --------------------------------------------------------------------
+
+void add_tri(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c) {
+  const uint32_t base = uint32_t(m.positions.size());
+  m.positions.insert(m.positions.end(), {a, b, c});
+  m.triangles.push_back({base, base + 1, base + 2});
+}
+
+void add_quad(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
+  add_tri(m, a, b, c);
+  add_tri(m, a, c, d);
+}
+
+/// n random triangles in [-1, 1]^3 with edge lengths up to `size`.
+Mesh random_soup(int n, uint32_t seed, float size) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f), s(-size, size);
+  Mesh m;
+  for (int i = 0; i < n; ++i) {
+    const Vec3 p(u(rng), u(rng), u(rng));
+    add_tri(m, p, p + Vec3(s(rng), s(rng), s(rng)), p + Vec3(s(rng), s(rng), s(rng)));
+  }
+  return m;
+}
+
+/// Sphere of radius r around c: an octahedron subdivided `levels` times (8 * 4^levels
+/// triangles). Shared edges get bit-identical vertices (midpoints are computed symmetrically).
+Mesh sphere(int levels, float r = 1.0f, Vec3 c = Vec3(0.0f)) {
+  std::vector<std::array<Vec3, 3>> tris;
+  const Vec3 px(1, 0, 0), nx(-1, 0, 0), py(0, 1, 0), ny(0, -1, 0), pz(0, 0, 1), nz(0, 0, -1);
+  tris = {{px, py, pz}, {py, nx, pz}, {nx, ny, pz}, {ny, px, pz},
+          {py, px, nz}, {nx, py, nz}, {ny, nx, nz}, {px, ny, nz}};
+  for (int l = 0; l < levels; ++l) {
+    std::vector<std::array<Vec3, 3>> next;
+    for (const auto& t : tris) {
+      const Vec3 ab = normalize(t[0] + t[1]), bc = normalize(t[1] + t[2]),
+                 ca = normalize(t[2] + t[0]);
+      next.push_back({t[0], ab, ca});
+      next.push_back({ab, t[1], bc});
+      next.push_back({ca, bc, t[2]});
+      next.push_back({ab, bc, ca});
+    }
+    tris.swap(next);
+  }
+  Mesh m;
+  for (const auto& t : tris) add_tri(m, c + t[0] * r, c + t[1] * r, c + t[2] * r);
+  return m;
+}
+
+/// Axis-aligned quads on the planes a = -1, -0.5, 0, 0.5, 1 of each axis, each plane a 4x4
+/// grid of quads over [-1, 1]^2: coplanar triangles, shared edges and many rays in planes.
+Mesh grid_quads() {
+  Mesh m;
+  for (int a = 0; a < 3; ++a) {
+    const int b = (a + 1) % 3, c = (a + 2) % 3;
+    for (int k = 0; k <= 4; ++k)
+      for (int i = 0; i < 4; ++i)
+        for (int j = 0; j < 4; ++j) {
+          Vec3 p[4];
+          const float ui[4] = {float(i), float(i + 1), float(i + 1), float(i)};
+          const float vj[4] = {float(j), float(j), float(j + 1), float(j + 1)};
+          for (int q = 0; q < 4; ++q) {
+            p[q][a] = -1.0f + 0.5f * k;
+            p[q][b] = -1.0f + 0.5f * ui[q];
+            p[q][c] = -1.0f + 0.5f * vj[q];
+          }
+          add_quad(m, p[0], p[1], p[2], p[3]);
+        }
+  }
+  return m;
+}
+
+/// Long thin triangles crossing the box: two far corners and a third a hair off the edge.
+Mesh thin_triangles(int n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f), t(0.1f, 0.9f), e(-1e-3f, 1e-3f);
+  Mesh m;
+  for (int i = 0; i < n; ++i) {
+    const Vec3 a(u(rng), u(rng), u(rng)), b(u(rng), u(rng), u(rng));
+    const Vec3 c = lerp(a, b, t(rng)) + Vec3(e(rng), e(rng), e(rng));
+    add_tri(m, a, b, c);
+  }
+  return m;
+}
+
+/// Teapot in a stadium: a dense sphere (the teapot) of radius 1 at the origin inside a
+/// 1000-unit arena of a few large quads.
+Mesh teapot_in_stadium(int levels) {
+  Mesh m = sphere(levels, 1.0f);  // 8 * 4^levels triangles
+  const float s = 500.0f, h = 100.0f;
+  for (int i = 0; i < 10; ++i)
+    for (int j = 0; j < 10; ++j) {
+      const float x0 = -s + 100.0f * i, z0 = -s + 100.0f * j;
+      add_quad(m, {x0, -2, z0}, {x0 + 100, -2, z0}, {x0 + 100, -2, z0 + 100}, {x0, -2, z0 + 100});
+    }
+  add_quad(m, {-s, -2, -s}, {s, -2, -s}, {s, h, -s}, {-s, h, -s});
+  add_quad(m, {-s, -2, s}, {s, -2, s}, {s, h, s}, {-s, h, s});
+  add_quad(m, {-s, -2, -s}, {-s, -2, s}, {-s, h, s}, {-s, h, -s});
+  add_quad(m, {s, -2, -s}, {s, -2, s}, {s, h, s}, {s, h, -s});
+  return m;
+}
+
+Mesh transformed(Mesh m, float scale, Vec3 translate) {
+  for (Vec3& p : m.positions) p = p * scale + translate;
+  return m;
+}
+
+// ---- rays ---------------------------------------------------------------------------------
+
+Vec3 random_dir(std::mt19937& rng) {
+  std::normal_distribution<float> n(0.0f, 1.0f);
+  for (;;) {
+    const Vec3 d(n(rng), n(rng), n(rng));
+    if (length(d) > 1e-3f) return d;
+  }
+}
+
+/// A mix of rays: random origins and directions around the box, rays aimed at points on
+/// random triangles (hits), and short segments with finite tmax (for any-hit).
+std::vector<Ray> random_rays(const Mesh& m, int n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  const Box3 b = m.bounds();
+  const Vec3 c = b.center();
+  const float r = 0.5f * length(b.extent());
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f), u01(0.0f, 1.0f);
+  std::uniform_int_distribution<uint32_t> pick(0, uint32_t(m.num_triangles() - 1));
+  std::vector<Ray> rays;
+  rays.reserve(n);
+  for (int i = 0; i < n; ++i) {
+    Ray ray;
+    switch (i % 3) {
+      case 0:
+        ray.org = c + Vec3(u(rng), u(rng), u(rng)) * (1.5f * r);
+        ray.dir = random_dir(rng);
+        break;
+      case 1: {
+        const auto t = m.corners(pick(rng));
+        float bu = u01(rng), bv = u01(rng);
+        if (bu + bv > 1.0f) bu = 1.0f - bu, bv = 1.0f - bv;
+        const Vec3 target = t[0] * (1 - bu - bv) + t[1] * bu + t[2] * bv;
+        ray.org = target + normalize(random_dir(rng)) * (r * (0.1f + 2.0f * u01(rng)));
+        ray.dir = target - ray.org;
+        break;
+      }
+      default:
+        ray.org = c + Vec3(u(rng), u(rng), u(rng)) * r;
+        ray.dir = random_dir(rng);
+        ray.tmin = 0.01f * u01(rng);
+        ray.tmax = r * u01(rng) / length(ray.dir);
+        break;
+    }
+    rays.push_back(ray);
+  }
+  return rays;
+}
+
+// ---- comparison with brute force ----------------------------------------------------------
+
+struct Reference {
+  std::vector<Hit> hits;
+  std::vector<uint8_t> found, occluded;
+};
+
+Reference reference(const Mesh& m, const std::vector<Ray>& rays,
+                    TriangleTestKind test = TriangleTestKind::Watertight) {
+  BruteForce brute;
+  BuildParams p;
+  p.triangle_test = test;
+  brute.build(m, p);
+  Reference ref;
+  ref.hits.resize(rays.size());
+  ref.found.resize(rays.size());
+  ref.occluded.resize(rays.size());
+  for (size_t i = 0; i < rays.size(); ++i) {
+    ref.found[i] = brute.intersect(rays[i], ref.hits[i]);
+    ref.occluded[i] = brute.occluded(rays[i]);
+  }
+  return ref;
+}
+
+/// t of triangle `prim` alone along the ray, or -1 if the test misses it.
+float own_t(const Mesh& m, const Ray& ray, uint32_t prim, TriangleTestKind test) {
+  const auto c = m.corners(prim);
+  float t, u, v;
+  bool hit;
+  if (test == TriangleTestKind::Watertight)
+    hit = WatertightTest::intersect(WatertightTest::prepare(ray), c[0], c[1], c[2], ray.tmin,
+                                    ray.tmax, t, u, v);
+  else
+    hit = MollerTest::intersect(MollerTest::prepare(ray), c[0], c[1], c[2], ray.tmin, ray.tmax,
+                                t, u, v);
+  return hit ? t : -1.0f;
+}
+
+bool close_t(float a, float b) {
+  return std::fabs(a - b) <= 1e-5f * std::max(std::fabs(a), std::fabs(b)) || a == b;
+}
+
+/// Number of rays on which the grid disagrees with the reference (closest t, triangle unless
+/// a tie, any-hit). Prints the first few.
+int count_disagreements(const IrregularGrid& g, const Mesh& m, const std::vector<Ray>& rays,
+                        const Reference& ref, const std::string& label,
+                        TriangleTestKind test = TriangleTestKind::Watertight) {
+  int bad = 0;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    Hit h;
+    const bool found = g.intersect(rays[i], h);
+    const bool occ = g.occluded(rays[i]);
+    bool ok = found == bool(ref.found[i]) && occ == bool(ref.occluded[i]);
+    if (ok && found) {
+      ok = close_t(h.t, ref.hits[i].t);
+      // A different triangle is fine only at a tie: its own t must equal the reference t.
+      if (ok && h.prim != ref.hits[i].prim) ok = close_t(own_t(m, rays[i], h.prim, test), ref.hits[i].t);
+    }
+    if (!ok && ++bad <= 5) {
+      const Ray& r = rays[i];
+      ADD_FAILURE() << label << ": ray " << i << " org (" << r.org.x << ", " << r.org.y << ", "
+                    << r.org.z << ") dir (" << r.dir.x << ", " << r.dir.y << ", " << r.dir.z
+                    << ") [" << r.tmin << ", " << r.tmax << "]: grid " << found << " t=" << h.t
+                    << " prim=" << h.prim << " occ=" << occ << ", brute " << int(ref.found[i])
+                    << " t=" << ref.hits[i].t << " prim=" << ref.hits[i].prim
+                    << " occ=" << int(ref.occluded[i]);
+    }
+  }
+  return bad;
+}
+
+BuildParams params_for(float top, float sub, bool merge, bool expand) {
+  BuildParams p;
+  p.irregular_top_density = top;
+  p.irregular_sub_density = sub;
+  p.irregular_merge = merge;
+  p.irregular_expand = expand;
+  return p;
+}
+
+std::string stat(const BuildStats& s, const std::string& key) {
+  for (const auto& [k, v] : s.extra)
+    if (k == key) return v;
+  return "";
+}
+
+/// Builds with every merge/expand combination at three densities and checks agreement.
+void check_mesh_agreement(const Mesh& m, const std::string& name, int num_rays, uint32_t seed) {
+  const auto rays = random_rays(m, num_rays, seed);
+  const Reference ref = reference(m, rays);
+  int hits = 0;
+  for (uint8_t f : ref.found) hits += f;
+  EXPECT_GT(hits, num_rays / 4) << name << ": the ray set should hit often";
+  const float densities[3][2] = {{0.12f, 2.4f}, {0.02f, 0.5f}, {1.0f, 6.0f}};
+  for (const auto& d : densities)
+    for (int mode = 0; mode < 4; ++mode) {
+      const bool merge = mode & 1, expand = mode & 2;
+      IrregularGrid g;
+      const BuildStats s = g.build(m, params_for(d[0], d[1], merge, expand));
+      const std::string label = name + " top=" + std::to_string(d[0]) + " sub=" +
+                                std::to_string(d[1]) + " merge=" + std::to_string(merge) +
+                                " expand=" + std::to_string(expand);
+      EXPECT_EQ(count_disagreements(g, m, rays, ref, label), 0) << label;
+      EXPECT_EQ(g.step_bound_hits(), 0u) << label;
+      if (d[0] == 0.12f && merge && expand)
+        std::printf("[ info ] %s: %s cells before merge, %s after merge, %s expanded, %llu refs, "
+                    "%llu bytes (map %llu, cells %llu, refs %llu), %.3f s\n",
+                    name.c_str(), stat(s, "cells before merge").c_str(),
+                    stat(s, "cells after merge").c_str(), stat(s, "cells expanded").c_str(),
+                    (unsigned long long)s.references, (unsigned long long)s.bytes,
+                    (unsigned long long)s.bytes_by_part[0].second,
+                    (unsigned long long)s.bytes_by_part[1].second,
+                    (unsigned long long)s.bytes_by_part[2].second, s.seconds);
+    }
+}
+
+// ---- agreement ----------------------------------------------------------------------------
+
+TEST(Irregular, AgreesWithBruteForceOnRandomSoup) {
+  check_mesh_agreement(random_soup(3000, 1, 0.15f), "soup", 20000, 11);
+}
+
+TEST(Irregular, AgreesWithBruteForceOnSphere) {
+  check_mesh_agreement(sphere(5), "sphere", 20000, 12);
+}
+
+TEST(Irregular, AgreesWithBruteForceOnGridQuads) {
+  check_mesh_agreement(grid_quads(), "quads", 20000, 13);
+}
+
+TEST(Irregular, AgreesWithBruteForceOnThinTriangles) {
+  check_mesh_agreement(thin_triangles(1000, 4), "thin", 20000, 14);
+}
+
+TEST(Irregular, AgreesWithBruteForceOnTeapotInStadium) {
+  check_mesh_agreement(teapot_in_stadium(5), "stadium", 6000, 15);
+}
+
+TEST(Irregular, AgreesWithBruteForceWithMollerTest) {
+  const Mesh m = sphere(4);
+  const auto rays = random_rays(m, 10000, 16);
+  const Reference ref = reference(m, rays, TriangleTestKind::Moller);
+  IrregularGrid g;
+  BuildParams p;
+  p.triangle_test = TriangleTestKind::Moller;
+  g.build(m, p);
+  EXPECT_EQ(count_disagreements(g, m, rays, ref, "moller", TriangleTestKind::Moller), 0);
+}
+
+// ---- merge and expansion do what they say -------------------------------------------------
+
+TEST(Irregular, MergeReducesCellsAndExpansionGrowsBoxes) {
+  const Mesh m = random_soup(3000, 2, 0.15f);
+  IrregularGrid plain, merged;
+  const BuildStats a = plain.build(m, params_for(0.12f, 2.4f, false, false));
+  const BuildStats b = merged.build(m, params_for(0.12f, 2.4f, true, true));
+  EXPECT_EQ(stat(a, "cells before merge"), stat(a, "cells after merge"));
+  EXPECT_EQ(stat(a, "cells expanded"), "0");
+  EXPECT_EQ(stat(a, "cells before merge"), stat(b, "cells before merge"));
+  EXPECT_LT(std::stoull(stat(b, "cells after merge")), std::stoull(stat(b, "cells before merge")));
+  EXPECT_GT(std::stoull(stat(b, "cells expanded")), 0u);
+  EXPECT_EQ(b.nodes, merged.num_cells());
+  // The voxel map and the cells account for all structure bytes but the object itself.
+  uint64_t parts = 0;
+  for (const auto& [k, v] : b.bytes_by_part) parts += v;
+  EXPECT_EQ(parts + sizeof(IrregularGrid), b.bytes);
+  // Overlay boxes are non-empty cells inside the grid.
+  uint64_t boxes = 0, refs = 0;
+  merged.for_each_box([&](const StructureBox& sb) {
+    ++boxes;
+    refs += sb.num_triangles;
+    EXPECT_FALSE(sb.box.empty());
+  });
+  EXPECT_EQ(boxes, b.nodes - b.empty_leaves);
+  EXPECT_EQ(refs, b.references);
+}
+
+// ---- extreme rays -------------------------------------------------------------------------
+
+/// Builds the default grid over m and checks the given rays against brute force.
+void check_rays(const Mesh& m, const std::vector<Ray>& rays, const std::string& label,
+                const BuildParams& p = BuildParams()) {
+  const Reference ref = reference(m, rays);
+  IrregularGrid g;
+  g.build(m, p);
+  EXPECT_EQ(count_disagreements(g, m, rays, ref, label), 0);
+  EXPECT_EQ(g.step_bound_hits(), 0u) << label;
+  BuildParams q = p;
+  q.irregular_merge = q.irregular_expand = false;
+  g.build(m, q);
+  EXPECT_EQ(count_disagreements(g, m, rays, ref, label + " (no merge/expand)"), 0);
+  EXPECT_EQ(g.step_bound_hits(), 0u) << label;
+}
+
+TEST(IrregularExtreme, AxisParallelRays) {
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<float> u(-1.3f, 1.3f);
+  for (const Mesh& m : {grid_quads(), random_soup(2000, 3, 0.2f), sphere(4)}) {
+    std::vector<Ray> rays;
+    for (int i = 0; i < 6000; ++i) {
+      Ray r;
+      r.org = Vec3(u(rng), u(rng), u(rng));
+      const int a = i % 3;
+      r.org[a] = (i / 3) % 2 ? -1.5f : 1.5f;
+      r.dir = Vec3(0.0f);
+      r.dir[a] = r.org[a] > 0 ? -1.0f : 1.0f;
+      // Every fourth ray starts on a quad grid line (0.5 multiples) in one other coordinate.
+      if (i % 4 == 0) r.org[(a + 1) % 3] = 0.5f * float(int(u(rng) * 2.0f));
+      rays.push_back(r);
+    }
+    check_rays(m, rays, "axis-parallel");
+  }
+}
+
+TEST(IrregularExtreme, SignedZeroDirectionComponents) {
+  const Mesh m = random_soup(2000, 5, 0.2f);
+  std::mt19937 rng(22);
+  std::uniform_real_distribution<float> u(-1.2f, 1.2f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 6000; ++i) {
+    Ray r;
+    r.org = Vec3(u(rng), u(rng), u(rng));
+    r.dir = Vec3(u(rng), u(rng), u(rng));
+    // Zero one or two components, alternating +0 and -0.
+    const int a = i % 3;
+    r.dir[a] = (i / 3) % 2 ? 0.0f : -0.0f;
+    if (i % 5 == 0) r.dir[(a + 1) % 3] = (i / 5) % 2 ? -0.0f : 0.0f;
+    rays.push_back(r);
+  }
+  check_rays(m, rays, "signed zero");
+  // +0 and -0 give the same answer.
+  IrregularGrid g;
+  g.build(m, BuildParams());
+  for (const Ray& r : rays) {
+    Ray s = r;
+    for (int a = 0; a < 3; ++a)
+      if (s.dir[a] == 0.0f) s.dir[a] = -s.dir[a];
+    Hit h1, h2;
+    ASSERT_EQ(g.intersect(r, h1), g.intersect(s, h2));
+    EXPECT_EQ(h1.prim, h2.prim);
+  }
+}
+
+TEST(IrregularExtreme, RaysInCellPlanes) {
+  for (const Mesh& m : {grid_quads(), sphere(4)}) {
+    IrregularGrid g;
+    g.build(m, BuildParams());
+    const auto res = g.lattice_resolution();
+    std::mt19937 rng(23);
+    std::uniform_real_distribution<float> u(-1.2f, 1.2f);
+    std::vector<Ray> rays;
+    for (int i = 0; i < 6000; ++i) {
+      const int a = i % 3;
+      std::uniform_int_distribution<int32_t> k(0, res[a]);
+      Ray r;
+      r.org = Vec3(u(rng), u(rng), u(rng));
+      r.org[a] = float(g.lattice_plane(a, k(rng)));
+      r.dir = Vec3(u(rng), u(rng), u(rng));
+      r.dir[a] = 0.0f;  // the ray lies in the plane of a lattice face
+      if (i % 2) {  // and half of them also in a second lattice plane
+        const int b = (a + 1) % 3;
+        std::uniform_int_distribution<int32_t> kb(0, res[b]);
+        r.org[b] = float(g.lattice_plane(b, kb(rng)));
+        r.dir[b] = 0.0f;
+      }
+      rays.push_back(r);
+    }
+    // Rays on the quads' own planes (x = -1 .. 1 step 0.5) sliding along them.
+    for (int i = 0; i < 2000; ++i) {
+      const int a = i % 3;
+      Ray r;
+      r.org = Vec3(u(rng), u(rng), u(rng));
+      r.org[a] = -1.0f + 0.5f * float(i % 5);
+      r.dir = Vec3(u(rng), u(rng), u(rng));
+      r.dir[a] = 0.0f;
+      rays.push_back(r);
+    }
+    check_rays(m, rays, "in planes");
+  }
+}
+
+TEST(IrregularExtreme, OriginsOnBoundariesInsideAndOutside) {
+  const Mesh m = sphere(4);
+  IrregularGrid g;
+  g.build(m, BuildParams());
+  const auto res = g.lattice_resolution();
+  std::mt19937 rng(24);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 9000; ++i) {
+    Ray r;
+    r.dir = random_dir(rng);
+    switch (i % 3) {
+      case 0: {  // on a face of the grid box, or of the mesh box
+        r.org = Vec3(u(rng), u(rng), u(rng));
+        const int a = (i / 3) % 3;
+        if (i % 2)
+          r.org[a] = float(g.lattice_plane(a, (i / 9) % 2 ? 0 : res[a]));
+        else
+          r.org[a] = (i / 9) % 2 ? -1.0f : 1.0f;
+        break;
+      }
+      case 1:  // on a lattice corner inside the grid
+        for (int a = 0; a < 3; ++a)
+          r.org[a] = float(g.lattice_plane(a, std::uniform_int_distribution<int32_t>(0, res[a])(rng)));
+        break;
+      default:  // far outside
+        r.org = normalize(random_dir(rng)) * 50.0f;
+        r.dir = Vec3(u(rng), u(rng), u(rng)) * 0.3f - r.org;
+        break;
+    }
+    rays.push_back(r);
+  }
+  // Origins exactly on triangle vertices.
+  for (size_t i = 0; i < 1000; ++i)
+    rays.push_back({m.positions[(i * 7) % m.positions.size()], 0.0f, random_dir(rng), kInf});
+  check_rays(m, rays, "origins");
+}
+
+TEST(IrregularExtreme, MissesAndDegenerateRays) {
+  const Mesh m = sphere(4);
+  IrregularGrid g;
+  g.build(m, BuildParams());
+  std::mt19937 rng(25);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 3000; ++i) {
+    const Vec3 o = normalize(random_dir(rng)) * 5.0f;
+    rays.push_back({o, 0.0f, o, kInf});                                       // pointing away
+    rays.push_back({o, 0.0f, cross(o, random_dir(rng)) + o * 0.001f, kInf});  // passing by
+    rays.push_back({o, 0.0f, -o, 0.75f});  // stops 1.25 from the centre, short of the sphere
+  }
+  check_rays(m, rays, "misses");
+  for (size_t i = 0; i < rays.size(); ++i) {
+    RayCounters c;
+    Hit h;
+    EXPECT_FALSE(g.intersect_counted(rays[i], h, c));
+    // The first two kinds never come within 5 of the centre, so they never enter the grid.
+    if (i % 3 != 2) {
+      EXPECT_EQ(c.steps, 0u);
+    }
+  }
+  // Invalid rays miss without traversing.
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  Hit h;
+  EXPECT_FALSE(g.intersect({Vec3(0.0f), 0.0f, Vec3(0.0f), kInf}, h));
+  EXPECT_FALSE(g.intersect({Vec3(nan, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
+  EXPECT_FALSE(g.intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, nan, 0), kInf}, h));
+  EXPECT_FALSE(g.occluded({Vec3(-5, 0, 0), 0.0f, Vec3(kInf, 0, 0), kInf}));
+  EXPECT_FALSE(g.intersect({Vec3(-5, 0, 0), 2.0f, Vec3(1, 0, 0), 2.0f}, h));  // empty segment
+  EXPECT_TRUE(g.intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
+  EXPECT_NEAR(h.t, 4.0f, 1e-2f);
+}
+
+TEST(IrregularExtreme, TinyHugeAndTranslatedScenes) {
+  const Mesh base = random_soup(1500, 6, 0.2f);
+  const auto base_rays = random_rays(base, 6000, 26);
+  const struct {
+    float scale;
+    Vec3 translate;
+  } cases[] = {{1e-6f, Vec3(0.0f)}, {1e6f, Vec3(0.0f)}, {1.0f, Vec3(1e5f, -1e5f, 1e5f)},
+               {1e3f, Vec3(1e5f, 0.0f, 0.0f)}};
+  for (const auto& c : cases) {
+    const Mesh m = transformed(base, c.scale, c.translate);
+    std::vector<Ray> rays = base_rays;
+    for (Ray& r : rays) {
+      r.org = r.org * c.scale + c.translate;
+      r.dir = r.dir * c.scale;  // t is in units of dir, so tmin/tmax keep their meaning
+    }
+    check_rays(m, rays, "scale " + std::to_string(c.scale) + " translate " +
+                            std::to_string(c.translate.x));
+  }
+}
+
+// ---- memory and parameters ----------------------------------------------------------------
+
+TEST(Irregular, TeapotInStadiumMemoryBound) {
+  const Mesh m = teapot_in_stadium(6);
+  IrregularGrid g;
+  const BuildStats s = g.build(m, BuildParams());
+  const auto res = g.lattice_resolution();
+  const double dense_map = 4.0 * double(res[0]) * res[1] * res[2];
+  std::printf("[ info ] stadium: %zu tris, top %s, lattice %s, %llu cells, %llu refs, %llu bytes "
+              "(map %llu, cells %llu, refs %llu); a dense voxel map would take %.0f bytes\n",
+              m.num_triangles(), stat(s, "top resolution").c_str(),
+              stat(s, "lattice resolution").c_str(), (unsigned long long)s.nodes,
+              (unsigned long long)s.references, (unsigned long long)s.bytes,
+              (unsigned long long)s.bytes_by_part[0].second,
+              (unsigned long long)s.bytes_by_part[1].second,
+              (unsigned long long)s.bytes_by_part[2].second, dense_map);
+  // Stated bound: at most 256 bytes per triangle, and far below a dense map of the lattice.
+  EXPECT_LT(double(s.bytes), 256.0 * double(m.num_triangles()));
+  EXPECT_LT(double(s.bytes_by_part[0].second), 0.05 * dense_map);
+}
+
+TEST(Irregular, AbsurdParametersThrowParamError) {
+  const Mesh m = sphere(3);
+  IrregularGrid g;
+  BuildParams p;
+  p.memory_budget = uint64_t(1) << 30;
+  p.irregular_top_density = 1e12f;
+  try {
+    g.build(m, p);
+    FAIL() << "expected ParamError";
+  } catch (const ParamError& e) {
+    EXPECT_NE(std::string(e.what()).find("irregular_top_density"), std::string::npos) << e.what();
+  }
+  p.irregular_top_density = 0.12f;
+  p.irregular_sub_density = 1e12f;
+  try {
+    g.build(m, p);
+    FAIL() << "expected ParamError";
+  } catch (const ParamError& e) {
+    EXPECT_NE(std::string(e.what()).find("irregular_sub_density"), std::string::npos) << e.what();
+  }
+  for (float bad : {0.0f, -1.0f, std::numeric_limits<float>::quiet_NaN(), kInf}) {
+    p.irregular_sub_density = 2.4f;
+    p.irregular_top_density = bad;
+    EXPECT_THROW(g.build(m, p), ParamError);
+    p.irregular_top_density = 0.12f;
+    p.irregular_sub_density = bad;
+    EXPECT_THROW(g.build(m, p), ParamError);
+  }
+  // A failed build leaves a usable, empty structure; a good build afterwards works.
+  Hit h;
+  EXPECT_FALSE(g.intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
+  p.irregular_sub_density = 2.4f;
+  g.build(m, p);
+  EXPECT_TRUE(g.intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
+}
+
+TEST(Irregular, EmptyAndFlatMeshes) {
+  Mesh empty;
+  IrregularGrid g;
+  g.build(empty, BuildParams());
+  Hit h;
+  EXPECT_FALSE(g.intersect({Vec3(0.0f), 0.0f, Vec3(1, 0, 0), kInf}, h));
+  // A single flat quad: the box is flat on y; rays from above and in its plane.
+  Mesh flat;
+  add_quad(flat, {-1, 0, -1}, {1, 0, -1}, {1, 0, 1}, {-1, 0, 1});
+  std::mt19937 rng(27);
+  std::uniform_real_distribution<float> u(-1.5f, 1.5f);
+  std::vector<Ray> rays;
+  for (int i = 0; i < 3000; ++i) {
+    rays.push_back({Vec3(u(rng), 1.0f, u(rng)), 0.0f, Vec3(u(rng), -1.0f, u(rng)), kInf});
+    rays.push_back({Vec3(u(rng), 0.0f, u(rng)), 0.0f, Vec3(u(rng), 0.0f, u(rng)), kInf});
+  }
+  check_rays(flat, rays, "flat");
+}
+
+// ---- counters and traces ------------------------------------------------------------------
+
+TEST(Irregular, CountedAndTracedAgreeWithFast) {
+  const Mesh m = teapot_in_stadium(5);
+  IrregularGrid g;
+  g.build(m, BuildParams());
+  const auto rays = random_rays(m, 3000, 28);
+  RayCounters total;
+  for (const Ray& r : rays) {
+    Hit fast, counted;
+    RayCounters c;
+    const bool f = g.intersect(r, fast);
+    ASSERT_EQ(f, g.intersect_counted(r, counted, c));
+    if (f) {
+      EXPECT_EQ(fast.t, counted.t);
+      EXPECT_EQ(fast.prim, counted.prim);
+    }
+    RayCounters ca;
+    EXPECT_EQ(g.occluded(r), g.occluded_counted(r, ca));
+    // Any-hit walks the same cells in the same order and stops no later than closest-hit.
+    EXPECT_LE(ca.tri_tests, c.tri_tests);
+    const Trace t = g.trace(r);
+    EXPECT_EQ(t.counters, c);
+    EXPECT_EQ(t.hit.prim, f ? fast.prim : kInvalidPrim);
+    EXPECT_EQ(t.steps.size(), c.steps);
+    EXPECT_EQ(t.tested.size(), c.tri_tests);
+    EXPECT_EQ(c.lookups, c.steps);  // one voxel-map lookup per cell visited
+    EXPECT_LE(c.leaves, c.steps);
+    uint64_t tested = 0;
+    for (size_t k = 0; k < t.steps.size(); ++k) {
+      const TraceStep& st = t.steps[k];
+      EXPECT_EQ(st.kind, StepKind::Cell);
+      EXPECT_LE(st.t_in, st.t_out);
+      if (k > 0) {
+        EXPECT_LE(t.steps[k - 1].t_in, st.t_in) << "trace t_in must not decrease";
+      }
+      EXPECT_EQ(st.first_tested, tested);
+      tested += st.num_tested;
+    }
+    EXPECT_EQ(tested, t.tested.size());
+    if (f && !t.steps.empty()) {
+      // The hit lies before the exit of the last cell visited.
+      EXPECT_LE(fast.t, t.steps.back().t_out * (1 + 1e-6f) + 1e-6f);
+    }
+    total += c;
+  }
+  EXPECT_GT(total.tri_tests, 0u);
+  EXPECT_GT(total.steps, 0u);
+  EXPECT_EQ(total.mailbox_skips, 0u);  // this structure does not mailbox
+  EXPECT_EQ(g.step_bound_hits(), 0u);
+}
+
+TEST(Irregular, RegisteredInFactory) {
+  auto a = make_accelerator("irregular");
+  EXPECT_EQ(a->name(), "irregular");
+  const Mesh m = sphere(2);
+  a->build(m, BuildParams());
+  Hit h;
+  EXPECT_TRUE(a->intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
+}
+
+}  // namespace
+}  // namespace kdgrid
