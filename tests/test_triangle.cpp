@@ -67,7 +67,9 @@ TEST(Triangle, AgreesWithDoubleReference) {
     float t, u, v;
     const bool wt = hit_tri<WatertightTest>(r, a, b, c, t, u, v);
     if (wt != ref) ++disagreements;
-    if (wt && ref) EXPECT_NEAR(t, td, 1e-4 * std::max(1.0, std::abs(td)));
+    if (wt && ref) {
+      EXPECT_NEAR(t, td, 1e-4 * std::max(1.0, std::abs(td)));
+    }
     const bool mt = hit_tri<MollerTest>(r, a, b, c, t, u, v);
     if (mt != ref) ++disagreements;
     ++total;

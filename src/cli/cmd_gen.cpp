@@ -22,7 +22,8 @@ void add_gen_command(CLI::App& app) {
   };
   auto a = std::make_shared<Args>();
   cmd->add_option("name", a->name, "Generator name (see above)")->required();
-  cmd->add_option("-o,--output", a->output, "Output file: .gltf (materials, camera, lights), .ply or .obj")
+  cmd->add_option("-o,--output", a->output,
+                  "Output file: .gltf (materials, camera, lights), .ply or .obj")
       ->required();
   cmd->add_option("--count", a->params.count, "Triangle/quad count (0 = the generator's default)")
       ->capture_default_str();

@@ -28,7 +28,9 @@ namespace {
 std::atomic<bool> g_interrupted{false};
 static_assert(std::atomic<bool>::is_always_lock_free);
 
-extern "C" void on_sigint(int) { g_interrupted.store(true); }
+extern "C" void on_sigint(int) {
+  g_interrupted.store(true);
+}
 
 struct RenderArgs {
   std::string scene, output;
@@ -61,7 +63,8 @@ void heat_ramp(std::vector<float>& rgb) {
   float peak = 0.0f;
   for (size_t i = 0; i < rgb.size(); i += 3) peak = std::max(peak, rgb[i]);
   if (peak <= 0.0f) return;
-  static const float stops[5][3] = {{0, 0, 0.5f}, {0, 0.7f, 1}, {0.1f, 0.9f, 0.1f}, {1, 0.9f, 0}, {1, 0, 0}};
+  static const float stops[5][3] = {
+      {0, 0, 0.5f}, {0, 0.7f, 1}, {0.1f, 0.9f, 0.1f}, {1, 0.9f, 0}, {1, 0, 0}};
   for (size_t i = 0; i < rgb.size(); i += 3) {
     const float x = std::min(1.0f, rgb[i] / peak) * 4.0f;
     const int k = std::min(3, int(x));
@@ -87,6 +90,7 @@ void run_render(const RenderArgs& a) {
   check_image_extension(a.output);
   check_output_directory(a.output);
   const BuildParams params = a.accel.resolve();
+  make_accelerator(a.accel.accel);  // an unknown --accel fails here, before the scene loads
   settings.max_depth = a.max_depth;
   settings.seed = a.seed;
   if (a.heatmap == "steps")
@@ -97,7 +101,8 @@ void run_render(const RenderArgs& a) {
     throw ParamError("--heatmap '" + a.heatmap + "': choose steps or tests");
 
   std::optional<tbb::global_control> threads;
-  if (a.threads > 0) threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
+  if (a.threads > 0)
+    threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
 
   const std::string scene_path = resolve_scene_path(a.scene);
   const Scene scene = load_scene(scene_path);
@@ -118,8 +123,8 @@ void run_render(const RenderArgs& a) {
   auto progress = [&](int done) {
     constexpr int kBar = 30;
     const int filled = done * kBar / a.spp;
-    std::fprintf(stderr, "\r[%.*s%*s] %d/%d spp  %.1f s", filled, "==============================",
-                 kBar - filled, "", done, a.spp, elapsed());
+    std::fprintf(stderr, "\r[%.*s%*s] %d/%d spp  %.1f s", filled,
+                 "==============================", kBar - filled, "", done, a.spp, elapsed());
     std::fflush(stderr);
   };
   bool interrupted = false;
@@ -142,8 +147,9 @@ void run_render(const RenderArgs& a) {
   }
   std::vector<float> rgb;
   renderer.resolve(rgb);
-  if (settings.mode != RenderMode::Shaded && std::filesystem::path(a.output).extension() != ".exr")
-    heat_ramp(rgb);
+  std::string ext = std::filesystem::path(a.output).extension().string();
+  for (char& ch : ext) ch = char(std::tolower(static_cast<unsigned char>(ch)));
+  if (settings.mode != RenderMode::Shaded && ext != ".exr") heat_ramp(rgb);
   char secs[32];
   std::snprintf(secs, sizeof secs, "%.3f", renderer.seconds());
   char bsecs[32];
@@ -160,12 +166,13 @@ void run_render(const RenderArgs& a) {
                {"rays", std::to_string(c.total())}});
 
   const double mrays = renderer.seconds() > 0 ? double(c.total()) / renderer.seconds() / 1e6 : 0.0;
-  std::printf("%s: %dx%d, %d spp, %.3f s, rays %s (primary %s, shadow %s, reflection %s, "
-              "refraction %s), %.2f Mrays/s, %s build %.3f s\n",
-              a.output.c_str(), settings.width, settings.height, renderer.samples(),
-              renderer.seconds(), mega(c.total()).c_str(), mega(c.primary).c_str(),
-              mega(c.shadow).c_str(), mega(c.reflection).c_str(), mega(c.refraction).c_str(),
-              mrays, accel->name().c_str(), build_seconds);
+  std::printf(
+      "%s: %dx%d, %d spp, %.3f s, rays %s (primary %s, shadow %s, reflection %s, "
+      "refraction %s), %.3g Mrays/s, %s build %.3f s\n",
+      a.output.c_str(), settings.width, settings.height, renderer.samples(), renderer.seconds(),
+      mega(c.total()).c_str(), mega(c.primary).c_str(), mega(c.shadow).c_str(),
+      mega(c.reflection).c_str(), mega(c.refraction).c_str(), mrays, accel->name().c_str(),
+      build_seconds);
   std::fflush(stdout);
   if (interrupted) {
     std::fprintf(stderr, "kdgrid: interrupted: wrote the %d of %d samples finished to %s\n",
@@ -180,12 +187,15 @@ void add_render_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("render", "Render a scene to an image (.png or .exr)");
   auto a = std::make_shared<RenderArgs>();
   cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
-  cmd->add_option("-o,--output", a->output, "Output image: .png (sRGB 8-bit) or .exr (linear float)")
+  cmd->add_option("-o,--output", a->output,
+                  "Output image: .png (sRGB 8-bit) or .exr (linear float)")
       ->required();
-  cmd->add_option("--spp", a->spp, "Samples (progressive passes) per pixel, >= 1")->capture_default_str();
+  cmd->add_option("--spp", a->spp, "Samples (progressive passes) per pixel, >= 1")
+      ->capture_default_str();
   cmd->add_option("--res", a->res, "Resolution W or WxH")->capture_default_str();
   cmd->add_option("--threads", a->threads, "Worker threads (0 = all cores)")->capture_default_str();
-  cmd->add_option("--max-depth", a->max_depth, "Reflection/refraction bounces after the primary hit")
+  cmd->add_option("--max-depth", a->max_depth,
+                  "Reflection/refraction bounces after the primary hit")
       ->capture_default_str();
   cmd->add_option("--seed", a->seed, "Sample pattern seed")->capture_default_str();
   cmd->add_option("--heatmap", a->heatmap,

@@ -40,7 +40,8 @@ uint64_t mix64(uint64_t z) {
 class SampleRng {
  public:
   SampleRng(uint64_t seed, uint64_t pixel, uint64_t sample)
-      : state_(mix64(mix64(seed ^ 0x9e3779b97f4a7c15ull) ^ pixel) + mix64(sample + 0x632be59bd9b4e019ull)) {}
+      : state_(mix64(mix64(seed ^ 0x9e3779b97f4a7c15ull) ^ pixel) +
+               mix64(sample + 0x632be59bd9b4e019ull)) {}
   /// Uniform in [0, 1).
   float next() {
     state_ += 0x9e3779b97f4a7c15ull;
@@ -51,7 +52,9 @@ class SampleRng {
   uint64_t state_;
 };
 
-float saturate(float x) { return std::min(1.0f, std::max(0.0f, x)); }
+float saturate(float x) {
+  return std::min(1.0f, std::max(0.0f, x));
+}
 
 float highlight_exponent(const Material& m) {
   if (m.shininess > 0.0f) return std::clamp(m.shininess, kMinExponent, kMaxExponent);
@@ -118,43 +121,46 @@ bool Renderer::render_pass(const std::atomic<bool>* cancel) {
   std::atomic<bool> skipped{false};
   const uint64_t sample = uint64_t(samples_);
 
-  tbb::parallel_for(tbb::blocked_range<int>(0, num_tiles, 1), [&](const tbb::blocked_range<int>& r) {
-    for (int tile = r.begin(); tile != r.end(); ++tile) {
-      if (cancel && cancel->load(std::memory_order_relaxed)) {
-        skipped.store(true, std::memory_order_relaxed);
-        return;
-      }
-      RenderCounters& c = tile_counters[tile];
-      const int x0 = (tile % tiles_x) * ts, y0 = (tile / tiles_x) * ts;
-      const int x1 = std::min(x0 + ts, w), y1 = std::min(y0 + ts, h);
-      for (int y = y0; y < y1; ++y)
-        for (int x = x0; x < x1; ++x) {
-          const uint64_t pixel = uint64_t(y) * w + x;
-          SampleRng rng(settings_.seed, pixel, sample);
-          float jx = 0.5f, jy = 0.5f;
-          if (settings_.jitter) {
-            jx = rng.next();
-            jy = rng.next();
+  tbb::parallel_for(
+      tbb::blocked_range<int>(0, num_tiles, 1), [&](const tbb::blocked_range<int>& r) {
+        for (int tile = r.begin(); tile != r.end(); ++tile) {
+          if (cancel && cancel->load(std::memory_order_relaxed)) {
+            skipped.store(true, std::memory_order_relaxed);
+            return;
           }
-          const Ray ray = frame_.ray(float(x) + jx, float(y) + jy);
-          ++c.primary;
-          Vec3 value;
-          if (settings_.mode == RenderMode::Shaded) {
-            value = radiance(ray, 0, c);
-            if (!is_finite(value)) value = Vec3(0.0f);  // never let one bad sample poison the film
-          } else {
-            RayCounters rc;
-            Hit hit;
-            accel_->intersect_counted(ray, hit, rc);
-            value = Vec3(float(settings_.mode == RenderMode::HeatSteps ? rc.steps : rc.tri_tests));
-          }
-          float* dst = &scratch[pixel * 3];
-          dst[0] = value.x;
-          dst[1] = value.y;
-          dst[2] = value.z;
+          RenderCounters& c = tile_counters[tile];
+          const int x0 = (tile % tiles_x) * ts, y0 = (tile / tiles_x) * ts;
+          const int x1 = std::min(x0 + ts, w), y1 = std::min(y0 + ts, h);
+          for (int y = y0; y < y1; ++y)
+            for (int x = x0; x < x1; ++x) {
+              const uint64_t pixel = uint64_t(y) * w + x;
+              SampleRng rng(settings_.seed, pixel, sample);
+              float jx = 0.5f, jy = 0.5f;
+              if (settings_.jitter) {
+                jx = rng.next();
+                jy = rng.next();
+              }
+              const Ray ray = frame_.ray(float(x) + jx, float(y) + jy);
+              ++c.primary;
+              Vec3 value;
+              if (settings_.mode == RenderMode::Shaded) {
+                value = radiance(ray, 0, c);
+                if (!is_finite(value))
+                  value = Vec3(0.0f);  // never let one bad sample poison the film
+              } else {
+                RayCounters rc;
+                Hit hit;
+                accel_->intersect_counted(ray, hit, rc);
+                value =
+                    Vec3(float(settings_.mode == RenderMode::HeatSteps ? rc.steps : rc.tri_tests));
+              }
+              float* dst = &scratch[pixel * 3];
+              dst[0] = value.x;
+              dst[1] = value.y;
+              dst[2] = value.z;
+            }
         }
-    }
-  });
+      });
   if (skipped.load()) return false;
 
   for (size_t i = 0; i < accum_.size(); ++i) accum_[i] += scratch[i];
@@ -193,7 +199,8 @@ Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) con
   if (!front) ng = -ng;                  // ng now faces the incoming ray
   Vec3 n = ng;
   if (!mesh.normals.empty()) {
-    const Vec3 ns = mesh.normals[tri[0]] * b0 + mesh.normals[tri[1]] * b1 + mesh.normals[tri[2]] * b2;
+    const Vec3 ns =
+        mesh.normals[tri[0]] * b0 + mesh.normals[tri[1]] * b1 + mesh.normals[tri[2]] * b2;
     if (dot(ns, ns) > 0.0f && is_finite(ns)) {
       n = normalize(ns);
       if (dot(n, ng) < 0.0f) n = -n;
@@ -275,7 +282,8 @@ Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) con
       Vec3 r = reflect(d, n);
       if (dot(r, ng) <= 0.0f) r = reflect(d, ng);  // shading normal bent it below the surface
       ++counters.reflection;
-      result += weight * radiance(Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, depth + 1, counters);
+      result +=
+          weight * radiance(Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, depth + 1, counters);
     }
   }
 
@@ -296,7 +304,8 @@ Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) con
       const Vec3 tweight = albedo * (transmission * (1.0f - fresnel));
       if (dot(t, ng) < 0.0f && max_component(tweight) > kMinWeight) {
         ++counters.refraction;
-        result += tweight * radiance(Ray{offset_ray_origin(p, -ng), 0.0f, t, kInf}, depth + 1, counters);
+        result +=
+            tweight * radiance(Ray{offset_ray_origin(p, -ng), 0.0f, t, kInf}, depth + 1, counters);
       }
     }
     // Fresnel reflection of transparent surfaces (all of it under total internal reflection).

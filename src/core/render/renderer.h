@@ -32,7 +32,9 @@ struct RenderSettings {
   RenderMode mode = RenderMode::Shaded;
 };
 
-/// Rays traced so far, by kind; updated after every pass.
+/// Rays traced so far, by kind; updated after every pass. Reflection rays come from
+/// reflective materials (Material::reflects()) and from the Fresnel reflection / total
+/// internal reflection of refractive ones; a scene with neither traces none.
 struct RenderCounters {
   uint64_t primary = 0, shadow = 0, reflection = 0, refraction = 0;
   uint64_t total() const { return primary + shadow + reflection + refraction; }

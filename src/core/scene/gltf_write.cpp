@@ -44,7 +44,8 @@ int add_accessor(tinygltf::Model& model, int view, int component, int type, size
 int add_vec3_accessor(tinygltf::Model& model, const std::vector<Vec3>& v, bool with_bounds) {
   static_assert(sizeof(Vec3) == 12, "Vec3 must be three packed floats");
   const int view = add_view(model, v.data(), v.size() * sizeof(Vec3), TINYGLTF_TARGET_ARRAY_BUFFER);
-  const int acc = add_accessor(model, view, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, v.size());
+  const int acc =
+      add_accessor(model, view, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC3, v.size());
   if (with_bounds) {  // POSITION accessors must carry min and max
     Box3 b;
     for (const Vec3& p : v) b.grow(p);
@@ -129,7 +130,8 @@ void write_gltf(const Scene& scene, const std::string& path) {
     if (e > 0.0f) {
       // emissiveFactor is limited to [0, 1]; brighter emission needs the strength extension.
       const float strength = std::max(1.0f, e);
-      g.emissiveFactor = {m.emission.x / strength, m.emission.y / strength, m.emission.z / strength};
+      g.emissiveFactor = {m.emission.x / strength, m.emission.y / strength,
+                          m.emission.z / strength};
       if (strength > 1.0f) {
         g.extensions["KHR_materials_emissive_strength"] =
             object({{"emissiveStrength", tinygltf::Value(double(strength))}});
@@ -181,9 +183,10 @@ void write_gltf(const Scene& scene, const std::string& path) {
     prim.attributes["POSITION"] = add_vec3_accessor(model, pos, true);
     if (normals) prim.attributes["NORMAL"] = add_vec3_accessor(model, nor, false);
     if (uvs) {
-      const int view = add_view(model, tex.data(), tex.size() * sizeof(float), TINYGLTF_TARGET_ARRAY_BUFFER);
-      prim.attributes["TEXCOORD_0"] =
-          add_accessor(model, view, TINYGLTF_COMPONENT_TYPE_FLOAT, TINYGLTF_TYPE_VEC2, tex.size() / 2);
+      const int view =
+          add_view(model, tex.data(), tex.size() * sizeof(float), TINYGLTF_TARGET_ARRAY_BUFFER);
+      prim.attributes["TEXCOORD_0"] = add_accessor(model, view, TINYGLTF_COMPONENT_TYPE_FLOAT,
+                                                   TINYGLTF_TYPE_VEC2, tex.size() / 2);
     }
     const int iview = add_view(model, idx.data(), idx.size() * sizeof(uint32_t),
                                TINYGLTF_TARGET_ELEMENT_ARRAY_BUFFER);
@@ -226,7 +229,9 @@ void write_gltf(const Scene& scene, const std::string& path) {
     gl.name = l.name;
     gl.color = {l.color.x, l.color.y, l.color.z};
     gl.intensity = l.intensity;
-    gl.type = l.type == LightType::Point ? "point" : l.type == LightType::Spot ? "spot" : "directional";
+    gl.type = l.type == LightType::Point  ? "point"
+              : l.type == LightType::Spot ? "spot"
+                                          : "directional";
     if (l.type == LightType::Spot) {
       gl.spot.innerConeAngle = l.inner_cone;
       gl.spot.outerConeAngle = l.outer_cone;
@@ -235,7 +240,8 @@ void write_gltf(const Scene& scene, const std::string& path) {
     tinygltf::Node node;
     node.name = l.name.empty() ? "light" : l.name;
     node.translation = {l.position.x, l.position.y, l.position.z};
-    if (l.type != LightType::Point) node.rotation = rotation_looking_along(l.direction, Vec3(0, 1, 0));
+    if (l.type != LightType::Point)
+      node.rotation = rotation_looking_along(l.direction, Vec3(0, 1, 0));
     node.extensions["KHR_lights_punctual"] =
         object({{"light", tinygltf::Value(int(model.lights.size() - 1))}});
     model.nodes.push_back(node);
@@ -248,7 +254,8 @@ void write_gltf(const Scene& scene, const std::string& path) {
   tinygltf::TinyGLTF writer;
   if (!writer.WriteGltfSceneToFile(&model, path, /*embedImages=*/true, /*embedBuffers=*/true,
                                    /*prettyPrint=*/false, /*writeBinary=*/false))
-    throw Error(path + ": cannot write the glTF file; check that the directory exists and is writable");
+    throw Error(path +
+                ": cannot write the glTF file; check that the directory exists and is writable");
 }
 
 }  // namespace kdgrid

@@ -16,7 +16,8 @@ namespace {
 std::ofstream open_for_writing(const std::string& path, bool binary) {
   std::ofstream out(path, binary ? std::ios::binary : std::ios::out);
   if (!out)
-    throw Error(path + ": cannot open for writing; check that the directory exists and is writable");
+    throw Error(path +
+                ": cannot open for writing; check that the directory exists and is writable");
   return out;
 }
 
@@ -92,7 +93,8 @@ void write_obj(const Mesh& mesh, const std::string& path) {
 
 void write_scene(const Scene& scene, const std::string& path) {
   std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   if (ext == ".gltf")
     write_gltf(scene, path);
   else if (ext == ".ply")

@@ -334,14 +334,14 @@ Mesh make_icosphere(int level, const Vec3& center, float radius) {
   // midpoints onto the sphere. Midpoints are shared through an edge map so the mesh stays
   // closed (every edge used by exactly two triangles).
   const float t = (1.0f + std::sqrt(5.0f)) * 0.5f;
-  std::vector<Vec3> unit = {{-1, t, 0}, {1, t, 0},  {-1, -t, 0}, {1, -t, 0},
-                            {0, -1, t}, {0, 1, t},  {0, -1, -t}, {0, 1, -t},
-                            {t, 0, -1}, {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
+  std::vector<Vec3> unit = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0},
+                            {0, -1, t}, {0, 1, t}, {0, -1, -t}, {0, 1, -t},
+                            {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
   for (Vec3& v : unit) v = normalize(v);
   std::vector<std::array<uint32_t, 3>> tris = {
-      {0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+      {0, 11, 5},  {0, 5, 1},  {0, 1, 7},  {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
       {11, 10, 2}, {10, 7, 6}, {7, 1, 8},  {3, 9, 4},  {3, 4, 2},   {3, 2, 6}, {3, 6, 8},
-      {3, 8, 9},  {4, 9, 5},  {2, 4, 11},  {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
+      {3, 8, 9},   {4, 9, 5},  {2, 4, 11}, {6, 2, 10}, {8, 6, 7},   {9, 8, 1}};
   for (int l = 0; l < level; ++l) {
     std::map<std::pair<uint32_t, uint32_t>, uint32_t> midpoints;
     auto midpoint = [&](uint32_t a, uint32_t b) {
