@@ -246,6 +246,7 @@ void expect_every_field(const BenchReport& rep, const std::vector<std::string>& 
       EXPECT_GT(a.bytes_per_triangle, 0.0);
       EXPECT_GT(a.peak_rss_bytes, 0u);
       EXPECT_GT(a.process_peak_rss_bytes, 0u);
+      EXPECT_GT(a.rss_before_bytes, 0u);
       ASSERT_EQ(a.sets.size(), 3u);
       for (const auto& x : a.sets) {
         SCOPED_TRACE(x.set);
@@ -315,7 +316,7 @@ TEST(Bench, SmallSuiteHasEveryFieldForEveryStructureAndSet) {
   for (const auto& b : j["builds"])
     for (const char* k : {"scene", "accel", "build_seconds", "build_mtris_per_s", "bytes",
                           "bytes_per_triangle", "bytes_by_part", "peak_rss_bytes",
-                          "process_peak_rss_bytes"})
+                          "rss_growth_bytes", "process_peak_rss_bytes"})
       EXPECT_TRUE(b.contains(k)) << k;
   for (const auto& r : j["results"])
     for (const char* k : {"scene", "accel", "set", "rays", "mrays", "mrays_min", "mrays_max",

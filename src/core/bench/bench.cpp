@@ -1,5 +1,6 @@
 #include "bench/bench.h"
 
+#include <malloc.h>
 #include <sys/resource.h>
 #include <tbb/blocked_range.h>
 #include <tbb/global_control.h>
@@ -141,6 +142,7 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
   f.accel = name;
   try {
     reset_peak_rss();
+    f.rss_before_bytes = current_rss_bytes();
     auto acc = make_accelerator(name);
     BuildParams p = o.params;
     p.threads = threads;
@@ -230,6 +232,11 @@ uint64_t process_peak_rss_bytes() {
 }
 
 bool reset_peak_rss() {
+#ifdef __GLIBC__
+  // Hand freed heap pages back to the kernel first; otherwise what the previous structure
+  // freed stays resident and is counted against the next one.
+  malloc_trim(0);
+#endif
   // Writing 5 to clear_refs resets VmHWM to the current RSS (Linux >= 4.0).
   std::ofstream f("/proc/self/clear_refs");
   if (!f) return false;
@@ -238,18 +245,29 @@ bool reset_peak_rss() {
   return bool(f);
 }
 
-uint64_t peak_rss_since_reset() {
+namespace {
+/// A "Vm...:  N kB" field of /proc/self/status in bytes, 0 if absent.
+uint64_t proc_status_bytes(const char* field) {
   std::ifstream f("/proc/self/status");
   std::string line;
+  const std::string key = std::string(field) + ":";
   while (std::getline(f, line)) {
-    if (line.rfind("VmHWM:", 0) == 0) {
-      std::istringstream ss(line.substr(6));
+    if (line.rfind(key, 0) == 0) {
+      std::istringstream ss(line.substr(key.size()));
       uint64_t kb = 0;
       if (ss >> kb) return kb * 1024;
     }
   }
-  return process_peak_rss_bytes();
+  return 0;
 }
+}  // namespace
+
+uint64_t peak_rss_since_reset() {
+  const uint64_t b = proc_status_bytes("VmHWM");
+  return b ? b : process_peak_rss_bytes();
+}
+
+uint64_t current_rss_bytes() { return proc_status_bytes("VmRSS"); }
 
 std::string cpu_model_name() {
   std::ifstream f("/proc/cpuinfo");
@@ -483,8 +501,10 @@ std::string bench_to_json(const BenchReport& r) {
                 "bytes = BuildStats::bytes: the structure only, excluding the mesh (positions "
                 "and indices) that every structure shares; bytes_by_part breaks it down"},
                {"peak_rss_note",
-                "peak_rss_bytes: VmHWM reset before the build, so it covers this structure's "
-                "build and traces plus what was already resident (mesh, ray sets); "
+                "peak_rss_bytes: VmHWM reset (after malloc_trim) before the build, so it covers "
+                "this structure's build and traces plus what was already resident "
+                "(rss_before_bytes: mesh, ray sets, reference hits); rss_growth_bytes = the "
+                "difference, what building and tracing this structure added at its peak; "
                 "process_peak_rss_bytes: getrusage ru_maxrss, the process's lifetime peak"}};
   j["scenes"] = json::array();
   j["builds"] = json::array();
@@ -511,6 +531,9 @@ std::string bench_to_json(const BenchReport& r) {
                 {"bytes", a.bytes},
                 {"bytes_per_triangle", a.bytes_per_triangle},
                 {"peak_rss_bytes", a.peak_rss_bytes},
+                {"rss_before_bytes", a.rss_before_bytes},
+                {"rss_growth_bytes",
+                 a.peak_rss_bytes > a.rss_before_bytes ? a.peak_rss_bytes - a.rss_before_bytes : 0},
                 {"process_peak_rss_bytes", a.process_peak_rss_bytes},
                 {"nodes", a.stats.nodes},
                 {"leaves", a.stats.leaves},
@@ -625,9 +648,10 @@ std::string bench_to_markdown(const BenchReport& r) {
   md << "\n### Build and memory\n\n";
   md << "Bytes are the structure's own (BuildStats::bytes), excluding the shared mesh. Peak "
         "RSS is the process's resident high-water mark while that structure was built and "
-        "traced (it includes the mesh and the ray sets).\n\n";
+        "traced (it includes the mesh and the ray sets); growth is that peak minus the "
+        "resident memory just before the build.\n\n";
   md << "| scene | triangles | structure | build s | build Mtris/s | MiB | bytes/triangle | "
-        "peak RSS MiB | parts |\n";
+        "peak RSS MiB (growth) | parts |\n";
   md << "|---|---:|---|---:|---:|---:|---:|---:|---|\n";
   for (const auto& s : r.scenes) {
     for (const auto& a : s.structures) {
@@ -637,7 +661,9 @@ std::string bench_to_markdown(const BenchReport& r) {
       md << "| " << s.name << " | " << s.triangles << " | " << a.accel << " | "
          << (a.error.empty() ? fmt("%.3f", a.build_seconds) : std::string("failed")) << " | "
          << fmt("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
-         << fmt("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " | " << parts
+         << fmt("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " ("
+         << mib(a.peak_rss_bytes > a.rss_before_bytes ? a.peak_rss_bytes - a.rss_before_bytes : 0)
+         << ") | " << parts
          << " |\n";
     }
   }

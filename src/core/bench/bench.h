@@ -78,6 +78,9 @@ struct StructureFigures {
   /// peak (getrusage ru_maxrss), both in bytes.
   uint64_t peak_rss_bytes = 0;
   uint64_t process_peak_rss_bytes = 0;
+  /// Resident memory just before the build (after the reset): the mesh, the ray sets and
+  /// the reference's hits. peak_rss_bytes - rss_before_bytes is this structure's growth.
+  uint64_t rss_before_bytes = 0;
   std::vector<SetFigures> sets;
 };
 
@@ -123,10 +126,13 @@ std::string bench_to_markdown(const BenchReport& report);
 double median(std::vector<double> v);
 /// Process peak resident set size in bytes, getrusage(RUSAGE_SELF).ru_maxrss.
 uint64_t process_peak_rss_bytes();
-/// Resets the kernel's peak-RSS mark (VmHWM) to the current RSS; false if not possible.
+/// Returns freed heap pages to the kernel (glibc malloc_trim), then resets the kernel's
+/// peak-RSS mark (VmHWM) to the current RSS; false if the reset is not possible.
 bool reset_peak_rss();
 /// VmHWM from /proc/self/status in bytes (peak since the last reset), else ru_maxrss.
 uint64_t peak_rss_since_reset();
+/// VmRSS from /proc/self/status in bytes (0 if unavailable).
+uint64_t current_rss_bytes();
 /// CPU model name ("AMD EPYC ...") from /proc/cpuinfo, or "unknown".
 std::string cpu_model_name();
 
