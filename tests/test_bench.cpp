@@ -32,8 +32,7 @@ using nlohmann::json;
 class TempDir {
  public:
   explicit TempDir(const std::string& tag) {
-    path_ = fs::temp_directory_path() /
-            ("kdgrid_bench_" + tag + "_" + std::to_string(::getpid()));
+    path_ = fs::temp_directory_path() / ("kdgrid_bench_" + tag + "_" + std::to_string(::getpid()));
     fs::remove_all(path_);
     fs::create_directories(path_);
   }
@@ -72,8 +71,8 @@ Mesh gridded_box(int n, const Vec3& center, float half) {
       }
       for (int j = 0; j < n; ++j) {
         for (int i = 0; i < n; ++i) {
-          const uint32_t a = base + uint32_t(j * (n + 1) + i), b = a + 1,
-                         c = a + uint32_t(n + 1), d = c + 1;
+          const uint32_t a = base + uint32_t(j * (n + 1) + i), b = a + 1, c = a + uint32_t(n + 1),
+                         d = c + 1;
           if (side) {
             m.triangles.push_back({a, b, d});
             m.triangles.push_back({a, d, c});
@@ -101,8 +100,8 @@ Mesh gridded_box(int n, const Vec3& center, float half) {
 void write_ascii_ply(const Mesh& m, const fs::path& p) {
   std::ostringstream s;
   s << "ply\nformat ascii 1.0\nelement vertex " << m.positions.size()
-    << "\nproperty float x\nproperty float y\nproperty float z\nelement face "
-    << m.triangles.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
+    << "\nproperty float x\nproperty float y\nproperty float z\nelement face " << m.triangles.size()
+    << "\nproperty list uchar int vertex_indices\nend_header\n";
   s.precision(9);
   for (const auto& v : m.positions) s << v.x << " " << v.y << " " << v.z << "\n";
   for (const auto& t : m.triangles) s << "3 " << t[0] << " " << t[1] << " " << t[2] << "\n";
@@ -208,7 +207,8 @@ TEST(BenchAgreement, TiesOnSharedEdgesCountAsAgreement) {
   m.triangles = {{0, 1, 2}, {0, 3, 1}, {4, 5, 6}};
   const Ray edge{{0, 0, -1}, 0.0f, {0, 0, 1}, kInf};  // hits the shared edge at t = 1
   const std::vector<Ray> rays = {edge, edge, edge, edge};
-  const std::vector<Hit> ref = {{1, 0, 0, 0}, {1, 0, 0, 0}, {1, 0, 0, 0}, {kInf, kInvalidPrim, 0, 0}};
+  const std::vector<Hit> ref = {
+      {1, 0, 0, 0}, {1, 0, 0, 0}, {1, 0, 0, 0}, {kInf, kInvalidPrim, 0, 0}};
   // same triangle; the neighbour at the same t (a tie); the far triangle (wrong); a hit where
   // the reference missed (wrong).
   const std::vector<Hit> hits = {{1, 0, 0, 0}, {1, 1, 0, 0}, {6, 2, 0, 0}, {1, 1, 0, 0}};
@@ -314,14 +314,14 @@ TEST(Bench, SmallSuiteHasEveryFieldForEveryStructureAndSet) {
   for (const char* k : {"machine", "date", "threads", "reps", "width", "height", "sets"})
     EXPECT_TRUE(j["meta"].contains(k)) << k;
   for (const auto& b : j["builds"])
-    for (const char* k : {"scene", "accel", "build_seconds", "build_mtris_per_s", "bytes",
-                          "bytes_per_triangle", "bytes_by_part", "peak_rss_bytes",
-                          "rss_growth_bytes", "process_peak_rss_bytes"})
+    for (const char* k :
+         {"scene", "accel", "build_seconds", "build_mtris_per_s", "bytes", "bytes_per_triangle",
+          "bytes_by_part", "peak_rss_bytes", "rss_growth_bytes", "process_peak_rss_bytes"})
       EXPECT_TRUE(b.contains(k)) << k;
   for (const auto& r : j["results"])
-    for (const char* k : {"scene", "accel", "set", "rays", "mrays", "mrays_min", "mrays_max",
-                          "ratio_to_reference", "steps_per_ray", "leaves_per_ray",
-                          "tests_per_ray", "agreement"})
+    for (const char* k :
+         {"scene", "accel", "set", "rays", "mrays", "mrays_min", "mrays_max", "ratio_to_reference",
+          "steps_per_ray", "leaves_per_ray", "tests_per_ray", "agreement"})
       EXPECT_TRUE(r.contains(k)) << k;
   const std::string md = bench_to_markdown(rep);
   for (const auto& a : o.accels) EXPECT_NE(md.find("| " + a + " "), std::string::npos) << a;
@@ -347,12 +347,11 @@ TEST(Bench, ExactStructuresAgreeWithEmbree) {
 TEST(Bench, BadScenesAreReportedAndTheOthersRun) {
   TempDir dir("bad");
   write_file(dir / "broken.ply", "ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n");
-  const Suite suite = load_suite(
-      write_small_suite(dir, R"(,
+  const Suite suite = load_suite(write_small_suite(dir, R"(,
     {"name": "missing", "file": "meshes/nope.ply", "camera": null},
     {"name": "broken", "file": "broken.ply"},
     {"name": "nofile", "camera": null})")
-          .string());
+                                     .string());
   BenchOptions o = small_options();
   o.accels = {"brute"};
   o.reps = 1;
@@ -402,8 +401,8 @@ TEST(Bench, RaysDirWritesThenReadsTheSameRays) {
 // ---- the CLI ---------------------------------------------------------------------------------
 
 int run_cli(const std::string& args, const fs::path& log) {
-  const std::string cmd = std::string("\"") + KDGRID_CLI_PATH + "\" " + args + " > \"" +
-                          log.string() + "\" 2>&1";
+  const std::string cmd =
+      std::string("\"") + KDGRID_CLI_PATH + "\" " + args + " > \"" + log.string() + "\" 2>&1";
   const int rc = std::system(cmd.c_str());
   return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
 }
@@ -419,8 +418,11 @@ TEST(BenchCli, SmokeRunWritesJsonWithEveryField) {
   TempDir dir("cli");
   const fs::path suite = write_small_suite(dir);
   const fs::path out = dir / "out.json", md = dir / "out.md", log = dir / "log.txt";
-  const int rc = run_cli("bench --suite \"" + suite.string() + "\" --res 16 --reps 1 --threads 2 "
-                         "--json \"" + out.string() + "\" --md \"" + md.string() + "\"", log);
+  const int rc = run_cli("bench --suite \"" + suite.string() +
+                             "\" --res 16 --reps 1 --threads 2 "
+                             "--json \"" +
+                             out.string() + "\" --md \"" + md.string() + "\"",
+                         log);
   ASSERT_EQ(rc, 0) << slurp(log);
   const json j = json::parse(slurp(out));
   // Every default structure (and the reference, run first) on both scenes and all sets.
@@ -450,10 +452,10 @@ TEST(BenchCli, MalformedSuiteFailsAtTheEndAfterTheOthersRan) {
   const fs::path good = write_small_suite(dir);
   write_file(dir / "broken.json", "{\"scenes\": [ oops ]");
   const fs::path out = dir / "out.json", log = dir / "log.txt";
-  const int rc = run_cli("bench --accel brute --suite \"" + (dir / "broken.json").string() +
-                             "\" --suite \"" + good.string() + "\" --res 8 --reps 1 --json \"" +
-                             out.string() + "\"",
-                         log);
+  const int rc =
+      run_cli("bench --accel brute --suite \"" + (dir / "broken.json").string() + "\" --suite \"" +
+                  good.string() + "\" --res 8 --reps 1 --json \"" + out.string() + "\"",
+              log);
   EXPECT_NE(rc, 0) << slurp(log);
   EXPECT_NE(slurp(log).find("broken.json"), std::string::npos) << slurp(log);
   const json j = json::parse(slurp(out));
@@ -499,8 +501,11 @@ TEST(Sweep, LambdaRowsAndBothOutputs) {
     EXPECT_NE(it, t.columns.end()) << c;
     return size_t(it - t.columns.begin());
   };
-  for (const char* c : {"lambda", "build_s", "bytes", "mrays", "steps_per_ray", "tests_per_ray"}) col(c);
-  const auto num = [&](size_t r, const std::string& c) { return std::get<double>(t.rows[r][col(c)]); };
+  for (const char* c : {"lambda", "build_s", "bytes", "mrays", "steps_per_ray", "tests_per_ray"})
+    col(c);
+  const auto num = [&](size_t r, const std::string& c) {
+    return std::get<double>(t.rows[r][col(c)]);
+  };
   EXPECT_GT(num(0, "mrays"), 0.0);
   EXPECT_GT(num(1, "bytes"), num(0, "bytes")) << "a denser grid must take more memory";
   const json j = json::parse(sweep_to_json(t));
@@ -517,9 +522,12 @@ TEST(Sweep, TriangleLeaksWatertightNever) {
   o.accels = {"bvh"};
   o.leak_rays_per_target = 1;
   const SweepTable t = run_sweep(o);  // no scene: the leak part only
-  const size_t part = size_t(std::find(t.columns.begin(), t.columns.end(), "part") - t.columns.begin());
-  const size_t test = size_t(std::find(t.columns.begin(), t.columns.end(), "test") - t.columns.begin());
-  const size_t leaks = size_t(std::find(t.columns.begin(), t.columns.end(), "leaks") - t.columns.begin());
+  const size_t part =
+      size_t(std::find(t.columns.begin(), t.columns.end(), "part") - t.columns.begin());
+  const size_t test =
+      size_t(std::find(t.columns.begin(), t.columns.end(), "test") - t.columns.begin());
+  const size_t leaks =
+      size_t(std::find(t.columns.begin(), t.columns.end(), "leaks") - t.columns.begin());
   ASSERT_LT(leaks, t.columns.size());
   size_t rows = 0;
   for (const auto& r : t.rows) {
@@ -538,9 +546,11 @@ TEST(Sweep, SppErrorFallsWithSamples) {
   o.spp_reference = 64;
   const SweepTable t = run_sweep(o);
   ASSERT_EQ(t.rows.size(), 5u);  // 1, 2, 4, 8, 16
-  const size_t e = size_t(std::find(t.columns.begin(), t.columns.end(), "rmse_display") - t.columns.begin());
+  const size_t e =
+      size_t(std::find(t.columns.begin(), t.columns.end(), "rmse_display") - t.columns.begin());
   ASSERT_LT(e, t.columns.size());
-  const double first = std::get<double>(t.rows.front()[e]), last = std::get<double>(t.rows.back()[e]);
+  const double first = std::get<double>(t.rows.front()[e]),
+               last = std::get<double>(t.rows.back()[e]);
   EXPECT_GT(first, 0.0);
   EXPECT_LT(last, first) << "16 spp must be closer to the reference than 1 spp";
 }

@@ -32,7 +32,8 @@ void write_text(const std::string& path, const std::string& text) {
   const fs::path p(path);
   if (p.has_parent_path()) fs::create_directories(p.parent_path(), ec);
   std::ofstream f(path, std::ios::binary);
-  if (!f) throw Error(path + ": cannot open for writing; check the directory exists and is writable");
+  if (!f)
+    throw Error(path + ": cannot open for writing; check the directory exists and is writable");
   f << text;
   if (!f) throw Error(path + ": write failed (disk full?)");
 }
@@ -55,14 +56,13 @@ void add_bench_command(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "bench", "Benchmark every structure on the same rays against Embree (BENCHMARK.md)");
   auto a = std::make_shared<BenchArgs>();
-  cmd->add_option("scenes", a->scenes,
-                  "Scene files to run instead of a suite (canonical camera)");
+  cmd->add_option("scenes", a->scenes, "Scene files to run instead of a suite (canonical camera)");
   cmd->add_option("--suite", a->suites,
                   "Suite JSON (repeatable); default $KDGRID_SCENES/suite.json, "
                   "../shared/scenes/suite.json, else assets/suite.json");
   a->accel.add_to(cmd, "");
-  cmd->get_option("--accel")
-      ->description("Comma-separated structures; default: every registered one except brute");
+  cmd->get_option("--accel")->description(
+      "Comma-separated structures; default: every registered one except brute");
   cmd->add_option("--sets", a->sets, "Ray sets: primary, shadow, diffuse (comma-separated)")
       ->capture_default_str();
   cmd->add_option("--threads", a->threads, "Tracing threads (tbb::global_control); 0 = all")
@@ -88,7 +88,8 @@ void add_bench_command(CLI::App& app) {
     o.rays_dir = a->rays_dir;
     o.reference = a->reference;
     o.params = a->accel.resolve();
-    if (!a->quiet) o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
+    if (!a->quiet)
+      o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
     // Gather the scenes: explicit files, else the given suites, else the default suite. A
     // suite that cannot be parsed counts as a failed scene so the others still run.
@@ -100,8 +101,9 @@ void add_bench_command(CLI::App& app) {
     if (files.empty() && a->scenes.empty()) {
       const std::string def = default_suite_path();
       if (def.empty())
-        throw LoadError("no suite given and no default found: pass --suite FILE.json or scene "
-                        "files, or set KDGRID_SCENES to a folder with suite.json");
+        throw LoadError(
+            "no suite given and no default found: pass --suite FILE.json or scene "
+            "files, or set KDGRID_SCENES to a folder with suite.json");
       files.push_back(def);
     }
     for (const auto& f : files) {
@@ -136,8 +138,8 @@ void add_bench_command(CLI::App& app) {
         for (const auto& x : s.structures)
           if (!x.error.empty() && n++ == 0) first = s.name + ": " + x.error;
       }
-      throw Error(std::to_string(n) + " scene(s)/structure(s) failed (reports written); first: " +
-                  first);
+      throw Error(std::to_string(n) +
+                  " scene(s)/structure(s) failed (reports written); first: " + first);
     }
   });
 }

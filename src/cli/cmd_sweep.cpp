@@ -55,7 +55,8 @@ void add_sweep_command(CLI::App& app) {
   cmd->add_option("--threads", a->threads, "Threads; 0 = all")->capture_default_str();
   cmd->add_option("--reps", a->reps, "Timed repetitions per row (median reported)")
       ->capture_default_str();
-  cmd->add_option("--res", a->res, "Primary rays / spp image size: W or WxH (default 512; spp 200)");
+  cmd->add_option("--res", a->res,
+                  "Primary rays / spp image size: W or WxH (default 512; spp 200)");
   cmd->add_option("--spp-max", a->spp_max, "spp: largest sample count (powers of two from 1)")
       ->capture_default_str();
   cmd->add_option("--spp-reference", a->spp_reference, "spp: samples of the reference image")
@@ -92,7 +93,8 @@ void add_sweep_command(CLI::App& app) {
     std::stringstream as(a->accel);
     while (std::getline(as, item, ','))
       if (!item.empty()) o.accels.push_back(item);
-    if (!a->quiet) o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
+    if (!a->quiet)
+      o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
     const SweepTable t = run_sweep(o);
     if (a->out.empty()) {

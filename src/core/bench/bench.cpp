@@ -55,13 +55,15 @@ std::string now_iso8601() {
   return buf;
 }
 
-bool is_any_hit(const std::string& set) { return set == "shadow"; }
+bool is_any_hit(const std::string& set) {
+  return set == "shadow";
+}
 
 std::string describe_camera(const std::optional<Camera>& c) {
   if (!c) return "canonical";
   std::ostringstream s;
-  s << "eye " << c->eye.x << "," << c->eye.y << "," << c->eye.z << " target " << c->target.x
-    << "," << c->target.y << "," << c->target.z << " fov " << c->fov_deg;
+  s << "eye " << c->eye.x << "," << c->eye.y << "," << c->eye.z << " target " << c->target.x << ","
+    << c->target.y << "," << c->target.z << " fov " << c->fov_deg;
   return s.str();
 }
 
@@ -87,8 +89,10 @@ SceneRays make_scene_rays(const SceneFigures& sf, const Mesh& mesh, const Camera
     if (!primary.empty()) return;
     const std::string f = o.rays_dir.empty() ? "" : rays_file(o.rays_dir, sf.name, "primary");
     std::error_code ec;
-    if (!f.empty() && fs::exists(f, ec)) primary = read_rays(f);
-    else primary = primary_rays(cam, o.width, o.height);
+    if (!f.empty() && fs::exists(f, ec))
+      primary = read_rays(f);
+    else
+      primary = primary_rays(cam, o.width, o.height);
     primary_hits = trace_hits(ref, primary);
   };
   for (const std::string& set : o.sets) {
@@ -129,8 +133,8 @@ SceneRays make_scene_rays(const SceneFigures& sf, const Mesh& mesh, const Camera
 /// What the reference measured on each set, for ratios and agreement.
 struct Reference {
   bool ok = false;
-  std::vector<double> mrays;              // per set
-  std::vector<std::vector<Hit>> hits;     // per set
+  std::vector<double> mrays;           // per set
+  std::vector<std::vector<Hit>> hits;  // per set
 };
 
 StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneRays& sr,
@@ -183,12 +187,12 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
       sf.mrays_median = median(sf.mrays_reps);
       sf.mrays_min = *std::min_element(sf.mrays_reps.begin(), sf.mrays_reps.end());
       sf.mrays_max = *std::max_element(sf.mrays_reps.begin(), sf.mrays_reps.end());
-      sf.hits = uint64_t(std::count_if(hits.begin(), hits.end(),
-                                       [](const Hit& h) { return h.valid(); }));
+      sf.hits =
+          uint64_t(std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return h.valid(); }));
       if (ref && ref->ok) {
         if (ref->mrays[s] > 0) sf.ratio_to_reference = sf.mrays_median / ref->mrays[s];
-        sf.agreement = hit_agreement(mesh, rays, hits, ref->hits[s], any, o.tie_tolerance,
-                                     &sf.disagreements);
+        sf.agreement =
+            hit_agreement(mesh, rays, hits, ref->hits[s], any, o.tie_tolerance, &sf.disagreements);
       } else if (!ref) {
         sf.ratio_to_reference = 1.0;  // this is the reference
       }
@@ -267,7 +271,9 @@ uint64_t peak_rss_since_reset() {
   return b ? b : process_peak_rss_bytes();
 }
 
-uint64_t current_rss_bytes() { return proc_status_bytes("VmRSS"); }
+uint64_t current_rss_bytes() {
+  return proc_status_bytes("VmRSS");
+}
 
 std::string cpu_model_name() {
   std::ifstream f("/proc/cpuinfo");
@@ -327,8 +333,8 @@ double hit_agreement(const Mesh& mesh, const std::vector<Ray>& rays, const std::
                      uint64_t* disagreements) {
   if (hits.size() != ref.size() || hits.size() != rays.size())
     throw Error("hit_agreement: " + std::to_string(hits.size()) + " hits, " +
-                std::to_string(ref.size()) + " reference hits and " +
-                std::to_string(rays.size()) + " rays: the sets differ");
+                std::to_string(ref.size()) + " reference hits and " + std::to_string(rays.size()) +
+                " rays: the sets differ");
   const uint64_t bad = tbb::parallel_reduce(
       tbb::blocked_range<size_t>(0, rays.size(), kChunk), uint64_t(0),
       [&](const tbb::blocked_range<size_t>& r, uint64_t n) {
@@ -393,7 +399,8 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   std::vector<std::string> accels = o.accels.empty() ? default_bench_accels() : o.accels;
   for (const auto& a : accels) make_accelerator(a);  // ParamError naming the valid choices
   std::string ref_name = o.reference;
-  if (ref_name.empty()) ref_name = registered("embree") ? "embree" : (registered("bvh") ? "bvh" : "brute");
+  if (ref_name.empty())
+    ref_name = registered("embree") ? "embree" : (registered("bvh") ? "bvh" : "brute");
   make_accelerator(ref_name);
 
   const int threads = effective_threads(o.threads);
@@ -461,7 +468,8 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
       say("  rays:" + sizes);
 
       std::vector<std::vector<Hit>> ref_hits;
-      StructureFigures rf = measure(ref_name, mesh, sr, o, threads, nullptr, nullptr, &ref_hits, say);
+      StructureFigures rf =
+          measure(ref_name, mesh, sr, o, threads, nullptr, nullptr, &ref_hits, say);
       ref.ok = rf.error.empty();
       if (ref.ok) {
         ref.hits = std::move(ref_hits);
@@ -511,8 +519,8 @@ std::string bench_to_json(const BenchReport& r) {
   j["results"] = json::array();
   j["errors"] = json::array();
   for (const auto& s : r.scenes) {
-    json js = {{"scene", s.name},   {"file", s.file},           {"triangles", s.triangles},
-               {"camera", s.camera}, {"reference", s.reference}, {"load_seconds", s.load_seconds},
+    json js = {{"scene", s.name},      {"file", s.file},           {"triangles", s.triangles},
+               {"camera", s.camera},   {"reference", s.reference}, {"load_seconds", s.load_seconds},
                {"ok", s.error.empty()}};
     for (const auto& [n, c] : s.set_sizes) js["rays"][n] = c;
     for (const auto& [n, src] : s.set_sources) js["ray_sources"][n] = src;
@@ -582,7 +590,9 @@ std::string bench_to_json(const BenchReport& r) {
 
 namespace {
 
-std::string mib(uint64_t b) { return fmt("%.1f", double(b) / (1024.0 * 1024.0)); }
+std::string mib(uint64_t b) {
+  return fmt("%.1f", double(b) / (1024.0 * 1024.0));
+}
 
 const SetFigures* find_set(const StructureFigures& a, const std::string& set) {
   for (const auto& x : a.sets)
@@ -663,8 +673,7 @@ std::string bench_to_markdown(const BenchReport& r) {
          << fmt("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
          << fmt("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " ("
          << mib(a.peak_rss_bytes > a.rss_before_bytes ? a.peak_rss_bytes - a.rss_before_bytes : 0)
-         << ") | " << parts
-         << " |\n";
+         << ") | " << parts << " |\n";
     }
   }
 

@@ -50,11 +50,11 @@ struct BenchOptions {
 struct SetFigures {
   std::string set;
   uint64_t rays = 0;
-  uint64_t hits = 0;                 ///< rays that hit (shadow: rays found occluded)
-  std::vector<double> mrays_reps;    ///< Mrays/s of each timed repetition
+  uint64_t hits = 0;               ///< rays that hit (shadow: rays found occluded)
+  std::vector<double> mrays_reps;  ///< Mrays/s of each timed repetition
   double mrays_median = 0, mrays_min = 0, mrays_max = 0;
-  double ratio_to_reference = 0;     ///< mrays_median / reference's mrays_median (0 if none)
-  bool counted = false;              ///< false for structures without counters (Embree)
+  double ratio_to_reference = 0;  ///< mrays_median / reference's mrays_median (0 if none)
+  bool counted = false;           ///< false for structures without counters (Embree)
   double steps_per_ray = 0, leaves_per_ray = 0, tests_per_ray = 0;
   double lookups_per_ray = 0, mailbox_skips_per_ray = 0;
   /// Fraction of rays whose answer matches the reference: same triangle, both miss, or a tie
@@ -67,12 +67,12 @@ struct SetFigures {
 /// Figures of one structure on one scene.
 struct StructureFigures {
   std::string accel;
-  std::string error;                  ///< non-empty if the build or a trace threw
-  double build_seconds = 0;           ///< wall time of build(), as measured here
+  std::string error;         ///< non-empty if the build or a trace threw
+  double build_seconds = 0;  ///< wall time of build(), as measured here
   double build_mtris_per_s = 0;
-  uint64_t bytes = 0;                 ///< BuildStats::bytes: the structure, excluding the Mesh
+  uint64_t bytes = 0;  ///< BuildStats::bytes: the structure, excluding the Mesh
   double bytes_per_triangle = 0;
-  BuildStats stats;                   ///< everything build() reported (bytes_by_part, extra, ...)
+  BuildStats stats;  ///< everything build() reported (bytes_by_part, extra, ...)
   /// Peak resident memory while this structure was built and traced (VmHWM reset before the
   /// build; includes the mesh, the ray sets and the reference), and the process's lifetime
   /// peak (getrusage ru_maxrss), both in bytes.
@@ -86,24 +86,24 @@ struct StructureFigures {
 
 struct SceneFigures {
   std::string name, file;
-  std::string error;                  ///< non-empty if the scene could not be loaded/run
+  std::string error;  ///< non-empty if the scene could not be loaded/run
   uint64_t triangles = 0;
   double load_seconds = 0;
-  std::string camera;                 ///< "canonical" or "eye ... target ... fov ..."
-  std::string reference;              ///< structure the ratios and agreement refer to
+  std::string camera;     ///< "canonical" or "eye ... target ... fov ..."
+  std::string reference;  ///< structure the ratios and agreement refer to
   std::vector<std::pair<std::string, uint64_t>> set_sizes;
   std::vector<std::pair<std::string, std::string>> set_sources;  ///< "generated" or a .rays file
   std::vector<StructureFigures> structures;
 };
 
 struct BenchReport {
-  std::string suite;                  ///< suite file
-  std::string date;                   ///< ISO 8601 local time of the start
-  std::string machine;                ///< CPU model name (lscpu / /proc/cpuinfo)
+  std::string suite;    ///< suite file
+  std::string date;     ///< ISO 8601 local time of the start
+  std::string machine;  ///< CPU model name (lscpu / /proc/cpuinfo)
   int hardware_threads = 0;
   int threads = 0, reps = 0, width = 0, height = 0;
   std::vector<std::string> sets;
-  double seconds = 0;                 ///< wall time of the whole run
+  double seconds = 0;  ///< wall time of the whole run
   std::vector<SceneFigures> scenes;
 
   /// True if any scene or structure failed (the CLI then exits non-zero).

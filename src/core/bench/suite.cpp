@@ -42,7 +42,8 @@ SuiteScene parse_entry(const json& e, size_t index, const fs::path& base, const 
   if (e.contains("name") && e["name"].is_string()) s.name = e["name"].get<std::string>();
   if (!e.contains("file") || !e["file"].is_string() || e["file"].get<std::string>().empty()) {
     if (s.name.empty()) s.name = "scene" + std::to_string(index);
-    s.error = where + " (" + s.name + ") has no \"file\" string; give the scene file relative to "
+    s.error = where + " (" + s.name +
+              ") has no \"file\" string; give the scene file relative to "
               "the suite file";
     return s;
   }
@@ -61,8 +62,10 @@ SuiteScene parse_entry(const json& e, size_t index, const fs::path& base, const 
     std::string err = read_vec3(c, "eye", cam.eye);
     if (err.empty()) err = read_vec3(c, "target", cam.target);
     if (err.empty() && c.contains("fov")) {
-      if (!c["fov"].is_number()) err = "camera \"fov\" must be a number of degrees";
-      else cam.fov_deg = c["fov"].get<float>();
+      if (!c["fov"].is_number())
+        err = "camera \"fov\" must be a number of degrees";
+      else
+        cam.fov_deg = c["fov"].get<float>();
       if (err.empty() && !(cam.fov_deg > 0.0f && cam.fov_deg < 180.0f))
         err = "camera \"fov\" must be between 0 and 180 degrees";
     }
@@ -83,12 +86,14 @@ Suite parse_suite(const std::string& text, const std::string& base_dir, const st
   try {
     j = json::parse(text);
   } catch (const json::parse_error& e) {
-    throw LoadError(source + ": not valid JSON (" + e.what() +
-                    "); a suite is {\"scenes\": [{\"name\": ..., \"file\": ..., \"camera\": null}]}");
+    throw LoadError(
+        source + ": not valid JSON (" + e.what() +
+        "); a suite is {\"scenes\": [{\"name\": ..., \"file\": ..., \"camera\": null}]}");
   }
   if (!j.is_object() || !j.contains("scenes") || !j["scenes"].is_array())
-    throw LoadError(source + ": has no \"scenes\" array; a suite is "
-                             "{\"scenes\": [{\"name\": ..., \"file\": ..., \"camera\": null}]}");
+    throw LoadError(source +
+                    ": has no \"scenes\" array; a suite is "
+                    "{\"scenes\": [{\"name\": ..., \"file\": ..., \"camera\": null}]}");
   Suite suite;
   suite.path = source;
   const fs::path base = base_dir.empty() ? fs::path(".") : fs::path(base_dir);

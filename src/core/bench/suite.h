@@ -18,14 +18,14 @@ namespace kdgrid {
 /// One scene of a suite. An entry that cannot be used (no file, malformed camera) keeps its
 /// problem in `error`, so that the runner reports it and still runs the other scenes.
 struct SuiteScene {
-  std::string name;                ///< label in the tables; defaults to the file's stem
-  std::string file;                ///< absolute or relative to the working directory
-  std::optional<Camera> camera;    ///< empty = canonical camera of BENCHMARK.md
-  std::string error;               ///< non-empty if the entry is unusable
+  std::string name;              ///< label in the tables; defaults to the file's stem
+  std::string file;              ///< absolute or relative to the working directory
+  std::optional<Camera> camera;  ///< empty = canonical camera of BENCHMARK.md
+  std::string error;             ///< non-empty if the entry is unusable
 };
 
 struct Suite {
-  std::string path;                ///< file it came from ("" if built in code)
+  std::string path;  ///< file it came from ("" if built in code)
   std::vector<SuiteScene> scenes;
 };
 

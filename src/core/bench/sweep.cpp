@@ -76,7 +76,8 @@ Measured measure_primary(const std::string& accel, const Mesh& mesh, const Build
     m.mrays = median(v);
     m.mrays_min = *std::min_element(v.begin(), v.end());
     m.mrays_max = *std::max_element(v.begin(), v.end());
-    m.hits = uint64_t(std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return h.valid(); }));
+    m.hits =
+        uint64_t(std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return h.valid(); }));
   } catch (const std::exception& e) {
     m.error = e.what();
   }
@@ -173,9 +174,11 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
   t.notes.emplace_back("auto_cell_size", auto_str);
   t.notes.emplace_back("auto_rule", extra_of(autom.stats, "auto rule"));
   auto add = [&](const std::string& label, double mult, const Measured& m) {
-    auto cells = std::vector<std::pair<std::string, SweepValue>>{
-        {"label", label}, {"multiplier", mult}, {"cell_size", mult * auto_cell},
-        {"grid", extra_of(m.stats, "grid")}};
+    auto cells =
+        std::vector<std::pair<std::string, SweepValue>>{{"label", label},
+                                                        {"multiplier", mult},
+                                                        {"cell_size", mult * auto_cell},
+                                                        {"grid", extra_of(m.stats, "grid")}};
     for (auto& c : measured_cells(m, mesh.num_triangles(), s.embree_mrays)) cells.push_back(c);
     t.add_row(cells);
     say_row(o, label, m);
@@ -196,7 +199,8 @@ void sweep_param(const SweepOptions& o, SweepTable& t, const std::string& accel,
     BuildParams q = o.params;
     set(q, v);
     const Measured m = measure_primary(accel, mesh, q, s.rays, o.reps);
-    auto cells = std::vector<std::pair<std::string, SweepValue>>{{"label", fmt("%g", v)}, {column, v}};
+    auto cells =
+        std::vector<std::pair<std::string, SweepValue>>{{"label", fmt("%g", v)}, {column, v}};
     for (auto& c : measured_cells(m, mesh.num_triangles(), s.embree_mrays)) cells.push_back(c);
     for (const auto& [k, x] : m.stats.extra)
       if (k == "resolution" || k == "grid") cells.emplace_back(k, x);
@@ -235,8 +239,9 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
   if (accels.empty())
     for (const auto& n : default_bench_accels())
       if (n != "embree") accels.push_back(n);
-  t.notes.emplace_back("leak", "a leak is a ray aimed from outside at a point on a shared edge "
-                               "or vertex of a closed mesh that hits nothing");
+  t.notes.emplace_back("leak",
+                       "a leak is a ray aimed from outside at a point on a shared edge "
+                       "or vertex of a closed mesh that hits nothing");
 
   // Part 1: throughput on the scene's primary rays, per structure and test.
   if (!o.scene.empty()) {
@@ -249,8 +254,11 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
         const Measured m = measure_primary(a, s.scene.mesh, q, s.rays, o.reps);
         if (k == TriangleTestKind::Watertight) wt = m.mrays;
         auto cells = std::vector<std::pair<std::string, SweepValue>>{
-            {"part", "throughput"}, {"mesh", fs::path(o.scene).stem().string()}, {"accel", a},
-            {"test", to_string(k)}, {"rays", double(s.rays.size())}};
+            {"part", "throughput"},
+            {"mesh", fs::path(o.scene).stem().string()},
+            {"accel", a},
+            {"test", to_string(k)},
+            {"rays", double(s.rays.size())}};
         if (!m.error.empty()) {
           cells.emplace_back("error", m.error);
         } else {
@@ -258,9 +266,11 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
           cells.emplace_back("mrays_min", m.mrays_min);
           cells.emplace_back("mrays_max", m.mrays_max);
           cells.emplace_back("tests_per_ray", m.tests);
-          cells.emplace_back("speedup_vs_watertight", wt > 0 ? SweepValue(m.mrays / wt) : SweepValue{});
-          cells.emplace_back("ratio_to_embree",
-                             s.embree_mrays > 0 ? SweepValue(m.mrays / s.embree_mrays) : SweepValue{});
+          cells.emplace_back("speedup_vs_watertight",
+                             wt > 0 ? SweepValue(m.mrays / wt) : SweepValue{});
+          cells.emplace_back("ratio_to_embree", s.embree_mrays > 0
+                                                    ? SweepValue(m.mrays / s.embree_mrays)
+                                                    : SweepValue{});
         }
         t.add_row(cells);
         say_row(o, a + " " + to_string(k), m);
@@ -290,8 +300,8 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
       for (const auto& a : leak_accels) {
         for (TriangleTestKind k : {TriangleTestKind::Watertight, TriangleTestKind::Moller}) {
           auto cells = std::vector<std::pair<std::string, SweepValue>>{
-              {"part", "leak"}, {"mesh", mname}, {"scale", c.name}, {"accel", a},
-              {"test", to_string(k)}, {"rays", double(rays.size())}};
+              {"part", "leak"}, {"mesh", mname},        {"scale", c.name},
+              {"accel", a},     {"test", to_string(k)}, {"rays", double(rays.size())}};
           try {
             BuildParams q = o.params;
             q.triangle_test = k;
@@ -299,9 +309,11 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
             acc->build(mesh, q);
             std::vector<Hit> hits;
             trace_rays(*acc, rays, false, &hits);
-            const auto leaks = std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return !h.valid(); });
+            const auto leaks =
+                std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return !h.valid(); });
             cells.emplace_back("leaks", double(leaks));
-            cells.emplace_back("leak_rate", double(leaks) / double(std::max<size_t>(1, rays.size())));
+            cells.emplace_back("leak_rate",
+                               double(leaks) / double(std::max<size_t>(1, rays.size())));
             if (o.progress)
               o.progress("  leak " + mname + " scale " + c.name + " " + a + " " + to_string(k) +
                          ": " + std::to_string(leaks) + " of " + std::to_string(rays.size()));
@@ -325,7 +337,8 @@ std::string find_cornell() {
     for (fs::path p = exe.parent_path(); !p.empty() && roots.size() < 7; p = p.parent_path())
       roots.push_back(p);
   for (const auto& r : roots)
-    if (fs::is_regular_file(r / "assets" / "cornell.gltf", ec)) return (r / "assets" / "cornell.gltf").string();
+    if (fs::is_regular_file(r / "assets" / "cornell.gltf", ec))
+      return (r / "assets" / "cornell.gltf").string();
   return "";
 }
 
@@ -362,8 +375,9 @@ void sweep_spp(const SweepOptions& o, SweepTable& t) {
   ImageRGB ref_img{o.width, o.height, {}, {}};
   ref.resolve(ref_img.rgb);
   t.notes.emplace_back("accel", accel);
-  t.notes.emplace_back("rmse", "root-mean-square difference from the reference over all channels "
-                               "of linear RGB; rmse_display clamps both images to [0, 1] first");
+  t.notes.emplace_back("rmse",
+                       "root-mean-square difference from the reference over all channels "
+                       "of linear RGB; rmse_display clamps both images to [0, 1] first");
   t.notes.emplace_back("reference", std::to_string(o.spp_reference) + " spp, seed 1000003, " +
                                         fmt("%.2f", ref.seconds()) + " s");
   if (o.progress)
@@ -392,8 +406,8 @@ void sweep_spp(const SweepOptions& o, SweepTable& t) {
                    {"rays", rays},
                    {"mrays", r.seconds() > 0 ? rays * 1e-6 / r.seconds() : 0.0}});
         if (o.progress)
-          o.progress("  " + std::to_string(spp) + " spp: " + fmt("%.2f", r.seconds()) + " s, rmse " +
-                     fmt("%.5f", e) + ", display rmse " + fmt("%.5f", e_display));
+          o.progress("  " + std::to_string(spp) + " spp: " + fmt("%.2f", r.seconds()) +
+                     " s, rmse " + fmt("%.5f", e) + ", display rmse " + fmt("%.5f", e_display));
       }
       ++next;
     }
@@ -429,10 +443,13 @@ void SweepTable::add_row(const std::vector<std::pair<std::string, SweepValue>>& 
   rows.push_back(std::move(row));
 }
 
-std::vector<std::string> sweep_kinds() { return {"cellsize", "lambda", "kdcost", "triangle", "spp"}; }
+std::vector<std::string> sweep_kinds() {
+  return {"cellsize", "lambda", "kdcost", "triangle", "spp"};
+}
 
 std::vector<double> sweep_default_values(const std::string& kind) {
-  if (kind == "cellsize") return {0.25, 0.35, 0.5, 0.7, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0};  // 1x = auto row
+  if (kind == "cellsize")
+    return {0.25, 0.35, 0.5, 0.7, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0};  // 1x = auto row
   if (kind == "lambda") return {0.5, 1, 2, 4, 8, 16};
   if (kind == "kdcost") return {0.5, 0.75, 1, 1.5, 2, 3, 4, 6, 8};
   if (kind == "spp") return {1, 2, 4, 8, 16, 32, 64};
@@ -443,7 +460,8 @@ SweepTable run_sweep(const SweepOptions& in) {
   SweepOptions o = in;
   const auto kinds = sweep_kinds();
   if (std::find(kinds.begin(), kinds.end(), o.kind) == kinds.end())
-    throw ParamError("unknown sweep '" + o.kind + "': choose cellsize, lambda, kdcost, triangle or spp");
+    throw ParamError("unknown sweep '" + o.kind +
+                     "': choose cellsize, lambda, kdcost, triangle or spp");
   if (o.reps < 1) throw ParamError("--reps must be at least 1");
   if (o.threads < 0) throw ParamError("--threads must be >= 0 (0 = all hardware threads)");
   if (o.width == 0 && o.height == 0) o.width = o.height = o.kind == "spp" ? 200 : 512;
@@ -507,8 +525,10 @@ std::string sweep_to_csv(const SweepTable& t) {
     for (size_t i = 0; i < t.columns.size(); ++i) {
       if (i) out << ",";
       if (i >= r.size()) continue;
-      if (const auto* d = std::get_if<double>(&r[i])) out << fmt("%.9g", *d);
-      else if (const auto* s = std::get_if<std::string>(&r[i])) out << quote(*s);
+      if (const auto* d = std::get_if<double>(&r[i]))
+        out << fmt("%.9g", *d);
+      else if (const auto* s = std::get_if<std::string>(&r[i]))
+        out << quote(*s);
     }
     out << "\n";
   }
@@ -518,7 +538,7 @@ std::string sweep_to_csv(const SweepTable& t) {
 std::string sweep_to_json(const SweepTable& t) {
   using nlohmann::json;
   json j;
-  j["meta"] = {{"kind", t.kind},       {"scene", t.scene},   {"date", t.date},
+  j["meta"] = {{"kind", t.kind},       {"scene", t.scene},     {"date", t.date},
                {"machine", t.machine}, {"threads", t.threads}, {"reps", t.reps},
                {"width", t.width},     {"height", t.height}};
   for (const auto& [k, v] : t.notes) j["meta"]["notes"][k] = v;
@@ -527,8 +547,10 @@ std::string sweep_to_json(const SweepTable& t) {
   for (const auto& r : t.rows) {
     json o = json::object();
     for (size_t i = 0; i < t.columns.size() && i < r.size(); ++i) {
-      if (const auto* d = std::get_if<double>(&r[i])) o[t.columns[i]] = *d;
-      else if (const auto* s = std::get_if<std::string>(&r[i])) o[t.columns[i]] = *s;
+      if (const auto* d = std::get_if<double>(&r[i]))
+        o[t.columns[i]] = *d;
+      else if (const auto* s = std::get_if<std::string>(&r[i]))
+        o[t.columns[i]] = *s;
     }
     j["rows"].push_back(o);
   }
@@ -565,7 +587,8 @@ std::vector<Ray> edge_vertex_rays(const Mesh& mesh, int per_target, uint64_t see
       for (int attempt = 0; attempt < 32; ++attempt) {
         const Vec3 r(rng.uniform() * 2 - 1, rng.uniform() * 2 - 1, rng.uniform() * 2 - 1);
         const Vec3 cand = normalize(avg + r * 0.6f);
-        if (std::all_of(faces.begin(), faces.end(), [&](uint32_t f) { return dot(cand, fn[f]) > 0.2f; })) {
+        if (std::all_of(faces.begin(), faces.end(),
+                        [&](uint32_t f) { return dot(cand, fn[f]) > 0.2f; })) {
           d = cand;
           break;
         }
