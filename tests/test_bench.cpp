@@ -256,6 +256,8 @@ void expect_every_field(const BenchReport& rep, const std::vector<std::string>& 
         EXPECT_LE(x.mrays_min, x.mrays_median);
         EXPECT_GE(x.mrays_max, x.mrays_median);
         EXPECT_GT(x.ratio_to_reference, 0.0);
+        EXPECT_GT(x.reference_mrays, 0.0);
+        EXPECT_EQ(x.paired, a.accel != s.reference) << "every ratio is paired by default";
         if (x.set != "shadow") EXPECT_GT(x.hits, 0u);
         EXPECT_EQ(x.counted, a.accel != "embree") << "only Embree cannot count";
         if (x.counted) {
@@ -321,7 +323,7 @@ TEST(Bench, SmallSuiteHasEveryFieldForEveryStructureAndSet) {
   for (const auto& r : j["results"])
     for (const char* k :
          {"scene", "accel", "set", "rays", "mrays", "mrays_min", "mrays_max", "ratio_to_reference",
-          "steps_per_ray", "leaves_per_ray", "tests_per_ray", "agreement"})
+          "reference_mrays", "steps_per_ray", "leaves_per_ray", "tests_per_ray", "agreement"})
       EXPECT_TRUE(r.contains(k)) << k;
   const std::string md = bench_to_markdown(rep);
   for (const auto& a : o.accels) EXPECT_NE(md.find("| " + a + " "), std::string::npos) << a;
@@ -365,6 +367,27 @@ TEST(Bench, BadScenesAreReportedAndTheOthersRun) {
   const json j = json::parse(bench_to_json(rep));
   EXPECT_EQ(j["errors"].size(), 3u);
   EXPECT_NE(bench_to_markdown(rep).find("nope.ply"), std::string::npos);
+}
+
+TEST(Bench, UnpairedRatiosDivideByTheReferenceMedian) {
+  TempDir dir("unpaired");
+  const Suite suite = load_suite(write_small_suite(dir).string());
+  BenchOptions o = small_options();
+  o.accels = {"brute", "bvh"};
+  o.interleave_reference = false;
+  const BenchReport rep = run_bench(suite, o);
+  ASSERT_FALSE(rep.any_failed());
+  for (const auto& s : rep.scenes) {
+    ASSERT_EQ(s.structures.size(), 2u);
+    const auto& ref = s.structures[0];
+    const auto& bvh = s.structures[1];
+    for (size_t k = 0; k < bvh.sets.size(); ++k) {
+      EXPECT_FALSE(bvh.sets[k].paired);
+      EXPECT_EQ(bvh.sets[k].reference_mrays, ref.sets[k].mrays_median);
+      EXPECT_DOUBLE_EQ(bvh.sets[k].ratio_to_reference,
+                       bvh.sets[k].mrays_median / ref.sets[k].mrays_median);
+    }
+  }
 }
 
 TEST(Bench, RejectsBadOptions) {

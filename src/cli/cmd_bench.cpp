@@ -47,6 +47,7 @@ struct BenchArgs {
   std::string res = "1024";
   std::string json, md, rays_dir, reference;
   bool quiet = false;
+  bool no_interleave = false;
   AccelOptions accel;
 };
 
@@ -78,6 +79,9 @@ void add_bench_command(CLI::App& app) {
   cmd->add_option("--reference", a->reference,
                   "Structure the ratios and agreement refer to (default embree)");
   cmd->add_flag("--quiet,-q", a->quiet, "No progress on stderr, no tables on stdout");
+  cmd->add_flag("--no-interleave", a->no_interleave,
+                "Time the reference once per scene instead of before every repetition "
+                "(halves the tracing time; ratios then suffer from changing machine load)");
   cmd->callback([a] {
     BenchOptions o;
     o.accels = split_list(a->accel.accel);
@@ -87,6 +91,7 @@ void add_bench_command(CLI::App& app) {
     parse_resolution(a->res, o.width, o.height);
     o.rays_dir = a->rays_dir;
     o.reference = a->reference;
+    o.interleave_reference = !a->no_interleave;
     o.params = a->accel.resolve();
     if (!a->quiet)
       o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };

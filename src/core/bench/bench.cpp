@@ -133,6 +133,7 @@ SceneRays make_scene_rays(const SceneFigures& sf, const Mesh& mesh, const Camera
 /// What the reference measured on each set, for ratios and agreement.
 struct Reference {
   bool ok = false;
+  const Accelerator* acc = nullptr;    // kept built for interleaved timing
   std::vector<double> mrays;           // per set
   std::vector<std::vector<Hit>> hits;  // per set
 };
@@ -180,9 +181,16 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
       } else {
         trace_rays(*acc, rays, any, &hits);
       }
+      // With interleaving, each repetition times the reference and then this structure, so
+      // a change in machine load hits both of a pair and their ratio stays meaningful.
+      const bool paired = o.interleave_reference && ref && ref->ok && ref->acc;
+      std::vector<Hit> ref_scratch(paired ? rays.size() : 0);
+      std::vector<double> ratios, ref_reps;
+      auto mrays_of = [&](double sec) { return sec > 0 ? double(rays.size()) / sec * 1e-6 : 0.0; };
       for (int r = 0; r < o.reps; ++r) {
-        const double sec = trace_rays(*acc, rays, any, &hits);
-        sf.mrays_reps.push_back(sec > 0 ? double(rays.size()) / sec * 1e-6 : 0.0);
+        if (paired) ref_reps.push_back(mrays_of(trace_rays(*ref->acc, rays, any, &ref_scratch)));
+        sf.mrays_reps.push_back(mrays_of(trace_rays(*acc, rays, any, &hits)));
+        if (paired && ref_reps.back() > 0) ratios.push_back(sf.mrays_reps.back() / ref_reps.back());
       }
       sf.mrays_median = median(sf.mrays_reps);
       sf.mrays_min = *std::min_element(sf.mrays_reps.begin(), sf.mrays_reps.end());
@@ -190,11 +198,17 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
       sf.hits =
           uint64_t(std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return h.valid(); }));
       if (ref && ref->ok) {
-        if (ref->mrays[s] > 0) sf.ratio_to_reference = sf.mrays_median / ref->mrays[s];
+        sf.paired = paired;
+        sf.reference_mrays = paired ? median(ref_reps) : ref->mrays[s];
+        if (paired)
+          sf.ratio_to_reference = median(ratios);
+        else if (ref->mrays[s] > 0)
+          sf.ratio_to_reference = sf.mrays_median / ref->mrays[s];
         sf.agreement =
             hit_agreement(mesh, rays, hits, ref->hits[s], any, o.tie_tolerance, &sf.disagreements);
       } else if (!ref) {
         sf.ratio_to_reference = 1.0;  // this is the reference
+        sf.reference_mrays = sf.mrays_median;
       }
       std::string line = "    " + sf.set + ": " + fmt("%.3g", sf.mrays_median) + " Mrays/s";
       if (ref && ref->ok) line += " (x" + fmt("%.2f", sf.ratio_to_reference) + " reference)";
@@ -469,8 +483,9 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
 
       std::vector<std::vector<Hit>> ref_hits;
       StructureFigures rf =
-          measure(ref_name, mesh, sr, o, threads, nullptr, nullptr, &ref_hits, say);
+          measure(ref_name, mesh, sr, o, threads, nullptr, &ref_acc, &ref_hits, say);
       ref.ok = rf.error.empty();
+      ref.acc = ref_acc.get();
       if (ref.ok) {
         ref.hits = std::move(ref_hits);
         for (const auto& x : rf.sets) ref.mrays.push_back(x.mrays_median);
@@ -573,6 +588,10 @@ std::string bench_to_json(const BenchReport& r) {
                   {"mrays_max", x.mrays_max},
                   {"mrays_reps", x.mrays_reps},
                   {"ratio_to_reference", x.ratio_to_reference},
+                  {"reference_mrays", x.reference_mrays},
+                  {"ratio_method", x.paired ? "median of per-repetition ratios, reference "
+                                              "timed just before each repetition"
+                                            : "median / reference's median"},
                   {"counted", x.counted},
                   {"steps_per_ray", x.steps_per_ray},
                   {"leaves_per_ray", x.leaves_per_ray},

@@ -40,6 +40,10 @@ struct BenchOptions {
   std::string reference;
   /// Build knobs shared by all structures.
   BuildParams params;
+  /// Time the reference again just before each repetition of every structure and take the
+  /// ratio per pair: a shared machine's load changes between structures, and a pair sees the
+  /// same load. Doubles the tracing time; false = reference timed once per scene.
+  bool interleave_reference = true;
   /// Relative tolerance on t under which two different triangles count as the same hit.
   double tie_tolerance = 1e-5;
   /// Receives one line per step of a long run (stderr in the CLI); may be empty.
@@ -53,8 +57,13 @@ struct SetFigures {
   uint64_t hits = 0;               ///< rays that hit (shadow: rays found occluded)
   std::vector<double> mrays_reps;  ///< Mrays/s of each timed repetition
   double mrays_median = 0, mrays_min = 0, mrays_max = 0;
-  double ratio_to_reference = 0;  ///< mrays_median / reference's mrays_median (0 if none)
-  bool counted = false;           ///< false for structures without counters (Embree)
+  /// Throughput relative to the reference (0 if none). Paired (the default): the median of
+  /// the per-repetition ratios, the reference timed on the same set just before each of this
+  /// structure's repetitions. Otherwise mrays_median / the reference's own median.
+  double ratio_to_reference = 0;
+  double reference_mrays = 0;  ///< the reference's median Mrays/s behind the ratio
+  bool paired = false;
+  bool counted = false;  ///< false for structures without counters (Embree)
   double steps_per_ray = 0, leaves_per_ray = 0, tests_per_ray = 0;
   double lookups_per_ray = 0, mailbox_skips_per_ray = 0;
   /// Fraction of rays whose answer matches the reference: same triangle, both miss, or a tie

@@ -48,10 +48,14 @@ struct Measured {
   double mrays = 0, mrays_min = 0, mrays_max = 0;
   double steps = 0, leaves = 0, tests = 0;
   uint64_t hits = 0;
+  /// Median of the per-repetition ratios to the reference timed just before each repetition
+  /// (a pair sees the same machine load); < 0 without a reference.
+  double ratio_to_ref = -1;
 };
 
 Measured measure_primary(const std::string& accel, const Mesh& mesh, const BuildParams& params,
-                         const std::vector<Ray>& rays, int reps) {
+                         const std::vector<Ray>& rays, int reps, const Accelerator* ref = nullptr,
+                         std::unique_ptr<Accelerator>* keep = nullptr) {
   Measured m;
   try {
     auto a = make_accelerator(accel);
@@ -68,16 +72,21 @@ Measured measure_primary(const std::string& accel, const Mesh& mesh, const Build
     } else {
       trace_rays(*a, rays, false, &hits);
     }
-    std::vector<double> v;
+    std::vector<double> v, ratios;
+    std::vector<Hit> ref_hits;
     for (int r = 0; r < reps; ++r) {
+      const double rs = ref ? trace_rays(*ref, rays, false, &ref_hits) : 0.0;
       const double s = trace_rays(*a, rays, false, &hits);
       v.push_back(s > 0 ? n * 1e-6 / s : 0.0);
+      if (ref && s > 0) ratios.push_back(rs / s);
     }
+    if (ref) m.ratio_to_ref = median(ratios);
     m.mrays = median(v);
     m.mrays_min = *std::min_element(v.begin(), v.end());
     m.mrays_max = *std::max_element(v.begin(), v.end());
     m.hits =
         uint64_t(std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return h.valid(); }));
+    if (keep) *keep = std::move(a);
   } catch (const std::exception& e) {
     m.error = e.what();
   }
@@ -91,8 +100,7 @@ std::string extra_of(const BuildStats& s, const std::string& key) {
 }
 
 /// Standard columns of a build + primary-ray row.
-std::vector<std::pair<std::string, SweepValue>> measured_cells(const Measured& m, size_t tris,
-                                                               double embree_mrays) {
+std::vector<std::pair<std::string, SweepValue>> measured_cells(const Measured& m, size_t tris) {
   if (!m.error.empty()) return {{"error", m.error}};
   std::vector<std::pair<std::string, SweepValue>> c = {
       {"build_s", m.build_seconds},
@@ -101,7 +109,7 @@ std::vector<std::pair<std::string, SweepValue>> measured_cells(const Measured& m
       {"mrays", m.mrays},
       {"mrays_min", m.mrays_min},
       {"mrays_max", m.mrays_max},
-      {"ratio_to_embree", embree_mrays > 0 ? SweepValue(m.mrays / embree_mrays) : SweepValue{}},
+      {"ratio_to_embree", m.ratio_to_ref >= 0 ? SweepValue(m.ratio_to_ref) : SweepValue{}},
       {"steps_per_ray", m.steps},
       {"leaves_per_ray", m.leaves},
       {"tests_per_ray", m.tests},
@@ -119,7 +127,8 @@ std::vector<std::pair<std::string, SweepValue>> measured_cells(const Measured& m
 struct Setup {
   Scene scene;
   std::vector<Ray> rays;
-  double embree_mrays = 0;
+  /// Embree, kept built: it is timed again before every repetition of every row.
+  std::unique_ptr<Accelerator> embree;
 };
 
 Setup load_setup(const SweepOptions& o, SweepTable& t) {
@@ -136,9 +145,8 @@ Setup load_setup(const SweepOptions& o, SweepTable& t) {
                                    (o.camera ? "given camera" : "canonical camera") + ")");
   if (registered("embree")) {
     BuildParams p = o.params;
-    const Measured e = measure_primary("embree", mesh, p, s.rays, o.reps);
+    const Measured e = measure_primary("embree", mesh, p, s.rays, o.reps, nullptr, &s.embree);
     if (e.error.empty()) {
-      s.embree_mrays = e.mrays;
       t.notes.emplace_back("embree_mrays", fmt("%.4g", e.mrays));
       if (o.progress) o.progress("  embree baseline: " + fmt("%.3g", e.mrays) + " Mrays/s");
     }
@@ -165,7 +173,7 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
   const Mesh& mesh = s.scene.mesh;
   BuildParams p = o.params;
   p.cell_size = 0.0f;
-  const Measured autom = measure_primary("hybrid", mesh, p, s.rays, o.reps);
+  const Measured autom = measure_primary("hybrid", mesh, p, s.rays, o.reps, s.embree.get());
   if (!autom.error.empty()) throw Error("hybrid with the auto cell size: " + autom.error);
   const std::string auto_str = extra_of(autom.stats, "cell_size");
   const double auto_cell = std::strtod(auto_str.c_str(), nullptr);
@@ -179,7 +187,7 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
                                                         {"multiplier", mult},
                                                         {"cell_size", mult * auto_cell},
                                                         {"grid", extra_of(m.stats, "grid")}};
-    for (auto& c : measured_cells(m, mesh.num_triangles(), s.embree_mrays)) cells.push_back(c);
+    for (auto& c : measured_cells(m, mesh.num_triangles())) cells.push_back(c);
     t.add_row(cells);
     say_row(o, label, m);
   };
@@ -187,7 +195,7 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
   for (double mult : o.values) {
     BuildParams q = o.params;
     q.cell_size = float(mult * auto_cell);
-    add(fmt("%gx", mult), mult, measure_primary("hybrid", mesh, q, s.rays, o.reps));
+    add(fmt("%gx", mult), mult, measure_primary("hybrid", mesh, q, s.rays, o.reps, s.embree.get()));
   }
 }
 
@@ -198,10 +206,10 @@ void sweep_param(const SweepOptions& o, SweepTable& t, const std::string& accel,
   for (double v : o.values) {
     BuildParams q = o.params;
     set(q, v);
-    const Measured m = measure_primary(accel, mesh, q, s.rays, o.reps);
+    const Measured m = measure_primary(accel, mesh, q, s.rays, o.reps, s.embree.get());
     auto cells =
         std::vector<std::pair<std::string, SweepValue>>{{"label", fmt("%g", v)}, {column, v}};
-    for (auto& c : measured_cells(m, mesh.num_triangles(), s.embree_mrays)) cells.push_back(c);
+    for (auto& c : measured_cells(m, mesh.num_triangles())) cells.push_back(c);
     for (const auto& [k, x] : m.stats.extra)
       if (k == "resolution" || k == "grid") cells.emplace_back(k, x);
     t.add_row(cells);
@@ -251,7 +259,7 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
       for (TriangleTestKind k : {TriangleTestKind::Watertight, TriangleTestKind::Moller}) {
         BuildParams q = o.params;
         q.triangle_test = k;
-        const Measured m = measure_primary(a, s.scene.mesh, q, s.rays, o.reps);
+        const Measured m = measure_primary(a, s.scene.mesh, q, s.rays, o.reps, s.embree.get());
         if (k == TriangleTestKind::Watertight) wt = m.mrays;
         auto cells = std::vector<std::pair<std::string, SweepValue>>{
             {"part", "throughput"},
@@ -268,9 +276,8 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
           cells.emplace_back("tests_per_ray", m.tests);
           cells.emplace_back("speedup_vs_watertight",
                              wt > 0 ? SweepValue(m.mrays / wt) : SweepValue{});
-          cells.emplace_back("ratio_to_embree", s.embree_mrays > 0
-                                                    ? SweepValue(m.mrays / s.embree_mrays)
-                                                    : SweepValue{});
+          cells.emplace_back("ratio_to_embree",
+                             m.ratio_to_ref >= 0 ? SweepValue(m.ratio_to_ref) : SweepValue{});
         }
         t.add_row(cells);
         say_row(o, a + " " + to_string(k), m);
