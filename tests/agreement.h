@@ -381,15 +381,15 @@ inline Mesh coplanar_quads(int n) {
   return m;
 }
 
-/// Long thin triangles (length ~2, width ~1e-3) in random directions: boxes much larger than
-/// the triangles, the worst case for bounding volumes.
+/// Long thin triangles (length 0.2-0.8, width ~1e-3) in random directions in [-1, 1]^3:
+/// boxes far larger than the triangles, the worst case for bounding volumes.
 inline Mesh thin_triangles(size_t n, uint32_t seed) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f), len(0.2f, 0.8f);
   Mesh m;
   for (size_t i = 0; i < n; ++i) {
     const Vec3 a(u(rng), u(rng), u(rng));
-    const Vec3 b(u(rng), u(rng), u(rng));
+    const Vec3 b = a + normalize(Vec3(u(rng), u(rng), u(rng))) * len(rng);
     const Vec3 side = normalize(cross(b - a, Vec3(u(rng), u(rng), u(rng)))) * 1e-3f;
     const uint32_t base = uint32_t(m.positions.size());
     m.positions.push_back(a);

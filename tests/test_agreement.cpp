@@ -50,7 +50,7 @@ const std::vector<SceneCase>& scene_cases() {
   static const std::vector<SceneCase> cases = {
       {"bunny", "bunny/bun_zipper.ply", nullptr},
       {"dragon", "dragon/dragon_vrip_res2.ply", nullptr},
-      {"soup", "", [] { return test::triangle_soup(20000, 11); }},
+      {"soup", "", [] { return test::triangle_soup(10000, 11); }},
       {"sphere", "", [] { return test::subdivided_sphere(5); }},
       {"coplanar_quads", "", [] { return test::coplanar_quads(48); }},
       {"thin", "", [] { return test::thin_triangles(5000, 12); }},

@@ -10,5 +10,8 @@ void add_bench_command(CLI::App& app);
 void add_sweep_command(CLI::App& app);
 void add_render_command(CLI::App& app);
 void add_gen_command(CLI::App& app);
+void add_rays_command(CLI::App& app);
+void add_trace_command(CLI::App& app);
+void add_check_command(CLI::App& app);
 
 }  // namespace kdgrid::cli

@@ -14,6 +14,9 @@ int main(int argc, char** argv) {
   kdgrid::cli::add_sweep_command(app);
   kdgrid::cli::add_render_command(app);
   kdgrid::cli::add_gen_command(app);
+  kdgrid::cli::add_rays_command(app);
+  kdgrid::cli::add_trace_command(app);
+  kdgrid::cli::add_check_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

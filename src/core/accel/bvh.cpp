@@ -1,5 +1,6 @@
 #include "accel/bvh.h"
 
+#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 #include <tbb/task_group.h>
 
@@ -7,6 +8,7 @@
 #include <array>
 #include <chrono>
 #include <cstdio>
+#include <type_traits>
 
 #include "util/error.h"
 
@@ -19,10 +21,28 @@ namespace {
 constexpr uint32_t kParallelThreshold = 4096;
 constexpr int kMaxBins = 256;
 
+/// A SAH bin. Plain floats (Vec3 and Box3 initialise their members) so that a node's bin
+/// array costs nothing until reset() is called for the k bins in use.
 struct Bin {
-  Box3 box;
-  uint32_t count = 0;
+  float lo[3], hi[3];
+  uint32_t count;
+  void reset() {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = kInf;
+      hi[a] = -kInf;
+    }
+    count = 0;
+  }
+  void grow(const Box3& b) {
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], b.lo[a]);
+      hi[a] = std::max(hi[a], b.hi[a]);
+    }
+    ++count;
+  }
+  Box3 box() const { return {{lo[0], lo[1], lo[2]}, {hi[0], hi[1], hi[2]}}; }
 };
+static_assert(std::is_trivially_default_constructible_v<Bin>);
 
 /// Counters of one subtree, summed bottom-up so the totals do not depend on scheduling.
 struct SubStats {
@@ -44,10 +64,12 @@ class Builder {
     const size_t n = mesh.num_triangles();
     boxes_.resize(n);
     centroids_.resize(n);
-    for (size_t i = 0; i < n; ++i) {
-      boxes_[i] = mesh.triangle_bounds(i);
-      centroids_[i] = boxes_[i].center();
-    }
+    tbb::parallel_for(size_t(0), n, size_t(4096), [&](size_t i0) {
+      for (size_t i = i0, e = std::min(n, i0 + 4096); i < e; ++i) {
+        boxes_[i] = mesh.triangle_bounds(i);
+        centroids_[i] = boxes_[i].center();
+      }
+    });
   }
 
   /// Builds the subtree over prims_[begin, end) into slots [slot, slot + 2n - 1).
@@ -83,33 +105,42 @@ class Builder {
       int best_axis = -1, best_bin = 0;
       // Costs are kept unnormalised (times the node area) so a flat box cannot divide by 0.
       float best_cost = kInf;
+      // One pass over the triangles fills the bins of all three axes. Only the k bins in use
+      // are initialised: clearing kMaxBins per node would dominate the build.
+      Bin bins[3][kMaxBins];
+      float lo[3], scale[3];
+      for (int axis = 0; axis < 3; ++axis) {
+        for (int b = 0; b < k; ++b) bins[axis][b].reset();
+        lo[axis] = cbox.lo[axis];
+        scale[axis] = ce[axis] > 0.0f ? float(k) * (1.0f - 1e-6f) / ce[axis] : 0.0f;
+      }
+      for (uint32_t i = begin; i < end; ++i) {
+        const uint32_t prim = prims_[i];
+        const Vec3& c = centroids_[prim];
+        const Box3& pb = boxes_[prim];
+        for (int axis = 0; axis < 3; ++axis) {
+          Bin& bin = bins[axis][bin_of(c[axis], lo[axis], scale[axis], k)];
+          bin.grow(pb);
+        }
+      }
       for (int axis = 0; axis < 3; ++axis) {
         if (!(ce[axis] > 0.0f)) continue;
-        std::array<Bin, kMaxBins> bins{};
-        const float lo = cbox.lo[axis];
-        const float scale = float(k) * (1.0f - 1e-6f) / ce[axis];
-        for (uint32_t i = begin; i < end; ++i) {
-          const uint32_t prim = prims_[i];
-          const int b = bin_of(centroids_[prim][axis], lo, scale, k);
-          bins[b].box.grow(boxes_[prim]);
-          ++bins[b].count;
-        }
         // Sweep from the right to get the area and count right of every boundary.
-        std::array<float, kMaxBins> right_area{};
-        std::array<uint32_t, kMaxBins> right_count{};
+        float right_area[kMaxBins];
+        uint32_t right_count[kMaxBins];
         Box3 acc;
         uint32_t cnt = 0;
         for (int b = k - 1; b > 0; --b) {
-          acc.grow(bins[b].box);
-          cnt += bins[b].count;
+          acc.grow(bins[axis][b].box());
+          cnt += bins[axis][b].count;
           right_area[b] = acc.area();
           right_count[b] = cnt;
         }
         acc = Box3();
         cnt = 0;
         for (int b = 0; b < k - 1; ++b) {
-          acc.grow(bins[b].box);
-          cnt += bins[b].count;
+          acc.grow(bins[axis][b].box());
+          cnt += bins[axis][b].count;
           ++st.sah_evaluations;
           if (cnt == 0 || right_count[b + 1] == 0) continue;
           const float cost = acc.area() * float(cnt) + right_area[b + 1] * float(right_count[b + 1]);
@@ -125,11 +156,10 @@ class Builder {
       const float leaf_cost = float(n) * area;
       if (n <= uint32_t(p_.bvh_max_leaf) && !(split_cost < leaf_cost)) return make_leaf();
       if (best_axis >= 0) {
-        const float lo = cbox.lo[best_axis];
-        const float scale = float(k) * (1.0f - 1e-6f) / ce[best_axis];
+        const float blo = lo[best_axis], bscale = scale[best_axis];
         const auto it = std::partition(
             prims_.begin() + begin, prims_.begin() + end, [&](uint32_t prim) {
-              return bin_of(centroids_[prim][best_axis], lo, scale, k) <= best_bin;
+              return bin_of(centroids_[prim][best_axis], blo, bscale, k) <= best_bin;
             });
         mid = uint32_t(it - prims_.begin());
       }

@@ -13,14 +13,14 @@
 namespace kdgrid {
 
 std::vector<std::string> accelerator_names() {
-  return {"brute", "bvh", "grid", "kdtree", "hybrid", "irregular", "embree"};
+  return {"brute", "bvh", "kdtree", "grid", "hybrid", "irregular", "embree"};
 }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "brute") return std::make_unique<BruteForce>();
   if (name == "bvh") return std::make_unique<Bvh>();
-  if (name == "grid") return std::make_unique<UniformGrid>();
   if (name == "kdtree") return std::make_unique<KdTree>();
+  if (name == "grid") return std::make_unique<UniformGrid>();
   if (name == "hybrid") return std::make_unique<Hybrid>();
   if (name == "irregular") return std::make_unique<IrregularGrid>();
   if (name == "embree") return std::make_unique<EmbreeAccel>();

@@ -31,8 +31,8 @@ bool triangle_overlaps_box(const Vec3d& a, const Vec3d& b, const Vec3d& c, const
   }
   auto separated = [&](const Vec3d& axis) {
     const double p0 = dot(axis, v[0]), p1 = dot(axis, v[1]), p2 = dot(axis, v[2]);
-    const double r = half[0] * std::fabs(axis.x) + half[1] * std::fabs(axis.y) +
-                     half[2] * std::fabs(axis.z);
+    const double r =
+        half[0] * std::fabs(axis.x) + half[1] * std::fabs(axis.y) + half[2] * std::fabs(axis.z);
     return std::min({p0, p1, p2}) > r || std::max({p0, p1, p2}) < -r;
   };
   const Vec3d e[3] = {v[1] - v[0], v[2] - v[1], v[0] - v[2]};
@@ -178,8 +178,8 @@ struct IrregularGrid::Builder {
     // Cleary's / Wald et al.'s rule: cells = density * N with cubic cells shaped by the box:
     // resolution_a = round(extent_a * cbrt(density * N / volume)), at least 1.
     const double n = double(valid.size());
-    const double k = std::cbrt(double(params.irregular_top_density) * n /
-                               (ext[0] * ext[1] * ext[2]));
+    const double k =
+        std::cbrt(double(params.irregular_top_density) * n / (ext[0] * ext[1] * ext[2]));
     double r[3], top_cells = 1;
     for (int a = 0; a < 3; ++a) {
       r[a] = std::max(1.0, std::round(ext[a] * k));
@@ -251,9 +251,10 @@ struct IrregularGrid::Builder {
       const size_t end = std::min(valid.size(), (ch + 1) * kChunk);
       for (size_t i = ch * kChunk; i < end; ++i) {
         const uint32_t tri = valid[i];
-        for_each_overlapped_cell(tri, g.lo_, top_vs, r, padding, [&](int32_t x, int32_t y, int32_t z) {
-          out.emplace_back(uint32_t((size_t(z) * r[1] + y) * r[0] + x), tri);
-        });
+        for_each_overlapped_cell(
+            tri, g.lo_, top_vs, r, padding, [&](int32_t x, int32_t y, int32_t z) {
+              out.emplace_back(uint32_t((size_t(z) * r[1] + y) * r[0] + x), tri);
+            });
       }
     });
     count.assign(num_top, 0);
@@ -262,7 +263,8 @@ struct IrregularGrid::Builder {
       total += v.size();
       for (const auto& p : v) ++count[p.first];
     }
-    if (total >= kNone) throw ParamError("irregular grid: more than 2^32 references; lower irregular_top_density");
+    if (total >= kNone)
+      throw ParamError("irregular grid: more than 2^32 references; lower irregular_top_density");
     begin.assign(num_top + 1, 0);
     for (size_t i = 0; i < num_top; ++i) begin[i + 1] = begin[i] + count[i];
     top_refs.resize(total);
@@ -299,13 +301,12 @@ struct IrregularGrid::Builder {
       }
       sub_cells += double(uint64_t(1) << total_log);
     }
-    const double need =
-        sub_cells * double(sizeof(uint32_t) + sizeof(BCell) + sizeof(Cell) + 24) +
-        double(top_refs.size()) * 3.0 * sizeof(uint32_t);
+    const double need = sub_cells * double(sizeof(uint32_t) + sizeof(BCell) + sizeof(Cell) + 24) +
+                        double(top_refs.size()) * 3.0 * sizeof(uint32_t);
     if (need > double(budget) || sub_cells >= double(kNone))
       throw ParamError("irregular_sub_density = " + std::to_string(params.irregular_sub_density) +
-                       " asks for " + std::to_string(uint64_t(sub_cells)) +
-                       " cells (about " + format_bytes(need) + "), beyond the memory budget of " +
+                       " asks for " + std::to_string(uint64_t(sub_cells)) + " cells (about " +
+                       format_bytes(need) + "), beyond the memory budget of " +
                        format_bytes(double(budget)) +
                        ": use a density near the default 2.4 or raise memory_budget");
     g.shift_ = shift;
@@ -446,8 +447,8 @@ struct IrregularGrid::Builder {
         int32_t ulo[3] = {c1.lo[0], c1.lo[1], c1.lo[2]}, uhi[3] = {c2.hi[0], c2.hi[1], c2.hi[2]};
         const double a1 = half_area(c1.lo, c1.hi), a2 = half_area(c2.lo, c2.hi),
                      au = half_area(ulo, uhi);
-        const double apart = a1 * (c1.count + kMergeTraversalCost) +
-                             a2 * (c2.count + kMergeTraversalCost);
+        const double apart =
+            a1 * (c1.count + kMergeTraversalCost) + a2 * (c2.count + kMergeTraversalCost);
         // The union holds at least max(n1, n2) references: skip the count when even that loses.
         if (au * (std::max(c1.count, c2.count) + kMergeTraversalCost) > apart) continue;
         ++evals;
@@ -530,8 +531,10 @@ struct IrregularGrid::Builder {
   // Step 5: expansion. A face of a cell's exit box moves one layer of neighbouring cells
   // outwards when every voxel of that layer belongs to cells whose references are a subset of
   // this cell's (so a ray inside the grown box can only meet triangles already tested). The
-  // six faces take turns, one layer each, until none can grow; a face that failed can never
-  // succeed later, since growing other faces only adds voxels to its layer.
+  // six faces take turns, one layer each, for kExpansionRounds rounds (the paper's fixed
+  // iteration count, which keeps the cost linear in the cells: without it an unmerged empty
+  // cell would sweep the whole empty space around it). A face that failed is not retried:
+  // growing other faces only adds voxels to its layer, so it cannot succeed later.
   bool subset_of(const BCell& small, const BCell& big) const {
     if (small.count == 0) return true;
     if (small.count > big.count) return false;
@@ -585,15 +588,16 @@ struct IrregularGrid::Builder {
       uint64_t local = 0;
       for (size_t i = rg.begin(); i < rg.end(); ++i) {
         bool open[6] = {true, true, true, true, true, true};
-        bool any_open = true, grew = false;
-        while (any_open) {
-          any_open = false;
+        bool grew = false;
+        for (int round = 0; round < kExpansionRounds; ++round) {
+          bool any = false;
           for (int f = 0; f < 6; ++f) {
             if (!open[f]) continue;
             open[f] = grow_face(cells[i], exit_boxes[i], f >> 1, f & 1);
-            any_open |= open[f];
-            grew |= open[f];
+            any |= open[f];
           }
+          if (!any) break;
+          grew = true;
         }
         local += grew;
       }
@@ -669,7 +673,8 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.max_depth = cells_.empty() ? 0 : 2;
   stats_.sah_evaluations = b.merge_evaluations;
   stats_.bytes = sizeof(*this) + map_bytes + cell_bytes + ref_bytes;
-  stats_.bytes_by_part = {{"voxel map", map_bytes}, {"cells", cell_bytes}, {"references", ref_bytes}};
+  stats_.bytes_by_part = {
+      {"voxel map", map_bytes}, {"cells", cell_bytes}, {"references", ref_bytes}};
   stats_.extra = {
       {"top resolution", format_res(top_res_)},
       {"lattice resolution", format_res(res_)},

@@ -16,7 +16,8 @@
 //   4. Merge: passes along x, y, z join aligned neighbours when the cost of the union is no
 //      larger than the two apart (cost below), until a round of three passes merges < 0.1%.
 //   5. Expansion: each cell's exit box grows over neighbouring cells whose references are a
-//      subset of its own, so rays leave it later and skip cells that cannot add a hit.
+//      subset of its own, so rays leave it later and skip cells that cannot add a hit. The
+//      cell count does not change; BuildStats::extra "cells expanded" counts grown boxes.
 //
 // Traversal: clip to the grid box, look up the voxel of the entry point, test the cell's
 // triangles, intersect the far planes of its exit box; stop if the closest hit is before the
@@ -53,9 +54,12 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
   static constexpr uint64_t kMergeMinCells = 4;
   /// Upper bound on merge rounds, a safety net; convergence is normally reached far earlier.
   static constexpr int kMergeMaxRounds = 64;
-  /// Rounds of expansion over the six faces (the paper and hagrid use 3 iterations); each
-  /// face grows as far as the subset rule allows within a round.
+  /// Rounds of expansion: in each round every face of a cell's exit box tries to move out by
+  /// one layer of neighbouring cells (the paper and hagrid use 3 iterations).
   static constexpr int kExpansionRounds = 3;
+  /// Mailbox slots per ray (direct-mapped by triangle index): a triangle referenced by several
+  /// cells along the ray is tested once while it stays in its slot. A power of two.
+  static constexpr uint32_t kMailboxSlots = 8;
 
   std::string name() const override { return "irregular"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
@@ -108,8 +112,8 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
     const int32_t lx = (v[0] & m) >> (shift_ - e.log[0]);
     const int32_t ly = (v[1] & m) >> (shift_ - e.log[1]);
     const int32_t lz = (v[2] & m) >> (shift_ - e.log[2]);
-    return sub_[e.base + ((size_t(lz) << (e.log[1] + e.log[0])) | (size_t(ly) << e.log[0]) |
-                          size_t(lx))];
+    return sub_[e.base +
+                ((size_t(lz) << (e.log[1] + e.log[0])) | (size_t(ly) << e.log[0]) | size_t(lx))];
   }
 
   /// Lattice coordinate of world coordinate p on `axis`, clamped into the lattice.
@@ -131,11 +135,11 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
   bool walk(const Ray& ray, Hit* hit, S& s) const;
 
   const Mesh* mesh_ = nullptr;
-  double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0};  ///< grid box (padded scene box)
+  double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0};      ///< grid box (padded scene box)
   double vs_[3] = {1, 1, 1}, inv_vs_[3] = {1, 1, 1};  ///< finest voxel size and its inverse
-  int32_t res_[3] = {0, 0, 0};      ///< finest lattice resolution = top_res_ << shift_
+  int32_t res_[3] = {0, 0, 0};  ///< finest lattice resolution = top_res_ << shift_
   int32_t top_res_[3] = {0, 0, 0};
-  int shift_ = 0;                   ///< S: log2 of the finest voxels per top cell per axis
+  int shift_ = 0;  ///< S: log2 of the finest voxels per top cell per axis
   std::vector<TopEntry> top_;
   std::vector<uint32_t> sub_;
   std::vector<Cell> cells_;
@@ -179,6 +183,9 @@ bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
   float best = ray.tmax;
   bool found = false;
   double t_in = t0;
+  // Re-testing a triangle cannot change the result (best only decreases), so skip repeats.
+  uint32_t mailbox[kMailboxSlots];
+  std::fill(mailbox, mailbox + kMailboxSlots, kInvalidPrim);
   // Each step moves the exit-axis coordinate by at least one voxel and no coordinate ever
   // moves backwards, so a traversal takes at most res_x + res_y + res_z steps.
   const int64_t bound = int64_t(res_[0]) + res_[1] + res_[2] + 2;
@@ -210,6 +217,12 @@ bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
       s.leaf();
       for (uint32_t i = c.begin; i < c.end; ++i) {
         const uint32_t prim = refs_[i];
+        uint32_t& slot = mailbox[prim & (kMailboxSlots - 1)];
+        if (slot == prim) {
+          s.mailbox_skip();
+          continue;
+        }
+        slot = prim;
         const auto& tri = tris[prim];
         s.tri_test(prim);
         float t, u, w;

@@ -60,11 +60,18 @@ struct BuildParams {
   float hybrid_intersection_cost = 1.5f;
 
   // ---- irregular grid (Pérard-Gayot et al. 2017) -----------------------------------------
-  /// Top-level density: cells per primitive.
+  /// Top-level density: top cells per triangle, shaped by the scene box (resolution per axis
+  /// round(extent * cbrt(density * N / volume)), Cleary/Wald rule). 0.12 is the paper's default
+  /// for static scenes. > 0; a density whose cells exceed memory_budget throws ParamError.
   float irregular_top_density = 0.12f;
-  /// Second-level density: cells per reference in each top cell.
+  /// Second-level density: cells per reference inside each non-empty top cell (per-axis
+  /// resolution rounded to a power of two, at most 64). 2.4 is the paper's static default.
   float irregular_sub_density = 2.4f;
+  /// Merge aligned neighbour cells while the SAH-like cost (half area * (refs + 1)) does not
+  /// grow. On by default, as in the paper; off only to measure its effect.
   bool irregular_merge = true;
+  /// Expand each cell's exit box over neighbours whose references are a subset of its own,
+  /// so rays skip cells that cannot add a hit. On by default, as in the paper.
   bool irregular_expand = true;
 
   // ---- Embree ----------------------------------------------------------------------------

@@ -1,0 +1,72 @@
+// `kdgrid rays SCENE --set primary|shadow|diffuse|random -o FILE.rays`: writes a benchmark
+// ray set (BENCHMARK.md) so that any tool can trace exactly the same rays.
+#include <cstdio>
+#include <memory>
+
+#include "bench/rayfile.h"
+#include "bench/raysets.h"
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "scene/load.h"
+#include "util/error.h"
+#include "util/paths.h"
+
+namespace kdgrid::cli {
+
+namespace {
+struct RaysArgs {
+  std::string scene, set = "primary", res = "1024", out;
+  uint64_t seed = 1;
+  size_t count = 100000;
+  AccelOptions accel;
+  CameraOptions camera;
+};
+}  // namespace
+
+void add_rays_command(CLI::App& app) {
+  auto* cmd = app.add_subcommand(
+      "rays",
+      "Write a benchmark ray set (.rays, BENCHMARK.md). The camera is the canonical camera of "
+      "BENCHMARK.md unless --eye/--target/--fov are given, even if the scene file has its own "
+      "camera, so that ray sets are comparable across scenes and tools.");
+  auto a = std::make_shared<RaysArgs>();
+  cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
+  cmd->add_option("--set", a->set,
+                  "primary (one ray per pixel centre), shadow (from primary hits to the "
+                  "benchmark light), diffuse (cosine bounce from primary hits) or random")
+      ->capture_default_str();
+  cmd->add_option("--res", a->res, "Image size W or WxH of the primary rays")
+      ->capture_default_str();
+  cmd->add_option("--seed", a->seed, "Seed of the diffuse and random sets")->capture_default_str();
+  cmd->add_option("--count", a->count, "Number of rays of the random set")->capture_default_str();
+  cmd->add_option("-o,--output", a->out, "Output .rays file")->required();
+  a->accel.add_to(cmd, "bvh");
+  a->camera.add_to(cmd);
+  cmd->callback([a] {
+    RaySetSpec spec;
+    spec.kind = parse_ray_set(a->set);
+    parse_resolution(a->res, spec.width, spec.height);
+    spec.seed = a->seed;
+    spec.count = a->count;
+    const BuildParams params = a->accel.resolve();
+    const Scene scene = load_scene(resolve_scene_path(a->scene));
+    const Camera cam = a->camera.apply(canonical_camera(scene.mesh.bounds()));
+    spec.camera = cam;
+    std::unique_ptr<Accelerator> accel;
+    if (spec.kind == RaySetKind::Shadow || spec.kind == RaySetKind::Diffuse)
+      accel = build_accelerator(a->accel.accel, scene.mesh, params);
+    const std::vector<Ray> rays = make_ray_set(spec, scene.mesh, accel.get());
+    write_rays(a->out, rays);
+    if (spec.kind == RaySetKind::Random)
+      std::printf("wrote %zu random rays (seed %llu) to %s\n", rays.size(),
+                  (unsigned long long)spec.seed, a->out.c_str());
+    else
+      std::printf("wrote %zu %s rays (%dx%d, camera --eye %g,%g,%g --target %g,%g,%g --fov %g%s) "
+                  "to %s\n",
+                  rays.size(), to_string(spec.kind), spec.width, spec.height, cam.eye.x,
+                  cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z, cam.fov_deg,
+                  accel ? (", primary hits by " + accel->name()).c_str() : "", a->out.c_str());
+  });
+}
+
+}  // namespace kdgrid::cli

@@ -1,0 +1,295 @@
+// `kdgrid trace`: traces a .rays file with one structure and reports speed, per-ray
+// traversal counts and build figures; or, with --pixel, prints the step-by-step traversal
+// of one primary ray (the command line the viewer prints for a picked pixel).
+#include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+
+#include <nlohmann/json.hpp>
+
+#include "accel/accelerator.h"
+#include "bench/rayfile.h"
+#include "cli/commands.h"
+#include "cli/common.h"
+#include "render/camera.h"
+#include "scene/load.h"
+#include "util/error.h"
+#include "util/paths.h"
+
+namespace kdgrid::cli {
+
+namespace {
+
+struct TraceArgs {
+  std::string scene, rays, hits, pixel, res = "1024x1024";
+  int threads = 0;
+  int repeat = 5;
+  bool json = false;
+  bool any = false;
+  AccelOptions accel;
+  CameraOptions camera;
+};
+
+struct Counted {
+  RayCounters c;
+  uint64_t hits = 0;
+};
+
+void print_box(const Box3& b) {
+  std::printf("(%.6g %.6g %.6g)-(%.6g %.6g %.6g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+}
+
+nlohmann::json build_json(const BuildStats& st, size_t tris) {
+  nlohmann::json j;
+  j["seconds"] = st.seconds;
+  j["mtris_per_s"] = st.seconds > 0 ? double(tris) / st.seconds * 1e-6 : 0.0;
+  j["nodes"] = st.nodes;
+  j["leaves"] = st.leaves;
+  j["empty_leaves"] = st.empty_leaves;
+  j["references"] = st.references;
+  j["max_depth"] = st.max_depth;
+  j["sah_evaluations"] = st.sah_evaluations;
+  j["bytes"] = st.bytes;
+  j["bytes_per_triangle"] = tris ? double(st.bytes) / double(tris) : 0.0;
+  for (const auto& [k, v] : st.bytes_by_part) j["bytes_by_part"][k] = v;
+  for (const auto& [k, v] : st.extra) j["extra"][k] = v;
+  return j;
+}
+
+void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& accel) {
+  int w = 0, h = 0;
+  parse_resolution(a.res, w, h);
+  float px = 0, py = 0;
+  if (std::sscanf(a.pixel.c_str(), "%f,%f", &px, &py) != 2 || !(px >= 0 && px < w) ||
+      !(py >= 0 && py < h))
+    throw ParamError("--pixel '" + a.pixel + "' must be X,Y inside the " + std::to_string(w) +
+                     "x" + std::to_string(h) + " image (set the size with --res WxH)");
+  const Camera cam = a.camera.apply(*scene.camera);
+  const CameraFrame f = CameraFrame::make(cam, w, h);
+  // Integer pixel coordinates mean the pixel centre, as in the primary ray set.
+  const bool integral = std::floor(px) == px && std::floor(py) == py;
+  const Ray ray = f.ray(integral ? px + 0.5f : px, integral ? py + 0.5f : py);
+  const Trace tr = accel.trace(ray);
+  if (a.json) {
+    nlohmann::json j;
+    j["ray"] = {{"org", {ray.org.x, ray.org.y, ray.org.z}}, {"dir", {ray.dir.x, ray.dir.y, ray.dir.z}}};
+    for (const TraceStep& s : tr.steps) {
+      nlohmann::json js;
+      js["kind"] = s.kind == StepKind::Inner ? "inner" : (s.kind == StepKind::Leaf ? "leaf" : "cell");
+      js["depth"] = s.depth;
+      js["id"] = s.id;
+      js["box"] = {{s.box.lo.x, s.box.lo.y, s.box.lo.z}, {s.box.hi.x, s.box.hi.y, s.box.hi.z}};
+      js["t_in"] = s.t_in;
+      js["t_out"] = s.t_out;
+      js["tested"] = std::vector<uint32_t>(tr.tested.begin() + s.first_tested,
+                                           tr.tested.begin() + s.first_tested + s.num_tested);
+      j["steps"].push_back(js);
+    }
+    j["hit"] = tr.hit.valid() ? nlohmann::json{{"t", tr.hit.t}, {"prim", tr.hit.prim}}
+                              : nlohmann::json(nullptr);
+    j["counters"] = {{"steps", tr.counters.steps}, {"leaves", tr.counters.leaves},
+                     {"tri_tests", tr.counters.tri_tests},
+                     {"mailbox_skips", tr.counters.mailbox_skips},
+                     {"lookups", tr.counters.lookups}};
+    std::printf("%s\n", j.dump(2).c_str());
+    return;
+  }
+  std::printf("%s, pixel %s of %dx%d, camera --eye %g,%g,%g --target %g,%g,%g --fov %g\n",
+              accel.name().c_str(), a.pixel.c_str(), w, h, cam.eye.x, cam.eye.y, cam.eye.z,
+              cam.target.x, cam.target.y, cam.target.z, cam.fov_deg);
+  std::printf("ray org (%.9g %.9g %.9g) dir (%.9g %.9g %.9g)\n", ray.org.x, ray.org.y, ray.org.z,
+              ray.dir.x, ray.dir.y, ray.dir.z);
+  for (size_t k = 0; k < tr.steps.size(); ++k) {
+    const TraceStep& s = tr.steps[k];
+    std::printf("%4zu %-5s depth %-3d id %-8llu box ", k,
+                s.kind == StepKind::Inner ? "inner" : (s.kind == StepKind::Leaf ? "leaf" : "cell"),
+                s.depth, (unsigned long long)s.id);
+    print_box(s.box);
+    std::printf(" t [%.6g, %.6g]", s.t_in, s.t_out);
+    if (s.num_tested) {
+      std::printf(" tested");
+      for (uint32_t i = 0; i < s.num_tested; ++i) std::printf(" %u", tr.tested[s.first_tested + i]);
+    }
+    std::printf("\n");
+  }
+  if (tr.hit.valid())
+    std::printf("hit triangle %u at t %.9g (u %.4g v %.4g)\n", tr.hit.prim, tr.hit.t, tr.hit.u,
+                tr.hit.v);
+  else
+    std::printf("miss\n");
+  std::printf("steps %llu, leaves %llu, triangle tests %llu, mailbox skips %llu, lookups %llu\n",
+              (unsigned long long)tr.counters.steps, (unsigned long long)tr.counters.leaves,
+              (unsigned long long)tr.counters.tri_tests,
+              (unsigned long long)tr.counters.mailbox_skips,
+              (unsigned long long)tr.counters.lookups);
+}
+
+void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel) {
+  const std::vector<Ray> rays = read_rays(a.rays);
+  const size_t n = rays.size();
+  std::vector<Hit> hits(n);
+  const tbb::blocked_range<size_t> all(0, n, 256);
+
+  // Fast path, timed: median of --repeat runs.
+  std::vector<double> secs;
+  for (int r = 0; r < std::max(1, a.repeat); ++r) {
+    const auto t0 = std::chrono::steady_clock::now();
+    if (a.any) {
+      tbb::parallel_for(all, [&](const tbb::blocked_range<size_t>& br) {
+        for (size_t i = br.begin(); i < br.end(); ++i)
+          hits[i].prim = accel.occluded(rays[i]) ? 0u : kInvalidPrim;
+      });
+    } else {
+      tbb::parallel_for(all, [&](const tbb::blocked_range<size_t>& br) {
+        for (size_t i = br.begin(); i < br.end(); ++i) {
+          Hit h;
+          accel.intersect(rays[i], h);
+          hits[i] = h;
+        }
+      });
+    }
+    secs.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  }
+  std::sort(secs.begin(), secs.end());
+  const double median = secs[secs.size() / 2];
+  const double mrays = median > 0 ? double(n) / median * 1e-6 : 0.0;
+
+  // Counted pass (same traversal template with counters on), not timed.
+  const Counted counted = tbb::parallel_reduce(
+      all, Counted{},
+      [&](const tbb::blocked_range<size_t>& br, Counted acc) {
+        for (size_t i = br.begin(); i < br.end(); ++i) {
+          Hit h;
+          const bool hit = a.any ? accel.occluded_counted(rays[i], acc.c)
+                                 : accel.intersect_counted(rays[i], h, acc.c);
+          acc.hits += hit;
+        }
+        return acc;
+      },
+      [](Counted x, const Counted& y) {
+        x.c += y.c;
+        x.hits += y.hits;
+        return x;
+      });
+
+  if (!a.hits.empty()) {
+    if (a.any) {
+      // Any-hit queries have no t: recompute closest hits so the file means the same thing.
+      tbb::parallel_for(all, [&](const tbb::blocked_range<size_t>& br) {
+        for (size_t i = br.begin(); i < br.end(); ++i) {
+          Hit h;
+          accel.intersect(rays[i], h);
+          hits[i] = h;
+        }
+      });
+    }
+    write_hits(a.hits, hits);
+  }
+
+  const double per = n ? 1.0 / double(n) : 0.0;
+  const BuildStats& st = accel.stats();
+  const size_t tris = scene.mesh.num_triangles();
+  const int threads = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  if (a.json) {
+    nlohmann::json j;
+    j["scene"] = a.scene;
+    j["triangles"] = tris;
+    j["structure"] = accel.name();
+    j["rays_file"] = a.rays;
+    j["rays"] = n;
+    j["query"] = a.any ? "any" : "closest";
+    j["threads"] = threads;
+    j["repetitions"] = secs.size();
+    j["seconds_median"] = median;
+    j["mrays_per_s"] = mrays;
+    j["hit_fraction"] = double(counted.hits) * per;
+    j["has_counters"] = accel.has_counters();
+    j["per_ray"] = {{"steps", double(counted.c.steps) * per},
+                    {"leaves", double(counted.c.leaves) * per},
+                    {"tri_tests", double(counted.c.tri_tests) * per},
+                    {"mailbox_skips", double(counted.c.mailbox_skips) * per},
+                    {"lookups", double(counted.c.lookups) * per}};
+    j["build"] = build_json(st, tris);
+    std::printf("%s\n", j.dump(2).c_str());
+    return;
+  }
+  std::printf("scene        %s (%zu triangles)\n", a.scene.c_str(), tris);
+  std::printf("structure    %s\n", accel.name().c_str());
+  std::printf("rays         %zu from %s (%s hits)\n", n, a.rays.c_str(), a.any ? "any" : "closest");
+  std::printf("speed        %.4g Mrays/s (median of %zu, %d threads, %.4f s)\n", mrays,
+              secs.size(), threads, median);
+  std::printf("hit fraction %.4f\n", double(counted.hits) * per);
+  if (accel.has_counters())
+    std::printf("per ray      %.2f steps, %.2f leaves, %.2f triangle tests, %.2f mailbox skips, "
+                "%.2f lookups\n",
+                double(counted.c.steps) * per, double(counted.c.leaves) * per,
+                double(counted.c.tri_tests) * per, double(counted.c.mailbox_skips) * per,
+                double(counted.c.lookups) * per);
+  else
+    std::printf("per ray      (this structure cannot count its traversal)\n");
+  std::printf("build        %.4f s, %.2f Mtris/s, %llu nodes, %llu leaves, depth %u, %llu refs, "
+              "%llu SAH evaluations\n",
+              st.seconds, st.seconds > 0 ? double(tris) / st.seconds * 1e-6 : 0.0,
+              (unsigned long long)st.nodes, (unsigned long long)st.leaves, st.max_depth,
+              (unsigned long long)st.references, (unsigned long long)st.sah_evaluations);
+  std::printf("memory       %.2f MiB, %.1f bytes/triangle", double(st.bytes) / (1 << 20),
+              tris ? double(st.bytes) / double(tris) : 0.0);
+  for (const auto& [k, v] : st.bytes_by_part)
+    std::printf(", %s %.2f MiB", k.c_str(), double(v) / (1 << 20));
+  std::printf("\n");
+  for (const auto& [k, v] : st.extra) std::printf("  %-10s %s\n", k.c_str(), v.c_str());
+  if (!a.hits.empty()) std::printf("wrote hits to %s\n", a.hits.c_str());
+}
+
+}  // namespace
+
+void add_trace_command(CLI::App& app) {
+  auto* cmd = app.add_subcommand(
+      "trace",
+      "Trace a .rays file with one structure (speed, per-ray counts, build figures), or print "
+      "the step-by-step traversal of one primary ray with --pixel X,Y");
+  auto a = std::make_shared<TraceArgs>();
+  cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
+  auto* rays_opt = cmd->add_option("--rays", a->rays, "Ray file (.rays) to trace");
+  cmd->add_option("--hits", a->hits, "Write the closest hits of the rays to this .hits file");
+  cmd->add_flag("--any", a->any, "Time any-hit (occluded) queries instead of closest hits");
+  cmd->add_option("--threads", a->threads, "Threads for tracing; 0 = all hardware threads")
+      ->capture_default_str();
+  cmd->add_option("--repeat", a->repeat, "Timed repetitions (the median is reported)")
+      ->capture_default_str();
+  cmd->add_flag("--json", a->json, "Print JSON instead of text");
+  auto* pixel_opt = cmd->add_option(
+      "--pixel", a->pixel,
+      "Print the traversal of the primary ray through pixel X,Y (integers: the pixel centre) of "
+      "the scene's camera, changed by the camera flags");
+  cmd->add_option("--res", a->res, "Image size W or WxH for --pixel")->capture_default_str();
+  rays_opt->excludes(pixel_opt);
+  a->accel.add_to(cmd, "bvh");
+  a->camera.add_to(cmd);
+  cmd->callback([a] {
+    if (a->rays.empty() && a->pixel.empty())
+      throw ParamError("trace needs --rays FILE.rays (write one with `kdgrid rays`) or --pixel X,Y");
+    if (a->threads < 0) throw ParamError("--threads must be >= 0 (0 = all hardware threads)");
+    if (a->repeat < 1) throw ParamError("--repeat must be >= 1");
+    const BuildParams params = a->accel.resolve();
+    tbb::global_control gc(tbb::global_control::max_allowed_parallelism,
+                           size_t(effective_threads(a->threads)));
+    const Scene scene = load_scene(resolve_scene_path(a->scene));
+    BuildParams p = params;
+    if (p.threads == 0) p.threads = a->threads;
+    const auto accel = build_accelerator(a->accel.accel, scene.mesh, p);
+    if (!a->pixel.empty())
+      trace_pixel(*a, scene, *accel);
+    else
+      trace_file(*a, scene, *accel);
+  });
+}
+
+}  // namespace kdgrid::cli

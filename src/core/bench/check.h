@@ -1,0 +1,71 @@
+// The extreme-ray suite (`kdgrid check`): every structure against a double-precision brute
+// force reference where floating point breaks first — scaled and far-off scenes,
+// axis-parallel rays, signed zeros, rays lying in the structure's own split planes and cell
+// faces, origins on surfaces and boundaries, grazing rays along edges, degenerate triangles,
+// dense cells, coplanar scenes and NaN/inf rays.
+//
+// Each answer is judged against the reference with an explicit notion of ambiguity, so that
+// only *unambiguous* disagreements count as failures:
+//  - a miss is wrong iff some triangle is hit robustly (the ray passes through its interior,
+//    shrunk by a relative margin) at a t safely inside (tmin, tmax);
+//  - a hit on triangle p at t is wrong iff p is not even loosely hit (triangle grown by the
+//    margin) near t, or some triangle is hit robustly at a t clearly smaller than t.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "accel/params.h"
+#include "math/ray.h"
+#include "scene/mesh.h"
+
+namespace kdgrid {
+
+/// A scene and its rays, each ray labelled with the family it belongs to.
+struct CheckCase {
+  std::string name;
+  Mesh mesh;
+  std::vector<Ray> rays;
+  std::vector<uint8_t> family;  ///< index into check_ray_families(), per ray
+};
+
+/// Names of the ray families ("random", "axis-parallel", "signed-zero", ...).
+const std::vector<std::string>& check_ray_families();
+
+/// The scenes and rays of the suite. rays_per_family rays of each family per scene.
+std::vector<CheckCase> make_check_cases(int rays_per_family, uint64_t seed);
+
+struct CheckResult {
+  std::string structure;
+  std::string case_name;
+  uint64_t rays = 0;
+  uint64_t agree = 0;
+  uint64_t ambiguous = 0;      ///< the reference itself cannot decide (edge, tie, near tmin)
+  uint64_t disagree = 0;       ///< unambiguous disagreements: failures
+  uint64_t any_disagree = 0;   ///< occluded() contradicting an unambiguous reference
+  uint64_t max_steps = 0;      ///< largest per-ray traversal step count seen
+  double seconds = 0;
+  std::string error;           ///< build or traversal exception, if any
+  std::vector<std::string> examples;  ///< first few disagreements, printable
+  std::vector<uint64_t> disagree_by_family;
+};
+
+/// Builds `structure` over the case's mesh (plus rays lying in its own split planes and cell
+/// faces) and judges every ray. Never throws: errors are reported in CheckResult::error.
+CheckResult run_check(const std::string& structure, const CheckCase& c, const BuildParams& params);
+
+/// Self-intersection study: rays leaving random points on random triangles (scales 1e-4 ..
+/// 1e4, translated up to 1e5) away from the surface; counts rays that re-hit their own
+/// triangle with the robust offset and with a fixed epsilon (tmin = eps) for comparison.
+struct AcneResult {
+  double scale = 1;
+  double translation = 0;
+  uint64_t rays = 0;
+  uint64_t robust_self_hits = 0;
+  uint64_t epsilon_self_hits = 0;
+  float epsilon = 1e-4f;
+};
+std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float epsilon = 1e-4f);
+
+}  // namespace kdgrid

@@ -1,0 +1,77 @@
+#include "viewer/image_view.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <OpenImageIO/imageio.h>
+
+#include "render/image_io.h"
+#include "viewer/overlay.h"
+
+namespace kdgrid::viewer {
+
+HeatRange heat_range(const RenderedImage& img, HeatScale scale, float fixed_lo, float fixed_hi) {
+  if (scale == HeatScale::Fixed) return {fixed_lo, std::max(fixed_hi, fixed_lo + 1e-6f)};
+  HeatRange r{kInf, -kInf};
+  for (size_t i = 0; i < img.rgb.size(); i += 3) {
+    r.lo = std::min(r.lo, img.rgb[i]);
+    r.hi = std::max(r.hi, img.rgb[i]);
+  }
+  if (!(r.lo <= r.hi)) return {0, 1};
+  if (r.hi == r.lo) r.hi = r.lo + 1;
+  return r;
+}
+
+float heat_position(float count, HeatRange r, HeatScale scale) {
+  if (scale == HeatScale::Log)
+    return std::log1p(std::max(count - r.lo, 0.0f)) / std::log1p(r.hi - r.lo);
+  return (count - r.lo) / (r.hi - r.lo);
+}
+
+void colorize(const RenderedImage& img, HeatScale scale, HeatRange range, std::vector<uint8_t>& rgba) {
+  const size_t n = size_t(img.width) * size_t(img.height);
+  rgba.resize(n * 4);
+  if (img.mode == RenderMode::Shaded) {
+    std::vector<uint8_t> rgb;
+    tonemap_srgb8(img.rgb, rgb);
+    for (size_t i = 0; i < n; ++i) {
+      rgba[i * 4 + 0] = rgb[i * 3 + 0];
+      rgba[i * 4 + 1] = rgb[i * 3 + 1];
+      rgba[i * 4 + 2] = rgb[i * 3 + 2];
+      rgba[i * 4 + 3] = 255;
+    }
+    return;
+  }
+  for (size_t i = 0; i < n; ++i) {
+    const Color c = ramp(heat_position(img.rgb[i * 3], range, scale));
+    rgba[i * 4 + 0] = uint8_t(std::lround(c.r * 255));
+    rgba[i * 4 + 1] = uint8_t(std::lround(c.g * 255));
+    rgba[i * 4 + 2] = uint8_t(std::lround(c.b * 255));
+    rgba[i * 4 + 3] = 255;
+  }
+}
+
+std::string write_png(const std::string& path, int w, int h, const std::vector<uint8_t>& rgb) {
+  auto out = OIIO::ImageOutput::create(path);
+  if (!out) return path + ": cannot create an image writer (" + OIIO::geterror() + ")";
+  const OIIO::ImageSpec spec(w, h, 3, OIIO::TypeDesc::UINT8);
+  if (!out->open(path, spec) || !out->write_image(OIIO::TypeDesc::UINT8, rgb.data())) {
+    const std::string err = out->geterror();
+    return path + ": write failed (" + err + ")";
+  }
+  out->close();
+  return "";
+}
+
+std::string write_counts_exr(const std::string& path, const RenderedImage& img,
+                             const std::string& description) {
+  try {
+    write_image(path, img.width, img.height, img.rgb,
+                {{"description", description}, {"samples", std::to_string(img.samples)}});
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace kdgrid::viewer

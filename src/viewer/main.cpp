@@ -1,0 +1,157 @@
+// `kdgrid-viewer`: interactive viewer and debugger for kdgrid's acceleration structures.
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <string>
+
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+
+#include <CLI/CLI.hpp>
+#include <tbb/global_control.h>
+#include <memory>
+
+#include "accel/accelerator.h"
+#include "render/image_io.h"
+#include "util/error.h"
+#include "util/paths.h"
+#include "viewer/viewer.h"
+
+namespace {
+
+/// Exit code for "no display / no OpenGL": the caller should render headless instead.
+constexpr int kExitNoDisplay = 3;
+
+void glfw_error(int code, const char* description) {
+  std::fprintf(stderr, "kdgrid-viewer: GLFW error 0x%x: %s\n", code, description);
+}
+
+void print_no_display(const char* why) {
+  std::fprintf(stderr,
+               "kdgrid-viewer: cannot open a window: %s.\n"
+               "  The viewer needs a display (X11 or Wayland). Without one, render to a file:\n"
+               "    kdgrid render SCENE -o out.png\n"
+               "  or run the viewer under a virtual display:\n"
+               "    xvfb-run -a kdgrid-viewer SCENE --frames 10 --screenshot out.png\n",
+               why);
+}
+
+bool env_set(const char* name) {
+  const char* v = std::getenv(name);
+  return v && *v;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using kdgrid::viewer::ViewerOptions;
+  ViewerOptions o;
+  CLI::App app{"kdgrid-viewer: interactive viewer and debugger for kdgrid's acceleration structures"};
+  app.add_option("scene", o.scene, "Scene file (.gltf .glb .ply .obj); default assets/cornell.gltf");
+  o.accel.add_to(&app);
+  o.camera.add_to(&app);
+  const std::string gw = "Window";
+  app.add_option("--width", o.width, "Window width in screen units (default: remembered, else 1280)")
+      ->group(gw)
+      ->check(CLI::Range(64, 16384));
+  app.add_option("--height", o.height, "Window height in screen units (default: remembered, else 800)")
+      ->group(gw)
+      ->check(CLI::Range(64, 16384));
+  app.add_option("--resolution-scale", o.resolution_scale, "Render pixels per framebuffer pixel (0.1-1)")
+      ->group(gw)
+      ->check(CLI::Range(0.1f, 1.0f))
+      ->capture_default_str();
+  app.add_option("--max-samples", o.max_samples, "Stop refining at this many samples per pixel")
+      ->group(gw)
+      ->check(CLI::Range(1, 1 << 20))
+      ->capture_default_str();
+  int threads = 0;
+  app.add_option("--threads", threads,
+                 "Threads for rendering and builds; 0 = all. 1 runs everything on the calling "
+                 "threads, which ThreadSanitizer can follow (libtbb itself is not instrumented)")
+      ->group(gw)
+      ->check(CLI::Range(0, 4096))
+      ->capture_default_str();
+  const std::string gs = "Scripted runs (tests, reports)";
+  app.add_option("--frames", o.frames, "Run at least N frames, then write --screenshot and exit 0")
+      ->group(gs)
+      ->check(CLI::Range(1, 1 << 30));
+  app.add_option("--screenshot", o.screenshot, "PNG of the window (image, overlays, panels) at the end")
+      ->group(gs);
+  app.add_option("--min-samples", o.min_samples, "Scripted: wait for this many samples per pixel")
+      ->group(gs)
+      ->check(CLI::Range(1, 1 << 20))
+      ->capture_default_str();
+  app.add_option("--timeout", o.timeout, "Scripted: give up with exit code 4 after this many seconds")
+      ->group(gs)
+      ->capture_default_str();
+  std::string pick;
+  app.add_option("--pick", pick, "Trace image pixel X,Y (0,0 = top left) and show its traversal")->group(gs);
+  app.add_option("--heatmap", o.heatmap, "Show per-pixel traversal steps or triangle tests")
+      ->group(gs)
+      ->check(CLI::IsMember({"steps", "tests"}));
+  app.add_option("--overlay", o.overlays, "Overlay: splits, cells or boxes (repeatable)")
+      ->group(gs)
+      ->check(CLI::IsMember({"splits", "cells", "boxes"}));
+  app.add_option("--rebuild-cell-size", o.rebuild_cell_size,
+                 "After start-up, rebuild live with this cell size ('auto' or a size) and wait for it")
+      ->group(gs);
+  app.add_option("--export-heatmap", o.export_heatmap,
+                 "Scripted: write the heat map's raw per-pixel counts to this EXR (needs --heatmap)")
+      ->group(gs);
+  app.add_flag("--hide-ui", o.hide_ui, "Hide the ImGui panels (reproducible screenshots)")->group(gs);
+
+  try {
+    app.parse(argc, argv);
+    o.accel_given = app.get_option("--accel")->count() > 0;
+    o.cell_size_given = app.get_option("--cell-size")->count() > 0;
+    if (o.scene.empty()) o.scene = KDGRID_DEFAULT_SCENE;
+    o.scene = kdgrid::resolve_scene_path(o.scene, KDGRID_SOURCE_DIR);
+    // Validate everything that can be validated before a window opens.
+    (void)o.accel.resolve();
+    if (o.accel_given) (void)kdgrid::make_accelerator(o.accel.accel);
+    if (!o.rebuild_cell_size.empty()) (void)kdgrid::cli::parse_cell_size(o.rebuild_cell_size);
+    if (!pick.empty()) {
+      int x = 0, y = 0;
+      char extra = 0;
+      if (std::sscanf(pick.c_str(), "%d,%d%c", &x, &y, &extra) != 2 || x < 0 || y < 0)
+        throw kdgrid::ParamError("--pick '" + pick + "' must be X,Y image pixel coordinates, e.g. 320,240");
+      o.pick = std::array<int, 2>{x, y};
+    }
+    if (!o.screenshot.empty() && !o.scripted())
+      throw kdgrid::ParamError("--screenshot needs --frames N (the number of frames to run first)");
+    if (!o.export_heatmap.empty() && (o.heatmap.empty() || !o.scripted()))
+      throw kdgrid::ParamError("--export-heatmap needs --heatmap steps|tests and --frames N");
+    if (!o.export_heatmap.empty()) kdgrid::check_image_extension(o.export_heatmap);
+    if (o.max_samples < o.min_samples) o.max_samples = o.min_samples;
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const kdgrid::Error& e) {
+    std::fprintf(stderr, "kdgrid-viewer: error: %s\n", e.what());
+    return 2;
+  }
+
+  std::unique_ptr<tbb::global_control> thread_limit;
+  if (threads > 0)
+    thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                         size_t(threads));
+  glfwSetErrorCallback(glfw_error);
+  if (!env_set("DISPLAY") && !env_set("WAYLAND_DISPLAY")) {
+    print_no_display("neither DISPLAY nor WAYLAND_DISPLAY is set");
+    return kExitNoDisplay;
+  }
+  if (!glfwInit()) {
+    print_no_display("GLFW could not initialise (see the GLFW error above)");
+    return kExitNoDisplay;
+  }
+  int code = 0;
+  try {
+    kdgrid::viewer::Viewer v(std::move(o));
+    code = v.run();
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "kdgrid-viewer: error: %s\n", e.what());
+    code = 1;
+  }
+  glfwTerminate();
+  return code;
+}

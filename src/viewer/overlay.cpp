@@ -1,0 +1,208 @@
+#include "viewer/overlay.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "viewer/gl_util.h"
+#include "viewer_shaders.h"
+
+namespace kdgrid::viewer {
+
+Color ramp(float t, float alpha) {
+  // Five stops, evenly spaced; chosen to stay distinguishable over grey renders.
+  static constexpr float kStops[5][3] = {
+      {0.10f, 0.20f, 1.00f}, {0.00f, 0.85f, 1.00f}, {0.10f, 0.95f, 0.20f},
+      {1.00f, 0.90f, 0.00f}, {1.00f, 0.10f, 0.05f}};
+  if (!(t >= 0.0f)) t = 0.0f;  // also catches NaN
+  t = std::min(t, 1.0f) * 4.0f;
+  const int i = std::min(int(t), 3);
+  const float f = t - float(i);
+  return {kStops[i][0] + (kStops[i + 1][0] - kStops[i][0]) * f,
+          kStops[i][1] + (kStops[i + 1][1] - kStops[i][1]) * f,
+          kStops[i][2] + (kStops[i + 1][2] - kStops[i][2]) * f, alpha};
+}
+
+void LineBatch::line(const Vec3& a, const Vec3& b, const Color& c) {
+  verts_.push_back({a.x, a.y, a.z, c.r, c.g, c.b, c.a});
+  verts_.push_back({b.x, b.y, b.z, c.r, c.g, c.b, c.a});
+}
+
+void LineBatch::box(const Box3& b, const Color& c) {
+  if (b.empty()) return;
+  const Vec3 l = b.lo, h = b.hi;
+  const Vec3 p[8] = {{l.x, l.y, l.z}, {h.x, l.y, l.z}, {h.x, h.y, l.z}, {l.x, h.y, l.z},
+                     {l.x, l.y, h.z}, {h.x, l.y, h.z}, {h.x, h.y, h.z}, {l.x, h.y, h.z}};
+  for (int i = 0; i < 4; ++i) {
+    line(p[i], p[(i + 1) % 4], c);          // bottom face (z = lo)
+    line(p[i + 4], p[(i + 1) % 4 + 4], c);  // top face (z = hi)
+    line(p[i], p[i + 4], c);                // verticals
+  }
+}
+
+void LineBatch::split(int axis, float pos, const Box3& nb, const Color& c) {
+  const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+  Vec3 q[4];
+  for (int i = 0; i < 4; ++i) {
+    q[i][axis] = pos;
+    q[i][a1] = (i == 1 || i == 2) ? nb.hi[a1] : nb.lo[a1];
+    q[i][a2] = (i >= 2) ? nb.hi[a2] : nb.lo[a2];
+  }
+  for (int i = 0; i < 4; ++i) line(q[i], q[(i + 1) % 4], c);
+}
+
+void LineBatch::cross3(const Vec3& p, float s, const Color& c) {
+  line(p - Vec3(s, 0, 0), p + Vec3(s, 0, 0), c);
+  line(p - Vec3(0, s, 0), p + Vec3(0, s, 0), c);
+  line(p - Vec3(0, 0, s), p + Vec3(0, 0, s), c);
+}
+
+std::array<float, 16> view_projection(const CameraFrame& f, float n, float fa) {
+  const float aspect = float(f.width) / float(f.height);
+  const float sx = 1.0f / (f.tan_half_fov * aspect), sy = 1.0f / f.tan_half_fov;
+  // Rows of the view matrix: camera x = right, y = up, z = -fwd (GL looks down -z).
+  const Vec3 r = f.right, u = f.up, b = -f.fwd;
+  const float tr = -dot(r, f.eye), tu = -dot(u, f.eye), tb = -dot(b, f.eye);
+  const float A = -(fa + n) / (fa - n), B = -2.0f * fa * n / (fa - n);
+  // P * V written out; m[col * 4 + row].
+  std::array<float, 16> m{};
+  const float rows[4][4] = {{sx * r.x, sx * r.y, sx * r.z, sx * tr},
+                            {sy * u.x, sy * u.y, sy * u.z, sy * tu},
+                            {A * b.x, A * b.y, A * b.z, A * tb + B},
+                            {-b.x, -b.y, -b.z, -tb}};
+  for (int row = 0; row < 4; ++row)
+    for (int col = 0; col < 4; ++col) m[col * 4 + row] = rows[row][col];
+  return m;
+}
+
+bool project_to_pixel(const CameraFrame& f, const Vec3& p, float& px, float& py) {
+  const Vec3 d = p - f.eye;
+  const float z = dot(d, f.fwd);
+  if (!(z > 0.0f)) return false;
+  const float aspect = float(f.width) / float(f.height);
+  const float u = dot(d, f.right) / z / (f.tan_half_fov * aspect);
+  const float v = dot(d, f.up) / z / f.tan_half_fov;
+  px = (u + 1.0f) * 0.5f * f.width;
+  py = (1.0f - v) * 0.5f * f.height;
+  return true;
+}
+
+size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out) {
+  int max_depth = 1;
+  a.for_each_split([&](const SplitPlane& s) { max_depth = std::max(max_depth, s.depth); });
+  size_t n = 0;
+  a.for_each_split([&](const SplitPlane& s) {
+    if (s.depth < lo || s.depth > hi || out.segments() >= kMaxOverlaySegments) return;
+    out.split(s.axis, s.position, s.node_box, ramp(float(s.depth) / float(max_depth), 0.8f));
+    ++n;
+  });
+  return n;
+}
+
+size_t build_cell_overlay(const Accelerator& a, LineBatch& out) {
+  uint32_t max_tris = 1;
+  a.for_each_box([&](const StructureBox& b) {
+    if (b.leaf) max_tris = std::max(max_tris, b.num_triangles);
+  });
+  size_t n = 0;
+  a.for_each_box([&](const StructureBox& b) {
+    if (!b.leaf || out.segments() >= kMaxOverlaySegments) return;
+    // Colour by occupancy on a log scale: most cells hold few triangles.
+    const float t = std::log1p(float(b.num_triangles)) / std::log1p(float(max_tris));
+    out.box(b.box, ramp(t, 0.7f));
+    ++n;
+  });
+  return n;
+}
+
+size_t build_box_overlay(const Accelerator& a, int lo, int hi, LineBatch& out) {
+  int max_depth = 1;
+  a.for_each_box([&](const StructureBox& b) { max_depth = std::max(max_depth, b.depth); });
+  size_t n = 0;
+  a.for_each_box([&](const StructureBox& b) {
+    if (b.depth < lo || b.depth > hi || out.segments() >= kMaxOverlaySegments) return;
+    out.box(b.box, ramp(float(b.depth) / float(max_depth), 0.7f));
+    ++n;
+  });
+  return n;
+}
+
+void build_trace_overlay(const Trace& t, const Ray& ray, const Mesh& mesh, float radius,
+                         LineBatch& out) {
+  const size_t n = t.steps.size();
+  for (size_t i = 0; i < n; ++i) {
+    const float f = n > 1 ? float(i) / float(n - 1) : 1.0f;
+    out.box(t.steps[i].box, ramp(f, 1.0f));
+  }
+  // Tested triangles; a brute-force trace tests every triangle, so cap what is drawn.
+  constexpr size_t kMaxTris = 20000;
+  const size_t nt = std::min(t.tested.size(), kMaxTris);
+  for (size_t i = 0; i < nt; ++i) {
+    const uint32_t prim = t.tested[i];
+    if (prim >= mesh.num_triangles() || prim == t.hit.prim) continue;
+    const auto c = mesh.corners(prim);
+    const Color yellow{1.0f, 0.95f, 0.1f, 0.9f};
+    out.line(c[0], c[1], yellow);
+    out.line(c[1], c[2], yellow);
+    out.line(c[2], c[0], yellow);
+  }
+  float far_t = ray.tmax;
+  if (t.hit.valid()) {
+    far_t = t.hit.t;
+    const auto c = mesh.corners(t.hit.prim);
+    const Color white{1, 1, 1, 1};
+    out.line(c[0], c[1], white);
+    out.line(c[1], c[2], white);
+    out.line(c[2], c[0], white);
+  } else if (!t.steps.empty()) {
+    far_t = t.steps.back().t_out;
+  }
+  if (!std::isfinite(far_t)) far_t = radius * 4.0f;
+  const Color cyan{0.0f, 1.0f, 1.0f, 1.0f};
+  const Vec3 end = ray.at(far_t);
+  out.line(ray.at(std::max(ray.tmin, 0.0f)), end, cyan);
+  // The hit marker's size follows its distance so it stays a few pixels wide on screen.
+  const float size = std::max(far_t * length(ray.dir) * 0.02f, radius * 1e-4f);
+  out.cross3(end, size, cyan);
+}
+
+void LineRenderer::init() {
+  program_ = make_program("lines", shaders::k_lines_vert, shaders::k_lines_frag);
+  u_view_proj_ = glGetUniformLocation(program_, "u_view_proj");
+  u_alpha_ = glGetUniformLocation(program_, "u_alpha");
+  GL_CHECK(glGenVertexArrays(1, &vao_));
+  GL_CHECK(glGenBuffers(1, &vbo_));
+  GL_CHECK(glBindVertexArray(vao_));
+  GL_CHECK(glBindBuffer(GL_ARRAY_BUFFER, vbo_));
+  GL_CHECK(glEnableVertexAttribArray(0));
+  GL_CHECK(glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sizeof(LineVertex), nullptr));
+  GL_CHECK(glEnableVertexAttribArray(1));
+  GL_CHECK(glVertexAttribPointer(1, 4, GL_FLOAT, GL_FALSE, sizeof(LineVertex),
+                                 reinterpret_cast<const void*>(3 * sizeof(float))));
+  GL_CHECK(glBindVertexArray(0));
+}
+
+void LineRenderer::destroy() {
+  if (vbo_) glDeleteBuffers(1, &vbo_);
+  if (vao_) glDeleteVertexArrays(1, &vao_);
+  if (program_) glDeleteProgram(program_);
+  vbo_ = vao_ = program_ = 0;
+}
+
+void LineRenderer::upload(const LineBatch& batch) {
+  count_ = batch.vertices().size();
+  GL_CHECK(glBindBuffer(GL_ARRAY_BUFFER, vbo_));
+  GL_CHECK(glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(count_ * sizeof(LineVertex)),
+                        count_ ? batch.vertices().data() : nullptr, GL_STATIC_DRAW));
+}
+
+void LineRenderer::draw(const std::array<float, 16>& vp, float alpha) const {
+  if (count_ == 0) return;
+  GL_CHECK(glUseProgram(program_));
+  GL_CHECK(glUniformMatrix4fv(u_view_proj_, 1, GL_FALSE, vp.data()));
+  GL_CHECK(glUniform1f(u_alpha_, alpha));
+  GL_CHECK(glBindVertexArray(vao_));
+  GL_CHECK(glDrawArrays(GL_LINES, 0, GLsizei(count_)));
+  GL_CHECK(glBindVertexArray(0));
+}
+
+}  // namespace kdgrid::viewer

@@ -1,0 +1,85 @@
+// Overlays drawn over the ray-traced image: structure split planes, cells/leaves, BVH boxes,
+// and a picked ray's traversal. Lines are built on the CPU in world space and projected with
+// a matrix made from the ray tracer's own CameraFrame, so they line up with the render.
+#pragma once
+
+#include <epoxy/gl.h>
+
+#include <array>
+#include <cstddef>
+#include <vector>
+
+#include "accel/accelerator.h"
+#include "render/camera.h"
+#include "scene/mesh.h"
+
+namespace kdgrid::viewer {
+
+struct Color {
+  float r = 1, g = 1, b = 1, a = 1;
+};
+
+/// Blue (t = 0) to red (t = 1) through cyan, green and yellow; used for depth, visit order
+/// and heat maps.
+Color ramp(float t, float alpha = 1.0f);
+
+struct LineVertex {
+  float x, y, z;
+  float r, g, b, a;
+};
+
+/// World-space line segments with per-vertex colour (GL_LINES).
+class LineBatch {
+ public:
+  void clear() { verts_.clear(); }
+  void line(const Vec3& a, const Vec3& b, const Color& c);
+  void box(const Box3& b, const Color& c);
+  /// Rectangle where the plane axis = pos cuts `node_box`.
+  void split(int axis, float pos, const Box3& node_box, const Color& c);
+  /// Three axis-aligned strokes of half-length `size` through p.
+  void cross3(const Vec3& p, float size, const Color& c);
+  const std::vector<LineVertex>& vertices() const { return verts_; }
+  size_t segments() const { return verts_.size() / 2; }
+
+ private:
+  std::vector<LineVertex> verts_;
+};
+
+/// Column-major view-projection matrix that maps a world point to the same image position
+/// CameraFrame::ray uses for it: x_ndc = dot(p-eye, right) / dot(p-eye, fwd) / (tan*aspect),
+/// y_ndc likewise with up and tan. near/far only bound the clip volume (no depth test).
+std::array<float, 16> view_projection(const CameraFrame& f, float near_dist, float far_dist);
+
+/// Projects p to image pixel coordinates (x right, y down) of frame f; false if behind.
+bool project_to_pixel(const CameraFrame& f, const Vec3& p, float& px, float& py);
+
+/// Limits that keep overlays of huge structures drawable; reported in the panel when hit.
+inline constexpr size_t kMaxOverlaySegments = 3'000'000;
+
+/// Split planes with depth in [depth_lo, depth_hi], coloured by depth. Returns planes seen.
+size_t build_split_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out);
+/// Leaf boxes / non-empty cells (StructureBox::leaf), coloured by triangle count.
+size_t build_cell_overlay(const Accelerator& a, LineBatch& out);
+/// All boxes (BVH nodes) with depth in [depth_lo, depth_hi], coloured by depth.
+size_t build_box_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out);
+/// A picked ray: every visited box in visit order (blue -> red), the tested triangles
+/// (yellow outlines, the hit triangle white), the ray and the hit point (cyan cross).
+void build_trace_overlay(const Trace& t, const Ray& ray, const Mesh& mesh, float scene_radius,
+                         LineBatch& out);
+
+/// GL side: one VBO of lines and the lines shader.
+class LineRenderer {
+ public:
+  void init();
+  void destroy();
+  void upload(const LineBatch& batch);
+  void draw(const std::array<float, 16>& view_proj, float alpha) const;
+  size_t vertex_count() const { return count_; }
+
+ private:
+  GLuint program_ = 0, vao_ = 0, vbo_ = 0;
+  GLint u_view_proj_ = -1, u_alpha_ = -1;
+  size_t count_ = 0;
+};
+
+}  // namespace kdgrid::viewer

@@ -1,0 +1,979 @@
+#include "viewer/viewer.h"
+
+#include <epoxy/gl.h>
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <backends/imgui_impl_glfw.h>
+#include <backends/imgui_impl_opengl3.h>
+#include <imgui.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <filesystem>
+#include <sstream>
+
+#include "scene/load.h"
+#include "util/error.h"
+#include "viewer/gl_util.h"
+#include "viewer_shaders.h"
+
+namespace kdgrid::viewer {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+Viewer* self(GLFWwindow* w) { return static_cast<Viewer*>(glfwGetWindowUserPointer(w)); }
+
+bool same_camera(const Camera& a, const Camera& b) {
+  return a.eye == b.eye && a.target == b.target && a.up == b.up && a.fov_deg == b.fov_deg;
+}
+
+/// Quotes a path for a shell command line when it needs it.
+std::string shell_quote(const std::string& s) {
+  if (s.find_first_of(" \t'\"\\$`()&;|<>*?") == std::string::npos) return s;
+  std::string q = "'";
+  for (char c : s) q += (c == '\'') ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+std::string format_bytes(uint64_t b) {
+  char buf[64];
+  if (b >= (1ull << 20))
+    std::snprintf(buf, sizeof buf, "%.2f MiB", double(b) / double(1 << 20));
+  else if (b >= 1024)
+    std::snprintf(buf, sizeof buf, "%.1f KiB", double(b) / 1024.0);
+  else
+    std::snprintf(buf, sizeof buf, "%llu B", (unsigned long long)b);
+  return buf;
+}
+
+std::string fmt_float(float v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.9g", v);
+  return buf;
+}
+
+/// The build flags of `p` that differ from the defaults, as `kdgrid` options, so a printed
+/// command line rebuilds the very same structure.
+std::string accel_flags(const std::string& name, const BuildParams& p) {
+  const BuildParams d;
+  std::string s = " --accel " + name;
+  if (p.cell_size > 0) s += " --cell-size " + fmt_float(p.cell_size);
+  if (p.cell_percentile != d.cell_percentile) s += " --cell-percentile " + fmt_float(p.cell_percentile);
+  if (p.hybrid_dense_matrix) s += " --dense-matrix";
+  if (p.grid_lambda != d.grid_lambda) s += " --grid-lambda " + fmt_float(p.grid_lambda);
+  if (p.kd_intersection_cost != d.kd_intersection_cost)
+    s += " --kd-cost-ratio " + fmt_float(p.kd_intersection_cost);
+  if (p.bvh_max_leaf != d.bvh_max_leaf) s += " --bvh-leaf " + std::to_string(p.bvh_max_leaf);
+  if (p.triangle_test != d.triangle_test) s += std::string(" --triangle-test ") + to_string(p.triangle_test);
+  return s;
+}
+
+const char* mode_name(RenderMode m) {
+  switch (m) {
+    case RenderMode::Shaded: return "shaded";
+    case RenderMode::HeatSteps: return "steps";
+    case RenderMode::HeatTests: return "tests";
+  }
+  return "shaded";
+}
+
+const char* kind_name(StepKind k) {
+  switch (k) {
+    case StepKind::Inner: return "inner";
+    case StepKind::Leaf: return "leaf";
+    case StepKind::Cell: return "cell";
+  }
+  return "?";
+}
+
+void push_history(std::deque<float>& h, float v) {
+  h.push_back(v);
+  while (h.size() > 120) h.pop_front();
+}
+
+}  // namespace
+
+// ---- construction --------------------------------------------------------------------------
+
+Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
+  // Scripted runs are reproducible: they neither read nor write the remembered settings.
+  if (!opts_.scripted()) {
+    config_dir_ = config_dir();
+    settings_ = load_settings(config_dir_);
+  }
+  std::string cs = opts_.accel.cell_size;
+  if (!opts_.cell_size_given && !settings_.cell_size.empty()) cs = settings_.cell_size;
+  const auto names = accelerator_names();
+  const auto valid = [&](const std::string& n) {
+    return std::find(names.begin(), names.end(), n) != names.end();
+  };
+  accel_name_ = opts_.accel.accel;
+  if (!opts_.accel_given) {
+    if (valid(settings_.accel))
+      accel_name_ = settings_.accel;
+    else if (!valid(accel_name_))
+      accel_name_ = names.front();  // the default structure is not built into this binary
+  }
+  params_ = opts_.accel.resolve();
+  try {
+    params_.cell_size = cli::parse_cell_size(cs);
+    cell_size_text_ = cs;
+  } catch (const ParamError&) {
+    params_.cell_size = 0;  // a bad remembered value falls back to auto
+  }
+  if (opts_.heatmap == "steps") mode_ = RenderMode::HeatSteps;
+  if (opts_.heatmap == "tests") mode_ = RenderMode::HeatTests;
+  for (const auto& o : opts_.overlays) {
+    if (o == "splits") show_splits_ = true;
+    if (o == "cells") show_cells_ = true;
+    if (o == "boxes") show_boxes_ = true;
+  }
+}
+
+Viewer::~Viewer() { shutdown(); }
+
+bool Viewer::create_window() {
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
+  glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
+  glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
+  glfwWindowHint(GLFW_SCALE_TO_MONITOR, GLFW_TRUE);
+  int w = opts_.width > 0 ? opts_.width : settings_.window_width;
+  int h = opts_.height > 0 ? opts_.height : settings_.window_height;
+  w = std::clamp(w, 64, 16384);
+  h = std::clamp(h, 64, 16384);
+  window_ = glfwCreateWindow(w, h, "kdgrid-viewer", nullptr, nullptr);
+  if (!window_) {
+    std::fprintf(stderr,
+                 "kdgrid-viewer: could not create a window with an OpenGL 3.3 core context "
+                 "(see the GLFW error above). On a machine without a suitable GPU driver try "
+                 "LIBGL_ALWAYS_SOFTWARE=1 (Mesa llvmpipe), or render without a window: "
+                 "kdgrid render SCENE -o out.png\n");
+    return false;
+  }
+  glfwSetWindowUserPointer(window_, this);
+  glfwMakeContextCurrent(window_);
+  // Interactive: follow the display's refresh. Scripted: never block on vsync.
+  glfwSwapInterval(opts_.scripted() ? 0 : 1);
+  return true;
+}
+
+void Viewer::init_gl() {
+  image_program_ = make_program("image", shaders::k_image_vert, shaders::k_image_frag);
+  GL_CHECK(glGenVertexArrays(1, &empty_vao_));
+  GL_CHECK(glGenTextures(1, &tex_));
+  GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
+  // Nearest: one texel per image pixel when the render matches the framebuffer, and picked
+  // pixels stay crisp when it does not.
+  GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST));
+  GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST));
+  GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE));
+  GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE));
+  structure_lines_.init();
+  trace_lines_.init();
+
+  // Our callbacks first; ImGui's backend then chains to them, so ImGui sees input first and
+  // we gate on WantCaptureMouse / WantCaptureKeyboard (STYLE.md rule 8).
+  glfwSetKeyCallback(window_, [](GLFWwindow* w, int k, int s, int a, int m) { self(w)->on_key(k, s, a, m); });
+  glfwSetMouseButtonCallback(window_, [](GLFWwindow* w, int b, int a, int m) {
+    self(w)->on_mouse_button(b, a, m);
+  });
+  glfwSetScrollCallback(window_, [](GLFWwindow* w, double dx, double dy) { self(w)->on_scroll(dx, dy); });
+  glfwSetDropCallback(window_, [](GLFWwindow* w, int n, const char** p) { self(w)->on_drop(n, p); });
+
+  IMGUI_CHECKVERSION();
+  ImGui::CreateContext();
+  ImGuiIO& io = ImGui::GetIO();
+  if (!opts_.scripted() && !config_dir_.empty()) {
+    ini_path_ = (std::filesystem::path(config_dir_) / "imgui.ini").string();
+    io.IniFilename = ini_path_.c_str();
+  } else {
+    io.IniFilename = nullptr;  // scripted runs use the default layout
+  }
+  ImGui::StyleColorsDark();
+  float sx = 1, sy = 1;
+  glfwGetWindowContentScale(window_, &sx, &sy);
+  const float scale = std::max(1.0f, std::max(sx, sy));
+  if (scale > 1.0f) {
+    ImGui::GetStyle().ScaleAllSizes(scale);
+    io.FontGlobalScale = scale;
+  }
+  ImGui_ImplGlfw_InitForOpenGL(window_, true);
+  ImGui_ImplOpenGL3_Init("#version 330 core");
+}
+
+void Viewer::shutdown() {
+  // The worker goes first: it may hold the last reference to a world.
+  worker_.reset();
+  if (task_) {
+    task_->result.wait();  // a build cannot be interrupted; finish it before tearing down
+    task_.reset();
+  }
+  if (!window_) return;
+  if (!opts_.scripted()) {
+    glfwGetWindowSize(window_, &settings_.window_width, &settings_.window_height);
+    settings_.accel = accel_name_;
+    settings_.cell_size = params_.cell_size > 0 ? fmt_float(params_.cell_size) : "auto";
+    save_settings(config_dir_, settings_);
+  }
+  ImGui_ImplOpenGL3_Shutdown();
+  ImGui_ImplGlfw_Shutdown();
+  ImGui::DestroyContext();
+  structure_lines_.destroy();
+  trace_lines_.destroy();
+  if (tex_) glDeleteTextures(1, &tex_);
+  if (empty_vao_) glDeleteVertexArrays(1, &empty_vao_);
+  if (image_program_) glDeleteProgram(image_program_);
+  glfwDestroyWindow(window_);
+  window_ = nullptr;
+}
+
+// ---- worlds ----------------------------------------------------------------------------------
+
+float Viewer::scene_radius() const {
+  if (!world_) return 1.0f;
+  return std::max(length(world_->scene->mesh.bounds().extent()) * 0.5f, 1e-6f);
+}
+
+BuildParams Viewer::params_with_cell_size(const std::string& name, float cs) const {
+  BuildParams p = params_;
+  if (name == "grid" && cs > 0 && world_) {
+    // The uniform grid has no cell size knob; pick the density that gives cells of about
+    // this edge: cells = volume / cs^3 = lambda * triangles.
+    const Vec3 e = world_->scene->mesh.bounds().extent();
+    const double v = double(std::max(e.x, cs)) * std::max(e.y, cs) * std::max(e.z, cs);
+    const double cells = v / (double(cs) * cs * cs);
+    p.grid_lambda = float(std::clamp(cells / double(world_->scene->mesh.num_triangles()), 1e-3, 1e3));
+  } else {
+    p.cell_size = cs;
+  }
+  return p;
+}
+
+void Viewer::start_load(const std::string& path) {
+  if (task_) {
+    task_error_ = "busy " + task_->what + "; drop the file again when it is done";
+    return;
+  }
+  task_error_.clear();
+  const std::string name = accel_name_;
+  const BuildParams params = params_;
+  Task t;
+  t.what = "loading " + std::filesystem::path(path).filename().string();
+  t.new_scene = true;
+  t.started = Clock::now();
+  t.result = std::async(std::launch::async, [path, name, params] {
+    auto scene = std::make_shared<Scene>(load_scene(path));
+    auto w = std::make_shared<World>();
+    w->scene = scene;
+    w->name = name;
+    w->params = params;
+    const auto t0 = Clock::now();
+    w->accel = build_accelerator(name, scene->mesh, params);
+    w->build_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    return w;
+  });
+  task_ = std::move(t);
+}
+
+void Viewer::start_build(const std::string& name, const BuildParams& params) {
+  if (!world_) return;
+  if (task_) {
+    pending_build_ = {name, params};  // newest request wins; builds cannot be interrupted
+    return;
+  }
+  task_error_.clear();
+  std::shared_ptr<const Scene> scene = world_->scene;
+  Task t;
+  t.what = "building " + name;
+  t.started = Clock::now();
+  t.result = std::async(std::launch::async, [scene, name, params] {
+    auto w = std::make_shared<World>();
+    w->scene = scene;
+    w->name = name;
+    w->params = params;
+    const auto t0 = Clock::now();
+    w->accel = build_accelerator(name, scene->mesh, params);
+    w->build_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    return w;
+  });
+  task_ = std::move(t);
+}
+
+void Viewer::poll_tasks() {
+  if (!task_ || task_->result.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+  const bool new_scene = task_->new_scene;
+  const bool was_scripted_rebuild = scripted_rebuild_started_ && !scripted_rebuild_done_ && !new_scene;
+  try {
+    std::shared_ptr<World> w = task_->result.get();
+    std::printf("kdgrid-viewer: %s %s in %.3f s (%s)\n", new_scene ? "loaded and built" : "rebuilt",
+                w->name.c_str(), w->build_seconds, format_bytes(w->accel->stats().bytes).c_str());
+    std::fflush(stdout);
+    install_world(std::move(w), new_scene);
+  } catch (const std::exception& e) {
+    task_error_ = e.what();
+    std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(), e.what());
+  }
+  task_.reset();
+  if (was_scripted_rebuild) scripted_rebuild_done_ = true;
+  if (pending_build_) {
+    auto [name, params] = *pending_build_;
+    pending_build_.reset();
+    start_build(name, params);
+  }
+}
+
+void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
+  if (new_scene) {
+    const bool first = !world_;
+    built_.clear();
+    Camera c = *w->scene->camera;
+    // Command-line camera flags apply to the scene given on the command line only.
+    if (first) c = opts_.camera.apply(c);
+    cam_.reset(c, w->scene->mesh.bounds());
+    pick_.reset();
+    trace_lines_.upload(LineBatch{});
+  }
+  accel_name_ = w->name;
+  params_ = w->params;
+  built_[w->name] = w;
+  world_ = std::move(w);
+  overlay_dirty_ = true;
+  if (pick_) do_pick(pick_->x, pick_->y);  // retrace the picked pixel through the new structure
+}
+
+// ---- input -----------------------------------------------------------------------------------
+
+void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
+  if (action != GLFW_PRESS || ImGui::GetIO().WantCaptureKeyboard) return;
+  switch (key) {
+    case GLFW_KEY_TAB:
+      cam_.toggle_mode();
+      break;
+    case GLFW_KEY_HOME:
+      cam_.frame_scene();
+      break;
+    case GLFW_KEY_C:
+      message_ = cam_.cli_flags();
+      std::printf("%s\n", message_.c_str());
+      std::fflush(stdout);
+      break;
+    case GLFW_KEY_EQUAL:
+    case GLFW_KEY_KP_ADD:
+      cam_.scale_speed(1.25f);
+      break;
+    case GLFW_KEY_MINUS:
+    case GLFW_KEY_KP_SUBTRACT:
+      cam_.scale_speed(1.0f / 1.25f);
+      break;
+    case GLFW_KEY_F12:
+    case GLFW_KEY_P:
+      save_screenshot(default_output_name("kdgrid-screenshot", "png"));
+      break;
+    default:
+      break;
+  }
+  (void)mods;
+}
+
+void Viewer::on_mouse_button(int button, int action, int mods) {
+  double x, y;
+  glfwGetCursorPos(window_, &x, &y);
+  if (action == GLFW_PRESS) {
+    if (ImGui::GetIO().WantCaptureMouse) return;
+    if (button == GLFW_MOUSE_BUTTON_LEFT) {
+      if (mods & GLFW_MOD_CONTROL) {
+        left_down_ = false;
+        int ww, wh;
+        glfwGetWindowSize(window_, &ww, &wh);
+        if (ww > 0 && wh > 0)
+          do_pick(int(x / ww * posted_w_), int(y / wh * posted_h_));
+        return;
+      }
+      left_down_ = true;
+      dragged_ = false;
+      press_x_ = last_x_ = x;
+      press_y_ = last_y_ = y;
+    } else if (button == GLFW_MOUSE_BUTTON_RIGHT) {
+      right_down_ = true;
+      last_x_ = x;
+      last_y_ = y;
+    }
+  } else if (action == GLFW_RELEASE) {
+    if (button == GLFW_MOUSE_BUTTON_LEFT && left_down_) {
+      left_down_ = false;
+      if (!dragged_) {
+        // Window coordinates to image pixels (the image fills the window).
+        int ww, wh;
+        glfwGetWindowSize(window_, &ww, &wh);
+        if (ww > 0 && wh > 0) do_pick(int(x / ww * posted_w_), int(y / wh * posted_h_));
+      }
+    } else if (button == GLFW_MOUSE_BUTTON_RIGHT) {
+      right_down_ = false;
+    }
+  }
+}
+
+void Viewer::on_scroll(double /*dx*/, double dy) {
+  if (ImGui::GetIO().WantCaptureMouse) return;
+  cam_.dolly(float(dy));
+}
+
+void Viewer::on_drop(int count, const char** paths) {
+  if (count > 0) start_load(paths[0]);
+}
+
+void Viewer::handle_continuous_input(float dt) {
+  double x, y;
+  glfwGetCursorPos(window_, &x, &y);
+  const double dx = x - last_x_, dy = y - last_y_;
+  last_x_ = x;
+  last_y_ = y;
+  const float kRadPerPixel = 0.005f;
+  if (left_down_) {
+    if (!dragged_ && std::hypot(x - press_x_, y - press_y_) > 3.0) dragged_ = true;
+    if (dragged_ && (dx != 0 || dy != 0)) cam_.orbit(-float(dx) * kRadPerPixel, float(dy) * kRadPerPixel);
+  }
+  if (right_down_ && (dx != 0 || dy != 0)) cam_.look(-float(dx) * kRadPerPixel, -float(dy) * kRadPerPixel);
+
+  if (ImGui::GetIO().WantCaptureKeyboard) return;
+  const auto down = [&](int k) { return glfwGetKey(window_, k) == GLFW_PRESS ? 1.0f : 0.0f; };
+  const float right = down(GLFW_KEY_D) - down(GLFW_KEY_A);
+  const float up = down(GLFW_KEY_E) - down(GLFW_KEY_Q);
+  const float fwd = down(GLFW_KEY_W) - down(GLFW_KEY_S);
+  if (right != 0 || up != 0 || fwd != 0) {
+    const float boost = (down(GLFW_KEY_LEFT_SHIFT) + down(GLFW_KEY_RIGHT_SHIFT)) > 0 ? 4.0f : 1.0f;
+    cam_.move(right, up, fwd, dt * boost);
+  }
+}
+
+// ---- render hand-over ----------------------------------------------------------------------
+
+void Viewer::sync_render_job() {
+  if (!world_ || !worker_) return;
+  int fw, fh;
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  if (fw <= 0 || fh <= 0) return;  // minimised
+  const Camera& c = cam_.camera();
+  // While the camera moves, render a coarse preview so that passes finish between moves; the
+  // full resolution follows once it has been still for a moment.
+  const auto now = Clock::now();
+  if (!same_camera(c, last_seen_camera_)) {
+    last_seen_camera_ = c;
+    last_move_ = now;
+  }
+  const bool preview = !opts_.scripted() && now - last_move_ < std::chrono::milliseconds(150);
+  const float scale = opts_.resolution_scale * (preview ? kPreviewScale : 1.0f);
+  const int w = std::max(1, int(std::lround(fw * scale)));
+  const int h = std::max(1, int(std::lround(fh * scale)));
+  if (world_.get() == posted_world_ && w == posted_w_ && h == posted_h_ && mode_ == posted_mode_ &&
+      opts_.max_samples == posted_max_samples_ && same_camera(c, posted_camera_))
+    return;
+  RenderJob job;
+  job.world = world_;
+  job.camera = c;
+  job.settings.width = w;
+  job.settings.height = h;
+  job.settings.mode = mode_;
+  job.max_samples = opts_.max_samples;
+  posted_job_ = worker_->post(std::move(job));
+  posted_world_ = world_.get();
+  posted_w_ = w;
+  posted_h_ = h;
+  posted_mode_ = mode_;
+  posted_max_samples_ = opts_.max_samples;
+  posted_camera_ = c;
+}
+
+void Viewer::receive_image() {
+  if (worker_ && worker_->take_image(image_)) {
+    have_image_ = true;
+    recolor_ = true;
+    if (image_.pass_seconds > 0) {
+      last_mrays_ = float(double(image_.pass_rays) / image_.pass_seconds * 1e-6);
+      push_history(mrays_hist_, last_mrays_);
+    }
+  }
+  if (!recolor_ || !have_image_) return;
+  recolor_ = false;
+  heat_range_ = heat_range(image_, settings_.heat_scale, settings_.heat_fixed_min, settings_.heat_fixed_max);
+  colorize(image_, settings_.heat_scale, heat_range_, rgba_);
+  GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
+  GL_CHECK(glPixelStorei(GL_UNPACK_ALIGNMENT, 1));
+  if (image_.width != tex_w_ || image_.height != tex_h_) {
+    GL_CHECK(glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, image_.width, image_.height, 0, GL_RGBA,
+                          GL_UNSIGNED_BYTE, rgba_.data()));
+    tex_w_ = image_.width;
+    tex_h_ = image_.height;
+  } else {
+    GL_CHECK(glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, image_.width, image_.height, GL_RGBA,
+                             GL_UNSIGNED_BYTE, rgba_.data()));
+  }
+}
+
+// ---- overlays and pick ----------------------------------------------------------------------
+
+void Viewer::rebuild_structure_overlay() {
+  overlay_dirty_ = false;
+  LineBatch b;
+  overlay_items_ = 0;
+  if (world_) {
+    const Accelerator& a = *world_->accel;
+    if (show_splits_) overlay_items_ += build_split_overlay(a, split_depth_[0], split_depth_[1], b);
+    if (show_cells_) overlay_items_ += build_cell_overlay(a, b);
+    if (show_boxes_) overlay_items_ += build_box_overlay(a, box_depth_[0], box_depth_[1], b);
+  }
+  structure_lines_.upload(b);
+}
+
+void Viewer::do_pick(int px, int py) {
+  if (!world_ || posted_w_ <= 0 || posted_h_ <= 0) return;
+  px = std::clamp(px, 0, posted_w_ - 1);
+  py = std::clamp(py, 0, posted_h_ - 1);
+  Pick p;
+  p.x = px;
+  p.y = py;
+  const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
+  p.ray = f.ray(float(px) + 0.5f, float(py) + 0.5f);  // the pixel centre, as `trace --pixel`
+  p.trace = world_->accel->trace(p.ray);
+  p.command = "kdgrid trace " + shell_quote(world_->scene->source) + accel_flags(world_->name, world_->params) +
+              " --pixel " + std::to_string(px) + "," + std::to_string(py) + " --res " +
+              std::to_string(posted_w_) + "x" + std::to_string(posted_h_) + " " + cam_.cli_flags();
+  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", px, py,
+              p.trace.steps.size(), (unsigned long long)p.trace.counters.tri_tests,
+              p.trace.hit.valid() ? ("hit triangle " + std::to_string(p.trace.hit.prim)).c_str() : "miss",
+              p.command.c_str());
+  std::fflush(stdout);
+  LineBatch b;
+  build_trace_overlay(p.trace, p.ray, world_->scene->mesh, scene_radius(), b);
+  trace_lines_.upload(b);
+  pick_ = std::move(p);
+}
+
+// ---- output ----------------------------------------------------------------------------------
+
+std::string Viewer::default_output_name(const char* prefix, const char* ext) const {
+  const std::time_t now = std::time(nullptr);
+  char stamp[32];
+  std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", std::localtime(&now));
+  return std::string(prefix) + "-" + stamp + "." + ext;
+}
+
+void Viewer::save_screenshot(const std::string& path) {
+  int fw, fh;
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  std::vector<uint8_t> pixels(size_t(fw) * size_t(fh) * 3), flipped(pixels.size());
+  GL_CHECK(glPixelStorei(GL_PACK_ALIGNMENT, 1));
+  GL_CHECK(glReadBuffer(GL_BACK));
+  GL_CHECK(glReadPixels(0, 0, fw, fh, GL_RGB, GL_UNSIGNED_BYTE, pixels.data()));
+  // GL's row 0 is the bottom; image files start at the top.
+  const size_t row = size_t(fw) * 3;
+  for (int y = 0; y < fh; ++y)
+    std::copy_n(pixels.data() + size_t(fh - 1 - y) * row, row, flipped.data() + size_t(y) * row);
+  const std::string err = write_png(path, fw, fh, flipped);
+  message_ = err.empty() ? "wrote " + path : err;
+  std::printf("kdgrid-viewer: %s\n", message_.c_str());
+  std::fflush(stdout);
+}
+
+// ---- panels ----------------------------------------------------------------------------------
+
+void Viewer::draw_panels() {
+  ImGuiIO& io = ImGui::GetIO();
+  ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
+  ImGui::SetNextWindowSize(ImVec2(330 * io.FontGlobalScale, 0), ImGuiCond_FirstUseEver);
+  ImGui::Begin("kdgrid");
+
+  if (task_) {
+    const double secs = std::chrono::duration<double>(Clock::now() - task_->started).count();
+    ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
+    // Builds report no progress, so show motion rather than a fraction.
+    ImGui::ProgressBar(float(std::fmod(secs, 1.0)), ImVec2(-1, 0), "");
+  }
+  if (!task_error_.empty()) {
+    ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.4f, 0.4f, 1));
+    ImGui::TextWrapped("%s", task_error_.c_str());
+    ImGui::PopStyleColor();
+    if (ImGui::SmallButton("dismiss")) task_error_.clear();
+  }
+  if (worker_) {
+    const std::string e = worker_->error();
+    if (!e.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", e.c_str());
+  }
+
+  if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
+    const Scene& s = *world_->scene;
+    ImGui::TextWrapped("%s", s.source.c_str());
+    ImGui::Text("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
+    ImGui::Text("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
+                s.textures.size());
+    const Box3 b = s.mesh.bounds();
+    ImGui::Text("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+    ImGui::TextDisabled("drop a .gltf/.glb/.ply/.obj file to load it");
+  }
+
+  if (ImGui::CollapsingHeader("Structure", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
+    const auto names = accelerator_names();
+    if (ImGui::BeginCombo("structure", accel_name_.c_str())) {
+      for (const auto& n : names) {
+        const bool built = built_.count(n) > 0;
+        const std::string label = n + (built ? "" : "  (build)");
+        if (ImGui::Selectable(label.c_str(), n == accel_name_) && n != accel_name_) {
+          if (built)
+            install_world(built_[n], false);  // switch on the same view, no rebuild
+          else
+            start_build(n, params_);
+        }
+      }
+      ImGui::EndCombo();
+    }
+    // The main build knob of the selected structure; any change rebuilds off the UI thread.
+    bool rebuild = false;
+    BuildParams p = params_;
+    const float r = scene_radius();
+    if (accel_name_ == "bvh") {
+      ImGui::SliderInt("max leaf size", &p.bvh_max_leaf, 1, 32);
+      rebuild = ImGui::IsItemDeactivatedAfterEdit();
+    } else if (accel_name_ == "kdtree") {
+      ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
+                         ImGuiSliderFlags_Logarithmic);
+      rebuild = ImGui::IsItemDeactivatedAfterEdit();
+    } else if (accel_name_ != "brute" && accel_name_ != "embree") {
+      if (cell_size_slider_ <= 0) cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
+      bool auto_cs = params_.cell_size <= 0 && accel_name_ != "grid";
+      if (accel_name_ != "grid" && ImGui::Checkbox("auto cell size", &auto_cs)) {
+        p = params_with_cell_size(accel_name_, auto_cs ? 0.0f : cell_size_slider_);
+        rebuild = true;
+      }
+      ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
+                         ImGuiSliderFlags_Logarithmic);
+      if (ImGui::IsItemDeactivatedAfterEdit()) {
+        p = params_with_cell_size(accel_name_, cell_size_slider_);
+        rebuild = true;
+      }
+      ImGui::InputFloat("##cellvalue", &cell_size_slider_, 0, 0, "%.6g");
+      if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0) {
+        p = params_with_cell_size(accel_name_, cell_size_slider_);
+        rebuild = true;
+      }
+      if (accel_name_ == "grid") ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
+    }
+    if (rebuild) start_build(accel_name_, p);
+
+    const BuildStats& st = world_->accel->stats();
+    if (ImGui::BeginTable("stats", 2, ImGuiTableFlags_SizingStretchProp)) {
+      const auto row = [](const char* k, const std::string& v) {
+        ImGui::TableNextRow();
+        ImGui::TableNextColumn();
+        ImGui::TextUnformatted(k);
+        ImGui::TableNextColumn();
+        ImGui::TextUnformatted(v.c_str());
+      };
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "%.3f s", st.seconds > 0 ? st.seconds : world_->build_seconds);
+      row("build time", buf);
+      row("bytes", format_bytes(st.bytes));
+      row("nodes", std::to_string(st.nodes));
+      row("leaves", std::to_string(st.leaves) + " (" + std::to_string(st.empty_leaves) + " empty)");
+      row("references", std::to_string(st.references));
+      row("max depth", std::to_string(st.max_depth));
+      for (const auto& [k, v] : st.extra) row(k.c_str(), v);
+      ImGui::EndTable();
+    }
+  }
+
+  if (ImGui::CollapsingHeader("Render", ImGuiTreeNodeFlags_DefaultOpen)) {
+    int m = int(mode_);
+    ImGui::RadioButton("shaded", &m, int(RenderMode::Shaded));
+    ImGui::SameLine();
+    ImGui::RadioButton("steps", &m, int(RenderMode::HeatSteps));
+    ImGui::SameLine();
+    ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
+    mode_ = RenderMode(m);
+    ImGui::Text("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
+                last_mrays_);
+    ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d", ImGuiSliderFlags_Logarithmic);
+    if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
+      opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
+    }
+    std::vector<float> v(mrays_hist_.begin(), mrays_hist_.end());
+    ImGui::PlotLines("Mrays/s", v.data(), int(v.size()), 0, nullptr, 0.0f, FLT_MAX, ImVec2(0, 40));
+    std::vector<float> ft(frame_ms_hist_.begin(), frame_ms_hist_.end());
+    char label[64];
+    std::snprintf(label, sizeof label, "%.1f ms", ft.empty() ? 0.0f : ft.back());
+    ImGui::PlotLines("frame", ft.data(), int(ft.size()), 0, label, 0.0f, FLT_MAX, ImVec2(0, 40));
+    ImGui::Text("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
+                cam_.speed_scale());
+    if (ImGui::Button("print camera (C)")) {
+      message_ = cam_.cli_flags();
+      std::printf("%s\n", message_.c_str());
+    }
+    ImGui::SameLine();
+    if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
+    ImGui::SameLine();
+    if (ImGui::Button("screenshot (P)")) save_screenshot(default_output_name("kdgrid-screenshot", "png"));
+  }
+
+  if (mode_ != RenderMode::Shaded && ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
+    int s = int(settings_.heat_scale);
+    bool changed = ImGui::RadioButton("auto", &s, int(HeatScale::Auto));
+    ImGui::SameLine();
+    changed |= ImGui::RadioButton("fixed", &s, int(HeatScale::Fixed));
+    ImGui::SameLine();
+    changed |= ImGui::RadioButton("log", &s, int(HeatScale::Log));
+    settings_.heat_scale = HeatScale(s);
+    if (settings_.heat_scale == HeatScale::Fixed) {
+      changed |= ImGui::InputFloat("min", &settings_.heat_fixed_min);
+      changed |= ImGui::InputFloat("max", &settings_.heat_fixed_max);
+    }
+    if (changed) recolor_ = true;
+    if (ImGui::Button("export EXR") && have_image_ && image_.mode != RenderMode::Shaded) {
+      const std::string path = default_output_name(image_.mode == RenderMode::HeatSteps ? "kdgrid-steps" : "kdgrid-tests", "exr");
+      const std::string err = write_counts_exr(path, image_, std::string("kdgrid ") + mode_name(image_.mode) +
+                                                                  " per pixel, " + accel_name_);
+      message_ = err.empty() ? "wrote " + path : err;
+      std::printf("kdgrid-viewer: %s\n", message_.c_str());
+    }
+  }
+
+  if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) {
+    bool dirty = ImGui::Checkbox("kd split planes", &show_splits_);
+    if (show_splits_) {
+      ImGui::SliderInt2("split depths", split_depth_, 0, 64);
+      dirty |= ImGui::IsItemDeactivatedAfterEdit();
+    }
+    dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
+    dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
+    if (show_boxes_) {
+      ImGui::SliderInt2("box depths", box_depth_, 0, 64);
+      dirty |= ImGui::IsItemDeactivatedAfterEdit();
+    }
+    ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
+    if (dirty) overlay_dirty_ = true;
+    ImGui::Text("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
+                structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
+  }
+
+  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) {
+    if (!pick_) {
+      ImGui::TextDisabled("click (or Ctrl+click) a pixel to trace its ray");
+    } else {
+      const Trace& t = pick_->trace;
+      ImGui::Text("pixel %d,%d: %zu steps, %llu tests, %s", pick_->x, pick_->y, t.steps.size(),
+                  (unsigned long long)t.counters.tri_tests, t.hit.valid() ? "hit" : "miss");
+      if (t.hit.valid()) ImGui::Text("hit triangle %u at t = %.6g", t.hit.prim, t.hit.t);
+      ImGui::TextWrapped("%s", pick_->command.c_str());
+      if (ImGui::SmallButton("copy command")) glfwSetClipboardString(window_, pick_->command.c_str());
+      ImGui::SameLine();
+      if (ImGui::SmallButton("clear pick")) {
+        pick_.reset();
+        trace_lines_.upload(LineBatch{});
+      }
+      if (pick_ && ImGui::BeginTable("steps", 6,
+                                     ImGuiTableFlags_ScrollY | ImGuiTableFlags_RowBg | ImGuiTableFlags_Borders,
+                                     ImVec2(0, 200 * io.FontGlobalScale))) {
+        ImGui::TableSetupScrollFreeze(0, 1);
+        for (const char* h : {"#", "kind", "box", "t in", "t out", "tests"}) ImGui::TableSetupColumn(h);
+        ImGui::TableHeadersRow();
+        ImGuiListClipper clip;
+        clip.Begin(int(t.steps.size()));
+        while (clip.Step()) {
+          for (int i = clip.DisplayStart; i < clip.DisplayEnd; ++i) {
+            const TraceStep& s = t.steps[size_t(i)];
+            const Color c = ramp(t.steps.size() > 1 ? float(i) / float(t.steps.size() - 1) : 1.0f);
+            ImGui::TableNextRow();
+            ImGui::TableNextColumn();
+            ImGui::TextColored(ImVec4(c.r, c.g, c.b, 1), "%d", i);
+            ImGui::TableNextColumn();
+            ImGui::Text("%s d%d", kind_name(s.kind), s.depth);
+            ImGui::TableNextColumn();
+            ImGui::Text("(%.3g %.3g %.3g)-(%.3g %.3g %.3g)", s.box.lo.x, s.box.lo.y, s.box.lo.z, s.box.hi.x,
+                        s.box.hi.y, s.box.hi.z);
+            ImGui::TableNextColumn();
+            ImGui::Text("%.5g", s.t_in);
+            ImGui::TableNextColumn();
+            ImGui::Text("%.5g", s.t_out);
+            ImGui::TableNextColumn();
+            ImGui::Text("%u", s.num_tested);
+          }
+        }
+        ImGui::EndTable();
+      }
+    }
+  }
+  if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
+  ImGui::End();
+
+  if (have_image_ && image_.mode != RenderMode::Shaded) draw_heat_legend();
+}
+
+void Viewer::draw_heat_legend() {
+  const ImGuiIO& io = ImGui::GetIO();
+  const float s = io.FontGlobalScale;
+  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - 8, io.DisplaySize.y - 8), ImGuiCond_Always, ImVec2(1, 1));
+  ImGui::SetNextWindowBgAlpha(0.7f);
+  ImGui::Begin("legend", nullptr,
+               ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings |
+                   ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
+  ImGui::Text("%s per pixel (%s scale)", image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
+              to_string(settings_.heat_scale));
+  const ImVec2 p = ImGui::GetCursorScreenPos();
+  const float w = 240 * s, h = 14 * s;
+  ImDrawList* dl = ImGui::GetWindowDrawList();
+  constexpr int kSegs = 32;
+  for (int i = 0; i < kSegs; ++i) {
+    const Color a = ramp(float(i) / kSegs), b = ramp(float(i + 1) / kSegs);
+    const ImU32 ca = ImGui::GetColorU32(ImVec4(a.r, a.g, a.b, 1)), cb = ImGui::GetColorU32(ImVec4(b.r, b.g, b.b, 1));
+    dl->AddRectFilledMultiColor(ImVec2(p.x + w * i / kSegs, p.y), ImVec2(p.x + w * (i + 1) / kSegs, p.y + h), ca, cb,
+                                cb, ca);
+  }
+  ImGui::Dummy(ImVec2(w, h));
+  // The value at the middle of the bar differs between linear and log scales.
+  const float mid = settings_.heat_scale == HeatScale::Log
+                        ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
+                        : 0.5f * (heat_range_.lo + heat_range_.hi);
+  ImGui::Text("%.4g", heat_range_.lo);
+  ImGui::SameLine(w * 0.5f - 10 * s);
+  ImGui::Text("%.4g", mid);
+  ImGui::SameLine(w - 30 * s);
+  ImGui::Text("%.4g", heat_range_.hi);
+  ImGui::End();
+}
+
+void Viewer::draw_scene() {
+  int fw, fh;
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  GL_CHECK(glViewport(0, 0, fw, fh));
+  GL_CHECK(glClearColor(0.08f, 0.08f, 0.1f, 1.0f));
+  GL_CHECK(glClear(GL_COLOR_BUFFER_BIT));
+  GL_CHECK(glDisable(GL_DEPTH_TEST));
+  if (have_image_) {
+    GL_CHECK(glUseProgram(image_program_));
+    GL_CHECK(glActiveTexture(GL_TEXTURE0));
+    GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
+    GL_CHECK(glUniform1i(glGetUniformLocation(image_program_, "u_image"), 0));
+    GL_CHECK(glBindVertexArray(empty_vao_));
+    GL_CHECK(glDrawArrays(GL_TRIANGLES, 0, 6));
+    GL_CHECK(glBindVertexArray(0));
+  }
+  if (world_ && posted_w_ > 0) {
+    // The live camera (not the displayed image's) so overlays follow the mouse at once.
+    const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
+    const float r = scene_radius();
+    const float dist = length(f.eye - world_->scene->mesh.bounds().center());
+    const auto vp = view_projection(f, r * 1e-4f, (dist + r) * 10.0f);
+    GL_CHECK(glEnable(GL_BLEND));
+    GL_CHECK(glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA));
+    structure_lines_.draw(vp, overlay_alpha_);
+    trace_lines_.draw(vp, 1.0f);
+    GL_CHECK(glDisable(GL_BLEND));
+  }
+}
+
+// ---- main loop -------------------------------------------------------------------------------
+
+int Viewer::run() {
+  if (!create_window()) return 3;
+  try {
+    init_gl();
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "kdgrid-viewer: %s\n", e.what());
+    return 3;
+  }
+  worker_ = std::make_unique<RenderWorker>();
+  start_load(opts_.scene);
+
+  const auto started = Clock::now();
+  auto last = started;
+  bool pick_done = !opts_.pick.has_value();
+  int exit_code = 0;
+  while (!glfwWindowShouldClose(window_)) {
+    glfwPollEvents();
+    const auto now = Clock::now();
+    const float dt = std::chrono::duration<float>(now - last).count();
+    last = now;
+    push_history(frame_ms_hist_, dt * 1000.0f);
+
+    const bool had_world = world_ != nullptr;
+    poll_tasks();
+    if (!world_ && !task_ && !had_world) {
+      // The start-up scene failed to load: nothing to show; say why and stop.
+      std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
+      exit_code = 1;
+      break;
+    }
+    handle_continuous_input(dt);
+    sync_render_job();
+    receive_image();
+    if (overlay_dirty_) rebuild_structure_overlay();
+
+    if (opts_.scripted()) {
+      if (!pick_done && world_ && posted_w_ > 0) {
+        do_pick((*opts_.pick)[0], (*opts_.pick)[1]);
+        pick_done = true;
+      }
+      if (!opts_.rebuild_cell_size.empty() && !scripted_rebuild_started_ && have_image_ && !task_) {
+        scripted_rebuild_started_ = true;
+        const float cs = cli::parse_cell_size(opts_.rebuild_cell_size);
+        start_build(accel_name_, params_with_cell_size(accel_name_, cs));
+      }
+    }
+
+    ImGui_ImplOpenGL3_NewFrame();
+    ImGui_ImplGlfw_NewFrame();
+    ImGui::NewFrame();
+    if (!opts_.hide_ui) draw_panels();
+    ImGui::Render();
+    draw_scene();
+    ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+    ++frame_count_;
+
+    if (opts_.scripted()) {
+      if (worker_ && !worker_->error().empty()) {
+        std::fprintf(stderr, "kdgrid-viewer: render failed: %s\n", worker_->error().c_str());
+        exit_code = 1;
+        break;
+      }
+      const bool rebuild_ok = opts_.rebuild_cell_size.empty() || scripted_rebuild_done_;
+      const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
+                            image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
+      if (frame_count_ >= opts_.frames && world_ && !task_ && rebuild_ok && pick_done && image_ok &&
+          !recolor_) {
+        if (!task_error_.empty()) {
+          std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
+          exit_code = 1;
+        }
+        if (!opts_.export_heatmap.empty()) {
+          const std::string err = write_counts_exr(opts_.export_heatmap, image_,
+                                                   std::string("kdgrid ") + mode_name(image_.mode) +
+                                                       " per pixel, " + accel_name_);
+          std::printf("kdgrid-viewer: %s\n", err.empty() ? ("wrote " + opts_.export_heatmap).c_str() : err.c_str());
+          if (!err.empty()) exit_code = 1;
+        }
+        if (!opts_.screenshot.empty()) {
+          save_screenshot(opts_.screenshot);
+          if (message_.rfind("wrote ", 0) != 0) exit_code = 1;
+        }
+        break;
+      }
+      if (std::chrono::duration<double>(Clock::now() - started).count() > opts_.timeout) {
+        std::fprintf(stderr,
+                     "kdgrid-viewer: scripted run timed out after %.0f s (frames %d/%d, image %s, "
+                     "samples %d/%d, task %s); raise --timeout or lower --min-samples\n",
+                     opts_.timeout, frame_count_, opts_.frames, have_image_ ? "yes" : "no",
+                     have_image_ ? image_.samples : 0, opts_.min_samples, task_ ? task_->what.c_str() : "none");
+        exit_code = 4;
+        break;
+      }
+    }
+    glfwSwapBuffers(window_);
+  }
+  shutdown();
+  return exit_code;
+}
+
+}  // namespace kdgrid::viewer

@@ -1,0 +1,169 @@
+// kdgrid-viewer's application: window, input, panels, overlays, and the hand-over between
+// the UI thread and the render worker / background builds. The core library does all the
+// ray tracing; this file only shows it.
+#pragma once
+
+#include <array>
+#include <chrono>
+#include <deque>
+#include <future>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cli/common.h"
+#include "viewer/camera_control.h"
+#include "viewer/image_view.h"
+#include "viewer/overlay.h"
+#include "viewer/render_worker.h"
+#include "viewer/settings.h"
+
+struct GLFWwindow;
+
+namespace kdgrid::viewer {
+
+/// Command-line options (main.cpp parses them).
+struct ViewerOptions {
+  std::string scene;                 ///< scene file (default assets/cornell.gltf)
+  cli::AccelOptions accel;
+  cli::CameraOptions camera;
+  bool accel_given = false, cell_size_given = false;
+  int width = 0, height = 0;         ///< window size; 0 = remembered / default
+  float resolution_scale = 1.0f;     ///< render pixels per framebuffer pixel
+  int max_samples = 256;             ///< stop refining at this many samples per pixel
+
+  // Scripted runs (tests, reports).
+  int frames = 0;                    ///< > 0: run at least this many frames, then exit
+  std::string screenshot;            ///< PNG written at the end of a scripted run
+  int min_samples = 1;               ///< scripted: wait for this many samples per pixel
+  double timeout = 300;              ///< scripted: give up (exit 4) after this many seconds
+  std::optional<std::array<int, 2>> pick;
+  std::string heatmap;               ///< "", "steps" or "tests"
+  std::vector<std::string> overlays; ///< "splits", "cells", "boxes"
+  std::string rebuild_cell_size;     ///< scripted live rebuild after start-up
+  std::string export_heatmap;        ///< scripted: EXR of the heat map's raw counts at the end
+  bool hide_ui = false;              ///< no ImGui panels (reproducible screenshots)
+  bool scripted() const { return frames > 0; }
+};
+
+class Viewer {
+ public:
+  explicit Viewer(ViewerOptions opts);
+  ~Viewer();
+  /// Opens the window and runs until closed (or the scripted run ends). Returns the exit code.
+  int run();
+
+  // GLFW callbacks (static trampolines in viewer.cpp forward here).
+  void on_key(int key, int scancode, int action, int mods);
+  void on_mouse_button(int button, int action, int mods);
+  void on_scroll(double dx, double dy);
+  void on_drop(int count, const char** paths);
+
+ private:
+  // ---- set-up
+  bool create_window();
+  void init_gl();
+  void shutdown();
+
+  // ---- world: scene + structure, built off the UI thread
+  void start_load(const std::string& path);
+  void start_build(const std::string& name, const BuildParams& params);
+  void poll_tasks();
+  void install_world(std::shared_ptr<const World> w, bool new_scene);
+  BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
+
+  // ---- per frame
+  void handle_continuous_input(float dt);
+  void sync_render_job();
+  void receive_image();
+  void draw_panels();
+  void draw_heat_legend();
+  void draw_scene();
+  void rebuild_structure_overlay();
+  void do_pick(int px, int py);
+  void save_screenshot(const std::string& path);
+  std::string default_output_name(const char* prefix, const char* ext) const;
+  float scene_radius() const;
+
+  ViewerOptions opts_;
+  GLFWwindow* window_ = nullptr;
+  std::string config_dir_;
+  Settings settings_;
+  std::string ini_path_;
+
+  // What is shown and rendered (UI thread only).
+  std::shared_ptr<const World> world_;
+  std::string accel_name_;
+  BuildParams params_;
+  std::string cell_size_text_ = "auto";
+  float cell_size_slider_ = 0;
+  std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
+  CameraControl cam_;
+  RenderMode mode_ = RenderMode::Shaded;
+  std::unique_ptr<RenderWorker> worker_;
+
+  // Background tasks: one build/load at a time; a newer request waits in pending_*.
+  struct Task {
+    std::future<std::shared_ptr<World>> result;
+    std::string what;      // shown next to the spinner
+    bool new_scene = false;
+    std::chrono::steady_clock::time_point started;
+  };
+  std::optional<Task> task_;
+  std::optional<std::pair<std::string, BuildParams>> pending_build_;
+  std::string task_error_;
+  bool scripted_rebuild_started_ = false, scripted_rebuild_done_ = false;
+
+  // Render job tracking.
+  static constexpr float kPreviewScale = 0.35f;  ///< resolution factor while the camera moves
+  Camera last_seen_camera_;
+  std::chrono::steady_clock::time_point last_move_{};
+  Camera posted_camera_;
+  int posted_w_ = 0, posted_h_ = 0;
+  RenderMode posted_mode_ = RenderMode::Shaded;
+  const World* posted_world_ = nullptr;
+  int posted_max_samples_ = 0;
+  uint64_t posted_job_ = 0;
+
+  // The displayed image.
+  RenderedImage image_;
+  bool have_image_ = false;
+  std::vector<uint8_t> rgba_;
+  bool recolor_ = false;
+  HeatRange heat_range_;
+  unsigned tex_ = 0, image_program_ = 0, empty_vao_ = 0;
+  int tex_w_ = 0, tex_h_ = 0;
+
+  // Statistics.
+  std::deque<float> mrays_hist_, frame_ms_hist_;
+  float last_mrays_ = 0;
+
+  // Overlays.
+  bool show_splits_ = false, show_cells_ = false, show_boxes_ = false;
+  int split_depth_[2] = {0, 64}, box_depth_[2] = {0, 64};
+  bool overlay_dirty_ = true;
+  size_t overlay_items_ = 0;
+  LineRenderer structure_lines_, trace_lines_;
+  float overlay_alpha_ = 1.0f;
+
+  // Pick.
+  struct Pick {
+    int x = 0, y = 0;
+    Ray ray;
+    Trace trace;
+    std::string command;
+  };
+  std::optional<Pick> pick_;
+
+  // Mouse state.
+  bool left_down_ = false, right_down_ = false, dragged_ = false;
+  double press_x_ = 0, press_y_ = 0, last_x_ = 0, last_y_ = 0;
+
+  // Scripted run progress.
+  int frame_count_ = 0;
+  std::string message_;   // last status line (screenshot written, camera printed, ...)
+};
+
+}  // namespace kdgrid::viewer
