@@ -112,6 +112,8 @@ class TreeBuilder {
       for (int a = 0; a < 3 && n > 0; ++a) {
         for (int side = 0; side < 2 && n > 0; ++side) {
           const double plane = side == 0 ? double(lo[a]) - eps : double(hi[a]) + eps;
+          // Planes the polygon lies entirely inside of leave it unchanged.
+          if (side == 0 ? bl[a] >= plane : bh[a] <= plane) continue;
           auto in = [&](const P3& q) { return side == 0 ? q.v[a] >= plane : q.v[a] <= plane; };
           int m = 0;
           for (int k = 0; k < n; ++k) {
@@ -154,7 +156,8 @@ class TreeBuilder {
     const size_t n = refs.size();
     int best_axis = -1;
     int32_t best_split = 0;
-    if (n > 0 && depth < max_depth_) find_split(refs, lo, hi, best_axis, best_split);
+    size_t n_left = 0, n_right = 0;
+    if (n > 0 && depth < max_depth_) find_split(refs, lo, hi, best_axis, best_split, n_left, n_right);
     if (best_axis < 0) {
       node->prims.reserve(n);
       for (const Ref& r : refs) node->prims.push_back(r.prim);
@@ -170,8 +173,8 @@ class TreeBuilder {
     lhi[best_axis] = best_split;
     rlo[best_axis] = best_split;
     std::vector<Ref> left, right;
-    left.reserve(n / 2 + 16);
-    right.reserve(n / 2 + 16);
+    left.reserve(n_left);  // exact upper bounds: clipping can only drop references
+    right.reserve(n_right);
     for (const Ref& r : refs) {
       if (r.hi[best_axis] < best_split) {
         left.push_back(r);
@@ -198,7 +201,7 @@ class TreeBuilder {
 
   /// Exact per-cell SAH binning over every interior cell boundary of the node.
   void find_split(const std::vector<Ref>& refs, const int32_t lo[3], const int32_t hi[3], int& best_axis,
-                  int32_t& best_split) {
+                  int32_t& best_split, size_t& best_nl, size_t& best_nr) {
     thread_local std::vector<uint32_t> starts, ends;
     const size_t n = refs.size();
     const double w[3] = {double(hi[0] - lo[0]), double(hi[1] - lo[1]), double(hi[2] - lo[2])};
@@ -228,6 +231,8 @@ class TreeBuilder {
           best_cost = cost;
           best_axis = a;
           best_split = lo[a] + j;
+          best_nl = nl;
+          best_nr = nr;
         }
       }
       evals += uint64_t(width - 1);
@@ -280,10 +285,10 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaves_.clear();
   leaf_depth_.clear();
   refs_.clear();
-  tris_.clear();
+  ref_tris_.clear();
   matrix_.clear();
   bricks_.clear();
-  root_entry_ = kLeafTag;
+  top_.clear();
   step_errors_.store(0);
   stats_ = {};
 
@@ -316,9 +321,28 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       c = double(e[k]);
     }
     rule = "p" + fmt("%g", params.cell_percentile) + " of triangle extents = " + fmt("%.6g", c);
+    // Density floor: scenes mixing huge and tiny triangles (Sponza) would otherwise get a
+    // handful of cells holding hundreds of triangles each.
+    double vol = 1.0;
+    int flat_axes = 0;
+    for (int a = 0; a < 3; ++a) {
+      if (ext[a] > 0.0)
+        vol *= ext[a];
+      else
+        ++flat_axes;
+    }
+    if (ntri > 0 && flat_axes < 3) {
+      const double cd =
+          std::pow(vol / (kHybridAutoCellsPerTriangle * double(ntri)), 1.0 / double(3 - flat_axes));
+      if (cd < c || !(c > 0.0)) {
+        c = cd;
+        rule += "; lowered to " + fmt("%.6g", c) + " for >= " + fmt("%g", kHybridAutoCellsPerTriangle) +
+                " cells per triangle";
+      }
+    }
     if (!(c > 0.0)) {
-      c = max_ext > 0.0 ? max_ext / std::max(1.0, std::cbrt(double(ntri))) : 1.0;
-      rule += "; degenerate, using scene extent / cbrt(N) = " + fmt("%.6g", c);
+      c = 1.0;
+      rule += "; degenerate scene, using 1";
     }
     const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
     if (c < axis_floor) {
@@ -377,21 +401,34 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   }
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
   max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
-  levels_ = 1;
-  while ((int64_t(1) << (kBrickLog * levels_)) < int64_t(max_axis)) ++levels_;
+  // Top array over blocks of 4^k cells: the smallest k >= 1 giving at most kMaxTopEntries.
+  int top_level = 1;
+  auto top_count = [&](int k) {
+    double c = 1;
+    for (int a = 0; a < 3; ++a) c *= std::ceil(d[a] / double(int64_t(1) << (kBrickLog * k)));
+    return c;
+  };
+  while (top_count(top_level) > double(kMaxTopEntries)) ++top_level;
+  top_shift_ = kBrickLog * top_level;
+  for (int a = 0; a < 3; ++a) top_dims_[a] = int32_t((int64_t(dims_[a]) + (int64_t(1) << top_shift_) - 1) >> top_shift_);
 
+  double t_tree = 0, t_matrix = 0;
   tbb::task_arena arena(threads);
   arena.execute([&] {
-    tris_.resize(ntri);
-    tbb::parallel_for(size_t(0), ntri, [&](size_t i) {
-      const auto c = mesh.corners(i);
-      tris_[i] = {c[0], c[1], c[2]};
-    });
+    const auto t0 = std::chrono::steady_clock::now();
     build_tree(mesh, params);
+    ref_tris_.resize(refs_.size());
+    tbb::parallel_for(size_t(0), refs_.size(), [&](size_t i) {
+      const auto c = mesh.corners(refs_[i]);
+      ref_tris_[i] = {c[0], c[1], c[2]};
+    });
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * sizeof(Leaf) + leaf_depth_.size() +
-             refs_.size() * 4 + tris_.size() * sizeof(TriVerts);
+             refs_.size() * (4 + sizeof(TriVerts));
+    const auto t1 = std::chrono::steady_clock::now();
     build_matrix(budget > other ? budget - other : 0);
+    t_tree = std::chrono::duration<double>(t1 - t0).count();
+    t_matrix = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   });
 
   // ---- stats ----
@@ -402,21 +439,25 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
-  const uint64_t b_tris = tris_.size() * sizeof(TriVerts);
-  const uint64_t b_matrix = (dense_ ? matrix_.size() : bricks_.size()) * sizeof(uint32_t);
+  const uint64_t b_tris = ref_tris_.size() * sizeof(TriVerts);
+  const uint64_t b_matrix = (dense_ ? matrix_.size() : bricks_.size() + top_.size()) * sizeof(uint32_t);
   stats_.bytes = b_tree + b_leaves + b_refs + b_tris + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
                           {"references", b_refs},
-                          {"triangles", b_tris},
+                          {"triangles (per reference)", b_tris},
                           {dense_ ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
   stats_.extra = {{"cell_size", fmt("%.6g", cell_)},
                   {"auto rule", rule},
                   {"grid", std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" +
                                std::to_string(dims_[2])},
-                  {"matrix", dense_ ? "dense" : "bricked 4x4x4, " + std::to_string(levels_) + " levels, " +
-                                                    std::to_string(bricks_.size() / kBrickEntries) + " bricks"}};
+                  {"matrix", dense_ ? "dense"
+                                    : "bricked 4x4x4: top " + std::to_string(top_dims_[0]) + "x" +
+                                          std::to_string(top_dims_[1]) + "x" + std::to_string(top_dims_[2]) +
+                                          " blocks of " + std::to_string(1 << top_shift_) + "^3 cells, " +
+                                          std::to_string(bricks_.size() / kBrickEntries) + " bricks"},
+                  {"build phases", "tree " + fmt("%.3f", t_tree) + " s, matrix " + fmt("%.3f", t_matrix) + " s"}};
   stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;
 }
@@ -456,7 +497,8 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
 // ---- matrix -----------------------------------------------------------------------------
 
 uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
-                                   uint64_t budget, uint64_t* count_only) {
+                                   std::vector<uint32_t>* out, BrickBudget& budget) const {
+  static_assert(kMaxNodeEntryLeaves >= 2 && kMaxNodeEntryDepth >= 1);
   const int64_t side = int64_t(1) << (kBrickLog * level);
   const int32_t r0[3] = {x0, y0, z0};
   int32_t r1[3];
@@ -474,28 +516,44 @@ uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level
       break;
   }
   if (nodes_[node].axis == 3) return kLeafTag | uint32_t(nodes_[node].split);
-  // Crossed by a split: refine into a brick (level >= 1 here, a single cell is never split).
+  // Crossed by a few splits only, in a region coarser than one brick of cells: keep the node,
+  // resolved by a short descent at lookup. Regions of 4^3 cells always refine, so lookups
+  // near the geometry end in a leaf entry.
+  if (level > 1 && count_region_leaves(node, r0, r1, kMaxNodeEntryLeaves + 1, 0) <= kMaxNodeEntryLeaves)
+    return kNodeTag | node;
+  // Crossed by many: refine into a brick (level >= 1 here, a single cell is never split).
+  const uint64_t bytes = budget.bytes.fetch_add(kBrickEntries * sizeof(uint32_t)) + kBrickEntries * sizeof(uint32_t);
+  if (out && bytes > budget.limit)
+    throw ParamError("hybrid: the bricked cell matrix of the " + std::to_string(dims_[0]) + "x" +
+                     std::to_string(dims_[1]) + "x" + std::to_string(dims_[2]) +
+                     " grid exceeds the memory budget of " + bytes_str(double(budget.limit)) +
+                     ": use a larger cell size or 'auto'");
   const int32_t sub = int32_t(side >> kBrickLog);
   uint64_t b = 0;
-  if (count_only) {
-    ++*count_only;
-  } else {
-    b = bricks_.size() / kBrickEntries;
-    if ((bricks_.size() + kBrickEntries) * sizeof(uint32_t) > budget || b >= kLeafTag)
-      throw ParamError("hybrid: the bricked cell matrix of the " + std::to_string(dims_[0]) + "x" +
-                       std::to_string(dims_[1]) + "x" + std::to_string(dims_[2]) +
-                       " grid exceeds the memory budget of " + bytes_str(double(budget)) +
-                       ": use a larger cell size or 'auto'");
-    bricks_.resize(bricks_.size() + kBrickEntries);
+  if (out) {
+    b = out->size() / kBrickEntries;
+    out->resize(out->size() + kBrickEntries);
   }
   for (int k = 0; k < kBrickSide; ++k)
     for (int j = 0; j < kBrickSide; ++j)
       for (int i = 0; i < kBrickSide; ++i) {
-        const uint32_t e = build_brick_entry(x0 + i * sub, y0 + j * sub, z0 + k * sub, level - 1, node,
-                                             budget, count_only);
-        if (!count_only) bricks_[b * kBrickEntries + uint64_t(i + kBrickSide * (j + kBrickSide * k))] = e;
+        const uint32_t e = build_brick_entry(x0 + i * sub, y0 + j * sub, z0 + k * sub, level - 1, node, out, budget);
+        if (out) (*out)[b * kBrickEntries + uint64_t(i + kBrickSide * (j + kBrickSide * k))] = e;
       }
   return uint32_t(b);
+}
+
+/// Leaves of the subtree at `node` that intersect the region [r0, r1), counting up to `limit`;
+/// a path longer than kMaxNodeEntryDepth counts as `limit` (too deep for a node entry).
+int Hybrid::count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit,
+                                int depth) const {
+  if (depth > kMaxNodeEntryDepth) return limit;
+  const Node& n = nodes_[node];
+  if (n.axis == 3) return 1;
+  int count = 0;
+  if (r0[n.axis] < n.split) count += count_region_leaves(node + 1, r0, r1, limit, depth + 1);
+  if (count < limit && r1[n.axis] > n.split) count += count_region_leaves(n.right, r0, r1, limit - count, depth + 1);
+  return std::min(count, limit);
 }
 
 void Hybrid::build_matrix(uint64_t budget) {
@@ -512,15 +570,50 @@ void Hybrid::build_matrix(uint64_t budget) {
     });
     return;
   }
-  root_entry_ = build_brick_entry(0, 0, 0, levels_, 0, budget, nullptr);
+  // Each top entry's bricks are built independently (in parallel) into their own arrays,
+  // then concatenated in top-entry order with brick indices relocated: deterministic.
+  const uint64_t ntop = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]) * uint64_t(top_dims_[2]);
+  top_.assign(ntop, kLeafTag);
+  BrickBudget bb;
+  bb.limit = budget > ntop * 4 ? budget - ntop * 4 : 0;
+  std::vector<std::vector<uint32_t>> parts(ntop);
+  const int top_level = top_shift_ / kBrickLog;
+  tbb::parallel_for(uint64_t(0), ntop, [&](uint64_t i) {
+    const int32_t tx = int32_t(i % uint64_t(top_dims_[0]));
+    const int32_t ty = int32_t((i / uint64_t(top_dims_[0])) % uint64_t(top_dims_[1]));
+    const int32_t tz = int32_t(i / (uint64_t(top_dims_[0]) * uint64_t(top_dims_[1])));
+    top_[i] = build_brick_entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_level, 0, &parts[i], bb);
+  });
+  uint64_t total = 0;
+  std::vector<uint64_t> first(ntop);
+  for (uint64_t i = 0; i < ntop; ++i) {
+    first[i] = total / kBrickEntries;
+    total += parts[i].size();
+  }
+  if (total / kBrickEntries >= kNodeTag)
+    throw ParamError("hybrid: the bricked cell matrix needs more than 2^30 bricks: use a larger cell size");
+  bricks_.resize(total);
+  tbb::parallel_for(uint64_t(0), ntop, [&](uint64_t i) {
+    const uint32_t off = uint32_t(first[i]);
+    uint32_t* dst = bricks_.data() + uint64_t(off) * kBrickEntries;
+    for (uint32_t e : parts[i]) *dst++ = (e & kTagMask) ? e : e + off;
+    if (!(top_[i] & kTagMask)) top_[i] += off;
+    std::vector<uint32_t>().swap(parts[i]);
+  });
 }
 
 uint64_t Hybrid::matrix_bytes(bool dense) const {
   if (dense) return uint64_t(dims_[0]) * uint64_t(dims_[1]) * uint64_t(dims_[2]) * 4;
   if (nodes_.empty()) return 0;
-  uint64_t count = 0;
-  const_cast<Hybrid*>(this)->build_brick_entry(0, 0, 0, levels_, 0, 0, &count);
-  return count * kBrickEntries * sizeof(uint32_t);
+  const uint64_t ntop = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]) * uint64_t(top_dims_[2]);
+  BrickBudget bb;
+  for (uint64_t i = 0; i < ntop; ++i) {
+    const int32_t tx = int32_t(i % uint64_t(top_dims_[0]));
+    const int32_t ty = int32_t((i / uint64_t(top_dims_[0])) % uint64_t(top_dims_[1]));
+    const int32_t tz = int32_t(i / (uint64_t(top_dims_[0]) * uint64_t(top_dims_[1])));
+    build_brick_entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_shift_ / kBrickLog, 0, nullptr, bb);
+  }
+  return bb.bytes.load() + ntop * sizeof(uint32_t);
 }
 
 // ---- walks ------------------------------------------------------------------------------
