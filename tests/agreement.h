@@ -25,6 +25,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <cstdlib>
 #include <filesystem>
 #include <map>
 #include <mutex>
@@ -97,7 +98,10 @@ inline std::string reference_key(const Mesh& mesh, const std::vector<Ray>& rays,
 inline std::vector<Hit> brute_reference(const Mesh& mesh, const std::vector<Ray>& rays,
                                         TriangleTestKind test = TriangleTestKind::Watertight) {
   namespace fs = std::filesystem;
-  const std::string dir = KDGRID_REFERENCE_CACHE_DIR;
+  // $KDGRID_REFERENCE_CACHE lets builds share one cache (CI's sanitizer builds reuse the
+  // release build's references instead of recomputing them).
+  const char* env = std::getenv("KDGRID_REFERENCE_CACHE");
+  const std::string dir = env && *env ? env : KDGRID_REFERENCE_CACHE_DIR;
   fs::path file;
   if (!dir.empty()) {
     file = fs::path(dir) / (reference_key(mesh, rays, test) + ".hits");

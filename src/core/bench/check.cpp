@@ -64,11 +64,13 @@ Box3 grown(const Box3& b, float f) {
 struct Candidate {
   double t;
   uint32_t prim;
+  double t_unc;  ///< how far a float traversal's t may lie from this t
 };
 
 struct Reference {
   bool valid = true;       ///< the ray itself is usable (else every answer must be a miss)
   double t_strict = kInf;  ///< closest robust hit
+  double t_strict_unc = 0;  ///< its t uncertainty
   bool grazing = false;    ///< a triangle seen edge-on lies along the ray segment
   bool edge_before = false;  ///< a loose-only (edge/vertex) hit at or before t_strict
   std::vector<Candidate> loose;  ///< loose hits with t <= t_strict + tol, sorted
@@ -79,7 +81,7 @@ double t_tolerance(const Ray& r, double scene_scale) {
   const double dl = std::sqrt(double(dot(r.dir, r.dir)));
   const double o = std::max({std::fabs(r.org.x), std::fabs(r.org.y), std::fabs(r.org.z)});
   // Float positions carry ~2^-23 relative error; allow a few ulps of the coordinates involved.
-  return 64.0 * (o + scene_scale) * 1.1920929e-7 / dl;
+  return 16.0 * (o + scene_scale) * 1.1920929e-7 / dl;
 }
 
 bool segment_overlaps_box(const Ray& r, const Box3& b, double t0, double t1) {
@@ -104,22 +106,29 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
     ref.valid = false;
     return ref;
   }
-  ref.tol = t_tolerance(r, scene_scale);  // a relative part is added per hit
+  ref.tol = t_tolerance(r, scene_scale);
   const Vec3d o(r.org), d(r.dir);
   const double dl = std::sqrt(dot(d, d));
+  // Absolute uncertainty of positions in a float traversal: a few ulps of the largest
+  // coordinate involved. Seen by the ray at a grazing angle it grows by 1/cos; measured
+  // along a triangle it becomes a barycentric margin of delta / altitude.
+  const double delta = ref.tol * dl;
   std::vector<Candidate> loose;
   for (uint32_t i = 0; i < uint32_t(mesh.num_triangles()); ++i) {
     const auto c = mesh.corners(i);
     const Vec3d v0 = Vec3d(c[0]) - o, v1 = Vec3d(c[1]) - o, v2 = Vec3d(c[2]) - o;
-    const Vec3d e1 = v1 - v0, e2 = v2 - v0;
-    const Vec3d p = cross(d, e2);
-    const double det = dot(e1, p);
-    const double n1 = std::sqrt(dot(e1, e1)), n2 = std::sqrt(dot(e2, e2));
-    if (n1 == 0 || n2 == 0) continue;  // degenerate: no hit possible
+    const Vec3d e1 = v1 - v0, e2 = v2 - v0, e3 = v2 - v1;
     const Vec3d nrm = cross(e1, e2);
     const double area2 = std::sqrt(dot(nrm, nrm));
-    if (area2 <= 1e-12 * n1 * n2) continue;  // collinear: zero area, no hit possible
-    if (std::fabs(det) <= kGrazingSine * area2 * dl) {
+    if (area2 == 0.0) continue;  // zero area: no hit possible
+    const Vec3d p = cross(d, e2);
+    const double det = dot(e1, p);
+    const double cosn = std::fabs(det) / (area2 * dl);
+    const double max_edge = std::sqrt(std::max({dot(e1, e1), dot(e2, e2), dot(e3, e3)}));
+    // The plane of a sliver is itself uncertain by about delta / altitude: a ray that may be
+    // parallel to it within that uncertainty is grazing.
+    const double altitude = area2 / max_edge;
+    if (cosn <= kGrazingSine + 4.0 * delta / altitude) {
       Box3 tb = mesh.triangle_bounds(i);
       tb = grown(tb, 1e-6f);
       if (segment_overlaps_box(r, tb, r.tmin, r.tmax)) ref.grazing = true;
@@ -132,26 +141,29 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
     const double v = dot(d, q) * inv;
     const double w = 1.0 - u - v;
     const double t = dot(e2, q) * inv;
-    if (u < -kBaryMargin || v < -kBaryMargin || w < -kBaryMargin) continue;
-    const double tol = ref.tol + 1e-5 * std::fabs(t);
-    if (t < r.tmin - tol || t > double(r.tmax) + tol) continue;
-    const bool strict = u > kBaryMargin && v > kBaryMargin && w > kBaryMargin &&
-                        t > r.tmin + tol && t < double(r.tmax) - tol;
-    if (strict) ref.t_strict = std::min(ref.t_strict, t);
-    loose.push_back({t, i});
+    const double margin = kBaryMargin + delta * max_edge / (area2 * cosn);
+    if (u < -margin || v < -margin || w < -margin) continue;
+    const double t_unc = ref.tol + delta / (dl * cosn) + 1e-5 * std::fabs(t);
+    if (t < r.tmin - t_unc || t > double(r.tmax) + t_unc) continue;
+    const bool strict = u > margin && v > margin && w > margin && t > r.tmin + t_unc &&
+                        t < double(r.tmax) - t_unc;
+    if (strict && t < ref.t_strict) {
+      ref.t_strict = t;
+      ref.t_strict_unc = t_unc;
+    }
+    loose.push_back({t, i, t_unc});
   }
   std::sort(loose.begin(), loose.end(), [](auto& a, auto& b) { return a.t < b.t; });
   for (const auto& cnd : loose) {
-    if (cnd.t > ref.t_strict + ref.tol + 1e-5 * std::fabs(cnd.t)) break;
+    if (cnd.t - cnd.t_unc > ref.t_strict + ref.t_strict_unc) break;
     ref.loose.push_back(cnd);
   }
   // Hits at the origin (t ~ tmin) may be reported or not. Beyond it, an edge/vertex-only hit
   // before the closest robust hit, or several hits tying with it, leave the answer ambiguous.
   int ties = 0;
   for (const auto& cnd : ref.loose) {
-    const double tol = ref.tol + 1e-5 * std::fabs(cnd.t);
-    if (cnd.t <= r.tmin + tol) continue;
-    if (std::fabs(cnd.t - ref.t_strict) > tol)
+    if (cnd.t <= r.tmin + cnd.t_unc) continue;
+    if (std::fabs(cnd.t - ref.t_strict) > cnd.t_unc + ref.t_strict_unc)
       ref.edge_before = true;
     else
       ++ties;
@@ -176,11 +188,10 @@ Verdict judge_closest(const Reference& ref, bool hit, const Hit& h, std::string*
       *why = s.str();
     }
   } else {
-    const double tol_t = ref.tol + 1e-5 * std::fabs(double(h.t));
     bool loose_ok = false;
     for (const auto& c : ref.loose)
-      if (c.prim == h.prim && std::fabs(c.t - h.t) <= tol_t + 1e-5 * std::fabs(c.t)) loose_ok = true;
-    const bool too_far = ref.t_strict < double(h.t) - tol_t;
+      if (c.prim == h.prim && std::fabs(c.t - h.t) <= c.t_unc) loose_ok = true;
+    const bool too_far = ref.t_strict + ref.t_strict_unc < double(h.t) - ref.t_strict_unc;
     wrong = !loose_ok || too_far;
     if (wrong && why) {
       std::ostringstream s;
@@ -457,62 +468,70 @@ std::vector<CheckCase> make_check_cases(int n, uint64_t seed) {
 
 CheckResult run_check(const std::string& structure, const CheckCase& base,
                       const BuildParams& params) {
-  CheckResult res;
-  res.structure = structure;
-  res.case_name = base.name;
-  res.disagree_by_family.assign(kNumFamilies, 0);
   const auto t0 = std::chrono::steady_clock::now();
+  CheckResult res;
   try {
     auto accel = build_accelerator(structure, base.mesh, params);
-    CheckCase c;  // the case's rays plus rays in this structure's own planes
-    c.rays = base.rays;
-    c.family = base.family;
-    add_structure_plane_rays(*accel, c, int(std::count(base.family.begin(), base.family.end(),
-                                                       uint8_t(kRandom))),
-                             0x5eed ^ base.rays.size());
-    const double scale = scene_scale_of(base.mesh);
-    const size_t n = c.rays.size();
-    std::vector<uint8_t> verdict(n), any_wrong(n);
-    std::vector<uint64_t> steps(n);
-    std::vector<std::string> why(n);
-    tbb::parallel_for(size_t(0), n, [&](size_t i) {
-      const Ray& r = c.rays[i];
-      const Reference ref = compute_reference(base.mesh, r, scale);
-      Hit h;
-      RayCounters rc;
-      const bool hit = accel->intersect_counted(r, h, rc);
-      steps[i] = rc.steps;
-      const Verdict v = judge_closest(ref, hit, h, &why[i]);
-      verdict[i] = uint8_t(v);
-      const bool occ = accel->occluded(r);
-      any_wrong[i] = judge_any_wrong(ref, occ);
-      if (v != Verdict::Disagree) why[i].clear();
-    });
-    for (size_t i = 0; i < n; ++i) {
-      ++res.rays;
-      res.max_steps = std::max(res.max_steps, steps[i]);
-      const Verdict v = Verdict(verdict[i]);
-      if (v == Verdict::Agree) ++res.agree;
-      if (v == Verdict::Ambiguous) ++res.ambiguous;
-      if (v == Verdict::Disagree) {
-        ++res.disagree;
-        ++res.disagree_by_family[c.family[i]];
-        if (res.examples.size() < 5) {
-          const Ray& r = c.rays[i];
-          std::ostringstream s;
-          s.precision(9);
-          s << check_ray_families()[c.family[i]] << " ray org (" << r.org.x << "," << r.org.y
-            << "," << r.org.z << ") dir (" << r.dir.x << "," << r.dir.y << "," << r.dir.z
-            << ") [" << r.tmin << "," << r.tmax << "]: " << why[i];
-          res.examples.push_back(s.str());
-        }
-      }
-      if (any_wrong[i]) ++res.any_disagree;
-    }
+    res = judge_accelerator(*accel, base);
   } catch (const std::exception& e) {
     res.error = e.what();
   }
+  res.structure = structure;
+  res.case_name = base.name;
+  res.disagree_by_family.resize(kNumFamilies, 0);
   res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+CheckResult judge_accelerator(const Accelerator& accel, const CheckCase& base) {
+  CheckResult res;
+  res.structure = accel.name();
+  res.case_name = base.name;
+  res.disagree_by_family.assign(kNumFamilies, 0);
+  CheckCase c;  // the case's rays plus rays in this structure's own planes
+  c.rays = base.rays;
+  c.family = base.family;
+  add_structure_plane_rays(
+      accel, c, int(std::count(base.family.begin(), base.family.end(), uint8_t(kRandom))),
+      0x5eed ^ base.rays.size());
+  const double scale = scene_scale_of(base.mesh);
+  const size_t n = c.rays.size();
+  std::vector<uint8_t> verdict(n), any_wrong(n);
+  std::vector<uint64_t> steps(n);
+  std::vector<std::string> why(n);
+  tbb::parallel_for(size_t(0), n, [&](size_t i) {
+    const Ray& r = c.rays[i];
+    const Reference ref = compute_reference(base.mesh, r, scale);
+    Hit h;
+    RayCounters rc;
+    const bool hit = accel.intersect_counted(r, h, rc);
+    steps[i] = rc.steps;
+    const Verdict v = judge_closest(ref, hit, h, &why[i]);
+    verdict[i] = uint8_t(v);
+    any_wrong[i] = judge_any_wrong(ref, accel.occluded(r));
+    if (v != Verdict::Disagree) why[i].clear();
+  });
+  for (size_t i = 0; i < n; ++i) {
+    ++res.rays;
+    res.max_steps = std::max(res.max_steps, steps[i]);
+    const Verdict v = Verdict(verdict[i]);
+    if (v == Verdict::Agree) ++res.agree;
+    if (v == Verdict::Ambiguous) ++res.ambiguous;
+    if (v == Verdict::Disagree) {
+      ++res.disagree;
+      ++res.disagree_by_family[c.family[i]];
+      if (res.examples.size() < 5) {
+        const Ray& r = c.rays[i];
+        std::ostringstream s;
+        s.precision(9);
+        s << check_ray_families()[c.family[i]] << " ray org (" << r.org.x << "," << r.org.y
+          << "," << r.org.z << ") dir (" << r.dir.x << "," << r.dir.y << "," << r.dir.z << ") ["
+          << r.tmin << "," << r.tmax << "]: " << why[i];
+        res.examples.push_back(s.str());
+      }
+    }
+    if (any_wrong[i]) ++res.any_disagree;
+  }
   return res;
 }
 

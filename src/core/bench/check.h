@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "accel/accelerator.h"
 #include "accel/params.h"
 #include "math/ray.h"
 #include "scene/mesh.h"
@@ -54,6 +55,10 @@ struct CheckResult {
 /// Builds `structure` over the case's mesh (plus rays lying in its own split planes and cell
 /// faces) and judges every ray. Never throws: errors are reported in CheckResult::error.
 CheckResult run_check(const std::string& structure, const CheckCase& c, const BuildParams& params);
+
+/// Judges an already built structure (over c.mesh, or over anything else: the suite's own
+/// test judges a deliberately broken structure). Throws what the structure throws.
+CheckResult judge_accelerator(const Accelerator& accel, const CheckCase& c);
 
 /// Self-intersection study: rays leaving random points on random triangles (scales 1e-4 ..
 /// 1e4, translated up to 1e5) away from the surface; counts rays that re-hit their own

@@ -4,10 +4,13 @@
 #include <filesystem>
 
 #include "util/error.h"
+#include "util/paths.h"
 
 namespace kdgrid {
 
-Scene load_scene(const std::string& path) {
+Scene load_scene(const std::string& given) {
+  // A path that does not exist as given is looked up in the shared scenes directory.
+  const std::string path = resolve_scene_path(given);
   namespace fs = std::filesystem;
   std::error_code ec;
   if (!fs::exists(path, ec))
