@@ -6,6 +6,8 @@
 namespace kdgrid::cli {
 
 void add_info_command(CLI::App& app);
+void add_bench_command(CLI::App& app);
+void add_sweep_command(CLI::App& app);
 void add_render_command(CLI::App& app);
 void add_gen_command(CLI::App& app);
 void add_rays_command(CLI::App& app);

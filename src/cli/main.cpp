@@ -10,6 +10,8 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "Show help for every subcommand");
   kdgrid::cli::add_info_command(app);
+  kdgrid::cli::add_bench_command(app);
+  kdgrid::cli::add_sweep_command(app);
   kdgrid::cli::add_render_command(app);
   kdgrid::cli::add_gen_command(app);
   kdgrid::cli::add_rays_command(app);

@@ -1,0 +1,164 @@
+// The benchmark runner behind `kdgrid bench` (BENCHMARK.md "Figures"): every structure side
+// by side on the same rays, in one run, with every throughput also given as a ratio to the
+// reference (Embree's rtcIntersect1/rtcOccluded1) measured on the same rays in the same run.
+//
+// Per scene: load, choose the camera, make the ray sets once (or read them from .rays files),
+// run the reference first, then each structure: build, time each set `reps` times (fast path:
+// intersect() for primary/diffuse, occluded() for shadow, tbb::parallel_for over chunks with
+// the thread count fixed by tbb::global_control), one extra counted pass for the per-ray
+// steps/leaves/tests, and hit agreement with the reference.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "accel/accelerator.h"
+#include "accel/params.h"
+#include "bench/suite.h"
+
+namespace kdgrid {
+
+struct BenchOptions {
+  /// Structures to measure, in table order; empty = every registered structure except brute
+  /// (O(N) per ray: only on request). The reference is always run first and reported too.
+  std::vector<std::string> accels;
+  /// Ray sets (BENCHMARK.md): "primary", "shadow", "diffuse".
+  std::vector<std::string> sets = {"primary", "shadow", "diffuse"};
+  /// Worker threads for tracing (and parallel builders); 0 = all hardware threads.
+  int threads = 0;
+  /// Timed repetitions of each set; the median is reported (BENCHMARK.md asks for >= 5).
+  int reps = 5;
+  /// Primary image size: one ray per pixel. BENCHMARK.md's canonical size is 1024 x 1024.
+  int width = 1024, height = 1024;
+  /// If set, ray sets are read from DIR/<scene>.<set>.rays when that file exists, and written
+  /// there when it does not, so other tools can trace exactly the same rays.
+  std::string rays_dir;
+  /// Reference structure for ratios and agreement; "" = embree if registered, else bvh.
+  std::string reference;
+  /// Build knobs shared by all structures.
+  BuildParams params;
+  /// Time the reference again just before each repetition of every structure and take the
+  /// ratio per pair: a shared machine's load changes between structures, and a pair sees the
+  /// same load. Doubles the tracing time; false = reference timed once per scene.
+  bool interleave_reference = true;
+  /// Relative tolerance on t under which two different triangles count as the same hit.
+  double tie_tolerance = 1e-5;
+  /// Receives one line per step of a long run (stderr in the CLI); may be empty.
+  std::function<void(const std::string&)> progress;
+};
+
+/// Figures of one structure on one ray set.
+struct SetFigures {
+  std::string set;
+  uint64_t rays = 0;
+  uint64_t hits = 0;               ///< rays that hit (shadow: rays found occluded)
+  std::vector<double> mrays_reps;  ///< Mrays/s of each timed repetition
+  double mrays_median = 0, mrays_min = 0, mrays_max = 0;
+  /// Throughput relative to the reference (0 if none). Paired (the default): the median of
+  /// the per-repetition ratios, the reference timed on the same set just before each of this
+  /// structure's repetitions. Otherwise mrays_median / the reference's own median.
+  double ratio_to_reference = 0;
+  double reference_mrays = 0;  ///< the reference's median Mrays/s behind the ratio
+  bool paired = false;
+  bool counted = false;  ///< false for structures without counters (Embree)
+  double steps_per_ray = 0, leaves_per_ray = 0, tests_per_ray = 0;
+  double lookups_per_ray = 0, mailbox_skips_per_ray = 0;
+  /// Fraction of rays whose answer matches the reference: same triangle, both miss, or a tie
+  /// (this structure's triangle, intersected on its own, has the reference's t within
+  /// tie_tolerance relative). Shadow rays: same occluded answer. -1 when not compared.
+  double agreement = -1;
+  uint64_t disagreements = 0;
+};
+
+/// Figures of one structure on one scene.
+struct StructureFigures {
+  std::string accel;
+  std::string error;         ///< non-empty if the build or a trace threw
+  double build_seconds = 0;  ///< wall time of build(), as measured here
+  double build_mtris_per_s = 0;
+  uint64_t bytes = 0;  ///< BuildStats::bytes: the structure, excluding the Mesh
+  double bytes_per_triangle = 0;
+  BuildStats stats;  ///< everything build() reported (bytes_by_part, extra, ...)
+  /// Peak resident memory while this structure was built and traced (VmHWM reset before the
+  /// build; includes the mesh, the ray sets and the reference), and the process's lifetime
+  /// peak (getrusage ru_maxrss), both in bytes.
+  uint64_t peak_rss_bytes = 0;
+  uint64_t process_peak_rss_bytes = 0;
+  /// Resident memory just before the build (after the reset): the mesh, the ray sets and
+  /// the reference's hits. peak_rss_bytes - rss_before_bytes is this structure's growth.
+  uint64_t rss_before_bytes = 0;
+  std::vector<SetFigures> sets;
+};
+
+struct SceneFigures {
+  std::string name, file;
+  std::string error;  ///< non-empty if the scene could not be loaded/run
+  uint64_t triangles = 0;
+  double load_seconds = 0;
+  std::string camera;     ///< "canonical" or "eye ... target ... fov ..."
+  std::string reference;  ///< structure the ratios and agreement refer to
+  std::vector<std::pair<std::string, uint64_t>> set_sizes;
+  std::vector<std::pair<std::string, std::string>> set_sources;  ///< "generated" or a .rays file
+  std::vector<StructureFigures> structures;
+};
+
+struct BenchReport {
+  std::string suite;    ///< suite file
+  std::string date;     ///< ISO 8601 local time of the start
+  std::string machine;  ///< CPU model name (lscpu / /proc/cpuinfo)
+  int hardware_threads = 0;
+  int threads = 0, reps = 0, width = 0, height = 0;
+  std::vector<std::string> sets;
+  double seconds = 0;  ///< wall time of the whole run
+  std::vector<SceneFigures> scenes;
+
+  /// True if any scene or structure failed (the CLI then exits non-zero).
+  bool any_failed() const;
+};
+
+/// Runs the whole suite. Scene and structure failures are recorded, never thrown, so one bad
+/// scene does not stop the others. Throws ParamError for bad options (unknown set, reps < 1).
+BenchReport run_bench(const Suite& suite, const BenchOptions& options);
+
+/// The report as JSON: {"meta": {...}, "scenes": [...], "builds": [one per scene x
+/// structure], "results": [one per scene x structure x set], "errors": [...]}.
+std::string bench_to_json(const BenchReport& report);
+/// The report as Markdown tables (throughput and ratios, per-ray counts, build and memory).
+std::string bench_to_markdown(const BenchReport& report);
+
+// ---- helpers, public for the sweeps and the tests ----------------------------------------
+
+/// Median of the values (mean of the middle two for an even count); 0 for none.
+double median(std::vector<double> v);
+/// Process peak resident set size in bytes, getrusage(RUSAGE_SELF).ru_maxrss.
+uint64_t process_peak_rss_bytes();
+/// Returns freed heap pages to the kernel (glibc malloc_trim), then resets the kernel's
+/// peak-RSS mark (VmHWM) to the current RSS; false if the reset is not possible.
+bool reset_peak_rss();
+/// VmHWM from /proc/self/status in bytes (peak since the last reset), else ru_maxrss.
+uint64_t peak_rss_since_reset();
+/// VmRSS from /proc/self/status in bytes (0 if unavailable).
+uint64_t current_rss_bytes();
+/// CPU model name ("AMD EPYC ...") from /proc/cpuinfo, or "unknown".
+std::string cpu_model_name();
+
+/// Times `rays` through `accel` (intersect or occluded) with tbb::parallel_for over chunks;
+/// returns seconds. Hits (or occluded flags as t = 0 / inf) are written to `out` if given.
+double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit,
+                  std::vector<Hit>* out);
+/// One counted pass; returns the summed counters.
+RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit);
+
+/// Agreement of `hits` with `ref` on `rays` (rule of SetFigures::agreement); returns the
+/// fraction and sets `disagreements`. For any-hit sets only validity is compared.
+double hit_agreement(const Mesh& mesh, const std::vector<Ray>& rays, const std::vector<Hit>& hits,
+                     const std::vector<Hit>& ref, bool any_hit, double tie_tolerance,
+                     uint64_t* disagreements = nullptr);
+
+/// Default structure list: accelerator_names() without brute.
+std::vector<std::string> default_bench_accels();
+
+}  // namespace kdgrid

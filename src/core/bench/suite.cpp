@@ -1,0 +1,148 @@
+#include "bench/suite.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "util/error.h"
+#include "util/paths.h"
+
+namespace kdgrid {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+// Reads a [x, y, z] array of finite numbers; returns an error message or "".
+std::string read_vec3(const json& j, const char* key, Vec3& out) {
+  if (!j.contains(key)) return std::string("camera has no \"") + key + "\" [x, y, z]";
+  const json& a = j.at(key);
+  if (!a.is_array() || a.size() != 3)
+    return std::string("camera \"") + key + "\" must be an array of three numbers [x, y, z]";
+  for (int i = 0; i < 3; ++i) {
+    if (!a[i].is_number()) return std::string("camera \"") + key + "\" has a non-number element";
+    out[i] = a[i].get<float>();
+    if (!std::isfinite(out[i])) return std::string("camera \"") + key + "\" is not finite";
+  }
+  return "";
+}
+
+SuiteScene parse_entry(const json& e, size_t index, const fs::path& base, const std::string& src) {
+  SuiteScene s;
+  const std::string where = src + ": scene " + std::to_string(index);
+  if (!e.is_object()) {
+    s.name = "scene" + std::to_string(index);
+    s.error = where + " is not an object; write {\"name\": ..., \"file\": ..., \"camera\": null}";
+    return s;
+  }
+  if (e.contains("name") && e["name"].is_string()) s.name = e["name"].get<std::string>();
+  if (!e.contains("file") || !e["file"].is_string() || e["file"].get<std::string>().empty()) {
+    if (s.name.empty()) s.name = "scene" + std::to_string(index);
+    s.error = where + " (" + s.name +
+              ") has no \"file\" string; give the scene file relative to "
+              "the suite file";
+    return s;
+  }
+  const fs::path f = e["file"].get<std::string>();
+  s.file = (f.is_absolute() ? f : base / f).lexically_normal().string();
+  if (s.name.empty()) s.name = f.stem().string();
+  if (e.contains("camera") && !e["camera"].is_null()) {
+    const json& c = e["camera"];
+    const std::string at = where + " (" + s.name + "): ";
+    if (!c.is_object()) {
+      s.error = at + "\"camera\" must be null or {\"eye\": [..], \"target\": [..], \"fov\": deg}";
+      return s;
+    }
+    Camera cam;
+    cam.name = "suite";
+    std::string err = read_vec3(c, "eye", cam.eye);
+    if (err.empty()) err = read_vec3(c, "target", cam.target);
+    if (err.empty() && c.contains("fov")) {
+      if (!c["fov"].is_number())
+        err = "camera \"fov\" must be a number of degrees";
+      else
+        cam.fov_deg = c["fov"].get<float>();
+      if (err.empty() && !(cam.fov_deg > 0.0f && cam.fov_deg < 180.0f))
+        err = "camera \"fov\" must be between 0 and 180 degrees";
+    }
+    if (err.empty() && cam.eye == cam.target) err = "camera eye and target are the same point";
+    if (!err.empty()) {
+      s.error = at + err;
+      return s;
+    }
+    s.camera = cam;
+  }
+  return s;
+}
+
+}  // namespace
+
+Suite parse_suite(const std::string& text, const std::string& base_dir, const std::string& source) {
+  json j;
+  try {
+    j = json::parse(text);
+  } catch (const json::parse_error& e) {
+    throw LoadError(
+        source + ": not valid JSON (" + e.what() +
+        "); a suite is {\"scenes\": [{\"name\": ..., \"file\": ..., \"camera\": null}]}");
+  }
+  if (!j.is_object() || !j.contains("scenes") || !j["scenes"].is_array())
+    throw LoadError(source +
+                    ": has no \"scenes\" array; a suite is "
+                    "{\"scenes\": [{\"name\": ..., \"file\": ..., \"camera\": null}]}");
+  Suite suite;
+  suite.path = source;
+  const fs::path base = base_dir.empty() ? fs::path(".") : fs::path(base_dir);
+  size_t i = 0;
+  for (const json& e : j["scenes"]) suite.scenes.push_back(parse_entry(e, i++, base, source));
+  return suite;
+}
+
+Suite load_suite(const std::string& path) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec))
+    throw LoadError(path + ": suite file not found; give --suite FILE.json (see BENCHMARK.md)");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw LoadError(path + ": cannot open the suite file for reading");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const fs::path base = fs::absolute(fs::path(path), ec).parent_path();
+  return parse_suite(ss.str(), base.string(), path);
+}
+
+std::string default_suite_path(const std::string& project_dir) {
+  std::error_code ec;
+  const std::string dir = scenes_dir(project_dir);
+  if (!dir.empty() && fs::is_regular_file(fs::path(dir) / "suite.json", ec))
+    return (fs::path(dir) / "suite.json").string();
+  std::vector<fs::path> roots;
+  if (!project_dir.empty()) roots.emplace_back(project_dir);
+  roots.push_back(fs::current_path(ec));
+  // The executable lives in build/<preset>/src/cli inside the checkout.
+  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+  if (!ec) {
+    fs::path p = exe.parent_path();
+    for (int up = 0; up < 5 && !p.empty(); ++up, p = p.parent_path()) roots.push_back(p);
+  }
+  for (const fs::path& r : roots) {
+    const fs::path cand = r / "assets" / "suite.json";
+    if (fs::is_regular_file(cand, ec)) return cand.lexically_normal().string();
+  }
+  return "";
+}
+
+Suite single_scene_suite(const std::string& file, const std::optional<Camera>& camera) {
+  Suite s;
+  SuiteScene e;
+  e.file = file;
+  e.name = fs::path(file).stem().string();
+  e.camera = camera;
+  s.scenes.push_back(e);
+  return s;
+}
+
+}  // namespace kdgrid

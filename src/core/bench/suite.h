@@ -1,0 +1,47 @@
+// Benchmark suite files (BENCHMARK.md): a JSON list of scenes, each a file relative to the
+// suite file and a camera (null = the canonical camera). `kdgrid bench` reads them so that
+// anyone can run the same suite on their own scenes.
+//
+//   {"scenes": [{"name": "bunny", "file": "bunny/bun_zipper.ply", "camera": null},
+//               {"name": "sponza", "file": "sponza.obj",
+//                "camera": {"eye": [-14, 3, 0], "target": [10, 5, 0], "fov": 60}}]}
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "scene/scene.h"
+
+namespace kdgrid {
+
+/// One scene of a suite. An entry that cannot be used (no file, malformed camera) keeps its
+/// problem in `error`, so that the runner reports it and still runs the other scenes.
+struct SuiteScene {
+  std::string name;              ///< label in the tables; defaults to the file's stem
+  std::string file;              ///< absolute or relative to the working directory
+  std::optional<Camera> camera;  ///< empty = canonical camera of BENCHMARK.md
+  std::string error;             ///< non-empty if the entry is unusable
+};
+
+struct Suite {
+  std::string path;  ///< file it came from ("" if built in code)
+  std::vector<SuiteScene> scenes;
+};
+
+/// Parses suite JSON text. Scene files are resolved relative to `base_dir`. `source` names
+/// the text in error messages. Throws LoadError if the text is not JSON or has no "scenes"
+/// array; problems of a single entry go to that entry's `error` instead.
+Suite parse_suite(const std::string& text, const std::string& base_dir, const std::string& source);
+
+/// Reads and parses a suite file (LoadError naming the file if it cannot be read or parsed).
+Suite load_suite(const std::string& path);
+
+/// The default suite: $KDGRID_SCENES/suite.json or ../shared/scenes/suite.json (scenes_dir()),
+/// else `project_dir`/assets/suite.json. Empty if none exists.
+std::string default_suite_path(const std::string& project_dir = "");
+
+/// A suite with a single scene file (what `kdgrid bench SCENE` runs).
+Suite single_scene_suite(const std::string& file, const std::optional<Camera>& camera = {});
+
+}  // namespace kdgrid
