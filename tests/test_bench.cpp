@@ -175,6 +175,30 @@ TEST(BenchSuite, MalformedFileNamesTheFile) {
   EXPECT_THROW(load_suite((dir / "absent.json").string()), LoadError);
 }
 
+TEST(BenchSuite, DefaultSuiteFallsBackToTheProjectAssets) {
+  TempDir dir("defaultsuite");
+  const char* old = std::getenv("KDGRID_SCENES");
+  const std::string saved = old ? old : "";
+  // A scenes folder without suite.json: the project's own assets/suite.json is next.
+  ::setenv("KDGRID_SCENES", dir.path().c_str(), 1);
+  const std::string fallback = default_suite_path(KDGRID_SOURCE_DIR);
+  write_file(dir / "suite.json", R"({"scenes": []})");
+  const std::string shared = default_suite_path(KDGRID_SOURCE_DIR);
+  if (old)
+    ::setenv("KDGRID_SCENES", saved.c_str(), 1);
+  else
+    ::unsetenv("KDGRID_SCENES");
+  EXPECT_EQ(fs::path(fallback),
+            fs::path(test::source_path("assets/suite.json")).lexically_normal());
+  EXPECT_EQ(fs::path(shared), dir / "suite.json");
+  const Suite own = load_suite(fallback);
+  ASSERT_FALSE(own.scenes.empty());
+  for (const auto& e : own.scenes) {
+    EXPECT_TRUE(e.error.empty()) << e.error;
+    EXPECT_TRUE(fs::exists(e.file)) << e.file << " listed by assets/suite.json";
+  }
+}
+
 // ---- statistics and memory -------------------------------------------------------------------
 
 TEST(BenchStats, Median) {
