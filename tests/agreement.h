@@ -26,6 +26,9 @@
 #include <cstdio>
 #include <cstring>
 #include <cstdlib>
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
 #include <filesystem>
 #include <map>
 #include <mutex>
@@ -103,12 +106,20 @@ inline std::vector<Hit> brute_reference(const Mesh& mesh, const std::vector<Ray>
   const char* env = std::getenv("KDGRID_REFERENCE_CACHE");
   const std::string dir = env && *env ? env : KDGRID_REFERENCE_CACHE_DIR;
   fs::path file;
+  int lock_fd = -1;
   if (!dir.empty()) {
     file = fs::path(dir) / (reference_key(mesh, rays, test) + ".hits");
     std::error_code ec;
+    // ctest runs tests in parallel processes: the first to need a reference computes it
+    // while the others wait on this lock and then read the cache, instead of all computing.
+    fs::create_directories(file.parent_path(), ec);
+    lock_fd = ::open((file.string() + ".lock").c_str(), O_CREAT | O_RDWR, 0644);
+    if (lock_fd >= 0) ::flock(lock_fd, LOCK_EX);
     if (fs::exists(file, ec)) {
       try {
-        return read_hits(file.string(), int64_t(rays.size()));
+        auto cached = read_hits(file.string(), int64_t(rays.size()));
+        if (lock_fd >= 0) ::close(lock_fd);
+        return cached;
       } catch (const std::exception&) {
         // A damaged cache file is recomputed and replaced below.
       }
@@ -139,6 +150,7 @@ inline std::vector<Hit> brute_reference(const Mesh& mesh, const std::vector<Ray>
       fs::remove(tmp, ec);
     }
   }
+  if (lock_fd >= 0) ::close(lock_fd);  // releases the lock
   // Drop barycentrics so cached and fresh references compare the same way.
   for (Hit& h : hits) h.u = h.v = 0.0f;
   return hits;
