@@ -117,7 +117,8 @@ std::vector<std::pair<std::string, SweepValue>> measured_cells(const Measured& m
       {"leaves", double(m.stats.leaves)},
       {"references", double(m.stats.references)}};
   // The SAH cost of the built tree, when the structure reports one.
-  const std::string sah = extra_of(m.stats, "sah_cost");
+  std::string sah = extra_of(m.stats, "sah_cost");
+  if (sah.empty()) sah = extra_of(m.stats, "SAH cost");  // the BVH's spelling
   char* end = nullptr;
   const double v = sah.empty() ? 0.0 : std::strtod(sah.c_str(), &end);
   c.emplace_back("sah_cost", !sah.empty() && end != sah.c_str() ? SweepValue(v) : SweepValue{});
