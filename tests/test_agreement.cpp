@@ -128,9 +128,9 @@ TEST_P(Agreement, MatchesBruteForce) {
   ASSERT_GE(w->total_rays(), kRaysPerScene);
   auto accel = make_accelerator(structure());
   accel->build(w->mesh, BuildParams{});
-  const test::AgreementRule rule = test::rule_for(structure());
   size_t hits = 0;
   for (const RaySet& set : w->sets) {
+    const test::AgreementRule rule = test::rule_for(structure(), set.name);
     const auto rep = test::compare_with_reference(*accel, w->mesh, set.rays, set.reference, rule,
                                                   set.name + " rays of " + scene().name);
     EXPECT_TRUE(rep.ok()) << rep.summary();
