@@ -199,7 +199,9 @@ Scene coplanar_quads(const ProceduralParams& p) {
   // (axis of the plane normal, exact plane coordinate): all representable exactly.
   const std::pair<int, float> planes[] = {{2, 0.0f}, {2, 3.0f}, {0, 0.0f}, {1, 1.5f}};
   for (int i = 0; i < count; ++i) {
-    const auto [axis, k] = planes[i % 4];
+    // Plain variables, not a structured binding: clang 14 cannot capture those in a lambda.
+    const int axis = planes[i % 4].first;
+    const float k = planes[i % 4].second;
     float a0, a1, b0, b1;
     if ((i / 4) % 2 == 0) {  // unit lattice quad: every corner on integer coordinates
       a0 = float(rng.integer(-8, 8));
