@@ -16,8 +16,10 @@ for t in "${targets[@]}"; do
   work="build/fuzz/corpus-$t"
   mkdir -p "$work"
   echo "== fuzz_$t for ${seconds}s"
+  seeds=()
+  [ -d "fuzz/corpus/$t" ] && seeds=("fuzz/corpus/$t")
   if ! build/fuzz/fuzz/fuzz_$t -max_total_time="$seconds" -timeout=10 -rss_limit_mb=3072 \
-      -print_final_stats=1 -artifact_prefix="build/fuzz/crashes/$t-" "$work" "fuzz/corpus/$t" \
+      -print_final_stats=1 -artifact_prefix="build/fuzz/crashes/$t-" "$work" "${seeds[@]}" \
       2> "build/fuzz/fuzz_$t.log"; then
     echo "fuzz_$t FAILED: see build/fuzz/fuzz_$t.log and build/fuzz/crashes/" >&2
     tail -40 "build/fuzz/fuzz_$t.log" >&2
