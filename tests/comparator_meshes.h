@@ -210,6 +210,26 @@ inline std::vector<NamedMesh> test_meshes() {
   return v;
 }
 
+
+/// Builds `acc` and brute force with the Möller-Trumbore test over a seeded soup and counts
+/// rays on which they differ (hit/miss or t): the fast triangle test must be wired through
+/// the structure's traversal exactly as through brute force.
+inline int moller_mismatches(Accelerator& acc) {
+  const Mesh mesh = random_soup(5, 2000);
+  BuildParams p;
+  p.triangle_test = TriangleTestKind::Moller;
+  acc.build(mesh, p);
+  BruteForce b;
+  b.build(mesh, p);
+  int bad = 0;
+  for (const Ray& r : random_rays(mesh, 9, 10000)) {
+    Hit ha, hb;
+    const bool a = acc.intersect(r, ha), c = b.intersect(r, hb);
+    if (a != c || (a && ha.t != hb.t)) ++bad;
+  }
+  return bad;
+}
+
 }  // namespace kdgrid::test
 
 namespace kdgrid::test {

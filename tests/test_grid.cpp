@@ -55,20 +55,8 @@ TEST(Grid, AgreesWithBruteForceOnProceduralMeshes) {
 }
 
 TEST(Grid, MollerVariantAgreesWithBruteForceMoller) {
-  const Mesh mesh = test::random_soup(5, 2000);
-  BuildParams p;
-  p.triangle_test = TriangleTestKind::Moller;
   UniformGrid g;
-  g.build(mesh, p);
-  BruteForce b;
-  b.build(mesh, p);
-  int bad = 0;
-  for (const Ray& r : test::random_rays(mesh, 9, 10000)) {
-    Hit hg, hb;
-    const bool a = g.intersect(r, hg), c = b.intersect(r, hb);
-    if (a != c || (a && hg.t != hb.t)) ++bad;
-  }
-  EXPECT_EQ(bad, 0);
+  EXPECT_EQ(test::moller_mismatches(g), 0);
 }
 
 // Cell boundaries on the integer planes where the quads lie, at several scales and offsets.

@@ -42,20 +42,8 @@ TEST(KdTree, AgreesWithBruteForceOnProceduralMeshes) {
 }
 
 TEST(KdTree, MollerVariantAgreesWithBruteForceMoller) {
-  const Mesh mesh = test::random_soup(5, 2000);
-  BuildParams p;
-  p.triangle_test = TriangleTestKind::Moller;
   KdTree kd;
-  kd.build(mesh, p);
-  BruteForce b;
-  b.build(mesh, p);
-  int bad = 0;
-  for (const Ray& r : test::random_rays(mesh, 9, 10000)) {
-    Hit hk, hb;
-    const bool a = kd.intersect(r, hk), c = b.intersect(r, hb);
-    if (a != c || (a && hk.t != hb.t)) ++bad;
-  }
-  EXPECT_EQ(bad, 0);
+  EXPECT_EQ(test::moller_mismatches(kd), 0);
 }
 
 // Rays lying exactly in split planes (with +0 and -0 components), axis-parallel rays,
