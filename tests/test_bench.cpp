@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -412,6 +413,40 @@ TEST(Bench, UnpairedRatiosDivideByTheReferenceMedian) {
                        bvh.sets[k].mrays_median / ref.sets[k].mrays_median);
     }
   }
+}
+
+TEST(Bench, CpuClockTimesTheTracingThreads) {
+  // Brute force on a small mesh: slow enough per ray that the CPU time is well above the
+  // clock's resolution. The CPU-clock time of a pass cannot exceed its wall time by more than
+  // rounding (it is summed over threads, then divided by their number), and is positive.
+  const Mesh m = make_icosphere(3);
+  auto acc = make_accelerator("brute");
+  acc->build(m, BuildParams{});
+  std::vector<Ray> rays;
+  for (int i = 0; i < 4000; ++i) {
+    Ray r;
+    r.org = Vec3(-3.0f, 0.001f * float(i % 100), 0.0f);
+    r.dir = Vec3(1.0f, 0.0f, 0.0f);
+    rays.push_back(r);
+  }
+  std::vector<Hit> a, b;
+  const auto t0 = std::chrono::steady_clock::now();
+  const double cpu = trace_rays(*acc, rays, false, &a, true);
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_GT(cpu, 0.0);
+  EXPECT_LE(cpu, wall * 1.05 + 1e-3);
+  trace_rays(*acc, rays, false, &b, false);
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) EXPECT_EQ(a[i].prim, b[i].prim);
+
+  TempDir dir("cpuclock");
+  BenchOptions o = small_options();
+  o.accels = {"bvh"};
+  o.cpu_clock = true;
+  const BenchReport rep = run_bench(load_suite(write_small_suite(dir).string()), o);
+  ASSERT_FALSE(rep.any_failed());
+  EXPECT_EQ(rep.clock, "cpu");
+  EXPECT_NE(bench_to_markdown(rep).find("CPU clocks"), std::string::npos);
 }
 
 TEST(Bench, RejectsBadOptions) {

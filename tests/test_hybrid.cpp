@@ -258,10 +258,14 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
   const Case cases[] = {{0.0f, "auto"}, {big, "one cell"}, {tiny, "cell < smallest triangle"},
                         {explicit_cell, "explicit"}};
   for (const Case& c : cases) {
-    for (bool dense : {false, true}) {
+    // Bricked and dense storage with plain leaves, and bricked with a subtree in every leaf
+    // of more than 2 triangles (BuildParams::hybrid_subtree_min).
+    for (int variant = 0; variant < 3; ++variant) {
+      const bool dense = variant == 1;
       Hybrid h;
       BuildParams p = params_with(c.cell, dense);
       p.memory_budget = uint64_t(2) << 30;
+      if (variant == 2) p.hybrid_subtree_min = 2;
       if (dense && c.cell > 0.0f) {
         // A dense matrix over the budget must be refused, not allocated.
         const Vec3 e = m.bounds().extent();
@@ -277,7 +281,7 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
         EXPECT_EQ(h.dims()[0] * h.dims()[1] * h.dims()[2], 1) << name;
       }
       const std::string label = name + " / " + c.what + " (" + st.extra[2].second + ", " +
-                                (dense ? "dense" : "bricked") + ")";
+                                (dense ? "dense" : variant == 2 ? "bricked, leaf subtrees" : "bricked") + ")";
       const auto t0 = std::chrono::steady_clock::now();
       EXPECT_EQ(compare(h, m, rays, ref, label), 0) << label;
       if (getenv("HYB_TIME")) printf("%s build %.3fs rays %.3fs nodes %lu refs %lu\n", label.c_str(), st.seconds, std::chrono::duration<double>(std::chrono::steady_clock::now()-t0).count(), (unsigned long)st.nodes, (unsigned long)st.references);
@@ -350,16 +354,20 @@ Mesh extreme_scene() {
 
 void check_rays(const Mesh& m, const std::vector<Ray>& rays, float cell, const std::string& label) {
   const Reference ref = brute_reference(m, rays);
-  for (bool dense : {false, true}) {
+  for (int variant = 0; variant < 3; ++variant) {
+    const bool dense = variant == 1;
     Hybrid h;
-    h.build(m, params_with(cell, dense));
-    EXPECT_EQ(compare(h, m, rays, ref, label + (dense ? " dense" : " bricked")), 0);
-    // And no ray reaches the step bound when counted either.
+    BuildParams p = params_with(cell, dense);
+    if (variant == 2) p.hybrid_subtree_min = 2;
+    h.build(m, p);
+    const std::string v = dense ? " dense" : variant == 2 ? " bricked, leaf subtrees" : " bricked";
+    EXPECT_EQ(compare(h, m, rays, ref, label + v), 0);
+    // And no ray reaches the step bound when counted either: one lookup per leaf step.
     for (const Ray& r : rays) {
       RayCounters c;
       Hit hit;
       h.intersect_counted(r, hit, c);
-      ASSERT_LE(c.steps, uint64_t(h.dims()[0] + h.dims()[1] + h.dims()[2] + 1)) << label;
+      ASSERT_LE(c.lookups, uint64_t(h.dims()[0] + h.dims()[1] + h.dims()[2] + 1)) << label << v;
     }
     EXPECT_EQ(h.step_bound_errors(), 0u) << label;
   }
@@ -622,10 +630,12 @@ TEST(Hybrid, CountedAndFastTraversalAgree) {
   EXPECT_GE(total.lookups, total.steps / 2);
 }
 
-TEST(Hybrid, TraceVisitsLeavesInRayOrder) {
+void check_trace_order(uint32_t subtree_min) {
   const Mesh m = random_soup(8, 2000, Vec3(-1), Vec3(1), 0.08f);
   Hybrid h;
-  h.build(m, params_with(0.0f, false));
+  BuildParams p = params_with(0.0f, false);
+  p.hybrid_subtree_min = subtree_min;
+  h.build(m, p);
   const auto rays = random_rays(m, 3000, 4);
   int hits = 0;
   for (const Ray& r : rays) {
@@ -654,6 +664,10 @@ TEST(Hybrid, TraceVisitsLeavesInRayOrder) {
   }
   EXPECT_GT(hits, 500);
 }
+
+TEST(Hybrid, TraceVisitsLeavesInRayOrder) { check_trace_order(0); }
+
+TEST(Hybrid, TraceVisitsLeafSubtreesInRayOrder) { check_trace_order(2); }
 
 TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
   const Mesh m = random_soup(6, 1000, Vec3(-1), Vec3(1), 0.1f);

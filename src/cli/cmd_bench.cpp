@@ -48,6 +48,7 @@ struct BenchArgs {
   std::string json, md, rays_dir, reference;
   bool quiet = false;
   bool no_interleave = false;
+  std::string clock = "wall";
   AccelOptions accel;
 };
 
@@ -79,6 +80,11 @@ void add_bench_command(CLI::App& app) {
   cmd->add_option("--reference", a->reference,
                   "Structure the ratios and agreement refer to (default embree)");
   cmd->add_flag("--quiet,-q", a->quiet, "No progress on stderr, no tables on stdout");
+  cmd->add_option("--clock", a->clock,
+                  "wall, or cpu: time tracing by the threads' CPU time (divided by the thread count), "
+                  "so that other processes on a shared machine do not count")
+      ->check(CLI::IsMember({"wall", "cpu"}))
+      ->capture_default_str();
   cmd->add_flag("--no-interleave", a->no_interleave,
                 "Time the reference once per scene instead of before every repetition "
                 "(halves the tracing time; ratios then suffer from changing machine load)");
@@ -92,6 +98,7 @@ void add_bench_command(CLI::App& app) {
     o.rays_dir = a->rays_dir;
     o.reference = a->reference;
     o.interleave_reference = !a->no_interleave;
+    o.cpu_clock = a->clock == "cpu";
     o.params = a->accel.resolve();
     if (!a->quiet)
       o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };

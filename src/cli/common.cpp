@@ -35,6 +35,15 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "kd-tree: triangle test cost relative to a traversal step")
       ->group(g)
       ->capture_default_str();
+  cmd->add_option("--hybrid-cost-ratio", params.hybrid_intersection_cost,
+                  "Hybrid: triangle test cost relative to a leaf step (SAH leaf termination)")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--hybrid-subtree", params.hybrid_subtree_min,
+                  "Hybrid: leaves with more triangles than this get a kd subtree with free split "
+                  "positions; 0 = the paper's plain leaves")
+      ->group(g)
+      ->capture_default_str();
   cmd->add_option("--bvh-leaf", params.bvh_max_leaf, "BVH: max triangles per leaf")
       ->group(g)
       ->capture_default_str();

@@ -5,6 +5,7 @@
 #include <tbb/task_group.h>
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
 #include <cstdio>
 #include <memory>
@@ -44,6 +45,8 @@ struct BuildNode {
   int depth = 0;
   std::unique_ptr<BuildNode> kid[2];
   std::vector<uint32_t> prims;
+  std::vector<Hybrid::SubNode> sub_nodes;  ///< leaf subtree (local indices), if any
+  std::vector<uint32_t> sub_refs;          ///< its references (mesh triangle ids)
 };
 
 struct P3 {
@@ -62,6 +65,7 @@ class TreeBuilder {
     kt_ = p.hybrid_traversal_cost;
     ki_ = p.hybrid_intersection_cost;
     bonus_ = std::clamp(double(p.kd_empty_bonus), 0.0, 1.0);
+    subtree_min_ = p.hybrid_subtree_min;
     const double n = double(std::max<size_t>(1, mesh.num_triangles()));
     max_depth_ = p.kd_max_depth > 0 ? p.kd_max_depth : int(8.0 + 1.3 * std::log2(n));
     max_depth_ = std::clamp(max_depth_, 1, 64);
@@ -86,15 +90,13 @@ class TreeBuilder {
              (double(p.z) - origin_[2]) * inv_cell_}};
   }
 
-  /// The triangle clipped to the node box [lo, hi) widened by kRangeEps (Sutherland-Hodgman),
-  /// as an inclusive integer cell range. False if the triangle misses the box.
-  bool clip_range(uint32_t prim, const int32_t lo[3], const int32_t hi[3], Ref& out) const {
-    constexpr double eps = Hybrid::kRangeEps;
+  /// Bounds (grid space) of the triangle clipped to the box [lo, hi] (Sutherland-Hodgman).
+  /// False if the triangle misses the box.
+  bool clip_bounds(uint32_t prim, const double lo[3], const double hi[3], double bl[3], double bh[3]) const {
     P3 poly[16], tmp[16];
     int n = 3;
     const auto& tri = mesh_.triangles[prim];
     for (int k = 0; k < 3; ++k) poly[k] = grid_vertex(tri[k]);
-    double bl[3], bh[3];
     auto bounds = [&] {
       for (int a = 0; a < 3; ++a) {
         bl[a] = bh[a] = poly[0].v[a];
@@ -106,36 +108,47 @@ class TreeBuilder {
     };
     bounds();
     bool inside = true;
-    for (int a = 0; a < 3; ++a)
-      inside = inside && bl[a] >= double(lo[a]) - eps && bh[a] <= double(hi[a]) + eps;
-    if (!inside) {
-      for (int a = 0; a < 3 && n > 0; ++a) {
-        for (int side = 0; side < 2 && n > 0; ++side) {
-          const double plane = side == 0 ? double(lo[a]) - eps : double(hi[a]) + eps;
-          // Planes the polygon lies entirely inside of leave it unchanged.
-          if (side == 0 ? bl[a] >= plane : bh[a] <= plane) continue;
-          auto in = [&](const P3& q) { return side == 0 ? q.v[a] >= plane : q.v[a] <= plane; };
-          int m = 0;
-          for (int k = 0; k < n; ++k) {
-            const P3& p = poly[k];
-            const P3& q = poly[(k + 1) % n];
-            const bool pin = in(p), qin = in(q);
-            if (pin) tmp[m++] = p;
-            if (pin != qin) {
-              const double t = (plane - p.v[a]) / (q.v[a] - p.v[a]);
-              P3 x;
-              for (int b = 0; b < 3; ++b) x.v[b] = p.v[b] + (q.v[b] - p.v[b]) * t;
-              x.v[a] = plane;
-              tmp[m++] = x;
-            }
+    for (int a = 0; a < 3; ++a) inside = inside && bl[a] >= lo[a] && bh[a] <= hi[a];
+    if (inside) return true;
+    for (int a = 0; a < 3 && n > 0; ++a) {
+      for (int side = 0; side < 2 && n > 0; ++side) {
+        const double plane = side == 0 ? lo[a] : hi[a];
+        // Planes the polygon lies entirely inside of leave it unchanged.
+        if (side == 0 ? bl[a] >= plane : bh[a] <= plane) continue;
+        auto in = [&](const P3& q) { return side == 0 ? q.v[a] >= plane : q.v[a] <= plane; };
+        int m = 0;
+        for (int k = 0; k < n; ++k) {
+          const P3& p = poly[k];
+          const P3& q = poly[(k + 1) % n];
+          const bool pin = in(p), qin = in(q);
+          if (pin) tmp[m++] = p;
+          if (pin != qin) {
+            const double t = (plane - p.v[a]) / (q.v[a] - p.v[a]);
+            P3 x;
+            for (int b = 0; b < 3; ++b) x.v[b] = p.v[b] + (q.v[b] - p.v[b]) * t;
+            x.v[a] = plane;
+            tmp[m++] = x;
           }
-          n = m;
-          for (int k = 0; k < n; ++k) poly[k] = tmp[k];
         }
+        n = m;
+        for (int k = 0; k < n; ++k) poly[k] = tmp[k];
       }
-      if (n == 0) return false;
-      bounds();
     }
+    if (n == 0) return false;
+    bounds();
+    return true;
+  }
+
+  /// The triangle clipped to the node box [lo, hi) widened by kRangeEps, as an inclusive
+  /// integer cell range. False if the triangle misses the box.
+  bool clip_range(uint32_t prim, const int32_t lo[3], const int32_t hi[3], Ref& out) const {
+    constexpr double eps = Hybrid::kRangeEps;
+    double blo[3], bhi[3], bl[3], bh[3];
+    for (int a = 0; a < 3; ++a) {
+      blo[a] = double(lo[a]) - eps;
+      bhi[a] = double(hi[a]) + eps;
+    }
+    if (!clip_bounds(prim, blo, bhi, bl, bh)) return false;
     out.prim = prim;
     for (int a = 0; a < 3; ++a) {
       const double l = std::floor(bl[a] - eps), h = std::floor(bh[a] + eps);
@@ -143,6 +156,121 @@ class TreeBuilder {
       out.hi[a] = h < lo[a] ? lo[a] : (h > hi[a] - 1 ? hi[a] - 1 : int32_t(h));
     }
     return true;
+  }
+
+  /// A triangle reference in a leaf subtree: its bounds clipped to the subtree node's box.
+  struct SubRef {
+    uint32_t prim;
+    double lo[3], hi[3];
+  };
+
+  /// Builds the kd subtree of a leaf with cell box [lo, hi) into node->sub_nodes/sub_refs
+  /// (indices local to the leaf). Binned SAH (kSubBins per axis) with perfect splits; split
+  /// positions are rounded to float offsets from the leaf's low corner before partitioning,
+  /// so the walk sees exactly the planes the references were partitioned by.
+  void build_subtree(BuildNode& node) {
+    std::vector<SubRef> refs;
+    refs.reserve(node.prims.size());
+    double blo[3], bhi[3];
+    for (int a = 0; a < 3; ++a) {
+      blo[a] = double(node.lo[a]);
+      bhi[a] = double(node.hi[a]);
+    }
+    for (uint32_t prim : node.prims) {
+      SubRef r;
+      r.prim = prim;
+      double wl[3], wh[3];
+      for (int a = 0; a < 3; ++a) {
+        wl[a] = blo[a] - Hybrid::kRangeEps;
+        wh[a] = bhi[a] + Hybrid::kRangeEps;
+      }
+      if (clip_bounds(prim, wl, wh, r.lo, r.hi)) refs.push_back(r);
+    }
+    sub_node(node, std::move(refs), blo, bhi, 0);
+  }
+
+  uint32_t sub_node(BuildNode& out, std::vector<SubRef>&& refs, const double lo[3], const double hi[3], int depth) {
+    constexpr int kBins = 16;
+    constexpr double eps = Hybrid::kRangeEps;
+    const uint32_t idx = uint32_t(out.sub_nodes.size());
+    out.sub_nodes.push_back({});
+    const size_t n = refs.size();
+    auto make_leaf = [&] {
+      out.sub_nodes[idx] = {uint32_t(n), uint32_t(out.sub_refs.size()) << 2 | 3u};
+      for (const SubRef& r : refs) out.sub_refs.push_back(r.prim);
+      return idx;
+    };
+    if (n <= 2 || depth >= Hybrid::kSubMaxDepth) return make_leaf();
+    const double w[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    const double area = w[0] * w[1] + w[1] * w[2] + w[2] * w[0];
+    if (!(area > 0.0)) return make_leaf();
+    double best_cost = ki_ * double(n);
+    int best_axis = -1;
+    double best_pos = 0.0;
+    for (int a = 0; a < 3; ++a) {
+      if (!(w[a] > 0.0)) continue;
+      uint32_t starts[kBins] = {}, ends[kBins] = {};
+      const double scale = double(kBins) / w[a];
+      auto bin = [&](double x) { return std::clamp(int((x - lo[a]) * scale), 0, kBins - 1); };
+      for (const SubRef& r : refs) {
+        ++starts[bin(r.lo[a])];
+        ++ends[bin(r.hi[a])];
+      }
+      const double wb = w[(a + 1) % 3], wc = w[(a + 2) % 3];
+      size_t nl = 0, nr = n;
+      for (int j = 1; j < kBins; ++j) {
+        nl += starts[j - 1];
+        nr -= ends[j - 1];
+        const double wl = w[a] * double(j) / kBins, wr = w[a] - wl;
+        const double al = wl * (wb + wc) + wb * wc, ar = wr * (wb + wc) + wb * wc;
+        double cost = kt_ + ki_ * (al * double(nl) + ar * double(nr)) / area;
+        if (nl == 0 || nr == 0) cost *= 1.0 - bonus_;
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_pos = lo[a] + wl;
+        }
+      }
+    }
+    if (best_axis < 0) return make_leaf();
+    // The plane as the walk will see it: a float offset from the leaf's low corner.
+    const int a = best_axis;
+    const float off = float(best_pos - double(out.lo[a]));
+    const double split = double(out.lo[a]) + double(off);
+    if (!(split > lo[a] && split < hi[a])) return make_leaf();
+    double llo[3], lhi[3], rlo[3], rhi[3];
+    for (int b = 0; b < 3; ++b) {
+      llo[b] = rlo[b] = lo[b];
+      lhi[b] = rhi[b] = hi[b];
+    }
+    lhi[a] = split;
+    rlo[a] = split;
+    std::vector<SubRef> left, right;
+    for (const SubRef& r : refs) {
+      // References within eps of the plane go to both sides, so no rounding loses them.
+      const bool to_left = r.lo[a] <= split + eps, to_right = r.hi[a] >= split - eps;
+      for (int side = 0; side < 2; ++side) {
+        if (!(side == 0 ? to_left : to_right)) continue;
+        const double* clo = side == 0 ? llo : rlo;
+        const double* chi = side == 0 ? lhi : rhi;
+        SubRef c = r;
+        if (to_left && to_right) {
+          double wl[3], wh[3];
+          for (int b = 0; b < 3; ++b) {
+            wl[b] = clo[b] - eps;
+            wh[b] = chi[b] + eps;
+          }
+          if (!clip_bounds(r.prim, wl, wh, c.lo, c.hi)) continue;
+        }
+        (side == 0 ? left : right).push_back(c);
+      }
+    }
+    if (left.size() == n && right.size() == n) return make_leaf();  // no progress
+    std::vector<SubRef>().swap(refs);
+    sub_node(out, std::move(left), llo, lhi, depth + 1);
+    const uint32_t r = sub_node(out, std::move(right), rlo, rhi, depth + 1);
+    out.sub_nodes[idx] = {std::bit_cast<uint32_t>(off), r << 2 | uint32_t(a)};
+    return idx;
   }
 
   std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3], const int32_t hi[3],
@@ -161,6 +289,7 @@ class TreeBuilder {
     if (best_axis < 0) {
       node->prims.reserve(n);
       for (const Ref& r : refs) node->prims.push_back(r.prim);
+      if (subtree_min_ > 0 && n > subtree_min_) build_subtree(*node);
       return node;
     }
     node->axis = best_axis;
@@ -245,6 +374,7 @@ class TreeBuilder {
   double inv_cell_;
   int32_t dims_[3];
   double kt_, ki_, bonus_;
+  uint32_t subtree_min_ = 0;
   int max_depth_;
   std::atomic<uint64_t> evals_{0};
 };
@@ -285,7 +415,9 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaves_.clear();
   leaf_depth_.clear();
   refs_.clear();
-  ref_tris_.clear();
+  sub_nodes_.clear();
+  tris_.clear();
+  prim_of_.clear();
   matrix_.clear();
   bricks_.clear();
   top_.clear();
@@ -375,7 +507,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const double cells = d[0] * d[1] * d[2];
   const double max_axis = std::max({d[0], d[1], d[2]});
   auto dims_text = [&] { return fmt("%.0f", d[0]) + "x" + fmt("%.0f", d[1]) + "x" + fmt("%.0f", d[2]); };
-  const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 3 * sizeof(uint32_t));
+  const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 4 * sizeof(uint32_t));
   if (dense_) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
@@ -417,14 +549,26 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   arena.execute([&] {
     const auto t0 = std::chrono::steady_clock::now();
     build_tree(mesh, params);
-    ref_tris_.resize(refs_.size());
-    tbb::parallel_for(size_t(0), refs_.size(), [&](size_t i) {
-      const auto c = mesh.corners(refs_[i]);
-      ref_tris_[i] = {c[0], c[1], c[2]};
+    // Local triangle ids in first-reference order (leaves are numbered depth-first).
+    std::vector<uint32_t> local_of(ntri, kInvalidPrim);
+    prim_of_.clear();
+    prim_of_.reserve(ntri);
+    for (uint32_t& r : refs_) {
+      uint32_t& l = local_of[r];
+      if (l == kInvalidPrim) {
+        l = uint32_t(prim_of_.size());
+        prim_of_.push_back(r);
+      }
+      r = l;
+    }
+    tris_.resize(prim_of_.size());
+    tbb::parallel_for(size_t(0), prim_of_.size(), [&](size_t i) {
+      const auto c = mesh.corners(prim_of_[i]);
+      tris_[i] = {c[0], c[1], c[2]};
     });
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * sizeof(Leaf) + leaf_depth_.size() +
-             refs_.size() * (4 + sizeof(TriVerts));
+             refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
     const auto t1 = std::chrono::steady_clock::now();
     build_matrix(budget > other ? budget - other : 0);
     t_tree = std::chrono::duration<double>(t1 - t0).count();
@@ -435,17 +579,21 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.nodes = nodes_.size();
   stats_.leaves = leaves_.size();
   for (const Leaf& l : leaves_) stats_.empty_leaves += l.count == 0;
+  uint64_t subtree_leaves = 0;
+  for (const Leaf& l : leaves_) subtree_leaves += (l.count & kSubtreeFlag) != 0;
   stats_.references = refs_.size();
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
-  const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);
+  const uint64_t b_sub = sub_nodes_.size() * sizeof(SubNode);
+  const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
-  const uint64_t b_tris = ref_tris_.size() * sizeof(TriVerts);
+  const uint64_t b_tris = tris_.size() * (sizeof(TriVerts) + sizeof(uint32_t));
   const uint64_t b_matrix = (dense_ ? matrix_.size() : bricks_.size() + top_.size()) * sizeof(uint32_t);
-  stats_.bytes = b_tree + b_leaves + b_refs + b_tris + b_matrix + sizeof(*this);
+  stats_.bytes = b_tree + b_leaves + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
+                          {"leaf subtrees", b_sub},
                           {"references", b_refs},
-                          {"triangles (per reference)", b_tris},
+                          {"triangles (corners + ids)", b_tris},
                           {dense_ ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
   stats_.extra = {{"cell_size", fmt("%.6g", cell_)},
@@ -457,6 +605,11 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                                           std::to_string(top_dims_[1]) + "x" + std::to_string(top_dims_[2]) +
                                           " blocks of " + std::to_string(1 << top_shift_) + "^3 cells, " +
                                           std::to_string(bricks_.size() / kBrickEntries) + " bricks"},
+                  {"leaf subtrees", params.hybrid_subtree_min == 0
+                                        ? std::string("off (plain leaves)")
+                                        : std::to_string(subtree_leaves) + " leaves with more than " +
+                                              std::to_string(params.hybrid_subtree_min) + " triangles, " +
+                                              std::to_string(sub_nodes_.size()) + " nodes"},
                   {"build phases", "tree " + fmt("%.3f", t_tree) + " s, matrix " + fmt("%.3f", t_matrix) + " s"}};
   stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;
@@ -473,14 +626,31 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
     nodes_.push_back({});
     max_depth = std::max(max_depth, uint32_t(n->depth));
     if (n->axis < 0) {
-      Leaf l;
+      Leaf l{};
       for (int a = 0; a < 3; ++a) {
         l.lo[a] = n->lo[a];
         l.hi[a] = n->hi[a];
       }
       l.first = uint32_t(refs_.size());
       l.count = uint32_t(n->prims.size());
-      refs_.insert(refs_.end(), n->prims.begin(), n->prims.end());
+      if (!n->sub_nodes.empty()) {
+        // Relocate the subtree: child and reference indices are local to the leaf.
+        const uint32_t base = uint32_t(sub_nodes_.size()), ref_base = uint32_t(refs_.size());
+        if (refs_.size() + n->sub_refs.size() >= (uint64_t(1) << 30) ||
+            sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 30))
+          throw ParamError("hybrid: more than 2^30 subtree references or nodes: use a larger cell size "
+                           "or --hybrid-subtree 0");
+        for (Hybrid::SubNode sn : n->sub_nodes) {
+          const uint32_t ax = sn.bits & 3u;
+          sn.bits = ax == 3 ? ((sn.bits >> 2) + ref_base) << 2 | 3u : ((sn.bits >> 2) + base) << 2 | ax;
+          sub_nodes_.push_back(sn);
+        }
+        refs_.insert(refs_.end(), n->sub_refs.begin(), n->sub_refs.end());
+        l.first = base;
+        l.count |= kSubtreeFlag;
+      } else {
+        refs_.insert(refs_.end(), n->prims.begin(), n->prims.end());
+      }
       nodes_[idx] = {int32_t(leaves_.size()), 0, 3};
       leaves_.push_back(l);
       leaf_depth_.push_back(uint8_t(std::min(n->depth, 255)));
@@ -664,7 +834,7 @@ void Hybrid::for_each_split(const std::function<void(const SplitPlane&)>& fn) co
 
 void Hybrid::for_each_box(const std::function<void(const StructureBox&)>& fn) const {
   for (uint32_t i = 0; i < leaves_.size(); ++i)
-    if (leaves_[i].count) fn({leaf_box(i), int(leaf_depth_[i]), true, leaves_[i].count});
+    if (leaves_[i].count) fn({leaf_box(i), int(leaf_depth_[i]), true, leaves_[i].count & ~kSubtreeFlag});
 }
 
 }  // namespace kdgrid

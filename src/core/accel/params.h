@@ -58,6 +58,15 @@ struct BuildParams {
   /// Hybrid traversal/intersection costs for its SAH; defaults match the kd-tree's.
   float hybrid_traversal_cost = 1.0f;
   float hybrid_intersection_cost = 1.5f;
+  /// Leaves referencing more than this many triangles get a small kd subtree whose split
+  /// planes lie anywhere inside the leaf (binned SAH, no cell alignment), walked over the
+  /// ray's segment in the leaf: cells are a coarse lattice (about one triangle wide), so a
+  /// plain leaf tests every triangle it holds (3.8 per primary ray on the dragon, 12.5 on
+  /// Sponza). 0 = off: the paper's plain leaves, the default: subtrees cut the dragon's
+  /// tests per primary ray from 3.7 to 1.4 and Sponza's from 12.5 to 4.8, but the extra
+  /// nodes (33 MiB on the dragon) and the in-leaf walk cost as much as they save (measured
+  /// with `kdgrid bench --clock cpu --hybrid-subtree 4`, see docs/BENCHMARKS.md).
+  uint32_t hybrid_subtree_min = 0;
 
   // ---- irregular grid (Pérard-Gayot et al. 2017) -----------------------------------------
   /// Top-level density: top cells per triangle, shaped by the scene box (resolution per axis

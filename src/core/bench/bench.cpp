@@ -188,8 +188,8 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
       std::vector<double> ratios, ref_reps;
       auto mrays_of = [&](double sec) { return sec > 0 ? double(rays.size()) / sec * 1e-6 : 0.0; };
       for (int r = 0; r < o.reps; ++r) {
-        if (paired) ref_reps.push_back(mrays_of(trace_rays(*ref->acc, rays, any, &ref_scratch)));
-        sf.mrays_reps.push_back(mrays_of(trace_rays(*acc, rays, any, &hits)));
+        if (paired) ref_reps.push_back(mrays_of(trace_rays(*ref->acc, rays, any, &ref_scratch, o.cpu_clock)));
+        sf.mrays_reps.push_back(mrays_of(trace_rays(*acc, rays, any, &hits, o.cpu_clock)));
         if (paired && ref_reps.back() > 0) ratios.push_back(sf.mrays_reps.back() / ref_reps.back());
       }
       sf.mrays_median = median(sf.mrays_reps);
@@ -305,13 +305,23 @@ std::string cpu_model_name() {
   return "unknown";
 }
 
+namespace {
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+}  // namespace
+
 double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit,
-                  std::vector<Hit>* out) {
+                  std::vector<Hit>* out, bool cpu_clock) {
   if (out) out->resize(rays.size());
   Hit* dst = out ? out->data() : nullptr;
+  std::atomic<int64_t> cpu_ns{0};
   const auto t0 = Clock::now();
   tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), kChunk),
                     [&](const tbb::blocked_range<size_t>& r) {
+                      const double c0 = cpu_clock ? thread_cpu_seconds() : 0.0;
                       for (size_t i = r.begin(); i < r.end(); ++i) {
                         Hit h;
                         if (any_hit) {
@@ -321,8 +331,12 @@ double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool a
                         }
                         if (dst) dst[i] = h;
                       }
+                      if (cpu_clock)
+                        cpu_ns.fetch_add(int64_t((thread_cpu_seconds() - c0) * 1e9), std::memory_order_relaxed);
                     });
-  return seconds_since(t0);
+  if (!cpu_clock) return seconds_since(t0);
+  const size_t threads = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  return double(cpu_ns.load()) * 1e-9 / double(std::max<size_t>(1, std::min(threads, rays.size() / kChunk + 1)));
 }
 
 RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit) {
@@ -430,6 +444,7 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   rep.hardware_threads = int(std::thread::hardware_concurrency());
   rep.threads = threads;
   rep.reps = o.reps;
+  rep.clock = o.cpu_clock ? "cpu" : "wall";
   rep.width = o.width;
   rep.height = o.height;
   rep.sets = o.sets;
@@ -516,6 +531,7 @@ std::string bench_to_json(const BenchReport& r) {
                {"hardware_threads", r.hardware_threads},
                {"threads", r.threads},
                {"reps", r.reps},
+               {"clock", r.clock},
                {"width", r.width},
                {"height", r.height},
                {"sets", r.sets},
@@ -625,7 +641,8 @@ std::string bench_to_markdown(const BenchReport& r) {
   std::ostringstream md;
   md << "Machine: " << r.machine << ", " << r.threads << " thread(s) of " << r.hardware_threads
      << "; " << r.width << "x" << r.height << " primary rays; median of " << r.reps
-     << " repetitions; " << r.date << "; whole run " << fmt("%.0f", r.seconds) << " s.\n\n";
+     << " repetitions" << (r.clock == "cpu" ? " timed by the tracing threads' CPU clocks" : "")
+     << "; " << r.date << "; whole run " << fmt("%.0f", r.seconds) << " s.\n\n";
 
   // Headline: ratio to the reference on each set, one row per scene x structure.
   md << "### Throughput relative to the reference (higher is better)\n\n";

@@ -44,6 +44,9 @@ struct BenchOptions {
   /// ratio per pair: a shared machine's load changes between structures, and a pair sees the
   /// same load. Doubles the tracing time; false = reference timed once per scene.
   bool interleave_reference = true;
+  /// Time tracing with the threads' CPU clocks instead of the wall clock (trace_rays), for
+  /// shared, loaded machines; the report says which clock was used.
+  bool cpu_clock = false;
   /// Relative tolerance on t under which two different triangles count as the same hit.
   double tie_tolerance = 1e-5;
   /// Receives one line per step of a long run (stderr in the CLI); may be empty.
@@ -111,6 +114,7 @@ struct BenchReport {
   std::string machine;  ///< CPU model name (lscpu / /proc/cpuinfo)
   int hardware_threads = 0;
   int threads = 0, reps = 0, width = 0, height = 0;
+  std::string clock = "wall";  ///< "wall" or "cpu" (BenchOptions::cpu_clock)
   std::vector<std::string> sets;
   double seconds = 0;  ///< wall time of the whole run
   std::vector<SceneFigures> scenes;
@@ -147,8 +151,11 @@ std::string cpu_model_name();
 
 /// Times `rays` through `accel` (intersect or occluded) with tbb::parallel_for over chunks;
 /// returns seconds. Hits (or occluded flags as t = 0 / inf) are written to `out` if given.
+/// cpu_clock: instead of wall time, the tracing threads' summed CPU time divided by the
+/// thread count, i.e. the wall time an otherwise idle machine would show. Time slices lost
+/// to other processes on a shared machine do not count (their cache pollution still does).
 double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit,
-                  std::vector<Hit>* out);
+                  std::vector<Hit>* out, bool cpu_clock = false);
 /// One counted pass; returns the summed counters.
 RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit);
 

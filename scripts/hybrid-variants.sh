@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Measures the hybrid's variants side by side with the SAH kd-tree and Embree on the shared
+# suite's primary rays, for docs/BENCHMARKS.md ("The hybrid's variants"): the paper's plain
+# leaves (the default), leaf subtrees (--hybrid-subtree 4) and the dense matrix of the paper.
+# Tracing is timed with the threads' CPU clocks (--clock cpu) because this machine is shared;
+# every figure is also given as a ratio to Embree and to the kd-tree measured in the same run.
+#
+# Usage: scripts/hybrid-variants.sh [RESULTS_DIR]    (default docs/results)
+# Environment: KDGRID_SCENES (default ../shared/scenes), BENCH_RES (1024), BENCH_REPS (3),
+#              BENCH_THREADS (0 = all).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+results="${1:-docs/results}"
+kdgrid="build/release/src/cli/kdgrid"
+scenes="${KDGRID_SCENES:-$(cd .. && pwd)/shared/scenes}"
+[[ -x "$kdgrid" ]] || { echo "hybrid-variants: build first: bash scripts/build.sh release" >&2; exit 1; }
+[[ -f "$scenes/suite.json" ]] || { echo "hybrid-variants: $scenes/suite.json not found; set KDGRID_SCENES" >&2; exit 1; }
+mkdir -p "$results"
+common=(bench --suite "$scenes/suite.json" --sets primary --accel hybrid,kdtree --clock cpu
+        --res "${BENCH_RES:-1024}" --reps "${BENCH_REPS:-3}" --threads "${BENCH_THREADS:-0}")
+variant() {
+  local name="$1"; shift
+  echo "== hybrid variant $name: kdgrid ${common[*]} $*" >&2
+  "$kdgrid" "${common[@]}" "$@" --json "$results/hybrid-$name.json" -q
+}
+variant plain
+variant subtree --hybrid-subtree 4
+variant dense --dense-matrix
+echo "hybrid-variants: wrote $results/hybrid-{plain,subtree,dense}.json" >&2
