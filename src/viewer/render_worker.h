@@ -47,6 +47,7 @@ struct RenderedImage {
   uint64_t job_id = 0;        ///< which post() produced it
   double pass_seconds = 0;    ///< wall time of the pass that completed it
   uint64_t pass_rays = 0;     ///< rays traced by that pass
+  RenderCounters pass_counters;  ///< the same, by kind (primary, shadow, ...)
 };
 
 class RenderWorker {
