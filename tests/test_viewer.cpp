@@ -513,6 +513,9 @@ TEST(Viewer, InputCPrintsTheCameraAsFlagsThatRenderReproduces) {
   const double other = rmse(viewer, read_image(dir + "/start.png"));
   EXPECT_LT(same, 0.01) << "kdgrid render with the printed flags does not reproduce the view";
   EXPECT_GT(other, 10 * same + 0.01);
+  // In fact byte for byte: the viewer's table-driven sRGB encoder (image_view.h) must give
+  // exactly the bytes of tonemap_srgb8, which the PNG writer uses.
+  EXPECT_EQ(same, 0.0) << "the viewer shows other bytes than kdgrid render writes for the same samples";
 }
 
 TEST(Viewer, InputImGuiPanelTakesTheMouseFirst) {
