@@ -540,6 +540,25 @@ TEST(Viewer, InputImGuiPanelTakesTheMouseFirst) {
   EXPECT_EQ(st["pick"]["y"], 400);
 }
 
+TEST(Viewer, IdleWindowSleepsButStillShowsEveryPass) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // Three seconds with nothing to do after four passes: a loop drawing at 60 Hz would draw
+  // about 180 frames; an idle one sleeps on its event queue (waking every 0.25 s at most)
+  // and is woken by each finished pass, which it must still show.
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 320 --height 240 --threads 1 "
+                                      "--hold 3 --min-samples 4 --max-samples 4 --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto stats = read_json(dir + "/stats.json");
+  ASSERT_TRUE(stats.is_object()) << r.output;
+  EXPECT_EQ(stats["end"], "hold expired");
+  EXPECT_EQ(stats["state"]["samples"], 4) << "a finished pass did not reach the screen";
+  const int frames = stats["frames"]["count"];
+  EXPECT_LT(frames, 60) << "the idle viewer kept drawing";
+  EXPECT_GE(frames, 5);
+}
+
 /// A tiny OBJ (a tetrahedron) to drop.
 std::string write_tetrahedron(const std::string& dir) {
   const std::string path = dir + "/tetra.obj";

@@ -2,10 +2,12 @@
 
 #include <chrono>
 #include <exception>
+#include <utility>
 
 namespace kdgrid::viewer {
 
-RenderWorker::RenderWorker() : thread_([this] { loop(); }) {}
+RenderWorker::RenderWorker(std::function<void()> on_image)
+    : on_image_(std::move(on_image)), thread_([this] { loop(); }) {}
 
 RenderWorker::~RenderWorker() {
   {
@@ -118,10 +120,14 @@ void RenderWorker::loop() {
         std::swap(local, ready_);
         fresh_ = true;
       }
+      if (on_image_) on_image_();
     } catch (const std::exception& e) {
       failed = true;
-      std::lock_guard lk(job_mutex_);
-      error_ = e.what();
+      {
+        std::lock_guard lk(job_mutex_);
+        error_ = e.what();
+      }
+      if (on_image_) on_image_();
     }
   }
 }

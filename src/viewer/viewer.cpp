@@ -94,6 +94,15 @@ const char* kind_name(StepKind k) {
   return "?";
 }
 
+/// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
+/// it ends; it polls the task's future at once instead of at its next timeout.
+struct WakeUiOnExit {
+  WakeUiOnExit() = default;
+  WakeUiOnExit(const WakeUiOnExit&) = delete;
+  WakeUiOnExit& operator=(const WakeUiOnExit&) = delete;
+  ~WakeUiOnExit() { glfwPostEmptyEvent(); }
+};
+
 void push_history(std::deque<float>& h, float v) {
   h.push_back(v);
   while (h.size() > 120) h.pop_front();
@@ -199,6 +208,8 @@ void Viewer::init_gl() {
   glfwSetCursorPosCallback(window_, [](GLFWwindow* w, double x, double y) { self(w)->on_cursor_pos(x, y); });
   glfwGetCursorPos(window_, &cursor_x_, &cursor_y_);
   glfwSetDropCallback(window_, [](GLFWwindow* w, int n, const char** p) { self(w)->on_drop(n, p); });
+  glfwSetFramebufferSizeCallback(window_, [](GLFWwindow* w, int, int) { self(w)->note_input(); });
+  glfwSetWindowRefreshCallback(window_, [](GLFWwindow* w) { self(w)->note_input(); });
 
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();
@@ -305,6 +316,7 @@ void Viewer::start_load(const std::string& path) {
   t.new_scene = true;
   t.started = Clock::now();
   t.result = std::async(std::launch::async, [path, name, params] {
+    const WakeUiOnExit wake;
     auto scene = std::make_shared<Scene>(load_scene(path));
     auto w = std::make_shared<World>();
     w->scene = scene;
@@ -331,6 +343,7 @@ void Viewer::start_build(const std::string& name, const BuildParams& params) {
   t.kind = name == accel_name_ ? "rebuild" : "build";
   t.started = Clock::now();
   t.result = std::async(std::launch::async, [scene, name, params] {
+    const WakeUiOnExit wake;
     auto w = std::make_shared<World>();
     w->scene = scene;
     w->name = name;
@@ -411,6 +424,7 @@ void Viewer::print_camera() {
 }
 
 void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
+  note_input();
   if (action != GLFW_PRESS || ImGui::GetIO().WantCaptureKeyboard) return;
   if (key == GLFW_KEY_Q && (mods & GLFW_MOD_CONTROL)) {
     // Ctrl+Q quits (plain Q is "down"); a --hold run then finishes like a closed window.
@@ -446,6 +460,7 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
 }
 
 void Viewer::on_mouse_button(int button, int action, int mods) {
+  note_input();
   const double x = cursor_x_, y = cursor_y_;
   if (action == GLFW_PRESS) {
     if (ImGui::GetIO().WantCaptureMouse) return;
@@ -481,11 +496,13 @@ void Viewer::on_mouse_button(int button, int action, int mods) {
 }
 
 void Viewer::on_scroll(double /*dx*/, double dy) {
+  note_input();
   if (ImGui::GetIO().WantCaptureMouse) return;
   cam_.dolly(float(dy));
 }
 
 void Viewer::on_cursor_pos(double x, double y) {
+  note_input();
   const double dx = x - cursor_x_, dy = y - cursor_y_;
   cursor_x_ = x;
   cursor_y_ = y;
@@ -503,7 +520,25 @@ void Viewer::on_cursor_pos(double x, double y) {
 }
 
 void Viewer::on_drop(int count, const char** paths) {
+  note_input();
   if (count > 0) start_load(paths[0]);
+}
+
+void Viewer::note_input() {
+  // ImGui updates hover and active state in the frame after an event, and shows the result of
+  // a click in the one after that.
+  settle_frames_ = 3;
+}
+
+bool Viewer::wants_continuous_frames() const {
+  // A coarse preview is showing: keep drawing until the full resolution has been posted.
+  if (settle_frames_ > 0 || glfwWindowShouldClose(window_) || posted_preview_) return true;
+  if (ImGui::GetCurrentContext() && (ImGui::GetIO().WantTextInput || ImGui::IsAnyItemActive())) return true;
+  // Held keys move the camera every frame without sending events.
+  for (int k : {GLFW_KEY_W, GLFW_KEY_A, GLFW_KEY_S, GLFW_KEY_D, GLFW_KEY_Q, GLFW_KEY_E})
+    if (glfwGetKey(window_, k) == GLFW_PRESS) return true;
+  // A scripted --frames run counts frames: give it them at the capped rate.
+  return opts_.frames > 0 && frame_count_ < opts_.frames;
 }
 
 void Viewer::handle_continuous_input(float dt) {
@@ -539,6 +574,7 @@ void Viewer::sync_render_job() {
   const float scale = opts_.resolution_scale * (preview ? kPreviewScale : 1.0f);
   const int w = std::max(1, int(std::lround(fw * scale)));
   const int h = std::max(1, int(std::lround(fh * scale)));
+  posted_preview_ = preview;
   if (world_.get() == posted_world_ && w == posted_w_ && h == posted_h_ && mode_ == posted_mode_ &&
       opts_.max_samples == posted_max_samples_ && same_camera(c, posted_camera_))
     return;
@@ -727,7 +763,8 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   st["samples"] = have_image_ ? image_.samples : 0;
   j["state"] = st;
 
-  j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_}};
+  j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
+                 {"swap_ms", frame_swap_ms_}};
   json passes = json::array();
   for (const PassRecord& p : passes_) {
     const uint64_t rays = p.rays.total();
@@ -1076,7 +1113,8 @@ int Viewer::run() {
     std::fprintf(stderr, "kdgrid-viewer: %s\n", e.what());
     return 3;
   }
-  worker_ = std::make_unique<RenderWorker>();
+  // A finished pass wakes the UI thread if it is asleep waiting for events.
+  worker_ = std::make_unique<RenderWorker>([] { glfwPostEmptyEvent(); });
   start_load(opts_.scene);
   drop_done_ = opts_.drop.empty();
 
@@ -1086,11 +1124,18 @@ int Viewer::run() {
   int exit_code = 0;
   const double min_frame_s = opts_.scripted() && opts_.max_fps > 0 ? 1.0 / opts_.max_fps : 0.0;
   for (;;) {
-    // Scripted runs swap without vsync: wait out the rest of the frame for events instead of
-    // spinning, as a 60 Hz display would make an interactive session wait.
+    // Draw only when something can change what is shown. Idle, sleep on the event queue:
+    // input, a finished pass (the worker posts an empty event) or a finished build wakes it;
+    // the timeout keeps a build's progress bar moving and catches anything else. Busy, scripted
+    // runs (which swap without vsync) wait out the rest of a 60 Hz frame instead of spinning.
     const double since = std::chrono::duration<double>(Clock::now() - last).count();
-    if (min_frame_s > since)
+    if (!wants_continuous_frames()) {
+      const double idle_s = task_ ? kBusyIdleSeconds : kIdleSeconds;
+      if (idle_s > since) glfwWaitEventsTimeout(idle_s - since);
+    } else if (min_frame_s > since) {
       glfwWaitEventsTimeout(min_frame_s - since);
+    }
+    if (settle_frames_ > 0) --settle_frames_;
     glfwPollEvents();
     const auto now = Clock::now();
     const float dt = std::chrono::duration<float>(now - last).count();
@@ -1200,7 +1245,10 @@ int Viewer::run() {
         break;
       }
     }
+    const auto swap_start = Clock::now();
     glfwSwapBuffers(window_);
+    // With a software GL (llvmpipe) the drawing happens here, when the frame is flushed.
+    frame_swap_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - swap_start).count());
     // What the UI thread did this frame: events, hand-over, upload, panels, drawing, swap.
     frame_work_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - now).count());
   }

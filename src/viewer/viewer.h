@@ -86,6 +86,8 @@ class Viewer {
   BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
 
   // ---- per frame
+  void note_input();
+  bool wants_continuous_frames() const;
   void handle_continuous_input(float dt);
   void sync_render_job();
   void receive_image();
@@ -133,6 +135,12 @@ class Viewer {
   // Render job tracking.
   static constexpr float kPreviewScale = 0.35f;  ///< resolution factor while the camera moves
   static constexpr float kRadPerPixel = 0.005f;  ///< orbit / look turn per window unit of drag
+  /// Longest sleep of an idle UI loop (nothing moving, no build), in seconds: input and new
+  /// passes wake it at once, so this only bounds how stale anything else can get.
+  static constexpr double kIdleSeconds = 0.25;
+  /// The same while a build or load runs: its progress bar moves at 10 frames per second.
+  static constexpr double kBusyIdleSeconds = 0.1;
+  int settle_frames_ = 3;  ///< frames still to draw without sleeping after the last input
   Camera last_seen_camera_;
   std::chrono::steady_clock::time_point last_move_{};
   Camera posted_camera_;
@@ -141,6 +149,7 @@ class Viewer {
   const World* posted_world_ = nullptr;
   int posted_max_samples_ = 0;
   uint64_t posted_job_ = 0;
+  bool posted_preview_ = false;  ///< the camera moved within the last moment
 
   // The displayed image.
   RenderedImage image_;
@@ -171,7 +180,7 @@ class Viewer {
     float cell_size = 0;         // requested; 0 = auto
     std::string error;
   };
-  std::vector<float> frame_interval_ms_, frame_work_ms_, colorize_ms_, upload_ms_;
+  std::vector<float> frame_interval_ms_, frame_work_ms_, frame_swap_ms_, colorize_ms_, upload_ms_;
   std::vector<PassRecord> passes_;
   std::vector<BuildRecord> builds_;
 
