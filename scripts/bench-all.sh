@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Measures everything docs/BENCHMARKS.md shows and regenerates that page from the results:
 # the benchmark suite (kdgrid bench), the sweeps (kdgrid sweep), the plots (scripts/plot) and
-# the page (scripts/bench-report). Numbers are never copied by hand.
+# the page (scripts/bench-report). Numbers are never copied by hand. The page's "Viewer"
+# section comes from RESULTS_DIR/viewer.json, measured on its own by scripts/viewer-bench.sh
+# (it needs the viewer and Xvfb); this script leaves that file as it is.
 #
 # Usage: scripts/bench-all.sh [RESULTS_DIR]        (default docs/results)
 # Environment:

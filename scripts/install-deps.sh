@@ -15,6 +15,8 @@ packages=(
   # viewer
   libglfw3-dev libimgui-dev libepoxy-dev libgl-dev
   xvfb xauth libgl1-mesa-dri libglx-mesa0 mesa-utils
+  # viewer input tests: xdotool drives the window, xrdb sets Xft.dpi for the HiDPI test
+  xdotool x11-xserver-utils
   # fuzzing and sanitizers (clang's libFuzzer runtime)
   clang libclang-rt-14-dev
   # plots

@@ -3,7 +3,8 @@
 #   scripts/sanitize.sh address   the whole test suite under ASan+UBSan (viewer not built)
 #   scripts/sanitize.sh thread    the render/upload hand-over and the live rebuild under TSan:
 #                                 a scripted viewer session (render worker, UI thread, rebuild
-#                                 thread, cancel on every change) with a pick under Xvfb
+#                                 thread, a load through the drop handler, cancel on every
+#                                 change, wake-ups of the sleeping UI) with a pick under Xvfb
 # Brute-force references are shared with the release build's cache when it exists.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -29,8 +30,9 @@ case "$kind" in
     LIBGL_ALWAYS_SOFTWARE=1 xvfb-run -a -s '-screen 0 1280x1024x24' \
       build/tsan/src/viewer/kdgrid-viewer assets/cornell.gltf --threads 1 --accel bvh \
       --width 320 --height 240 --frames 10 --min-samples 3 --rebuild-cell-size 0.5 \
-      --pick 160,120 --overlay boxes --heatmap steps --screenshot build/tsan/tsan-viewer.png
-    echo "tsan: viewer session with live rebuild: no data races reported"
+      --pick 160,120 --overlay boxes --heatmap steps --drop assets/cornell.gltf \
+      --screenshot build/tsan/tsan-viewer.png
+    echo "tsan: viewer session with live rebuild and a dropped scene: no data races reported"
     ;;
   *) echo "usage: scripts/sanitize.sh address|thread" >&2; exit 2 ;;
 esac

@@ -12,11 +12,21 @@
 #include <string>
 #include <vector>
 
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
 #include "accel/accelerator.h"
 #include "render/image_io.h"
+#include "scene/load.h"
 #include "test_util.h"
 
 #ifdef KDGRID_VIEWER_PATH
+
+namespace kdgrid {
+// Readable failure messages for camera vectors.
+inline void PrintTo(const Vec3& v, std::ostream* os) { *os << "(" << v.x << ", " << v.y << ", " << v.z << ")"; }
+}  // namespace kdgrid
 
 namespace kdgrid::test {
 namespace {
@@ -250,6 +260,428 @@ TEST(Viewer, LiveRebuildWithNewCellSizeChangesTheView) {
   EXPECT_NE(after.output.find("rebuilt " + accel), std::string::npos) << after.output;
   const double d = rmse(read_image(dir + "/before.png"), read_image(dir + "/after.png"));
   EXPECT_GT(d, 1e-3) << "the screenshot did not change after rebuilding with a new cell size";
+}
+
+// ---- input, drag-and-drop and HiDPI ----------------------------------------------------------
+//
+// The input tests drive the real window with xdotool (XTEST events through the X server, as a
+// user's mouse and keyboard) on a display of their own, and read the camera, mode, speed and
+// pick the viewer ends with from its --stats-json. Every wait is bounded: the window must
+// appear within 60 s, the viewer's --hold ends it after 90 s whatever happens, and the whole
+// run is killed after 240 s.
+
+bool have_xdotool() { return std::system("command -v xdotool >/dev/null 2>&1") == 0; }
+
+#define KDGRID_REQUIRE_XDOTOOL()                                                                \
+  if (!have_xdotool())                                                                          \
+  GTEST_SKIP() << "xdotool is not installed (Debian package xdotool, in scripts/install-deps.sh): "\
+                  "the input tests drive the viewer's window with it"
+
+nlohmann::json read_json(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return nullptr;
+  try {
+    return nlohmann::json::parse(in);
+  } catch (const std::exception&) {
+    return nullptr;
+  }
+}
+
+struct Driven {
+  RunResult run;         // the driver's output (its own notes and the viewer's log) and exit code
+  nlohmann::json stats;  // the viewer's --stats-json, null if it wrote none
+  std::string viewer_log;
+};
+
+/// Shell helpers the actions use; window coordinates are relative to the viewer's window.
+/// Pauses let the viewer draw frames between events, so ImGui sees where the mouse is before a
+/// button goes down (its hover test runs once per frame).
+const char* kDriverHelpers = R"sh(
+mv() { xdotool mousemove --window "$wid" "$1" "$2"; sleep 0.3; }
+click() { mv "$1" "$2"; xdotool click 1; sleep 0.3; }
+# drag BUTTON X0 Y0 X1 Y1: press, move in ten steps, release.
+drag() {
+  mv "$2" "$3"; xdotool mousedown "$1"; sleep 0.2
+  for i in 1 2 3 4 5 6 7 8 9 10; do
+    xdotool mousemove --window "$wid" $(( $2 + ($4 - $2) * i / 10 )) $(( $3 + ($5 - $3) * i / 10 ))
+    sleep 0.05
+  done
+  sleep 0.2; xdotool mouseup "$1"; sleep 0.3
+}
+# wheel N BUTTON: N notches (4 = towards the scene, 5 = away).
+wheel() { for i in $(seq "$1"); do xdotool click "$2"; sleep 0.1; done; sleep 0.2; }
+key() { for k in "$@"; do xdotool key --clearmodifiers "$k"; sleep 0.2; done; }
+# holdkey KEY SECONDS
+holdkey() { xdotool keydown "$1"; sleep "$2"; xdotool keyup "$1"; sleep 0.3; }
+)sh";
+
+/// Runs the viewer on a virtual display of its own, waits until its title names `title_file`
+/// (the scene is installed and the camera reset), runs `actions` (shell using the helpers
+/// above; $wid is the window), presses Ctrl+Q and waits for the viewer to exit. `setup` runs
+/// first on the display (e.g. xrdb). The viewer writes stats.json into `dir`.
+Driven drive_viewer(const std::string& dir, const std::string& args, const std::string& title_file,
+                    const std::string& actions, const std::string& setup = "") {
+  const std::string driver = dir + "/driver.sh";
+  {
+    std::ofstream f(driver);
+    f << "#!/bin/bash\nset -u\ncd '" << dir << "'\n"
+      << setup << "\n"
+      << "'" << KDGRID_VIEWER_PATH << "' " << args << " --stats-json stats.json > viewer.log 2>&1 &\n"
+      << "pid=$!\n"
+      << "wid=$(timeout 60 xdotool search --sync --name 'kdgrid-viewer - " << title_file
+      << "' 2>/dev/null | head -1)\n"
+      << "if [ -z \"$wid\" ]; then\n"
+      << "  echo 'driver: the viewer window never showed " << title_file << " within 60 s'\n"
+      << "  kill $pid 2>/dev/null; wait $pid; cat viewer.log; exit 90\n"
+      << "fi\n"
+      << "echo \"driver: window $wid\"\n"
+      // No window manager runs on Xvfb: give the window the keyboard focus ourselves.
+      << "timeout 10 xdotool windowfocus --sync \"$wid\" || echo 'driver: windowfocus failed'\n"
+      << kDriverHelpers << "\n"
+      << actions << "\n"
+      << "xdotool key --clearmodifiers ctrl+q\n"
+      << "for i in $(seq 1 600); do kill -0 $pid 2>/dev/null || break; sleep 0.1; done\n"
+      << "if kill -0 $pid 2>/dev/null; then echo 'driver: viewer still running 60 s after Ctrl+Q, "
+         "killing it'; kill $pid; fi\n"
+      << "wait $pid; rc=$?\n"
+      << "echo \"driver: viewer exit code $rc\"\n"
+      << "exit $rc\n";
+  }
+  Driven d;
+  const std::string cmd = "cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
+                          "' LIBGL_ALWAYS_SOFTWARE=1 timeout -k 10 240 xvfb-run -a -s '-screen 0 1600x1200x24 -noreset' "
+                          "bash '" + driver + "'";
+  d.run = run_command(cmd);
+  std::ifstream log(dir + "/viewer.log");
+  d.viewer_log.assign(std::istreambuf_iterator<char>(log), std::istreambuf_iterator<char>());
+  d.stats = read_json(dir + "/stats.json");
+  return d;
+}
+
+Vec3 json_vec(const nlohmann::json& j) { return {j[0].get<float>(), j[1].get<float>(), j[2].get<float>()}; }
+
+/// The state's camera (or start_camera) as a Camera.
+Camera json_camera(const nlohmann::json& j) {
+  Camera c;
+  c.eye = json_vec(j["eye"]);
+  c.target = json_vec(j["target"]);
+  c.up = json_vec(j["up"]);
+  c.fov_deg = j["fov"].get<float>();
+  return c;
+}
+
+/// Everything a driven test checks first: the run ended by Ctrl+Q (not by its time limit)
+/// with exit code 0 and left its statistics.
+#define ASSERT_DRIVEN_OK(d)                                                                      \
+  ASSERT_EQ((d).run.code, 0) << (d).run.output << (d).viewer_log;                                \
+  ASSERT_TRUE((d).stats.is_object()) << "no stats.json\n" << (d).run.output << (d).viewer_log;   \
+  ASSERT_EQ((d).stats["end"], "ctrl+q") << (d).run.output << (d).viewer_log
+
+/// The default scene for the input tests (small; it has its own camera, away from the
+/// canonical one, so Home visibly changes the view).
+#define KDGRID_REQUIRE_INPUT_TEST()                                                             \
+  KDGRID_REQUIRE_XVFB();                                                                        \
+  KDGRID_REQUIRE_XDOTOOL();                                                                     \
+  KDGRID_REQUIRE_DEFAULT_SCENE()
+
+// 640x480 leaves the right half of the window free of the panel (330 wide at (8, 8)).
+const std::string kDriven = " --accel bvh --width 640 --height 480 --threads 1 --max-samples 1 --hold 90 ";
+
+TEST(Viewer, InputFlyModeWMovesForwardAlongTheViewDirection) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
+                                "mv 480 240\nkey Tab\nholdkey w 0.6");
+  ASSERT_DRIVEN_OK(d);
+  const auto& st = d.stats["state"];
+  EXPECT_EQ(st["camera_mode"], "fly") << "Tab did not switch orbit to fly";
+  const Camera a = json_camera(st["start_camera"]), b = json_camera(st["camera"]);
+  const Vec3 view = normalize(a.target - a.eye);
+  const Vec3 moved = b.eye - a.eye;
+  ASSERT_GT(length(moved), 1e-4f * length(a.target - a.eye)) << "W did not move the camera";
+  // Along the view direction, forwards; the target travels with the eye (fly, not dolly).
+  EXPECT_GT(dot(normalize(moved), view), 0.9999f);
+  EXPECT_LT(length((b.target - a.target) - moved), 1e-4f * length(moved));
+  EXPECT_NEAR(dot(normalize(b.target - b.eye), view), 1.0f, 1e-5f) << "W turned the view";
+}
+
+TEST(Viewer, InputLeftDragOrbitsAboutTheTargetKeepingTheDistance) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  // 80 units to the right: the eye turns 80 * 0.005 = 0.4 rad about the up axis.
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
+                                "drag 1 420 240 500 240");
+  ASSERT_DRIVEN_OK(d);
+  const auto& st = d.stats["state"];
+  EXPECT_EQ(st["camera_mode"], "orbit");
+  EXPECT_TRUE(st["pick"].is_null()) << "a drag was taken for a click (pick)";
+  const Camera a = json_camera(st["start_camera"]), b = json_camera(st["camera"]);
+  EXPECT_LT(length(b.target - a.target), 1e-6f * length(a.target - a.eye) + 1e-6f) << "the target moved";
+  const float da = length(a.eye - a.target), db = length(b.eye - b.target);
+  EXPECT_NEAR(db / da, 1.0f, 1e-4f) << "orbit changed the distance";
+  // The angle between the start and end offsets, both projected on the plane normal to up.
+  const Vec3 up = normalize(a.up);
+  const Vec3 oa = (a.eye - a.target) - up * dot(a.eye - a.target, up);
+  const Vec3 ob = (b.eye - b.target) - up * dot(b.eye - b.target, up);
+  const float angle = std::acos(std::clamp(dot(normalize(oa), normalize(ob)), -1.0f, 1.0f));
+  EXPECT_NEAR(angle, 0.4f, 0.02f);
+  // A horizontal drag does not change the elevation.
+  EXPECT_NEAR(dot(normalize(a.eye - a.target), up), dot(normalize(b.eye - b.target), up), 1e-4f);
+}
+
+TEST(Viewer, InputRightDragLooksAroundFromTheEye) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
+                                "key Tab\ndrag 3 420 240 480 240");
+  ASSERT_DRIVEN_OK(d);
+  const Camera a = json_camera(d.stats["state"]["start_camera"]), b = json_camera(d.stats["state"]["camera"]);
+  EXPECT_EQ(a.eye, b.eye) << "looking around moved the eye";
+  // 60 units to the right turn the view 60 * 0.005 = 0.3 rad about the up axis.
+  const Vec3 up = normalize(a.up);
+  const Vec3 va = (a.target - a.eye) - up * dot(a.target - a.eye, up);
+  const Vec3 vb = (b.target - b.eye) - up * dot(b.target - b.eye, up);
+  const float angle = std::acos(std::clamp(dot(normalize(va), normalize(vb)), -1.0f, 1.0f));
+  EXPECT_NEAR(angle, 0.3f, 0.02f);
+  EXPECT_NEAR(length(b.target - b.eye), length(a.target - a.eye), 1e-4f * length(a.target - a.eye));
+}
+
+TEST(Viewer, InputWheelDolliesTowardsTheTarget) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  // Three notches in, one out: 0.9^3 / 0.9 of the distance.
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
+                                "mv 480 240\nwheel 3 4\nwheel 1 5");
+  ASSERT_DRIVEN_OK(d);
+  const Camera a = json_camera(d.stats["state"]["start_camera"]), b = json_camera(d.stats["state"]["camera"]);
+  EXPECT_EQ(a.target, b.target);
+  EXPECT_NEAR(length(b.eye - b.target) / length(a.eye - a.target), 0.81f, 1e-4f);
+  EXPECT_NEAR(dot(normalize(a.target - a.eye), normalize(b.target - b.eye)), 1.0f, 1e-6f);
+}
+
+TEST(Viewer, InputSpeedKeysAndHomeFramesTheScene) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
+                                "mv 480 240\nkey plus plus minus equal\nwheel 2 4\ndrag 1 420 240 480 200\nkey Home");
+  ASSERT_DRIVEN_OK(d);
+  const auto& st = d.stats["state"];
+  // + + - = : 1.25^3 / 1.25 (= is + without shift).
+  EXPECT_NEAR(st["speed_scale"].get<float>(), 1.5625f, 1e-5f);
+  // Home: the canonical framing of the scene's bounds (BENCHMARK.md), with the fov kept.
+  const Scene scene = load_scene(kDefaultScene);
+  const Camera start = json_camera(st["start_camera"]), end = json_camera(st["camera"]);
+  const Camera want = canonical_camera(scene.mesh.bounds(), start.fov_deg);
+  const float r = length(scene.mesh.bounds().extent());
+  EXPECT_LT(length(end.eye - want.eye), 1e-5f * r);
+  EXPECT_LT(length(end.target - want.target), 1e-5f * r);
+  EXPECT_GT(length(start.eye - want.eye), 1e-3f * r) << "the scene's own camera is already the framing: "
+                                                         "this test cannot tell Home did anything";
+}
+
+TEST(Viewer, InputCPrintsTheCameraAsFlagsThatRenderReproduces) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui --screenshot viewer.png",
+                                "cornell.gltf", "drag 1 420 240 470 270\nwheel 2 4\nkey c");
+  ASSERT_DRIVEN_OK(d);
+  const std::string flags = d.stats["state"]["camera_flags"];
+  const size_t at = d.viewer_log.find("--eye ");
+  ASSERT_NE(at, std::string::npos) << "C printed nothing\n" << d.viewer_log;
+  const std::string printed = d.viewer_log.substr(at, d.viewer_log.find('\n', at) - at);
+  EXPECT_EQ(printed, flags) << "C printed a different camera from the one the viewer ended with";
+  const Camera start = json_camera(d.stats["state"]["start_camera"]);
+  EXPECT_NE(start.eye, json_camera(d.stats["state"]["camera"]).eye) << "the camera did not move";
+
+  // The same view through `kdgrid render`: the viewer shows one jittered sample per pixel of the
+  // same renderer, seed and size, so the images agree up to 8-bit rounding.
+  const std::string render = "'" + std::string(KDGRID_CLI_PATH) + "' render '" + kDefaultScene +
+                             "' --accel bvh --res 640x480 --spp 1 --threads 1 ";
+  const RunResult r = run_command(render + printed + " -o '" + dir + "/render.png'");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const ImageRGB viewer = read_image(dir + "/viewer.png"), cli = read_image(dir + "/render.png");
+  ASSERT_EQ(viewer.width, cli.width);
+  ASSERT_EQ(viewer.height, cli.height);
+  const double same = rmse(viewer, cli);
+  // And the comparison can fail: the start camera gives a clearly different picture.
+  char start_flags[256];
+  std::snprintf(start_flags, sizeof start_flags, "--eye %.9g,%.9g,%.9g --target %.9g,%.9g,%.9g --fov %.9g",
+                start.eye.x, start.eye.y, start.eye.z, start.target.x, start.target.y, start.target.z,
+                start.fov_deg);
+  const RunResult r0 = run_command(render + start_flags + " -o '" + dir + "/start.png'");
+  ASSERT_EQ(r0.code, 0) << r0.output;
+  const double other = rmse(viewer, read_image(dir + "/start.png"));
+  EXPECT_LT(same, 0.01) << "kdgrid render with the printed flags does not reproduce the view";
+  EXPECT_GT(other, 10 * same + 0.01);
+  // In fact byte for byte: the viewer's table-driven sRGB encoder (image_view.h) must give
+  // exactly the bytes of tonemap_srgb8, which the PNG writer uses.
+  EXPECT_EQ(same, 0.0) << "the viewer shows other bytes than kdgrid render writes for the same samples";
+}
+
+TEST(Viewer, InputImGuiPanelTakesTheMouseFirst) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  // The panel's title bar is at y 8..27 (13 px font) from x 8 to 338. Click it, drag it by
+  // (100, 40), wheel over the panel: none of that may pick or move the camera. Then a click on
+  // the image must pick (so the clicks above would have, had ImGui not taken them).
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven, "cornell.gltf",
+                                "click 150 16\ndrag 1 150 16 250 56\nmv 200 150\nwheel 3 4\nclick 560 400");
+  ASSERT_DRIVEN_OK(d);
+  const auto& st = d.stats["state"];
+  const Camera a = json_camera(st["start_camera"]), b = json_camera(st["camera"]);
+  EXPECT_EQ(a.eye, b.eye) << "input on the panel moved the camera";
+  EXPECT_EQ(a.target, b.target) << "input on the panel moved the camera";
+  const auto& panel = d.stats["display"]["panel"];
+  ASSERT_TRUE(panel.is_object());
+  EXPECT_NEAR(panel["x"].get<float>(), 108.0f, 1.0f) << "the drag did not reach ImGui (panel not moved)";
+  EXPECT_NEAR(panel["y"].get<float>(), 48.0f, 1.0f) << "the drag did not reach ImGui (panel not moved)";
+  ASSERT_TRUE(st["pick"].is_object()) << "the click on the image did not pick";
+  EXPECT_EQ(st["pick"]["x"], 560);
+  EXPECT_EQ(st["pick"]["y"], 400);
+}
+
+TEST(Viewer, IdleWindowSleepsButStillShowsEveryPass) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // Three seconds with nothing to do after four passes: a loop drawing at 60 Hz would draw
+  // about 180 frames; an idle one sleeps on its event queue (waking every 0.25 s at most)
+  // and is woken by each finished pass, which it must still show.
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 320 --height 240 --threads 1 "
+                                      "--hold 3 --min-samples 4 --max-samples 4 --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto stats = read_json(dir + "/stats.json");
+  ASSERT_TRUE(stats.is_object()) << r.output;
+  EXPECT_EQ(stats["end"], "hold expired");
+  EXPECT_EQ(stats["state"]["samples"], 4) << "a finished pass did not reach the screen";
+  const int frames = stats["frames"]["count"];
+  EXPECT_LT(frames, 60) << "the idle viewer kept drawing";
+  EXPECT_GE(frames, 5);
+}
+
+/// A tiny OBJ (a tetrahedron) to drop.
+std::string write_tetrahedron(const std::string& dir) {
+  const std::string path = dir + "/tetra.obj";
+  std::ofstream f(path);
+  f << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+  return path;
+}
+
+TEST(Viewer, DropLoadsTheDroppedScene) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  // xdotool cannot drop files (XDND needs a drag source), so --drop calls the handler that
+  // GLFW's drop callback calls, once the start-up scene is on screen.
+  const std::string dir = scratch_dir();
+  const std::string tetra = write_tetrahedron(dir);
+  const std::string base = "'" + kDefaultScene + "' --accel bvh" + kSmall + "--hide-ui ";
+  const RunResult before = run_viewer(dir, base + "--screenshot before.png");
+  ASSERT_EQ(before.code, 0) << before.output;
+  const RunResult r = run_viewer(dir, base + "--drop '" + tetra + "' --screenshot after.png --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto stats = read_json(dir + "/stats.json");
+  ASSERT_TRUE(stats.is_object()) << r.output;
+  EXPECT_EQ(stats["state"]["scene"], tetra);
+  EXPECT_EQ(stats["state"]["triangles"], 4);
+  ASSERT_EQ(stats["builds"].size(), 2u);
+  EXPECT_EQ(stats["builds"][1]["kind"], "load");
+  // A new scene is framed by its own camera: the picture changes.
+  EXPECT_GT(rmse(read_image(dir + "/before.png"), read_image(dir + "/after.png")), 0.01);
+}
+
+/// Pixels of the error colour: ImGui text in (1, 0.4, 0.4), which read_image returns linear
+/// (0.4 in sRGB is 0.133).
+int error_red_pixels(const ImageRGB& img) {
+  int n = 0;
+  for (size_t i = 0; i + 2 < img.rgb.size(); i += 3) {
+    const float r = img.rgb[i], g = img.rgb[i + 1], b = img.rgb[i + 2];
+    if (r > 0.8f && g > 0.08f && g < 0.25f && std::fabs(g - b) < 0.03f) ++n;
+  }
+  return n;
+}
+
+TEST(Viewer, DroppedBadFileShowsAnErrorAndKeepsTheScene) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  const std::string bad = dir + "/bad.ply";
+  std::ofstream(bad) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\nnot a number\n";
+  // With the panels, 640 wide so they fit.
+  const std::string base = "'" + kDefaultScene + "' --accel bvh --width 640 --height 480 --frames 3 --max-samples 1 ";
+  const RunResult ok = run_viewer(dir, base + "--screenshot ok.png");
+  ASSERT_EQ(ok.code, 0) << ok.output;
+  const RunResult r = run_viewer(dir, base + "--drop '" + bad + "' --screenshot shot.png --stats-json stats.json");
+  // A scripted run reports the failed load with exit code 1, after writing its outputs.
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_NE(r.output.find("bad.ply"), std::string::npos) << r.output;
+  const auto stats = read_json(dir + "/stats.json");
+  ASSERT_TRUE(stats.is_object()) << r.output;
+  EXPECT_EQ(stats["state"]["scene"], kDefaultScene) << "the old scene was not kept";
+  EXPECT_NE(stats["state"]["error"].get<std::string>().find("bad.ply"), std::string::npos);
+  EXPECT_EQ(stats["builds"].back()["kind"], "load");
+  EXPECT_TRUE(stats["builds"].back().contains("error"));
+  // The panel shows the error in red; without the drop there is none of that colour.
+  const int red = error_red_pixels(read_image(dir + "/shot.png"));
+  const int red_ok = error_red_pixels(read_image(dir + "/ok.png"));
+  EXPECT_GT(red, 50 + red_ok) << "no error text on screen";
+}
+
+/// Makes GLFW report a content scale of 2 on this virtual display (Xft.dpi 192 = 2 x 96).
+const std::string kHiDpiSetup = "echo 'Xft.dpi: 192' | xrdb -nocpp -merge || echo 'driver: xrdb failed'";
+
+bool have_xrdb() { return std::system("command -v xrdb >/dev/null 2>&1") == 0; }
+
+TEST(Viewer, HiDpiContentScaleScalesTheUiAndPicksTheRightPixel) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  if (!have_xrdb()) GTEST_SKIP() << "xrdb is not installed (Debian package x11-xserver-utils)";
+  const std::string dir = scratch_dir();
+  // 400x300 screen units at scale 2: an 800x600 window; half resolution renders 400x300, so
+  // a click at window (700, 500) is image pixel (350, 250).
+  const std::string args = "'" + kDefaultScene + "' --accel bvh --width 400 --height 300 --threads 1 "
+                           "--max-samples 1 --hold 90 --resolution-scale 0.5 --screenshot shot.png";
+  const Driven hi = drive_viewer(dir, args, "cornell.gltf", "click 700 500", kHiDpiSetup);
+  ASSERT_DRIVEN_OK(hi);
+  const auto& disp = hi.stats["display"];
+  EXPECT_EQ(disp["content_scale"][0], 2.0f) << "GLFW did not pick up Xft.dpi 192";
+  EXPECT_EQ(disp["ui_scale"], 2.0f);
+  EXPECT_EQ(disp["font_size"], 26.0f);
+  EXPECT_EQ(disp["window"][0], 800);
+  EXPECT_EQ(disp["framebuffer"][0], 800);
+  EXPECT_EQ(disp["framebuffer"][1], 600);
+  EXPECT_EQ(disp["image"][0], 400);
+  EXPECT_EQ(disp["image"][1], 300);
+  const ImageRGB shot = read_image(dir + "/shot.png");
+  EXPECT_EQ(shot.width, 800) << "the screenshot is not the framebuffer";
+  ASSERT_TRUE(hi.stats["state"]["pick"].is_object()) << hi.viewer_log;
+  EXPECT_EQ(hi.stats["state"]["pick"]["x"], 350);
+  EXPECT_EQ(hi.stats["state"]["pick"]["y"], 250);
+
+  // The same run at 96 dpi: the panel is half as wide.
+  const std::string dir1 = dir + "/dpi96";
+  fs::create_directories(dir1);
+  const Driven lo = drive_viewer(dir1, args, "cornell.gltf", "click 350 250");
+  ASSERT_DRIVEN_OK(lo);
+  EXPECT_EQ(lo.stats["display"]["content_scale"][0], 1.0f);
+  EXPECT_EQ(lo.stats["display"]["window"][0], 400);
+  EXPECT_NEAR(disp["panel"]["w"].get<float>() / lo.stats["display"]["panel"]["w"].get<float>(), 2.0f, 0.02f);
+  EXPECT_EQ(lo.stats["state"]["pick"]["x"], 175);
+}
+
+TEST(Viewer, HiDpiRemembersTheWindowSizeInScreenUnits) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  if (!have_xrdb()) GTEST_SKIP() << "xrdb is not installed (Debian package x11-xserver-utils)";
+  const std::string dir = scratch_dir();
+  // An interactive run (no --hold): it remembers its window size when closed. At scale 2 the
+  // 400x300 window is 800x600 pixels; remembering 800 would double it at every start.
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 400 --height 300 --threads 1 "
+                                "--max-samples 1", "cornell.gltf", "mv 300 200", kHiDpiSetup);
+  ASSERT_EQ(d.run.code, 0) << d.run.output << d.viewer_log;
+  ASSERT_TRUE(d.stats.is_object()) << d.run.output << d.viewer_log;
+  EXPECT_EQ(d.stats["display"]["window"][0], 800);
+  const auto settings = read_json(dir + "/kdgrid/viewer.json");
+  ASSERT_TRUE(settings.is_object()) << "no remembered settings in " << dir << "/kdgrid";
+  EXPECT_EQ(settings["window_width"], 400);
+  EXPECT_EQ(settings["window_height"], 300);
 }
 
 }  // namespace

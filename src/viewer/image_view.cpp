@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <stdexcept>
 
 #include <OpenImageIO/imageio.h>
 
@@ -28,16 +30,58 @@ float heat_position(float count, HeatRange r, HeatScale scale) {
   return (count - r.lo) / (r.hi - r.lo);
 }
 
+SrgbEncoder::SrgbEncoder() {
+  // The byte tonemap_srgb8 gives one value: the encoder is defined by it, not by a copy of
+  // its formula.
+  std::vector<float> one(1);
+  std::vector<uint8_t> byte;
+  const auto encode = [&](float c) {
+    one[0] = c;
+    tonemap_srgb8(one, byte);
+    return int(byte[0]);
+  };
+  const auto bits = [](float f) {
+    uint32_t u;
+    std::memcpy(&u, &f, sizeof u);
+    return u;
+  };
+  const auto from_bits = [](uint32_t u) {
+    float f;
+    std::memcpy(&f, &u, sizeof f);
+    return f;
+  };
+  // Non-negative floats order like their bit patterns, so bisect on those: the smallest
+  // value in [0, 1] that encodes to k or more.
+  thresholds_[0] = 0.0f;
+  for (int k = 1; k < 256; ++k) {
+    uint32_t lo = bits(0.0f), hi = bits(1.0f);  // encode(hi) = 255 >= k
+    while (lo < hi) {
+      const uint32_t mid = lo + (hi - lo) / 2;
+      if (encode(from_bits(mid)) >= k)
+        hi = mid;
+      else
+        lo = mid + 1;
+    }
+    thresholds_[k] = from_bits(lo);
+  }
+  thresholds_[256] = kInf;  // byte 255 never steps up
+  for (uint32_t e = 0; e <= (kOne >> kShift); ++e) {
+    const uint32_t first = e << kShift, last = std::min(first + ((1u << kShift) - 1), kOne);
+    const int lo = encode(from_bits(first)), hi = encode(from_bits(last));
+    if (hi - lo > 1) throw std::logic_error("SrgbEncoder: table entry spans more than two bytes");
+    lut_[e] = uint8_t(lo);
+  }
+}
+
 void colorize(const RenderedImage& img, HeatScale scale, HeatRange range, std::vector<uint8_t>& rgba) {
   const size_t n = size_t(img.width) * size_t(img.height);
   rgba.resize(n * 4);
   if (img.mode == RenderMode::Shaded) {
-    std::vector<uint8_t> rgb;
-    tonemap_srgb8(img.rgb, rgb);
+    static const SrgbEncoder encoder;  // thread-safe one-time set-up (a few ms)
     for (size_t i = 0; i < n; ++i) {
-      rgba[i * 4 + 0] = rgb[i * 3 + 0];
-      rgba[i * 4 + 1] = rgb[i * 3 + 1];
-      rgba[i * 4 + 2] = rgb[i * 3 + 2];
+      rgba[i * 4 + 0] = encoder(img.rgb[i * 3 + 0]);
+      rgba[i * 4 + 1] = encoder(img.rgb[i * 3 + 1]);
+      rgba[i * 4 + 2] = encoder(img.rgb[i * 3 + 2]);
       rgba[i * 4 + 3] = 255;
     }
     return;

@@ -100,6 +100,24 @@ int main(int argc, char** argv) {
                  "Scripted: write the heat map's raw per-pixel counts to this EXR (needs --heatmap)")
       ->group(gs);
   app.add_flag("--hide-ui", o.hide_ui, "Hide the ImGui panels (reproducible screenshots)")->group(gs);
+  app.add_option("--hold", o.hold,
+                 "Keep the window open and interactive for up to this many seconds (for input "
+                 "driven by xdotool); Ctrl+Q or closing the window ends it sooner. Then finish "
+                 "the image and write --screenshot / --stats-json")
+      ->group(gs)
+      ->check(CLI::Range(0.001, 86400.0));
+  app.add_option("--stats-json", o.stats_json,
+                 "Write the run's statistics (every frame, pass and build; window, framebuffer, "
+                 "content scale) and its final state (scene, camera, mode, speed, pick) as JSON at exit")
+      ->group(gs);
+  app.add_option("--drop", o.drop,
+                 "Once the first image is shown, load this file through the drag-and-drop handler")
+      ->group(gs);
+  app.add_option("--max-fps", o.max_fps,
+                 "Scripted runs: frames per second cap (they swap without vsync); 0 = unlimited")
+      ->group(gs)
+      ->check(CLI::Range(0, 1000))
+      ->capture_default_str();
 
   try {
     app.parse(argc, argv);
@@ -118,8 +136,10 @@ int main(int argc, char** argv) {
         throw kdgrid::ParamError("--pick '" + pick + "' must be X,Y image pixel coordinates, e.g. 320,240");
       o.pick = std::array<int, 2>{x, y};
     }
+    if (o.frames > 0 && o.hold > 0)
+      throw kdgrid::ParamError("--frames and --hold both end a scripted run; give one of them");
     if (!o.screenshot.empty() && !o.scripted())
-      throw kdgrid::ParamError("--screenshot needs --frames N (the number of frames to run first)");
+      throw kdgrid::ParamError("--screenshot needs --frames N (the number of frames to run first) or --hold SECONDS");
     if (!o.export_heatmap.empty() && (o.heatmap.empty() || !o.scripted()))
       throw kdgrid::ParamError("--export-heatmap needs --heatmap steps|tests and --frames N");
     if (!o.export_heatmap.empty()) kdgrid::check_image_extension(o.export_heatmap);
@@ -131,6 +151,7 @@ int main(int argc, char** argv) {
     return 2;
   }
 
+  o.threads = threads;
   std::unique_ptr<tbb::global_control> thread_limit;
   if (threads > 0)
     thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,

@@ -2,10 +2,12 @@
 
 #include <chrono>
 #include <exception>
+#include <utility>
 
 namespace kdgrid::viewer {
 
-RenderWorker::RenderWorker() : thread_([this] { loop(); }) {}
+RenderWorker::RenderWorker(std::function<void()> on_image)
+    : on_image_(std::move(on_image)), thread_([this] { loop(); }) {}
 
 RenderWorker::~RenderWorker() {
   {
@@ -53,7 +55,7 @@ void RenderWorker::loop() {
   RenderJob job;
   uint64_t id = 0;
   bool failed = false;
-  uint64_t rays_before = 0;
+  RenderCounters rays_before;
   RenderedImage local;
   for (;;) {
     bool changed = false;
@@ -94,7 +96,7 @@ void RenderWorker::loop() {
         renderer->set_camera(job.camera);
         // Only now that the renderer no longer points at the old world may it be released.
         world = job.world;
-        rays_before = 0;
+        rays_before = RenderCounters{};
       }
       const auto t0 = std::chrono::steady_clock::now();
       if (!renderer->render_pass(&cancel_)) continue;  // cancelled: a new job is waiting
@@ -106,18 +108,26 @@ void RenderWorker::loop() {
       local.mode = job.settings.mode;
       local.job_id = id;
       local.pass_seconds = secs;
-      const uint64_t rays = renderer->counters().total();
-      local.pass_rays = rays - rays_before;
-      rays_before = rays;
+      const RenderCounters& rc = renderer->counters();
+      local.pass_counters.primary = rc.primary - rays_before.primary;
+      local.pass_counters.shadow = rc.shadow - rays_before.shadow;
+      local.pass_counters.reflection = rc.reflection - rays_before.reflection;
+      local.pass_counters.refraction = rc.refraction - rays_before.refraction;
+      local.pass_rays = local.pass_counters.total();
+      rays_before = rc;
       {
         std::lock_guard lk(image_mutex_);
         std::swap(local, ready_);
         fresh_ = true;
       }
+      if (on_image_) on_image_();
     } catch (const std::exception& e) {
       failed = true;
-      std::lock_guard lk(job_mutex_);
-      error_ = e.what();
+      {
+        std::lock_guard lk(job_mutex_);
+        error_ = e.what();
+      }
+      if (on_image_) on_image_();
     }
   }
 }

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -47,11 +48,14 @@ struct RenderedImage {
   uint64_t job_id = 0;        ///< which post() produced it
   double pass_seconds = 0;    ///< wall time of the pass that completed it
   uint64_t pass_rays = 0;     ///< rays traced by that pass
+  RenderCounters pass_counters;  ///< the same, by kind (primary, shadow, ...)
 };
 
 class RenderWorker {
  public:
-  RenderWorker();
+  /// `on_image` (optional) is called on the worker thread after each completed pass, and after
+  /// a failure, so that a UI thread sleeping on its event queue can wake up for it.
+  explicit RenderWorker(std::function<void()> on_image = {});
   ~RenderWorker();
   RenderWorker(const RenderWorker&) = delete;
   RenderWorker& operator=(const RenderWorker&) = delete;
@@ -87,6 +91,7 @@ class RenderWorker {
   RenderedImage ready_;     // guarded by image_mutex_
   bool fresh_ = false;      // guarded by image_mutex_
 
+  const std::function<void()> on_image_;  // set before the thread starts, then only read
   std::thread thread_;      // last: started after every member above exists
 };
 

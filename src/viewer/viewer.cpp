@@ -12,7 +12,11 @@
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
+#include <fstream>
 #include <sstream>
+
+#include <nlohmann/json.hpp>
+#include <tbb/global_control.h>
 
 #include "scene/load.h"
 #include "util/error.h"
@@ -90,6 +94,15 @@ const char* kind_name(StepKind k) {
   return "?";
 }
 
+/// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
+/// it ends; it polls the task's future at once instead of at its next timeout.
+struct WakeUiOnExit {
+  WakeUiOnExit() = default;
+  WakeUiOnExit(const WakeUiOnExit&) = delete;
+  WakeUiOnExit& operator=(const WakeUiOnExit&) = delete;
+  ~WakeUiOnExit() { glfwPostEmptyEvent(); }
+};
+
 void push_history(std::deque<float>& h, float v) {
   h.push_back(v);
   while (h.size() > 120) h.pop_front();
@@ -156,6 +169,7 @@ bool Viewer::create_window() {
     return false;
   }
   glfwSetWindowUserPointer(window_, this);
+  glfwGetWindowContentScale(window_, &content_scale_[0], &content_scale_[1]);
   glfwMakeContextCurrent(window_);
   // Interactive: follow the display's refresh. Scripted: never block on vsync.
   glfwSwapInterval(opts_.scripted() ? 0 : 1);
@@ -163,6 +177,12 @@ bool Viewer::create_window() {
 }
 
 void Viewer::init_gl() {
+  const auto gl_string = [](GLenum e) {
+    const GLubyte* v = glGetString(e);
+    return v ? std::string(reinterpret_cast<const char*>(v)) : std::string("?");
+  };
+  gl_renderer_ = gl_string(GL_RENDERER);
+  gl_version_ = gl_string(GL_VERSION);
   image_program_ = make_program("image", shaders::k_image_vert, shaders::k_image_frag);
   GL_CHECK(glGenVertexArrays(1, &empty_vao_));
   GL_CHECK(glGenTextures(1, &tex_));
@@ -183,7 +203,13 @@ void Viewer::init_gl() {
     self(w)->on_mouse_button(b, a, m);
   });
   glfwSetScrollCallback(window_, [](GLFWwindow* w, double dx, double dy) { self(w)->on_scroll(dx, dy); });
+  // ImGui 1.86's GLFW backend polls the cursor and installs no position callback, so this one
+  // stays ours; drags follow every reported position, not one sample per frame.
+  glfwSetCursorPosCallback(window_, [](GLFWwindow* w, double x, double y) { self(w)->on_cursor_pos(x, y); });
+  glfwGetCursorPos(window_, &cursor_x_, &cursor_y_);
   glfwSetDropCallback(window_, [](GLFWwindow* w, int n, const char** p) { self(w)->on_drop(n, p); });
+  glfwSetFramebufferSizeCallback(window_, [](GLFWwindow* w, int, int) { self(w)->note_input(); });
+  glfwSetWindowRefreshCallback(window_, [](GLFWwindow* w) { self(w)->note_input(); });
 
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();
@@ -194,16 +220,25 @@ void Viewer::init_gl() {
   } else {
     io.IniFilename = nullptr;  // scripted runs use the default layout
   }
-  ImGui::StyleColorsDark();
-  float sx = 1, sy = 1;
-  glfwGetWindowContentScale(window_, &sx, &sy);
-  const float scale = std::max(1.0f, std::max(sx, sy));
-  if (scale > 1.0f) {
-    ImGui::GetStyle().ScaleAllSizes(scale);
-    io.FontGlobalScale = scale;
-  }
+  apply_ui_scale(std::max(content_scale_[0], content_scale_[1]));
   ImGui_ImplGlfw_InitForOpenGL(window_, true);
   ImGui_ImplOpenGL3_Init("#version 330 core");
+}
+
+void Viewer::apply_ui_scale(float scale) {
+  // Below 1 the default font becomes unreadable; fractional scales above 1 are kept.
+  ui_scale_ = std::clamp(scale, 1.0f, 8.0f);
+  ImGui::GetStyle() = ImGuiStyle();
+  ImGui::StyleColorsDark();
+  ImGui::GetStyle().ScaleAllSizes(ui_scale_);
+  // Rasterise the font at the scaled size instead of magnifying a 13 px atlas
+  // (FontGlobalScale), so text stays sharp on a HiDPI screen.
+  ImGuiIO& io = ImGui::GetIO();
+  io.Fonts->Clear();
+  ImFontConfig font;
+  font.SizePixels = std::round(13.0f * ui_scale_);
+  io.Fonts->AddFontDefault(&font);
+  io.FontGlobalScale = 1.0f;
 }
 
 void Viewer::shutdown() {
@@ -215,7 +250,20 @@ void Viewer::shutdown() {
   }
   if (!window_) return;
   if (!opts_.scripted()) {
-    glfwGetWindowSize(window_, &settings_.window_width, &settings_.window_height);
+    int ww, wh, fw, fh;
+    glfwGetWindowSize(window_, &ww, &wh);
+    glfwGetFramebufferSize(window_, &fw, &fh);
+    // Where window coordinates are pixels (X11, Windows), GLFW_SCALE_TO_MONITOR multiplied the
+    // requested size by the content scale; store the unscaled size, or the window would grow
+    // by that factor at every start. Where they are not (macOS, Wayland) the framebuffer is
+    // larger than the window and the size is already in screen units.
+    const float cs = std::max(content_scale_[0], content_scale_[1]);
+    if (fw == ww && fh == wh && cs > 1.0f) {
+      ww = int(std::lround(ww / cs));
+      wh = int(std::lround(wh / cs));
+    }
+    settings_.window_width = ww;
+    settings_.window_height = wh;
     settings_.accel = accel_name_;
     settings_.cell_size = params_.cell_size > 0 ? fmt_float(params_.cell_size) : "auto";
     save_settings(config_dir_, settings_);
@@ -264,9 +312,11 @@ void Viewer::start_load(const std::string& path) {
   const BuildParams params = params_;
   Task t;
   t.what = "loading " + std::filesystem::path(path).filename().string();
+  t.kind = "load";
   t.new_scene = true;
   t.started = Clock::now();
   t.result = std::async(std::launch::async, [path, name, params] {
+    const WakeUiOnExit wake;
     auto scene = std::make_shared<Scene>(load_scene(path));
     auto w = std::make_shared<World>();
     w->scene = scene;
@@ -290,8 +340,10 @@ void Viewer::start_build(const std::string& name, const BuildParams& params) {
   std::shared_ptr<const Scene> scene = world_->scene;
   Task t;
   t.what = "building " + name;
+  t.kind = name == accel_name_ ? "rebuild" : "build";
   t.started = Clock::now();
   t.result = std::async(std::launch::async, [scene, name, params] {
+    const WakeUiOnExit wake;
     auto w = std::make_shared<World>();
     w->scene = scene;
     w->name = name;
@@ -308,18 +360,29 @@ void Viewer::poll_tasks() {
   if (!task_ || task_->result.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
   const bool new_scene = task_->new_scene;
   const bool was_scripted_rebuild = scripted_rebuild_started_ && !scripted_rebuild_done_ && !new_scene;
+  BuildRecord rec;
+  rec.kind = task_->kind;
+  rec.wall_seconds = std::chrono::duration<double>(Clock::now() - task_->started).count();
   try {
     std::shared_ptr<World> w = task_->result.get();
     std::printf("kdgrid-viewer: %s %s in %.3f s (%s)\n", new_scene ? "loaded and built" : "rebuilt",
                 w->name.c_str(), w->build_seconds, format_bytes(w->accel->stats().bytes).c_str());
     std::fflush(stdout);
+    rec.accel = w->name;
+    rec.scene = w->scene->source;
+    rec.build_seconds = w->build_seconds;
+    rec.stats = w->accel->stats();
+    rec.cell_size = w->params.cell_size;
     install_world(std::move(w), new_scene);
   } catch (const std::exception& e) {
     task_error_ = e.what();
+    rec.error = e.what();
     std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(), e.what());
   }
+  builds_.push_back(std::move(rec));
   task_.reset();
   if (was_scripted_rebuild) scripted_rebuild_done_ = true;
+  if (drop_started_ && new_scene) drop_done_ = true;
   if (pending_build_) {
     auto [name, params] = *pending_build_;
     pending_build_.reset();
@@ -335,8 +398,14 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
     // Command-line camera flags apply to the scene given on the command line only.
     if (first) c = opts_.camera.apply(c);
     cam_.reset(c, w->scene->mesh.bounds());
+    start_camera_ = cam_.camera();
     pick_.reset();
     trace_lines_.upload(LineBatch{});
+    // The title names the scene; input tests wait for it (xdotool search --sync --name)
+    // before they send events, as the camera is reset here.
+    const std::string title =
+        "kdgrid-viewer - " + std::filesystem::path(w->scene->source).filename().string();
+    glfwSetWindowTitle(window_, title.c_str());
   }
   accel_name_ = w->name;
   params_ = w->params;
@@ -348,8 +417,21 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
 
 // ---- input -----------------------------------------------------------------------------------
 
+void Viewer::print_camera() {
+  message_ = cam_.cli_flags();
+  std::printf("%s\n", message_.c_str());
+  std::fflush(stdout);
+}
+
 void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
+  note_input();
   if (action != GLFW_PRESS || ImGui::GetIO().WantCaptureKeyboard) return;
+  if (key == GLFW_KEY_Q && (mods & GLFW_MOD_CONTROL)) {
+    // Ctrl+Q quits (plain Q is "down"); a --hold run then finishes like a closed window.
+    glfwSetWindowShouldClose(window_, GLFW_TRUE);
+    if (end_reason_.empty()) end_reason_ = "ctrl+q";
+    return;
+  }
   switch (key) {
     case GLFW_KEY_TAB:
       cam_.toggle_mode();
@@ -358,9 +440,7 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
       cam_.frame_scene();
       break;
     case GLFW_KEY_C:
-      message_ = cam_.cli_flags();
-      std::printf("%s\n", message_.c_str());
-      std::fflush(stdout);
+      print_camera();
       break;
     case GLFW_KEY_EQUAL:
     case GLFW_KEY_KP_ADD:
@@ -377,12 +457,11 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
     default:
       break;
   }
-  (void)mods;
 }
 
 void Viewer::on_mouse_button(int button, int action, int mods) {
-  double x, y;
-  glfwGetCursorPos(window_, &x, &y);
+  note_input();
+  const double x = cursor_x_, y = cursor_y_;
   if (action == GLFW_PRESS) {
     if (ImGui::GetIO().WantCaptureMouse) return;
     if (button == GLFW_MOUSE_BUTTON_LEFT) {
@@ -396,12 +475,10 @@ void Viewer::on_mouse_button(int button, int action, int mods) {
       }
       left_down_ = true;
       dragged_ = false;
-      press_x_ = last_x_ = x;
-      press_y_ = last_y_ = y;
+      press_x_ = x;
+      press_y_ = y;
     } else if (button == GLFW_MOUSE_BUTTON_RIGHT) {
       right_down_ = true;
-      last_x_ = x;
-      last_y_ = y;
     }
   } else if (action == GLFW_RELEASE) {
     if (button == GLFW_MOUSE_BUTTON_LEFT && left_down_) {
@@ -419,29 +496,56 @@ void Viewer::on_mouse_button(int button, int action, int mods) {
 }
 
 void Viewer::on_scroll(double /*dx*/, double dy) {
+  note_input();
   if (ImGui::GetIO().WantCaptureMouse) return;
   cam_.dolly(float(dy));
 }
 
+void Viewer::on_cursor_pos(double x, double y) {
+  note_input();
+  const double dx = x - cursor_x_, dy = y - cursor_y_;
+  cursor_x_ = x;
+  cursor_y_ = y;
+  if (left_down_) {
+    if (dragged_) {
+      cam_.orbit(-float(dx) * kRadPerPixel, float(dy) * kRadPerPixel);
+    } else if (std::hypot(x - press_x_, y - press_y_) > 3.0) {
+      // A press that moves less than 3 units is a click (pick). Past that it is a drag, and
+      // the motion since the press counts, so the orbit follows the cursor exactly.
+      dragged_ = true;
+      cam_.orbit(-float(x - press_x_) * kRadPerPixel, float(y - press_y_) * kRadPerPixel);
+    }
+  }
+  if (right_down_ && (dx != 0 || dy != 0)) cam_.look(-float(dx) * kRadPerPixel, -float(dy) * kRadPerPixel);
+}
+
 void Viewer::on_drop(int count, const char** paths) {
+  note_input();
   if (count > 0) start_load(paths[0]);
 }
 
-void Viewer::handle_continuous_input(float dt) {
-  double x, y;
-  glfwGetCursorPos(window_, &x, &y);
-  const double dx = x - last_x_, dy = y - last_y_;
-  last_x_ = x;
-  last_y_ = y;
-  const float kRadPerPixel = 0.005f;
-  if (left_down_) {
-    if (!dragged_ && std::hypot(x - press_x_, y - press_y_) > 3.0) dragged_ = true;
-    if (dragged_ && (dx != 0 || dy != 0)) cam_.orbit(-float(dx) * kRadPerPixel, float(dy) * kRadPerPixel);
-  }
-  if (right_down_ && (dx != 0 || dy != 0)) cam_.look(-float(dx) * kRadPerPixel, -float(dy) * kRadPerPixel);
+void Viewer::note_input() {
+  // ImGui updates hover and active state in the frame after an event, and shows the result of
+  // a click in the one after that.
+  settle_frames_ = 3;
+}
 
-  if (ImGui::GetIO().WantCaptureKeyboard) return;
+bool Viewer::wants_continuous_frames() const {
+  // A coarse preview is showing: keep drawing until the full resolution has been posted.
+  if (settle_frames_ > 0 || glfwWindowShouldClose(window_) || posted_preview_) return true;
+  if (ImGui::GetCurrentContext() && (ImGui::GetIO().WantTextInput || ImGui::IsAnyItemActive())) return true;
+  // Held keys move the camera every frame without sending events.
+  for (int k : {GLFW_KEY_W, GLFW_KEY_A, GLFW_KEY_S, GLFW_KEY_D, GLFW_KEY_Q, GLFW_KEY_E})
+    if (glfwGetKey(window_, k) == GLFW_PRESS) return true;
+  // A scripted --frames run counts frames: give it them at the capped rate.
+  return opts_.frames > 0 && frame_count_ < opts_.frames;
+}
+
+void Viewer::handle_continuous_input(float dt) {
+  if (ImGui::GetIO().WantCaptureKeyboard || glfwWindowShouldClose(window_)) return;
   const auto down = [&](int k) { return glfwGetKey(window_, k) == GLFW_PRESS ? 1.0f : 0.0f; };
+  // Ctrl+letter is a shortcut (Ctrl+Q quits), not a move.
+  if (down(GLFW_KEY_LEFT_CONTROL) + down(GLFW_KEY_RIGHT_CONTROL) > 0) return;
   const float right = down(GLFW_KEY_D) - down(GLFW_KEY_A);
   const float up = down(GLFW_KEY_E) - down(GLFW_KEY_Q);
   const float fwd = down(GLFW_KEY_W) - down(GLFW_KEY_S);
@@ -470,6 +574,7 @@ void Viewer::sync_render_job() {
   const float scale = opts_.resolution_scale * (preview ? kPreviewScale : 1.0f);
   const int w = std::max(1, int(std::lround(fw * scale)));
   const int h = std::max(1, int(std::lround(fh * scale)));
+  posted_preview_ = preview;
   if (world_.get() == posted_world_ && w == posted_w_ && h == posted_h_ && mode_ == posted_mode_ &&
       opts_.max_samples == posted_max_samples_ && same_camera(c, posted_camera_))
     return;
@@ -497,11 +602,22 @@ void Viewer::receive_image() {
       last_mrays_ = float(double(image_.pass_rays) / image_.pass_seconds * 1e-6);
       push_history(mrays_hist_, last_mrays_);
     }
+    PassRecord pr;
+    pr.job = image_.job_id;
+    pr.width = image_.width;
+    pr.height = image_.height;
+    pr.samples = image_.samples;
+    pr.seconds = image_.pass_seconds;
+    pr.rays = image_.pass_counters;
+    passes_.push_back(pr);
   }
   if (!recolor_ || !have_image_) return;
   recolor_ = false;
+  const auto t0 = Clock::now();
   heat_range_ = heat_range(image_, settings_.heat_scale, settings_.heat_fixed_min, settings_.heat_fixed_max);
   colorize(image_, settings_.heat_scale, heat_range_, rgba_);
+  const auto t1 = Clock::now();
+  colorize_ms_.push_back(std::chrono::duration<float, std::milli>(t1 - t0).count());
   GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
   GL_CHECK(glPixelStorei(GL_UNPACK_ALIGNMENT, 1));
   if (image_.width != tex_w_ || image_.height != tex_h_) {
@@ -513,6 +629,8 @@ void Viewer::receive_image() {
     GL_CHECK(glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, image_.width, image_.height, GL_RGBA,
                              GL_UNSIGNED_BYTE, rgba_.data()));
   }
+  // CPU time of the upload calls; with Mesa's llvmpipe that includes the copy itself.
+  upload_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - t1).count());
 }
 
 // ---- overlays and pick ----------------------------------------------------------------------
@@ -580,13 +698,127 @@ void Viewer::save_screenshot(const std::string& path) {
   std::fflush(stdout);
 }
 
+namespace {
+
+nlohmann::json vec_json(const Vec3& v) { return {v.x, v.y, v.z}; }
+
+nlohmann::json camera_json(const Camera& c) {
+  return {{"eye", vec_json(c.eye)}, {"target", vec_json(c.target)}, {"up", vec_json(c.up)}, {"fov", c.fov_deg}};
+}
+
+}  // namespace
+
+void Viewer::write_stats(const std::string& path, int exit_code) const {
+  using nlohmann::json;
+  int ww = 0, wh = 0, fw = 0, fh = 0;
+  glfwGetWindowSize(window_, &ww, &wh);
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  json j;
+  j["exit_code"] = exit_code;
+  j["end"] = end_reason_;
+  j["display"] = {{"window", {ww, wh}},
+                  {"framebuffer", {fw, fh}},
+                  {"content_scale", {content_scale_[0], content_scale_[1]}},
+                  {"ui_scale", ui_scale_},
+                  {"font_size", ImGui::GetIO().Fonts->Fonts.empty() ? 0.0f : ImGui::GetIO().Fonts->Fonts[0]->FontSize},
+                  {"image", {posted_w_, posted_h_}},
+                  {"panel", opts_.hide_ui ? json(nullptr)
+                                          : json{{"x", panel_rect_[0]}, {"y", panel_rect_[1]},
+                                                 {"w", panel_rect_[2]}, {"h", panel_rect_[3]}}},
+                  {"gl_renderer", gl_renderer_},
+                  {"gl_version", gl_version_}};
+  const RenderSettings rs;  // what sync_render_job leaves at its defaults
+  j["settings"] = {{"threads", tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)},
+                   {"threads_option", opts_.threads},
+                   {"max_samples", opts_.max_samples},
+                   {"samples_per_pass", 1},
+                   {"shadows", rs.shadows},
+                   {"max_depth", rs.max_depth},
+                   {"resolution_scale", opts_.resolution_scale},
+                   {"max_fps", opts_.max_fps},
+                   {"mode", mode_name(mode_)}};
+  json st;
+  if (world_) {
+    st["scene"] = world_->scene->source;
+    st["triangles"] = world_->scene->mesh.num_triangles();
+    st["accel"] = world_->name;
+    st["cell_size"] = world_->params.cell_size;
+  } else {
+    st["scene"] = nullptr;
+  }
+  st["camera"] = camera_json(cam_.camera());
+  st["start_camera"] = camera_json(start_camera_);
+  st["camera_mode"] = cam_.mode() == CameraMode::Fly ? "fly" : "orbit";
+  st["speed_scale"] = cam_.speed_scale();
+  st["speed"] = cam_.speed();
+  st["camera_flags"] = cam_.cli_flags();
+  if (pick_)
+    st["pick"] = {{"x", pick_->x}, {"y", pick_->y}, {"steps", pick_->trace.steps.size()},
+                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}};
+  else
+    st["pick"] = nullptr;
+  st["message"] = message_;
+  st["error"] = task_error_;
+  st["render_error"] = worker_ ? worker_->error() : std::string();
+  st["samples"] = have_image_ ? image_.samples : 0;
+  j["state"] = st;
+
+  j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
+                 {"swap_ms", frame_swap_ms_}};
+  json passes = json::array();
+  for (const PassRecord& p : passes_) {
+    const uint64_t rays = p.rays.total();
+    passes.push_back({{"job", p.job},
+                      {"width", p.width},
+                      {"height", p.height},
+                      {"samples", p.samples},
+                      {"seconds", p.seconds},
+                      {"rays", rays},
+                      {"primary", p.rays.primary},
+                      {"shadow", p.rays.shadow},
+                      {"reflection", p.rays.reflection},
+                      {"refraction", p.rays.refraction},
+                      {"mrays", p.seconds > 0 ? double(rays) / p.seconds * 1e-6 : 0.0}});
+  }
+  j["passes"] = passes;
+  j["colorize_ms"] = colorize_ms_;
+  j["upload_ms"] = upload_ms_;
+  json builds = json::array();
+  for (const BuildRecord& b : builds_) {
+    json e = {{"kind", b.kind}, {"accel", b.accel}, {"scene", b.scene}, {"build_seconds", b.build_seconds},
+              {"wall_seconds", b.wall_seconds}, {"requested_cell_size", b.cell_size}};
+    if (!b.error.empty()) {
+      e["error"] = b.error;
+    } else {
+      json extra = json::object();
+      for (const auto& [k, v] : b.stats.extra) extra[k] = v;
+      e["stats"] = {{"seconds", b.stats.seconds}, {"bytes", b.stats.bytes}, {"nodes", b.stats.nodes},
+                    {"leaves", b.stats.leaves}, {"max_depth", b.stats.max_depth}, {"extra", extra}};
+    }
+    builds.push_back(e);
+  }
+  j["builds"] = builds;
+
+  std::ofstream out(path);
+  out << j.dump(1) << "\n";
+  if (!out)
+    std::fprintf(stderr, "kdgrid-viewer: could not write --stats-json %s\n", path.c_str());
+  else
+    std::printf("kdgrid-viewer: wrote %s\n", path.c_str());
+  std::fflush(stdout);
+}
+
 // ---- panels ----------------------------------------------------------------------------------
 
 void Viewer::draw_panels() {
-  ImGuiIO& io = ImGui::GetIO();
-  ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
-  ImGui::SetNextWindowSize(ImVec2(330 * io.FontGlobalScale, 0), ImGuiCond_FirstUseEver);
+  ImGui::SetNextWindowPos(ImVec2(8 * ui_scale_, 8 * ui_scale_), ImGuiCond_FirstUseEver);
+  ImGui::SetNextWindowSize(ImVec2(330 * ui_scale_, 0), ImGuiCond_FirstUseEver);
   ImGui::Begin("kdgrid");
+  const ImVec2 panel_pos = ImGui::GetWindowPos(), panel_size = ImGui::GetWindowSize();
+  panel_rect_[0] = panel_pos.x;
+  panel_rect_[1] = panel_pos.y;
+  panel_rect_[2] = panel_size.x;
+  panel_rect_[3] = panel_size.y;
 
   if (task_) {
     const double secs = std::chrono::duration<double>(Clock::now() - task_->started).count();
@@ -708,10 +940,7 @@ void Viewer::draw_panels() {
     ImGui::PlotLines("frame", ft.data(), int(ft.size()), 0, label, 0.0f, FLT_MAX, ImVec2(0, 40));
     ImGui::Text("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
                 cam_.speed_scale());
-    if (ImGui::Button("print camera (C)")) {
-      message_ = cam_.cli_flags();
-      std::printf("%s\n", message_.c_str());
-    }
+    if (ImGui::Button("print camera (C)")) print_camera();
     ImGui::SameLine();
     if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
     ImGui::SameLine();
@@ -775,7 +1004,7 @@ void Viewer::draw_panels() {
       }
       if (pick_ && ImGui::BeginTable("steps", 6,
                                      ImGuiTableFlags_ScrollY | ImGuiTableFlags_RowBg | ImGuiTableFlags_Borders,
-                                     ImVec2(0, 200 * io.FontGlobalScale))) {
+                                     ImVec2(0, 200 * ui_scale_))) {
         ImGui::TableSetupScrollFreeze(0, 1);
         for (const char* h : {"#", "kind", "box", "t in", "t out", "tests"}) ImGui::TableSetupColumn(h);
         ImGui::TableHeadersRow();
@@ -813,7 +1042,7 @@ void Viewer::draw_panels() {
 
 void Viewer::draw_heat_legend() {
   const ImGuiIO& io = ImGui::GetIO();
-  const float s = io.FontGlobalScale;
+  const float s = ui_scale_;
   ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - 8, io.DisplaySize.y - 8), ImGuiCond_Always, ImVec2(1, 1));
   ImGui::SetNextWindowBgAlpha(0.7f);
   ImGui::Begin("legend", nullptr,
@@ -884,19 +1113,49 @@ int Viewer::run() {
     std::fprintf(stderr, "kdgrid-viewer: %s\n", e.what());
     return 3;
   }
-  worker_ = std::make_unique<RenderWorker>();
+  // A finished pass wakes the UI thread if it is asleep waiting for events.
+  worker_ = std::make_unique<RenderWorker>([] { glfwPostEmptyEvent(); });
   start_load(opts_.scene);
+  drop_done_ = opts_.drop.empty();
 
   const auto started = Clock::now();
   auto last = started;
   bool pick_done = !opts_.pick.has_value();
   int exit_code = 0;
-  while (!glfwWindowShouldClose(window_)) {
+  const double min_frame_s = opts_.scripted() && opts_.max_fps > 0 ? 1.0 / opts_.max_fps : 0.0;
+  for (;;) {
+    // Draw only when something can change what is shown. Idle, sleep on the event queue:
+    // input, a finished pass (the worker posts an empty event) or a finished build wakes it;
+    // the timeout keeps a build's progress bar moving and catches anything else. Busy, scripted
+    // runs (which swap without vsync) wait out the rest of a 60 Hz frame instead of spinning.
+    const double since = std::chrono::duration<double>(Clock::now() - last).count();
+    if (!wants_continuous_frames()) {
+      const double idle_s = task_ ? kBusyIdleSeconds : kIdleSeconds;
+      if (idle_s > since) glfwWaitEventsTimeout(idle_s - since);
+    } else if (min_frame_s > since) {
+      glfwWaitEventsTimeout(min_frame_s - since);
+    }
+    if (settle_frames_ > 0) --settle_frames_;
     glfwPollEvents();
     const auto now = Clock::now();
     const float dt = std::chrono::duration<float>(now - last).count();
     last = now;
     push_history(frame_ms_hist_, dt * 1000.0f);
+    if (frame_count_ > 0) frame_interval_ms_.push_back(dt * 1000.0f);
+
+    // A --hold run treats a close request (Ctrl+Q, the window manager) as the end of the
+    // script: it still finishes the image and writes its outputs. Other runs stop at once.
+    const double elapsed = std::chrono::duration<double>(now - started).count();
+    if (opts_.hold > 0 && elapsed > opts_.hold && !glfwWindowShouldClose(window_)) {
+      end_reason_ = "hold expired";
+      glfwSetWindowShouldClose(window_, GLFW_TRUE);
+    }
+    const bool closing = glfwWindowShouldClose(window_);
+    if (closing && opts_.hold <= 0) {
+      if (end_reason_.empty()) end_reason_ = "window closed";
+      break;
+    }
+    if (closing && end_reason_.empty()) end_reason_ = "window closed";
 
     const bool had_world = world_ != nullptr;
     poll_tasks();
@@ -904,6 +1163,7 @@ int Viewer::run() {
       // The start-up scene failed to load: nothing to show; say why and stop.
       std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
       exit_code = 1;
+      end_reason_ = "start-up scene failed";
       break;
     }
     handle_continuous_input(dt);
@@ -922,11 +1182,21 @@ int Viewer::run() {
         start_build(accel_name_, params_with_cell_size(accel_name_, cs));
       }
     }
+    if (!opts_.drop.empty() && !drop_started_ && have_image_ && !task_) {
+      // The same handler GLFW's drop callback calls, for tests (xdotool cannot drop files).
+      drop_started_ = true;
+      const char* paths[] = {opts_.drop.c_str()};
+      on_drop(1, paths);
+      if (!task_) drop_done_ = true;  // refused (e.g. busy): nothing to wait for
+    }
 
     ImGui_ImplOpenGL3_NewFrame();
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
-    if (!opts_.hide_ui) draw_panels();
+    if (!opts_.hide_ui)
+      draw_panels();
+    else
+      std::fill(std::begin(panel_rect_), std::end(panel_rect_), 0.0f);
     ImGui::Render();
     draw_scene();
     ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
@@ -936,13 +1206,16 @@ int Viewer::run() {
       if (worker_ && !worker_->error().empty()) {
         std::fprintf(stderr, "kdgrid-viewer: render failed: %s\n", worker_->error().c_str());
         exit_code = 1;
+        end_reason_ = "render failed";
         break;
       }
       const bool rebuild_ok = opts_.rebuild_cell_size.empty() || scripted_rebuild_done_;
       const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
                             image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
-      if (frame_count_ >= opts_.frames && world_ && !task_ && rebuild_ok && pick_done && image_ok &&
+      const bool script_done = opts_.hold > 0 ? closing : frame_count_ >= opts_.frames;
+      if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
           !recolor_) {
+        if (end_reason_.empty()) end_reason_ = "frames done";
         if (!task_error_.empty()) {
           std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
           exit_code = 1;
@@ -960,18 +1233,26 @@ int Viewer::run() {
         }
         break;
       }
-      if (std::chrono::duration<double>(Clock::now() - started).count() > opts_.timeout) {
+      const double limit = opts_.timeout + std::max(0.0, opts_.hold);
+      if (std::chrono::duration<double>(Clock::now() - started).count() > limit) {
         std::fprintf(stderr,
                      "kdgrid-viewer: scripted run timed out after %.0f s (frames %d/%d, image %s, "
                      "samples %d/%d, task %s); raise --timeout or lower --min-samples\n",
-                     opts_.timeout, frame_count_, opts_.frames, have_image_ ? "yes" : "no",
+                     limit, frame_count_, opts_.frames, have_image_ ? "yes" : "no",
                      have_image_ ? image_.samples : 0, opts_.min_samples, task_ ? task_->what.c_str() : "none");
         exit_code = 4;
+        end_reason_ = "timeout";
         break;
       }
     }
+    const auto swap_start = Clock::now();
     glfwSwapBuffers(window_);
+    // With a software GL (llvmpipe) the drawing happens here, when the frame is flushed.
+    frame_swap_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - swap_start).count());
+    // What the UI thread did this frame: events, hand-over, upload, panels, drawing, swap.
+    frame_work_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - now).count());
   }
+  if (!opts_.stats_json.empty()) write_stats(opts_.stats_json, exit_code);
   shutdown();
   return exit_code;
 }

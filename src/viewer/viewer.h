@@ -45,7 +45,16 @@ struct ViewerOptions {
   std::string rebuild_cell_size;     ///< scripted live rebuild after start-up
   std::string export_heatmap;        ///< scripted: EXR of the heat map's raw counts at the end
   bool hide_ui = false;              ///< no ImGui panels (reproducible screenshots)
-  bool scripted() const { return frames > 0; }
+  /// > 0: keep the window open and interactive for up to this many seconds (input tests drive
+  /// it with xdotool); Ctrl+Q or closing the window ends it sooner.
+  double hold = 0;
+  std::string stats_json;            ///< run statistics and final state, written at exit
+  std::string drop;                  ///< scripted: load this file through the drop handler
+  /// Scripted runs swap without vsync, so this caps their frame rate the way a 60 Hz display
+  /// caps an interactive session; 0 = unlimited.
+  int max_fps = 60;
+  int threads = 0;                   ///< --threads as given (0 = all), for the statistics
+  bool scripted() const { return frames > 0 || hold > 0; }
 };
 
 class Viewer {
@@ -59,12 +68,14 @@ class Viewer {
   void on_key(int key, int scancode, int action, int mods);
   void on_mouse_button(int button, int action, int mods);
   void on_scroll(double dx, double dy);
+  void on_cursor_pos(double x, double y);
   void on_drop(int count, const char** paths);
 
  private:
   // ---- set-up
   bool create_window();
   void init_gl();
+  void apply_ui_scale(float scale);
   void shutdown();
 
   // ---- world: scene + structure, built off the UI thread
@@ -75,6 +86,8 @@ class Viewer {
   BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
 
   // ---- per frame
+  void note_input();
+  bool wants_continuous_frames() const;
   void handle_continuous_input(float dt);
   void sync_render_job();
   void receive_image();
@@ -84,6 +97,8 @@ class Viewer {
   void rebuild_structure_overlay();
   void do_pick(int px, int py);
   void save_screenshot(const std::string& path);
+  void write_stats(const std::string& path, int exit_code) const;
+  void print_camera();
   std::string default_output_name(const char* prefix, const char* ext) const;
   float scene_radius() const;
 
@@ -108,6 +123,7 @@ class Viewer {
   struct Task {
     std::future<std::shared_ptr<World>> result;
     std::string what;      // shown next to the spinner
+    std::string kind;      // "load", "rebuild" or "build", for the statistics
     bool new_scene = false;
     std::chrono::steady_clock::time_point started;
   };
@@ -118,6 +134,13 @@ class Viewer {
 
   // Render job tracking.
   static constexpr float kPreviewScale = 0.35f;  ///< resolution factor while the camera moves
+  static constexpr float kRadPerPixel = 0.005f;  ///< orbit / look turn per window unit of drag
+  /// Longest sleep of an idle UI loop (nothing moving, no build), in seconds: input and new
+  /// passes wake it at once, so this only bounds how stale anything else can get.
+  static constexpr double kIdleSeconds = 0.25;
+  /// The same while a build or load runs: its progress bar moves at 10 frames per second.
+  static constexpr double kBusyIdleSeconds = 0.1;
+  int settle_frames_ = 3;  ///< frames still to draw without sleeping after the last input
   Camera last_seen_camera_;
   std::chrono::steady_clock::time_point last_move_{};
   Camera posted_camera_;
@@ -126,6 +149,7 @@ class Viewer {
   const World* posted_world_ = nullptr;
   int posted_max_samples_ = 0;
   uint64_t posted_job_ = 0;
+  bool posted_preview_ = false;  ///< the camera moved within the last moment
 
   // The displayed image.
   RenderedImage image_;
@@ -134,11 +158,31 @@ class Viewer {
   bool recolor_ = false;
   HeatRange heat_range_;
   unsigned tex_ = 0, image_program_ = 0, empty_vao_ = 0;
+  std::string gl_renderer_, gl_version_;  // glGetString, for the statistics
   int tex_w_ = 0, tex_h_ = 0;
 
-  // Statistics.
+  // Statistics: short histories for the plots, and every frame, pass, upload and build of
+  // the run for --stats-json.
   std::deque<float> mrays_hist_, frame_ms_hist_;
   float last_mrays_ = 0;
+  struct PassRecord {
+    uint64_t job = 0;
+    int width = 0, height = 0, samples = 0;
+    double seconds = 0;
+    RenderCounters rays;
+  };
+  struct BuildRecord {
+    std::string kind;            // "load", "rebuild" or "build"
+    std::string accel, scene;
+    double build_seconds = 0;    // build() alone
+    double wall_seconds = 0;     // request to result, loading included
+    BuildStats stats;
+    float cell_size = 0;         // requested; 0 = auto
+    std::string error;
+  };
+  std::vector<float> frame_interval_ms_, frame_work_ms_, frame_swap_ms_, colorize_ms_, upload_ms_;
+  std::vector<PassRecord> passes_;
+  std::vector<BuildRecord> builds_;
 
   // Overlays.
   bool show_splits_ = false, show_cells_ = false, show_boxes_ = false;
@@ -157,12 +201,22 @@ class Viewer {
   };
   std::optional<Pick> pick_;
 
-  // Mouse state.
+  // Mouse state. The cursor position is the last one GLFW reported through its callback (not a
+  // live query), so a press, motion and release queued within one frame replay in order.
   bool left_down_ = false, right_down_ = false, dragged_ = false;
-  double press_x_ = 0, press_y_ = 0, last_x_ = 0, last_y_ = 0;
+  double press_x_ = 0, press_y_ = 0, cursor_x_ = 0, cursor_y_ = 0;
+
+  // HiDPI: the window's content scale and the UI scale derived from it.
+  float content_scale_[2] = {1, 1};
+  float ui_scale_ = 1.0f;
+  float panel_rect_[4] = {0, 0, 0, 0};  // x, y, w, h of the main panel; w = 0 when hidden
 
   // Scripted run progress.
   int frame_count_ = 0;
+  bool drop_done_ = true;       // --drop issued and its load finished
+  bool drop_started_ = false;
+  std::string end_reason_;      // why the run ended, for --stats-json
+  Camera start_camera_;         // the camera when the current scene was installed
   std::string message_;   // last status line (screenshot written, camera printed, ...)
 };
 
