@@ -79,9 +79,17 @@ struct BuildParams {
   std::string embree_quality = "medium";
 
   // ---- memory guard ----------------------------------------------------------------------
-  /// Structures that can grow with parameters (grid, hybrid, irregular) refuse to build
-  /// beyond this many bytes; 0 = auto (half of physical memory).
+  /// Every structure estimates the peak bytes of its build before allocating (accel/guards.h)
+  /// and refuses with a ParamError above this many bytes; 0 = auto (half of physical memory).
+  /// The mesh itself is not counted: it belongs to the caller.
   uint64_t memory_budget = 0;
+
+  // ---- brute-force work limit ------------------------------------------------------------
+  /// Brute force tests every triangle for every ray, so a render or benchmark refuses up
+  /// front when (primary rays x triangles) exceeds this many ray/triangle tests, instead of
+  /// appearing to hang. 5e10 is about 2-4 minutes of primary rays on 2 cores (~1e8 tests/s
+  /// per core); 0 = no limit. Other structures ignore it.
+  double brute_work_limit = 5e10;
 };
 
 /// Resolves memory_budget = 0 to half of physical memory.
