@@ -73,12 +73,7 @@ void write_union(const uint32_t* p, uint32_t n, const uint32_t* q, uint32_t m, u
 }
 
 std::string format_bytes(double b) {
-  char buf[64];
-  if (b >= 1e9)
-    std::snprintf(buf, sizeof buf, "%.3g GB", b / 1e9);
-  else
-    std::snprintf(buf, sizeof buf, "%.3g MB", b / 1e6);
-  return buf;
+  return format_bytes_iec(b);
 }
 
 std::string format_res(const int32_t r[3]) {
@@ -219,8 +214,9 @@ struct IrregularGrid::Builder {
                        " asks for " + std::to_string(uint64_t(std::min(top_cells, 1e19))) +
                        " top-level cells (about " + format_bytes(need) +
                        "), beyond the memory budget of " + format_bytes(double(budget)) +
-                       " or the lattice limit of 2^24 cells per axis: use a density near the "
-                       "default 0.12 or raise memory_budget");
+                       " or the lattice limit of 2^24 cells per axis: lower --irr-top-density "
+                       "(default 0.12), or raise --memory-budget-mb (0 = half of physical "
+                       "memory) if the machine has the memory");
     for (int a = 0; a < 3; ++a) {
       g.top_res_[a] = int32_t(r[a]);
       top_vs[a] = ext[a] / r[a];
@@ -354,9 +350,10 @@ struct IrregularGrid::Builder {
     if (need > double(budget) || sub_cells >= double(kNone))
       throw ParamError("irregular_sub_density = " + std::to_string(params.irregular_sub_density) +
                        " asks for " + std::to_string(uint64_t(sub_cells)) + " cells (about " +
-                       format_bytes(need) + "), beyond the memory budget of " +
-                       format_bytes(double(budget)) +
-                       ": use a density near the default 2.4 or raise memory_budget");
+                       format_bytes(need) + ") over " + std::to_string(valid.size()) +
+                       " triangles, beyond the memory budget of " + format_bytes(double(budget)) +
+                       ": lower --irr-sub-density (default 2.4), or raise --memory-budget-mb (0 "
+                       "= half of physical memory) if the machine has the memory");
     g.shift_ = shift;
     for (int a = 0; a < 3; ++a) {
       g.res_[a] = r[a] << shift;
@@ -695,15 +692,14 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   // lists of the merge passes). The top and second levels are checked again once their cell
   // and reference counts are known (Builder), and the top-level assignment stops at the
   // budget on scenes whose triangles cross very many cells.
-  const double dens = std::max(1.0, double(sub) / 2.4) * std::max(1.0, double(top) / 0.12);
   const uint64_t estimate = check_memory_budget(
       "irregular", mesh.num_triangles(),
       {{"cells, references and merge buffers (~470 bytes per triangle at default densities, "
         "measured)",
-        470.0 * dens * double(mesh.num_triangles())}},
+        470.0 * double(mesh.num_triangles())}},
       params,
-      "the grid's memory grows with the triangle count; lower --irr-sub-density or "
-      "--irr-top-density only trims it");
+      "the grid's memory grows with the triangle count (lower --irr-sub-density or "
+      "--irr-top-density only trims it): split the scene");
   mesh_ = &mesh;
   test_ = params.triangle_test;
   top_.clear();
