@@ -687,16 +687,16 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   if (!(std::isfinite(sub) && sub > 0.0f))
     throw ParamError("irregular_sub_density = " + std::to_string(sub) +
                      ": must be a positive number of cells per reference (default 2.4)");
-  // Memory guard before any allocation, from what typical scenes need at default densities
-  // (landscape, dragon: 435-465 bytes per triangle at the build's peak, mostly the reference
-  // lists of the merge passes). The top and second levels are checked again once their cell
-  // and reference counts are known (Builder), and the top-level assignment stops at the
-  // budget on scenes whose triangles cross very many cells.
+  // Memory guard before any allocation, from the lowest per-triangle peak measured at
+  // default densities (310 bytes per triangle on the 10M landscape; 435-465 on the 1M
+  // landscape and the dragon), mostly the reference lists of the merge passes. The top and
+  // second levels are checked again once their cell and reference counts are known
+  // (Builder), and every later phase checks what it holds before allocating (require()).
   const uint64_t estimate = check_memory_budget(
       "irregular", mesh.num_triangles(),
-      {{"cells, references and merge buffers (~470 bytes per triangle at default densities, "
+      {{"cells, references and merge buffers (~300 bytes per triangle at default densities, "
         "measured)",
-        470.0 * double(mesh.num_triangles())}},
+        300.0 * double(mesh.num_triangles())}},
       params,
       "the grid's memory grows with the triangle count (lower --irr-sub-density or "
       "--irr-top-density only trims it): split the scene");
