@@ -25,7 +25,8 @@ void add_gen_command(CLI::App& app) {
   cmd->add_option("-o,--output", a->output,
                   "Output file: .gltf (materials, camera, lights), .ply or .obj")
       ->required();
-  cmd->add_option("--count", a->params.count, "Triangle/quad count (0 = the generator's default)")
+  cmd->add_option("--count,--triangles", a->params.count,
+                  "Triangle/quad count (0 = the generator's default; landscape: exact triangles)")
       ->capture_default_str();
   cmd->add_option("--seed", a->params.seed, "Seed of random generators")->capture_default_str();
   cmd->add_option("--level", a->params.level, "Subdivision level (cornell, sphere; -1 = default)")

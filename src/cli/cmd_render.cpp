@@ -10,7 +10,11 @@
 #include <memory>
 #include <optional>
 
+#include <nlohmann/json.hpp>
+
 #include "accel/accelerator.h"
+#include "accel/guards.h"
+#include "bench/bench.h"
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "render/image_io.h"
@@ -42,6 +46,7 @@ struct RenderArgs {
   int max_depth = 5;
   uint64_t seed = 1;
   std::string heatmap;
+  std::string stats_json;
 };
 
 /// Throws ParamError unless the directory `path` will be written into exists and is writable.
@@ -70,6 +75,24 @@ void heat_ramp(std::vector<float>& rgb) {
     const int k = std::min(3, int(x));
     const float f = x - float(k);
     for (int c = 0; c < 3; ++c) rgb[i + c] = stops[k][c] * (1 - f) + stops[k + 1][c] * f;
+  }
+}
+
+/// Writes `text` to a temporary file beside `path`, then renames it over `path`.
+void write_file_atomically(const std::string& path, const std::string& text) {
+  const std::string tmp = path + ".tmp" + std::to_string(::getpid());
+  std::FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (!f) throw Error(tmp + ": cannot open for writing; check the directory is writable");
+  const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
+  if (std::fclose(f) != 0 || !ok) {
+    std::remove(tmp.c_str());
+    throw Error(tmp + ": writing failed (disk full?)");
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::remove(tmp.c_str());
+    throw Error(path + ": cannot replace it (" + ec.message() + ")");
   }
 }
 
@@ -104,10 +127,21 @@ void run_render(const RenderArgs& a) {
   if (a.threads > 0)
     threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
 
+  if (!a.stats_json.empty()) check_output_directory(a.stats_json);
+
   const std::string scene_path = resolve_scene_path(a.scene);
   const Scene scene = load_scene(scene_path);
+  check_brute_force_work(a.accel.accel,
+                         uint64_t(settings.width) * uint64_t(settings.height) * uint64_t(a.spp),
+                         scene.mesh.num_triangles(), params);
+  // Process memory by phase: the load's peak, then the build's own peak (the high-water mark
+  // is reset first where the kernel allows), for --stats-json.
+  const uint64_t load_peak = process_peak_rss_bytes();
+  const bool phase_peaks = reset_peak_rss();
+  const uint64_t rss_before_build = current_rss_bytes();
   const auto accel = build_accelerator(a.accel.accel, scene.mesh, params);
   const double build_seconds = accel->stats().seconds;
+  const uint64_t build_peak = peak_rss_since_reset(), rss_after_build = current_rss_bytes();
 
   Renderer renderer(scene, *accel, settings);
   renderer.set_camera(a.camera.apply(*scene.camera));
@@ -174,6 +208,41 @@ void run_render(const RenderArgs& a) {
       mega(c.reflection).c_str(), mega(c.refraction).c_str(), mrays, accel->name().c_str(),
       build_seconds);
   std::fflush(stdout);
+  if (!a.stats_json.empty()) {
+    const BuildStats& st = accel->stats();
+    nlohmann::json j;
+    j["scene"] = scene_path;
+    j["triangles"] = scene.mesh.num_triangles();
+    j["vertices"] = scene.mesh.num_vertices();
+    j["mesh_bytes"] = scene.mesh.memory_bytes();
+    j["accel"] = accel->name();
+    j["build_seconds"] = build_seconds;
+    j["bytes"] = st.bytes;
+    j["peak_estimate_bytes"] = st.peak_estimate;
+    nlohmann::json parts = nlohmann::json::object();
+    for (const auto& [k, v] : st.bytes_by_part) parts[k] = v;
+    j["bytes_by_part"] = parts;
+    nlohmann::json extra = nlohmann::json::object();
+    for (const auto& [k, v] : st.extra) extra[k] = v;
+    j["extra"] = extra;
+    j["memory_budget_bytes"] = effective_memory_budget(params);
+    j["rss_load_peak_bytes"] = load_peak;
+    j["rss_before_build_bytes"] = rss_before_build;
+    j["rss_after_build_bytes"] = rss_after_build;
+    // Build peak over the RSS before the build: what the build itself needed at its worst.
+    j["rss_build_peak_bytes"] = build_peak;
+    j["build_peak_is_phase"] = phase_peaks;
+    // After a reset the kernel's counters restart, so the process peak is the larger of the
+    // load's peak and what came after.
+    j["rss_peak_bytes"] = std::max({load_peak, build_peak, peak_rss_since_reset()});
+    j["render_seconds"] = renderer.seconds();
+    j["width"] = settings.width;
+    j["height"] = settings.height;
+    j["spp"] = renderer.samples();
+    j["rays"] = c.total();
+    j["interrupted"] = interrupted;
+    write_file_atomically(a.stats_json, j.dump(2) + "\n");
+  }
   if (interrupted) {
     std::fprintf(stderr, "kdgrid: interrupted: wrote the %d of %d samples finished to %s\n",
                  renderer.samples(), a.spp, a.output.c_str());
@@ -201,6 +270,9 @@ void add_render_command(CLI::App& app) {
   cmd->add_option("--heatmap", a->heatmap,
                   "Render traversal cost of primary rays instead: steps or tests (PNG: colour "
                   "ramp scaled to the maximum; EXR: raw counts)");
+  cmd->add_option("--stats-json", a->stats_json,
+                  "Also write build/render figures and process memory by phase (peak RSS of "
+                  "the load and of the build) as JSON here");
   a->accel.add_to(cmd, "bvh");
   a->camera.add_to(cmd);
   cmd->callback([a] { run_render(*a); });

@@ -59,8 +59,14 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--memory-budget-mb", budget_mb_,
-                  "Refuse structures larger than this (MiB); 0 = half of physical memory")
+                  "Refuse builds whose estimated peak exceeds this (MiB); 0 = half of physical "
+                  "memory")
       ->group(g);
+  cmd->add_option("--brute-work-limit", params.brute_work_limit,
+                  "Brute force: refuse above this many primary-ray x triangle tests (0 = no "
+                  "limit)")
+      ->group(g)
+      ->capture_default_str();
 }
 
 BuildParams AccelOptions::resolve() const {
@@ -79,6 +85,8 @@ BuildParams AccelOptions::resolve() const {
   if (!(p.irregular_top_density > 0.0f) || !(p.irregular_sub_density > 0.0f))
     throw ParamError("--irr-top-density and --irr-sub-density must be positive");
   if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
+  if (!(p.brute_work_limit >= 0.0))
+    throw ParamError("--brute-work-limit must be >= 0 (0 = no limit), e.g. 2e10");
   if (budget_mb_ > 0) p.memory_budget = uint64_t(budget_mb_) << 20;
   return p;
 }

@@ -31,6 +31,9 @@ struct BuildStats {
   uint64_t references = 0;       ///< triangle references stored in leaves/cells
   uint32_t max_depth = 0;
   uint64_t bytes = 0;            ///< structure bytes (excludes the Mesh the caller owns)
+  /// Peak bytes the build expected to need before it allocated (the memory guard's figure,
+  /// accel/guards.h); 0 where a structure makes no estimate.
+  uint64_t peak_estimate = 0;
   /// Breakdown of `bytes` by part, e.g. {"nodes", ...}, {"references", ...}, {"matrix", ...}.
   std::vector<std::pair<std::string, uint64_t>> bytes_by_part;
   /// Structure-specific facts shown by `kdgrid trace` and the viewer ("resolution", "64x64x32").

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <type_traits>
 
+#include "accel/guards.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -226,9 +227,22 @@ BuildStats Bvh::build(const Mesh& mesh, const BuildParams& params) {
   if (mesh.num_triangles() >= (size_t(1) << 31))
     throw ParamError("the BVH indexes triangles with 32 bits: split meshes above 2^31 triangles");
 
+  // Memory guard, before any allocation. The peak is the binning phase: 2n-1 node slots,
+  // a box and a centroid per triangle and the index list (the compacted nodes come after the
+  // boxes are freed, and are smaller than them on every scene measured).
+  const double nt = double(mesh.num_triangles());
+  const uint64_t estimate = check_memory_budget(
+      "bvh", mesh.num_triangles(),
+      {{"node slots", 2.0 * nt * sizeof(BvhNode)},
+       {"triangle boxes and centroids", nt * (sizeof(Box3) + sizeof(Vec3))},
+       {"triangle indices", nt * sizeof(uint32_t)}},
+      params, "the BVH needs about 104 bytes per triangle whatever its parameters: split the "
+              "scene");
+
   mesh_ = &mesh;
   test_ = params.triangle_test;
   stats_ = {};
+  stats_.peak_estimate = estimate;
   nodes_.clear();
   prims_.clear();
   const uint32_t n = uint32_t(mesh.num_triangles());

@@ -6,23 +6,51 @@
 #include <cmath>
 #include <string>
 
+#include "accel/guards.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
+namespace {
+
+/// What Embree's memory monitor sees (its callback may run on several threads at once).
+struct MemoryWatch {
+  /// Bytes Embree holds, as reported by its memory monitor (allocations minus frees).
+  std::atomic<int64_t> bytes{0};
+  /// Highest value of `bytes` during the build (its peak, temporaries included).
+  std::atomic<int64_t> peak{0};
+  /// Allocations that would take `bytes` above this are refused (0 = no limit), so a build
+  /// the estimate let through still stops at the memory budget instead of exhausting RAM.
+  int64_t limit = 0;
+  std::atomic<bool> over_limit{false};
+};
+
+}  // namespace
+
 struct EmbreeAccel::State {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;
-  /// Bytes Embree holds, as reported by its memory monitor (allocations minus frees).
-  std::atomic<int64_t> bytes{0};
+  MemoryWatch memory;
   std::string error;  ///< last message of Embree's error callback
 };
 
 namespace {
 
-bool memory_monitor(void* user, ssize_t bytes, bool /*post*/) {
-  static_cast<std::atomic<int64_t>*>(user)->fetch_add(int64_t(bytes), std::memory_order_relaxed);
-  return true;  // never veto an allocation; the budget is the caller's business
+/// Embree's rule (rtcSetDeviceMemoryMonitorFunction): a refused allocation announced before
+/// it happens (post == false) is not counted; one refused after it happened is, and is freed
+/// later. Refusing makes the current call fail with RTC_ERROR_OUT_OF_MEMORY.
+bool memory_monitor(void* user, ssize_t bytes, bool post) {
+  auto* st = static_cast<MemoryWatch*>(user);
+  const int64_t now = st->bytes.fetch_add(int64_t(bytes), std::memory_order_relaxed) + bytes;
+  if (bytes > 0 && st->limit > 0 && now > st->limit) {
+    st->over_limit.store(true);
+    if (!post) st->bytes.fetch_sub(int64_t(bytes), std::memory_order_relaxed);
+    return false;
+  }
+  int64_t peak = st->peak.load(std::memory_order_relaxed);
+  while (now > peak && !st->peak.compare_exchange_weak(peak, now, std::memory_order_relaxed)) {
+  }
+  return true;
 }
 
 void error_callback(void* user, RTCError code, const char* str) {
@@ -75,12 +103,25 @@ void EmbreeAccel::release() {
   if (state_->device) rtcReleaseDevice(state_->device);
   state_->scene = nullptr;
   state_->device = nullptr;
-  state_->bytes = 0;
+  state_->memory.bytes = 0;
+  state_->memory.peak = 0;
+  state_->memory.over_limit = false;
 }
 
 BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   const RTCBuildQuality quality = parse_quality(params.embree_quality);
   const auto t_start = std::chrono::steady_clock::now();
+  // Memory guard before anything is allocated: the padded vertex copy plus what Embree's
+  // own allocations reached at their peak on the scenes measured (about 70-100 bytes per
+  // triangle for the BVH and its build temporaries at every quality; 110 keeps a margin).
+  // The memory monitor enforces the budget during the build as well.
+  const double copy_estimate = (3.0 * double(mesh.num_vertices()) + 1.0) * sizeof(float);
+  const uint64_t estimate = check_memory_budget(
+      "embree", mesh.num_triangles(),
+      {{"vertex copy", copy_estimate},
+       {"Embree BVH and build temporaries (~110 bytes per triangle, measured)",
+        110.0 * double(mesh.num_triangles())}},
+      params, "Embree's memory grows with the triangle count: split the scene");
   release();
   stats_ = {};
 
@@ -94,7 +135,9 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
                 std::to_string(int(rtcGetDeviceError(nullptr))) +
                 "); is libembree3 installed for this CPU?");
   rtcSetDeviceErrorFunction(st.device, error_callback, &st.error);
-  rtcSetDeviceMemoryMonitorFunction(st.device, memory_monitor, &st.bytes);
+  const uint64_t budget = effective_memory_budget(params);
+  st.memory.limit = int64_t(std::max(1.0, double(budget) - copy_estimate));
+  rtcSetDeviceMemoryMonitorFunction(st.device, memory_monitor, &st.memory);
 
   st.scene = rtcNewScene(st.device);
   // Robust mode avoids Embree's fast-path shortcuts that can miss hits on edges, so that the
@@ -121,18 +164,34 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
     rtcReleaseGeometry(geom);
   }
   rtcCommitScene(st.scene);
-  if (rtcGetDeviceError(st.device) != RTC_ERROR_NONE || !st.error.empty())
+  const RTCError err = rtcGetDeviceError(st.device);
+  if (st.memory.over_limit.load()) {
+    const double held = double(std::max<int64_t>(0, st.memory.peak.load()));
+    release();
+    vertices_ = {};
+    throw ParamError("embree: the build asked for more than the memory budget of " +
+                     format_bytes_iec(double(budget)) + " (Embree held " + format_bytes_iec(held) +
+                     " plus the " + format_bytes_iec(copy_estimate) +
+                     " vertex copy when it was stopped, building over " +
+                     std::to_string(mesh.num_triangles()) +
+                     " triangles); split the scene, or raise --memory-budget-mb (0 = half of "
+                     "physical memory) if the machine has the memory");
+  }
+  if (err != RTC_ERROR_NONE || !st.error.empty())
     throw Error("embree: building the scene failed: " +
                 (st.error.empty() ? std::string("unknown error") : st.error));
 
   stats_.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-  const uint64_t embree_bytes = uint64_t(std::max<int64_t>(0, st.bytes.load()));
+  const uint64_t embree_bytes = uint64_t(std::max<int64_t>(0, st.memory.bytes.load()));
   const uint64_t copy_bytes = vertices_.size() * sizeof(float);
   stats_.bytes = embree_bytes + copy_bytes;
   stats_.bytes_by_part = {{"embree", embree_bytes}, {"vertex_copy", copy_bytes}};
   stats_.references = nt;
-  stats_.extra = {{"quality", params.embree_quality}, {"flags", "robust"}};
+  stats_.extra = {{"quality", params.embree_quality},
+                  {"flags", "robust"},
+                  {"embree build peak", format_bytes_iec(double(std::max<int64_t>(0, st.memory.peak.load())))}};
+  stats_.peak_estimate = estimate;
   return stats_;
 }
 

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <string>
 
+#include "accel/guards.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -66,15 +67,6 @@ bool triangle_box_overlap(const double center[3], const double half[3], const Ve
   const double r =
       half[0] * std::fabs(n[0]) + half[1] * std::fabs(n[1]) + half[2] * std::fabs(n[2]);
   return std::fabs(d) <= r;
-}
-
-std::string format_bytes(double b) {
-  char buf[64];
-  if (b >= double(1ull << 30))
-    std::snprintf(buf, sizeof buf, "%.2f GiB", b / double(1ull << 30));
-  else
-    std::snprintf(buf, sizeof buf, "%.1f MiB", b / double(1ull << 20));
-  return buf;
 }
 
 }  // namespace
@@ -136,21 +128,36 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
     inv_cell_[a] = float(res_[a]) / ext[a];
   }
 
-  // Memory guard: refuse before allocating anything proportional to the cell count.
+  // Memory guard: refuse before allocating anything proportional to the cell count. The
+  // peak is the fill pass: offsets, a cursor per cell and the references (at least one per
+  // triangle; their exact count is checked again after the count pass).
   const std::string res_str =
       std::to_string(res_[0]) + "x" + std::to_string(res_[1]) + "x" + std::to_string(res_[2]);
   const uint64_t budget = effective_memory_budget(params);
   const double cell_bytes = double(cells + 1) * sizeof(uint32_t);
-  if (cell_bytes > double(budget) || cells >= 0xFFFFFFFFull) {
-    const double limit = std::min(double(budget), 4.0 * double(0xFFFFFFFEull));
-    const double fit = double(params.grid_lambda) * limit / cell_bytes * 0.9;
+  const double cursor_bytes = double(cells) * sizeof(uint32_t);
+  {
+    const double room = 0.9 * double(budget) - double(n_tris) * sizeof(uint32_t);
+    const double fit = double(params.grid_lambda) *
+                       std::min(room / (cell_bytes + cursor_bytes), 0.9 * 0xFFFFFFFEull / double(cells));
     char lam[32];
     std::snprintf(lam, sizeof lam, "%.3g", fit);
-    throw ParamError("grid: resolution " + res_str + " (" + std::to_string(cells) +
-                     " cells) needs " + format_bytes(cell_bytes) +
-                     " of cell offsets, over the memory budget of " + format_bytes(double(budget)) +
-                     " (or the 2^32 cell limit); use --grid-lambda " + lam +
-                     " or less, a lower grid_max_resolution, or a larger --memory-budget-mb");
+    if (cells >= 0xFFFFFFFFull)
+      throw ParamError("grid: resolution " + res_str + " has " + std::to_string(cells) +
+                       " cells, beyond the 2^32 cell limit (and needs " +
+                       format_bytes_iec(cell_bytes + cursor_bytes) + ", memory budget " +
+                       format_bytes_iec(double(budget)) + "); use --grid-lambda " + lam +
+                       " or less, or a lower grid_max_resolution");
+    stats_.peak_estimate = check_memory_budget(
+        "grid", n_tris,
+        {{"cell offsets", cell_bytes},
+         {"fill cursors", cursor_bytes},
+         {"references (at least one per triangle)", double(n_tris) * sizeof(uint32_t)}},
+        params,
+        fit > 0 ? "resolution " + res_str + " (" + std::to_string(cells) +
+                      " cells): use --grid-lambda " + lam +
+                      " or less, or a lower grid_max_resolution"
+                : std::string("the references alone (4 bytes per triangle) exceed it: split the scene"));
   }
 
   tbb::task_arena arena(effective_threads(params.threads));
@@ -209,11 +216,15 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
                        "; use a smaller --grid-lambda");
   }
   counts[cells] = uint32_t(total);
-  if (double(cell_bytes) + double(total) * sizeof(uint32_t) > double(budget))
-    throw ParamError("grid: " + std::to_string(total) + " references at resolution " + res_str +
-                     " need " + format_bytes(cell_bytes + double(total) * 4) +
-                     ", over the memory budget of " + format_bytes(double(budget)) +
-                     "; use a smaller --grid-lambda or a larger --memory-budget-mb");
+  // Exact now: the references are counted.
+  stats_.peak_estimate = check_memory_budget(
+      "grid", n_tris,
+      {{"cell offsets", cell_bytes},
+       {"fill cursors", cursor_bytes},
+       {"references", double(total) * sizeof(uint32_t)}},
+      params,
+      std::to_string(total) + " references at resolution " + res_str +
+          ": use a smaller --grid-lambda");
   offsets_ = std::move(counts);
 
   // Fill pass: a cursor per cell, then sort each cell's references so the structure (and

@@ -11,6 +11,7 @@
 #include <memory>
 #include <string>
 
+#include "accel/guards.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -69,10 +70,29 @@ class TreeBuilder {
     const double n = double(std::max<size_t>(1, mesh.num_triangles()));
     max_depth_ = p.kd_max_depth > 0 ? p.kd_max_depth : int(8.0 + 1.3 * std::log2(n));
     max_depth_ = std::clamp(max_depth_, 1, 64);
+    budget_ = int64_t(std::min<uint64_t>(effective_memory_budget(p), uint64_t(INT64_MAX)));
   }
+
+  /// Running account of the build's memory (reference lists alive in the recursion, build
+  /// nodes and their leaf lists). Straddling triangles are clipped into both children, so
+  /// scenes of long thin triangles multiply references with depth; past the budget every
+  /// pending node becomes an empty leaf and Hybrid::build throws instead of exhausting RAM.
+  void charge(int64_t bytes) {
+    const int64_t now = live_.fetch_add(bytes, std::memory_order_relaxed) + bytes;
+    int64_t peak = peak_.load(std::memory_order_relaxed);
+    while (now > peak && !peak_.compare_exchange_weak(peak, now, std::memory_order_relaxed)) {
+    }
+    if (bytes > 0 && now > budget_) over_.store(true, std::memory_order_relaxed);
+  }
+  bool over_budget() const { return over_.load(std::memory_order_relaxed); }
+  int64_t live_bytes() const { return live_.load(); }
+  int64_t peak_bytes() const { return peak_.load(); }
+  uint64_t leaf_refs() const { return leaf_refs_.load(); }
+  uint64_t nodes_made() const { return nodes_made_.load(); }
 
   std::unique_ptr<BuildNode> build_root() {
     const size_t n = mesh_.num_triangles();
+    charge(int64_t(n * sizeof(Ref)));
     std::vector<Ref> refs(n);
     const int32_t lo[3] = {0, 0, 0};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
@@ -276,6 +296,8 @@ class TreeBuilder {
   std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3], const int32_t hi[3],
                                    int depth) {
     auto node = std::make_unique<BuildNode>();
+    charge(int64_t(sizeof(BuildNode)));
+    nodes_made_.fetch_add(1, std::memory_order_relaxed);
     for (int a = 0; a < 3; ++a) {
       node->lo[a] = lo[a];
       node->hi[a] = hi[a];
@@ -285,11 +307,19 @@ class TreeBuilder {
     int best_axis = -1;
     int32_t best_split = 0;
     size_t n_left = 0, n_right = 0;
-    if (n > 0 && depth < max_depth_) find_split(refs, lo, hi, best_axis, best_split, n_left, n_right);
+    if (n > 0 && depth < max_depth_ && !over_budget())
+      find_split(refs, lo, hi, best_axis, best_split, n_left, n_right);
     if (best_axis < 0) {
-      node->prims.reserve(n);
-      for (const Ref& r : refs) node->prims.push_back(r.prim);
-      if (subtree_min_ > 0 && n > subtree_min_) build_subtree(*node);
+      // Over budget: an empty leaf, so the recursion unwinds at once (the tree is discarded).
+      if (!over_budget()) {
+        charge(int64_t(n * sizeof(uint32_t)));
+        leaf_refs_.fetch_add(n, std::memory_order_relaxed);
+        node->prims.reserve(n);
+        for (const Ref& r : refs) node->prims.push_back(r.prim);
+      }
+      charge(-int64_t(refs.capacity() * sizeof(Ref)));
+      std::vector<Ref>().swap(refs);
+      if (subtree_min_ > 0 && node->prims.size() > subtree_min_ && !over_budget()) build_subtree(*node);
       return node;
     }
     node->axis = best_axis;
@@ -302,6 +332,7 @@ class TreeBuilder {
     lhi[best_axis] = best_split;
     rlo[best_axis] = best_split;
     std::vector<Ref> left, right;
+    charge(int64_t((n_left + n_right) * sizeof(Ref)));
     left.reserve(n_left);  // exact upper bounds: clipping can only drop references
     right.reserve(n_right);
     for (const Ref& r : refs) {
@@ -315,6 +346,7 @@ class TreeBuilder {
         if (clip_range(r.prim, rlo, rhi, c)) right.push_back(c);
       }
     }
+    charge(-int64_t(refs.capacity() * sizeof(Ref)));
     std::vector<Ref>().swap(refs);
     if (n > kParallelThreshold) {
       tbb::task_group tg;
@@ -377,6 +409,10 @@ class TreeBuilder {
   uint32_t subtree_min_ = 0;
   int max_depth_;
   std::atomic<uint64_t> evals_{0};
+  int64_t budget_ = 0;
+  std::atomic<int64_t> live_{0}, peak_{0};
+  std::atomic<bool> over_{false};
+  std::atomic<uint64_t> leaf_refs_{0}, nodes_made_{0};
 };
 
 void dims_for(const double ext[3], double cell, double out[3]) {
@@ -408,6 +444,26 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
         throw ParamError("hybrid: triangle " + std::to_string(i) +
                          " has an out-of-range or non-finite vertex: validate the mesh first");
 
+  // Memory guard before any allocation: what the build needs at least, whatever the scene —
+  // the root's reference list and its children's at the first split (28 bytes per
+  // reference), then at least one reference and the corners and id of every triangle. How many
+  // references a triangle ends in depends on the scene (2.9 on the 1M landscape and the
+  // dragon, 1.2 on the 10M landscape, hundreds for long thin triangles), so the kd build
+  // keeps a running account (TreeBuilder::charge), the exact reference count is checked
+  // before the per-reference arrays are allocated, and the matrices are checked once the grid
+  // is known.
+  uint64_t estimate = 0;
+  {
+    const double nt = double(ntri);
+    estimate = check_memory_budget(
+        "hybrid", ntri,
+        {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(Ref)},
+         {"references, triangle corners and ids (at least one of each per triangle)",
+          nt * (2 * sizeof(uint32_t) + sizeof(TriVerts))}},
+        params,
+        "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
+        "lower kd_max_depth");
+  }
   mesh_ = &mesh;
   test_ = params.triangle_test;
   dense_ = params.hybrid_dense_matrix;
@@ -423,6 +479,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   top_.clear();
   step_errors_.store(0);
   stats_ = {};
+  stats_.peak_estimate = estimate;
 
   const uint64_t budget = effective_memory_budget(params);
   const int threads = effective_threads(params.threads);
@@ -619,6 +676,37 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
   TreeBuilder tb(mesh, origin_, cell_, dims_, params);
   std::unique_ptr<BuildNode> root = tb.build_root();
   stats_.sah_evaluations = tb.sah_evaluations();
+  const std::string fix =
+      "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
+      "lower kd_max_depth";
+  if (tb.over_budget())
+    throw ParamError("hybrid: the kd build outgrew the memory budget of " +
+                     format_bytes_iec(double(effective_memory_budget(params))) +
+                     " (its account reached " + format_bytes_iec(double(tb.peak_bytes())) +
+                     " after " + std::to_string(tb.nodes_made()) + " nodes over " +
+                     std::to_string(mesh.num_triangles()) + " triangles; the estimate before "
+                     "building was " + format_bytes_iec(double(stats_.peak_estimate)) +
+                     "): triangles straddling many cells are referenced by every leaf they "
+                     "cross; " + fix + ", or raise --memory-budget-mb (0 = half of physical "
+                     "memory) if the machine has the memory");
+  // Exact now: the references are counted (leaf subtrees add a few). Flattening copies them
+  // while the build tree is alive, then the triangle corners replace the build tree.
+  const double refs = double(tb.leaf_refs()), nodes = double(tb.nodes_made());
+  const double flat = nodes * sizeof(Node) + (nodes + 1) / 2 * (sizeof(Leaf) + 1);
+  check_memory_budget("hybrid", mesh.num_triangles(),
+                      {{"build tree", double(tb.live_bytes())},
+                       {"references", refs * sizeof(uint32_t)},
+                       {"nodes and leaves", flat}},
+                      params, fix);
+  check_memory_budget("hybrid", mesh.num_triangles(),
+                      {{"references", refs * sizeof(uint32_t)},
+                       {"triangle corners and ids", double(mesh.num_triangles()) * (sizeof(TriVerts) + 4)},
+                       {"nodes and leaves", flat}},
+                      params, fix);
+  nodes_.reserve(size_t(nodes));
+  leaves_.reserve(size_t(nodes + 1) / 2);
+  leaf_depth_.reserve(size_t(nodes + 1) / 2);
+  refs_.reserve(size_t(refs));
   // Flatten depth-first: left child follows its parent, leaves numbered in that order.
   uint32_t max_depth = 0;
   auto flatten = [&](auto&& self, BuildNode* n) -> void {

@@ -4,11 +4,13 @@
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <limits>
 #include <string>
 
+#include "accel/guards.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -71,12 +73,7 @@ void write_union(const uint32_t* p, uint32_t n, const uint32_t* q, uint32_t m, u
 }
 
 std::string format_bytes(double b) {
-  char buf[64];
-  if (b >= 1e9)
-    std::snprintf(buf, sizeof buf, "%.3g GB", b / 1e9);
-  else
-    std::snprintf(buf, sizeof buf, "%.3g MB", b / 1e6);
-  return buf;
+  return format_bytes_iec(b);
 }
 
 std::string format_res(const int32_t r[3]) {
@@ -108,6 +105,31 @@ struct IrregularGrid::Builder {
 
   Builder(IrregularGrid& grid, const Mesh& m, const BuildParams& p)
       : g(grid), mesh(m), params(p), budget(effective_memory_budget(p)) {}
+
+  /// Bytes the build holds now in its long-lived arrays (capacity, not size).
+  double held_bytes() const {
+    return double(valid.capacity() * sizeof(uint32_t) + cells.capacity() * sizeof(BCell) +
+                  refs.capacity() * sizeof(uint32_t) + exit_boxes.capacity() * sizeof(exit_boxes[0]) +
+                  g.top_.capacity() * sizeof(TopEntry) + g.sub_.capacity() * sizeof(uint32_t));
+  }
+
+  /// Throws ParamError when `extra` more bytes on top of held_bytes() exceed the budget:
+  /// checked before each phase allocates, so the build stops at the budget on scenes whose
+  /// triangles cross far more cells than the estimate before building assumed.
+  void require(const char* phase, double extra) const {
+    const double need = held_bytes() + extra;
+    if (need > double(budget))
+      throw ParamError(std::string("irregular: the ") + phase + " needs " +
+                       format_bytes_iec(extra) + " more on top of the " +
+                       format_bytes_iec(held_bytes()) + " held (" +
+                       std::to_string(cells.size()) + " cells, " + std::to_string(refs.size()) +
+                       " references over " + std::to_string(valid.size()) +
+                       " triangles), above the memory budget of " +
+                       format_bytes_iec(double(budget)) +
+                       "; lower --irr-sub-density or --irr-top-density, or raise "
+                       "--memory-budget-mb (0 = half of physical memory) if the machine has "
+                       "the memory");
+  }
 
   Vec3d corner(uint32_t tri, int k) const { return Vec3d(mesh.positions[mesh.triangles[tri][k]]); }
 
@@ -192,8 +214,9 @@ struct IrregularGrid::Builder {
                        " asks for " + std::to_string(uint64_t(std::min(top_cells, 1e19))) +
                        " top-level cells (about " + format_bytes(need) +
                        "), beyond the memory budget of " + format_bytes(double(budget)) +
-                       " or the lattice limit of 2^24 cells per axis: use a density near the "
-                       "default 0.12 or raise memory_budget");
+                       " or the lattice limit of 2^24 cells per axis: lower --irr-top-density "
+                       "(default 0.12), or raise --memory-budget-mb (0 = half of physical "
+                       "memory) if the machine has the memory");
     for (int a = 0; a < 3; ++a) {
       g.top_res_[a] = int32_t(r[a]);
       top_vs[a] = ext[a] / r[a];
@@ -246,7 +269,12 @@ struct IrregularGrid::Builder {
     constexpr size_t kChunk = 2048;
     const size_t num_chunks = (valid.size() + kChunk - 1) / kChunk;
     std::vector<std::vector<std::pair<uint32_t, uint32_t>>> pairs(num_chunks);
+    // The (cell, triangle) pairs are the first allocation that grows with the references, whose
+    // number is unknown until they are listed: stop listing once they pass the budget.
+    std::atomic<uint64_t> listed{0};
+    std::atomic<bool> over{false};
     tbb::parallel_for(size_t(0), num_chunks, [&](size_t ch) {
+      if (over.load(std::memory_order_relaxed)) return;
       auto& out = pairs[ch];
       const size_t end = std::min(valid.size(), (ch + 1) * kChunk);
       for (size_t i = ch * kChunk; i < end; ++i) {
@@ -256,7 +284,23 @@ struct IrregularGrid::Builder {
               out.emplace_back(uint32_t((size_t(z) * r[1] + y) * r[0] + x), tri);
             });
       }
+      const uint64_t total_pairs = listed.fetch_add(out.capacity()) + out.capacity();
+      // Pairs now, and later the sorted references (4 bytes) and the per-cell counts.
+      if (double(total_pairs) * (sizeof(out[0]) + sizeof(uint32_t)) > double(budget))
+        over.store(true);
     });
+    if (over.load()) {
+      const double seen = double(listed.load());
+      for (auto& v : pairs) std::vector<std::pair<uint32_t, uint32_t>>().swap(v);
+      throw ParamError("irregular: the top-level cells' references outgrew the memory budget of " +
+                       format_bytes(double(budget)) + " (" +
+                       format_bytes(seen * (sizeof(pairs[0][0]) + sizeof(uint32_t))) +
+                       " for the " + std::to_string(uint64_t(seen)) +
+                       " listed before stopping, over " + std::to_string(valid.size()) +
+                       " triangles): triangles crossing very many cells; lower "
+                       "--irr-top-density, or raise --memory-budget-mb (0 = half of physical "
+                       "memory) if the machine has the memory");
+    }
     count.assign(num_top, 0);
     size_t total = 0;
     for (const auto& v : pairs) {
@@ -306,9 +350,10 @@ struct IrregularGrid::Builder {
     if (need > double(budget) || sub_cells >= double(kNone))
       throw ParamError("irregular_sub_density = " + std::to_string(params.irregular_sub_density) +
                        " asks for " + std::to_string(uint64_t(sub_cells)) + " cells (about " +
-                       format_bytes(need) + "), beyond the memory budget of " +
-                       format_bytes(double(budget)) +
-                       ": use a density near the default 2.4 or raise memory_budget");
+                       format_bytes(need) + ") over " + std::to_string(valid.size()) +
+                       " triangles, beyond the memory budget of " + format_bytes(double(budget)) +
+                       ": lower --irr-sub-density (default 2.4), or raise --memory-budget-mb (0 "
+                       "= half of physical memory) if the machine has the memory");
     g.shift_ = shift;
     for (int a = 0; a < 3; ++a) {
       g.res_[a] = r[a] << shift;
@@ -430,6 +475,7 @@ struct IrregularGrid::Builder {
   uint64_t merge_pass(int axis) {
     const size_t n = cells.size();
     const int b = (axis + 1) % 3, c = (axis + 2) % 3;
+    require("merge pass", double(n) * 3 * sizeof(uint32_t));
     std::vector<uint32_t> next(n, kNone), prev(n, kNone), ucount(n, 0);
     std::atomic<uint64_t> evaluations{0};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& rg) {
@@ -487,6 +533,8 @@ struct IrregularGrid::Builder {
       if (partner[i] != kNone) new_id[partner[i]] = new_id[i];
     if (m == n) return 0;
     // New cells and references: offsets by a serial scan, unions written in parallel.
+    // Chains, ids and the merged cells; the merged references are checked below.
+    require("merge pass", double(n) * (6 * sizeof(uint32_t) + 1) + double(m) * sizeof(BCell));
     std::vector<BCell> new_cells(m);
     uint64_t total = 0;
     for (size_t i = 0; i < n; ++i) {
@@ -499,6 +547,9 @@ struct IrregularGrid::Builder {
       nc.begin = uint32_t(total);
       total += nc.count;
     }
+    require("merge pass",
+            double(n) * (6 * sizeof(uint32_t) + 1) + double(m) * sizeof(BCell) +
+                double(total) * sizeof(uint32_t));
     std::vector<uint32_t> new_refs(total);
     tbb::parallel_for(size_t(0), n, [&](size_t i) {
       if (!kept[i]) return;
@@ -576,6 +627,7 @@ struct IrregularGrid::Builder {
 
   void expand() {
     const size_t n = cells.size();
+    require("cell expansion", double(n) * sizeof(exit_boxes[0]));
     exit_boxes.resize(n);
     for (size_t i = 0; i < n; ++i)
       for (int a = 0; a < 3; ++a) {
@@ -608,6 +660,7 @@ struct IrregularGrid::Builder {
 
   void finish() {
     const size_t n = cells.size();
+    require("final cell array", double(n) * (sizeof(IrregularGrid::Cell) + sizeof(g.own_boxes_[0])));
     g.cells_.resize(n);
     g.own_boxes_.resize(n);
     for (size_t i = 0; i < n; ++i) {
@@ -634,6 +687,19 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   if (!(std::isfinite(sub) && sub > 0.0f))
     throw ParamError("irregular_sub_density = " + std::to_string(sub) +
                      ": must be a positive number of cells per reference (default 2.4)");
+  // Memory guard before any allocation, from the lowest per-triangle peak measured at
+  // default densities (310 bytes per triangle on the 10M landscape; 435-465 on the 1M
+  // landscape and the dragon), mostly the reference lists of the merge passes. The top and
+  // second levels are checked again once their cell and reference counts are known
+  // (Builder), and every later phase checks what it holds before allocating (require()).
+  const uint64_t estimate = check_memory_budget(
+      "irregular", mesh.num_triangles(),
+      {{"cells, references and merge buffers (~300 bytes per triangle at default densities, "
+        "measured)",
+        300.0 * double(mesh.num_triangles())}},
+      params,
+      "the grid's memory grows with the triangle count (lower --irr-sub-density or "
+      "--irr-top-density only trims it): split the scene");
   mesh_ = &mesh;
   test_ = params.triangle_test;
   top_.clear();
@@ -645,6 +711,7 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   for (int a = 0; a < 3; ++a) res_[a] = top_res_[a] = 0;
   bound_hits_ = 0;
   stats_ = {};
+  stats_.peak_estimate = estimate;
 
   Builder b(*this, mesh, params);
   tbb::task_arena arena(effective_threads(params.threads));

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <string>
 
+#include "accel/guards.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -113,10 +114,27 @@ class Builder {
         kt_(p.kd_traversal_cost),
         ki_(p.kd_intersection_cost),
         empty_mult_(1.0f - p.kd_empty_bonus),
-        max_depth_(max_depth) {}
+        max_depth_(max_depth),
+        budget_(int64_t(std::min<uint64_t>(effective_memory_budget(p), uint64_t(INT64_MAX)))) {}
 
   void build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth, Subtree& out);
   uint64_t sah_evaluations() const { return sah_evals_.load(); }
+
+  /// Running account of the build's memory: event lists alive in the recursion, the tree
+  /// built so far and the per-thread flags. Straddling triangles are copied into both
+  /// children, so on long thin or overlapping triangles the events multiply with depth; once
+  /// the account passes the memory budget every pending node becomes an empty leaf at once
+  /// and build() of KdTree throws, instead of the process running out of memory.
+  void charge(int64_t bytes) {
+    const int64_t now = live_.fetch_add(bytes, std::memory_order_relaxed) + bytes;
+    int64_t peak = peak_.load(std::memory_order_relaxed);
+    while (now > peak && !peak_.compare_exchange_weak(peak, now, std::memory_order_relaxed)) {
+    }
+    if (bytes > 0 && now > budget_) over_.store(true, std::memory_order_relaxed);
+  }
+  bool over_budget() const { return over_.load(std::memory_order_relaxed); }
+  int64_t peak_bytes() const { return peak_.load(); }
+  uint64_t nodes_made() const { return nodes_made_.load(); }
 
  private:
   struct Split {
@@ -126,7 +144,15 @@ class Builder {
     bool planar_left = true;
   };
   Split find_split(const std::vector<Event>& events, uint32_t n, const Box3& box);
-  void leaf(const std::vector<Event>& events, Subtree& out);
+  void leaf(std::vector<Event>& events, Subtree& out);
+  static int64_t tree_capacity(const Subtree& t) {
+    return int64_t(t.nodes.capacity() * sizeof(KdNode) + t.prims.capacity() * sizeof(uint32_t));
+  }
+  /// Frees an event list and takes it off the account.
+  void release(std::vector<Event>& events) {
+    charge(-int64_t(events.capacity() * sizeof(Event)));
+    std::vector<Event>().swap(events);
+  }
 
   // Node builds of at least this many triangles, above this depth, run their children in
   // parallel; below, the recursion is sequential (task overhead and subtree copies win).
@@ -137,6 +163,10 @@ class Builder {
   float kt_, ki_, empty_mult_;
   int max_depth_;
   std::atomic<uint64_t> sah_evals_{0};
+  const int64_t budget_;
+  std::atomic<int64_t> live_{0}, peak_{0};
+  std::atomic<bool> over_{false};
+  std::atomic<uint64_t> nodes_made_{0};
   // Per-thread classification flags indexed by triangle: a node writes and reads them within
   // one task, so concurrent subtrees never see each other's flags.
   tbb::enumerable_thread_specific<std::vector<uint8_t>> flags_;
@@ -189,17 +219,23 @@ Builder::Split Builder::find_split(const std::vector<Event>& events, uint32_t n,
   return best;
 }
 
-void Builder::leaf(const std::vector<Event>& events, Subtree& out) {
+void Builder::leaf(std::vector<Event>& events, Subtree& out) {
   std::vector<uint32_t> ids;
-  for (const Event& e : events)
-    if (e.axis == 0 && e.type != kEnd) ids.push_back(e.prim);
+  // Over budget: an empty leaf, so the recursion unwinds at once (the tree is discarded).
+  if (!over_budget())
+    for (const Event& e : events)
+      if (e.axis == 0 && e.type != kEnd) ids.push_back(e.prim);
   std::sort(ids.begin(), ids.end());
+  const int64_t cap = tree_capacity(out);
+  nodes_made_.fetch_add(1, std::memory_order_relaxed);
   out.nodes.push_back(make_leaf(out, ids));
+  charge(tree_capacity(out) - cap);  // capacity, not size: vector growth keeps slack
+  release(events);
 }
 
 void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth,
                     Subtree& out) {
-  if (n == 0 || depth >= max_depth_) return leaf(events, out);
+  if (n == 0 || depth >= max_depth_ || over_budget()) return leaf(events, out);
   const Split sp = find_split(events, n, box);
   if (sp.axis < 0 || !(sp.cost < ki_ * float(n))) return leaf(events, out);
 
@@ -239,7 +275,9 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
       both.push_back(e.prim);
     }
   }
-  std::vector<Event>().swap(events);
+  charge(int64_t((left.capacity() + right.capacity()) * sizeof(Event) +
+                 both.capacity() * sizeof(uint32_t)));
+  release(events);
 
   // Perfect splits: straddling triangles get new events from their bounds clipped to each
   // child; only these are sorted, then merged with the (already sorted) one-sided events.
@@ -267,16 +305,24 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
                event_less);
     sorted.swap(merged);
   };
+  const size_t before = left.capacity() + right.capacity();
+  charge(int64_t((new_l.capacity() + new_r.capacity()) * sizeof(Event)));
   merge_in(left, new_l);
   merge_in(right, new_r);
-  std::vector<Event>().swap(new_l);
-  std::vector<Event>().swap(new_r);
+  release(new_l);
+  release(new_r);
+  charge(int64_t(left.capacity() + right.capacity()) * int64_t(sizeof(Event)) -
+         int64_t(before * sizeof(Event)));
   const uint32_t nb = uint32_t(both.size());
+  charge(-int64_t(both.capacity() * sizeof(uint32_t)));
   std::vector<uint32_t>().swap(both);
   const uint32_t nl = n_left_only + nb, nr = n_right_only + nb;
 
   const size_t self = out.nodes.size();
+  int64_t cap = tree_capacity(out);
   out.nodes.push_back({});
+  charge(tree_capacity(out) - cap);
+  nodes_made_.fetch_add(1, std::memory_order_relaxed);
   if (depth < kParallelDepth && n >= kParallelPrims) {
     Subtree sl, sr;
     tbb::parallel_invoke([&] { build(left, nl, box_l, depth + 1, sl); },
@@ -293,9 +339,18 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
       }
       out.prims.insert(out.prims.end(), s.prims.begin(), s.prims.end());
     };
+    // The subtrees are copied into `out`, then freed: both exist for a moment.
+    const int64_t sub_bytes = tree_capacity(sl) + tree_capacity(sr);
+    cap = tree_capacity(out);
     append(sl);
+    charge(tree_capacity(out) - cap);
     const uint32_t above = uint32_t(out.nodes.size());
+    cap = tree_capacity(out);
     append(sr);
+    charge(tree_capacity(out) - cap);
+    sl = {};
+    sr = {};
+    charge(-sub_bytes);
     out.nodes[self].split = sp.pos;
     out.nodes[self].bits = (above << 2) | uint32_t(sp.axis);
   } else {
@@ -326,12 +381,30 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   if (params.kd_max_depth < 0 || params.kd_max_depth > kMaxDepth)
     throw ParamError("kdtree: kd_max_depth must be 0 (auto) or 1.." + std::to_string(kMaxDepth) +
                      " (the traversal stack's size); got " + std::to_string(params.kd_max_depth));
+  // Memory guard before any allocation. The peak of a typical build is the first split: the
+  // sorted events (6 per triangle) and the children's copies (straddling triangles in both),
+  // with the tree growing to ~40 bytes per triangle (landscape, dragon: 200-220 bytes per
+  // triangle in all). Scenes whose triangles straddle many planes need far more; the builder
+  // keeps a running account and stops at the budget (Builder::charge).
+  const size_t n = mesh.num_triangles();
+  const int threads = effective_threads(params.threads);
+  const double nt = double(n);
+  const std::string fix =
+      "fewer splits need less: lower --kd-cost-ratio (kd_intersection_cost, e.g. 0.75) or set "
+      "kd_max_depth";
+  const uint64_t estimate = check_memory_budget(
+      "kdtree", n,
+      {{"sorted events", 6.0 * nt * sizeof(Event)},
+       {"children's events at the first split", 1.25 * 6.0 * nt * sizeof(Event)},
+       {"tree (~40 bytes per triangle, measured)", 40.0 * nt},
+       {"classification flags", nt * threads}},
+      params, fix);
+
   mesh_ = &mesh;
   test_ = params.triangle_test;
   stats_ = {};
   nodes_.clear();
   prims_.clear();
-  const size_t n = mesh.num_triangles();
   bounds_ = mesh.bounds();
   if (n == 0 || bounds_.empty()) {
     bounds_ = Box3();
@@ -345,9 +418,10 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
           ? params.kd_max_depth
           : std::min(kMaxDepth, int(std::lround(8.0 + 1.3 * std::log2(double(n)))));
 
-  tbb::task_arena arena(effective_threads(params.threads));
+  tbb::task_arena arena(threads);
   Subtree tree;
   Builder builder(mesh, params, max_depth);
+  builder.charge(int64_t(n) * threads + int64_t(n * 6 * sizeof(Event)));
   arena.execute([&] {
     std::vector<Event> events;
     events.reserve(n * 6);
@@ -355,6 +429,31 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
     tbb::parallel_sort(events.begin(), events.end(), event_less);
     builder.build(events, uint32_t(n), bounds_, 0, tree);
   });
+  auto throw_over_budget = [&](uint64_t nodes) {
+    throw ParamError("kdtree: the build outgrew the memory budget of " +
+                     format_bytes_iec(double(effective_memory_budget(params))) + " (its account reached " +
+                     format_bytes_iec(double(builder.peak_bytes())) + " after " +
+                     std::to_string(nodes) + " nodes over " + std::to_string(n) +
+                     " triangles; the estimate before building was " +
+                     format_bytes_iec(double(estimate)) +
+                     "): triangles straddling many split planes are copied into every node they "
+                     "cross; " + fix + ", or raise --memory-budget-mb (0 = half of physical "
+                     "memory) if the machine has the memory");
+  };
+  if (builder.over_budget()) {
+    const uint64_t nodes = builder.nodes_made();
+    tree = {};
+    bounds_ = Box3();
+    throw_over_budget(nodes);
+  }
+  // shrink_to_fit copies the tree once more: count the copy too.
+  builder.charge(int64_t(tree.nodes.size() * sizeof(KdNode) + tree.prims.size() * sizeof(uint32_t)));
+  if (builder.over_budget()) {
+    const uint64_t nodes = builder.nodes_made();
+    tree = {};
+    bounds_ = Box3();
+    throw_over_budget(nodes);
+  }
   nodes_ = std::move(tree.nodes);
   prims_ = std::move(tree.prims);
   nodes_.shrink_to_fit();
@@ -362,6 +461,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
 
   // Statistics from a walk of the finished tree.
   stats_.sah_evaluations = builder.sah_evaluations();
+  stats_.peak_estimate = estimate;
   stats_.nodes = nodes_.size();
   struct Item {
     uint32_t node;
@@ -386,7 +486,8 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
                  b_refs = prims_.size() * sizeof(uint32_t);
   stats_.bytes = b_nodes + b_refs;
   stats_.bytes_by_part = {{"nodes", b_nodes}, {"references", b_refs}};
-  stats_.extra = {{"max_depth_limit", std::to_string(max_depth)}};
+  stats_.extra = {{"max_depth_limit", std::to_string(max_depth)},
+                  {"build account peak", format_bytes_iec(double(builder.peak_bytes()))}};
   stats_.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;

@@ -88,9 +88,18 @@ struct BuildParams {
   std::string embree_quality = "medium";
 
   // ---- memory guard ----------------------------------------------------------------------
-  /// Structures that can grow with parameters (grid, hybrid, irregular) refuse to build
-  /// beyond this many bytes; 0 = auto (half of physical memory).
+  /// Every structure estimates the peak bytes of its build before allocating (accel/guards.h)
+  /// and refuses with a ParamError above this many bytes; 0 = auto (half of physical memory).
+  /// The mesh itself is not counted: it belongs to the caller.
   uint64_t memory_budget = 0;
+
+  // ---- brute-force work limit ------------------------------------------------------------
+  /// Brute force tests every triangle for every ray, so a render or benchmark refuses up
+  /// front when (primary rays x triangles) exceeds this many ray/triangle tests, instead of
+  /// appearing to hang. 2e10 is about 3 minutes of primary rays on 2 cores at the ~5e7 tests
+  /// per second per core measured on the 10M-triangle landscape; 0 = no limit. Other
+  /// structures ignore it.
+  double brute_work_limit = 2e10;
 };
 
 /// Resolves memory_budget = 0 to half of physical memory.

@@ -19,6 +19,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "accel/guards.h"
 #include "accel/triangle.h"
 #include "bench/rayfile.h"
 #include "bench/raysets.h"
@@ -151,6 +152,9 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
     auto acc = make_accelerator(name);
     BuildParams p = o.params;
     p.threads = threads;
+    uint64_t all_rays = 0;
+    for (const auto& rays : sr.rays) all_rays += rays.size();
+    check_brute_force_work(name, all_rays, mesh.num_triangles(), p);
     const auto t0 = Clock::now();
     f.stats = acc->build(mesh, p);
     f.build_seconds = seconds_since(t0);

@@ -9,6 +9,8 @@ namespace kdgrid {
 
 /// Loads .gltf/.glb (tinygltf), .ply (own reader) or .obj (tinyobjloader), then
 /// Scene::finalize(). Throws LoadError naming the file, the problem and the fix.
+/// "gen:NAME[:COUNT[:SEED]]" (e.g. gen:landscape:10000000) builds the procedural scene
+/// in memory instead (scene/procedural.h), so large test scenes need no file.
 Scene load_scene(const std::string& path);
 
 /// Individual readers; each fills a Scene without finalizing it.

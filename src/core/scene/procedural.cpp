@@ -1,5 +1,6 @@
 #include "scene/procedural.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <utility>
@@ -290,6 +291,187 @@ Scene torus(const ProceduralParams& p) {
   return s;
 }
 
+/// Value noise on an integer lattice hashed with the seed, smoothly interpolated: the
+/// building block of the landscape's fBm heights. Deterministic on every platform.
+class ValueNoise {
+ public:
+  explicit ValueNoise(uint64_t seed) : seed_(seed) {}
+  /// In [-1, 1].
+  float operator()(float x, float z) const {
+    const float fx = std::floor(x), fz = std::floor(z);
+    const int64_t ix = int64_t(fx), iz = int64_t(fz);
+    const float tx = smooth(x - fx), tz = smooth(z - fz);
+    const float a = lattice(ix, iz), b = lattice(ix + 1, iz);
+    const float c = lattice(ix, iz + 1), d = lattice(ix + 1, iz + 1);
+    return (a + (b - a) * tx) + ((c + (d - c) * tx) - (a + (b - a) * tx)) * tz;
+  }
+
+ private:
+  static float smooth(float t) { return t * t * (3.0f - 2.0f * t); }
+  float lattice(int64_t x, int64_t z) const {
+    Rng r(seed_ ^ (uint64_t(x) * 0x9E3779B185EBCA87ull) ^ (uint64_t(z) * 0xC2B2AE3D27D4EB4Full));
+    return r.uniform() * 2.0f - 1.0f;
+  }
+  uint64_t seed_;
+};
+
+/// Landscape height at (x, z): rolling fBm plus ridged mountains towards one side, so the
+/// terrain has flat valleys, steep slopes and a high range (heights about -40..260).
+float landscape_height(const ValueNoise& noise, float x, float z) {
+  float h = 0.0f, amp = 60.0f, freq = 1.0f / 400.0f;
+  for (int o = 0; o < 6; ++o) {
+    h += amp * noise(x * freq, z * freq);
+    amp *= 0.5f;
+    freq *= 2.03f;
+  }
+  // Ridged octaves (1 - |n|), weighted up towards +z: a mountain range behind the plains.
+  float ridge = 0.0f;
+  amp = 1.0f;
+  freq = 1.0f / 300.0f;
+  for (int o = 0; o < 4; ++o) {
+    const float r = 1.0f - std::fabs(noise(x * freq + 31.7f, z * freq - 12.9f));
+    ridge += amp * r * r;
+    amp *= 0.5f;
+    freq *= 2.1f;
+  }
+  const float w = std::clamp((z + 200.0f) / 1000.0f, 0.0f, 1.0f);
+  return h + 160.0f * w * w * ridge;
+}
+
+Scene landscape(const ProceduralParams& p) {
+  const int count = pick_count("landscape", p, 1'000'000);
+  const uint64_t total = uint64_t(count);
+  Rng rng(p.seed);
+  const ValueNoise noise(p.seed * 0x2545F4914F6CDD1Dull + 17);
+  constexpr float kHalf = 1000.0f;  // terrain spans [-1000, 1000] in x and z
+  Scene s;
+  s.source = "procedural:landscape";
+  enum : uint32_t { kGround, kStone, kFoliage, kMetal, kFence };
+  s.materials.push_back(make_material("ground", {0.45f, 0.42f, 0.33f}));
+  s.materials.push_back(make_material("stone", {0.55f, 0.55f, 0.58f}));
+  s.materials.push_back(make_material("foliage", {0.18f, 0.42f, 0.16f}));
+  Material metal = make_material("metal", {0.9f, 0.85f, 0.7f});
+  metal.metallic = 1.0f;
+  metal.roughness = 0.1f;
+  s.materials.push_back(metal);
+  s.materials.push_back(make_material("fence", {0.5f, 0.3f, 0.2f}));
+
+  // ---- objects: about 35% of the triangles in clusters, sqrt(budget) objects of sqrt(budget)
+  // triangles each, so both the object count and their detail grow with the scene ----
+  std::vector<std::pair<Mesh, uint32_t>> objects;
+  uint64_t object_tris = 0;
+  if (total >= 2000) {
+    const double budget = 0.35 * double(total);
+    const int per_object = std::max(80, int(std::sqrt(budget)));
+    const int num_objects = std::max(1, int(budget / per_object));
+    const int num_clusters = std::max(1, num_objects / 40);
+    std::vector<std::array<float, 3>> clusters;  // x, z, radius
+    for (int c = 0; c < num_clusters; ++c)
+      clusters.push_back({rng.uniform(-0.9f, 0.9f) * kHalf, rng.uniform(-0.9f, 0.9f) * kHalf,
+                          rng.uniform(15.0f, 60.0f)});
+    int level = 0;
+    while (20 * (4 << (2 * level)) <= per_object && level < 6) ++level;
+    for (int i = 0; i < num_objects && object_tris + uint64_t(per_object) <= uint64_t(budget);
+         ++i) {
+      const auto& cl = clusters[size_t(rng.integer(0, num_clusters))];
+      const float ang = rng.uniform(0.0f, 2.0f * kPi), rad = cl[2] * std::sqrt(rng.uniform());
+      const float x = cl[0] + rad * std::cos(ang), z = cl[1] + rad * std::sin(ang);
+      const float size = rng.uniform(1.5f, 8.0f);
+      // One object in ten floats well above the ground: small dense islands in empty air.
+      const float lift = rng.uniform() < 0.1f ? rng.uniform(30.0f, 150.0f) : 0.0f;
+      const Vec3 base(x, landscape_height(noise, x, z) + lift, z);
+      if (i % 2 == 0) {
+        objects.push_back({make_icosphere(level, base + Vec3(0.0f, size * 0.8f, 0.0f), size),
+                           rng.uniform() < 0.5f ? kFoliage : kStone});
+      } else {
+        const auto [major, minor] = torus_segments(per_object);
+        objects.push_back({make_torus(major, minor, size, size * 0.35f,
+                                      base + Vec3(0.0f, size * 0.5f, 0.0f)),
+                           kMetal});
+      }
+      object_tris += objects.back().first.num_triangles();
+    }
+  }
+
+  // ---- terrain: a gx x gz grid of quads, two triangles each, over most of the rest ----
+  const uint64_t rest = total - object_tris;
+  const uint64_t gx = uint64_t(std::sqrt(double(rest / 2)));
+  const uint64_t gz = gx > 0 ? rest / 2 / gx : 0;
+  const uint64_t strip = rest - 2 * gx * gz;  // < 2 gx + 2: a fence makes up the exact count
+
+  Mesh& m = s.mesh;
+  m.positions.reserve(size_t((gx + 1) * (gz + 1) + strip + 2 + object_tris));
+  m.normals.reserve(m.positions.capacity());
+  m.triangles.reserve(size_t(total));
+  m.material_ids.reserve(size_t(total));
+  if (gx > 0 && gz > 0) {
+    const float dx = 2.0f * kHalf / float(gx), dz = 2.0f * kHalf / float(gz);
+    std::vector<float> h((gx + 1) * (gz + 1));
+    for (uint64_t j = 0; j <= gz; ++j)
+      for (uint64_t i = 0; i <= gx; ++i)
+        h[j * (gx + 1) + i] =
+            landscape_height(noise, -kHalf + float(i) * dx, -kHalf + float(j) * dz);
+    auto H = [&](int64_t i, int64_t j) {
+      i = std::clamp<int64_t>(i, 0, int64_t(gx));
+      j = std::clamp<int64_t>(j, 0, int64_t(gz));
+      return h[size_t(j) * (gx + 1) + size_t(i)];
+    };
+    for (uint64_t j = 0; j <= gz; ++j)
+      for (uint64_t i = 0; i <= gx; ++i) {
+        const int64_t ii = int64_t(i), jj = int64_t(j);
+        m.positions.push_back({-kHalf + float(i) * dx, H(ii, jj), -kHalf + float(j) * dz});
+        // Central differences of the height field: smooth shading normals.
+        const float sx = (H(ii + 1, jj) - H(ii - 1, jj)) / (2.0f * dx);
+        const float sz = (H(ii, jj + 1) - H(ii, jj - 1)) / (2.0f * dz);
+        m.normals.push_back(normalize(Vec3(-sx, 1.0f, -sz)));
+      }
+    for (uint64_t j = 0; j < gz; ++j)
+      for (uint64_t i = 0; i < gx; ++i) {
+        const uint32_t a = uint32_t(j * (gx + 1) + i), b = a + 1;
+        const uint32_t c = uint32_t(a + gx + 1), d = c + 1;
+        // Counter-clockwise seen from above (+y).
+        m.triangles.push_back({a, c, d});
+        m.triangles.push_back({a, d, b});
+      }
+    m.material_ids.assign(m.triangles.size(), kGround);
+  }
+  if (strip > 0) {
+    // A fence along the southern edge: a triangle strip of exactly `strip` triangles.
+    const uint32_t base = uint32_t(m.positions.size());
+    const float w = 2.0f * kHalf / float(strip / 2 + 1);
+    for (uint64_t v = 0; v < strip + 2; ++v) {
+      const float x = -kHalf + float(v / 2) * w + (v % 2 ? 0.5f * w : 0.0f);
+      const float ground = landscape_height(noise, x, -kHalf - 2.0f);
+      m.positions.push_back({x, ground + (v % 2 ? 3.0f : -1.0f), -kHalf - 2.0f});
+      m.normals.push_back({0.0f, 0.0f, -1.0f});
+    }
+    for (uint64_t t = 0; t < strip; ++t) {
+      const uint32_t v = base + uint32_t(t);
+      if (t % 2 == 0)
+        m.triangles.push_back({v, v + 1, v + 2});
+      else
+        m.triangles.push_back({v + 1, v, v + 2});
+      m.material_ids.push_back(kFence);
+    }
+  }
+  for (const auto& [obj, mat] : objects) m.append(obj, mat);
+
+  Light sun;
+  sun.type = LightType::Directional;
+  sun.direction = normalize(Vec3(0.45f, -1.0f, 0.6f));
+  sun.intensity = 2.5f;
+  sun.name = "sun";
+  s.lights.push_back(sun);
+  s.background = Vec3(0.45f, 0.6f, 0.85f);
+  Camera cam;
+  cam.eye = {-300.0f, 420.0f, -1250.0f};
+  cam.target = {0.0f, 40.0f, 0.0f};
+  cam.fov_deg = 55.0f;
+  cam.name = "overview";
+  s.camera = cam;
+  return s;
+}
+
 struct Generator {
   const char* name;
   const char* description;
@@ -309,6 +491,10 @@ const Generator kGenerators[] = {
     {"soup", "--count random small triangles in [-1,1]^3 (--seed)", soup},
     {"sphere", "closed icosphere, 20*4^level triangles (--level, default 4)", sphere},
     {"torus", "closed torus of about --count triangles (default 5000)", torus},
+    {"landscape",
+     "exactly --count triangles (default 1M): fBm terrain with clusters of spheres and tori, "
+     "some floating, and empty sky (--seed)",
+     landscape},
 };
 
 }  // namespace

@@ -26,6 +26,13 @@
 //                      triangles), with smooth normals.
 //   torus              closed torus, major radius 1, minor radius 0.35, about count triangles
 //                      (default 5000), with smooth normals.
+//   landscape          exactly count triangles (default 1M; 10M is the big-scene test of
+//                      scripts/big-scene.sh): a 2000 x 2000 fBm height-field terrain (heights
+//                      about -40..260, a ridged range towards +z) with ~35% of the triangles in
+//                      clusters of icospheres and tori sitting on it (one in ten floating
+//                      30..150 units up), a fence strip that makes the count exact, a sun and an
+//                      overview camera. Dense clusters, smooth slopes and empty sky: a test of
+//                      how each structure copes with scale, not a flat sheet; seed.
 //
 // Generators fill mesh, materials, and where sensible lights and a camera; they do not call
 // Scene::finalize() (do that before rendering).

@@ -1,0 +1,44 @@
+// Fail-fast guards shared by the acceleration structures. A structure estimates the peak
+// bytes of its build from what it knows before allocating (triangle count, resolution, ...)
+// and refuses with a ParamError naming the bytes, the budget and the fix when the estimate
+// exceeds BuildParams::memory_budget, so a scene too big for the machine fails in
+// milliseconds instead of swapping or being killed. Brute force, which needs no memory, has
+// a work limit instead (BuildParams::brute_work_limit).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "accel/params.h"
+
+namespace kdgrid {
+
+/// One term of an estimate, named for the message ("nodes", "events", ...).
+struct MemoryPart {
+  std::string name;
+  double bytes = 0;
+};
+
+/// Sum of the parts, bytes.
+double total_bytes(const std::vector<MemoryPart>& parts);
+
+/// Throws ParamError when the parts sum above effective_memory_budget(params):
+///   "<structure>: building over N triangles needs about X at its peak (part: bytes, ...),
+///    above the memory budget of Y; <fix>, or raise --memory-budget-mb (0 = half of
+///    physical memory)".
+/// Returns the sum, rounded up, for BuildStats::peak_estimate.
+uint64_t check_memory_budget(const std::string& structure, size_t triangles,
+                             const std::vector<MemoryPart>& parts, const BuildParams& params,
+                             const std::string& fix);
+
+/// Throws ParamError when `accel` is "brute" and primary_rays x triangles exceeds
+/// params.brute_work_limit (0 = no limit); the message gives the largest square resolution
+/// that fits and the alternatives. Other structures pass.
+void check_brute_force_work(const std::string& accel, uint64_t primary_rays, size_t triangles,
+                            const BuildParams& params);
+
+/// "12.3 MiB", "1.50 GiB", "512 bytes".
+std::string format_bytes_iec(double bytes);
+
+}  // namespace kdgrid
