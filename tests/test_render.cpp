@@ -630,7 +630,7 @@ TEST(RenderCli, InterruptWritesWhatIsDone) {
   // passes and say so, with exit code 130. After 60 s it is killed and the test fails.
   const std::string cmd =
       "sh -c '" + std::string(KDGRID_CLI_PATH) + " render " + scene + " -o " + out +
-      " --accel brute --res 32x24 --spp 100000 --threads 1 & pid=$!; "
+      " --accel brute --brute-work-limit 0 --res 32x24 --spp 100000 --threads 1 & pid=$!; "
       "i=0; while kill -0 $pid 2>/dev/null && [ $i -lt 120 ]; do sleep 0.5; "
       "kill -INT $pid 2>/dev/null; i=$((i+1)); done; kill -KILL $pid 2>/dev/null; "
       "wait $pid; echo rc=$?' 2>&1";
