@@ -206,15 +206,30 @@ TEST(KdTree, RejectsBadParameters) {
   EXPECT_THROW(kd.build(mesh, p), ParamError);
 }
 
+// Sanitizer builds (scripts/sanitize.sh) run the same code many times slower, and unevenly.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+constexpr bool kSanitizerBuild = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+constexpr bool kSanitizerBuild = true;
+#else
+constexpr bool kSanitizerBuild = false;
+#endif
+#else
+constexpr bool kSanitizerBuild = false;
+#endif
+
 TEST(KdTree, BuildsLargeMeshQuickly) {
   // 300K triangles: checks the O(N log N) build stays far from quadratic (about 3 s of CPU).
-  const Mesh mesh = test::sphere(400, 375);
+  // Under ASan the same build took 141 s (measured), so a time bound says nothing there: a
+  // sanitizer build builds a quarter of the mesh and checks only memory safety and answers.
+  const Mesh mesh = kSanitizerBuild ? test::sphere(200, 188) : test::sphere(400, 375);
   KdTree kd;
   const BuildStats st = kd.build(mesh, BuildParams{});
   std::printf("kd-tree over %zu triangles: %.2f s, %llu nodes, %llu refs, depth %u\n",
               mesh.num_triangles(), st.seconds, (unsigned long long)st.nodes,
               (unsigned long long)st.references, st.max_depth);
-  EXPECT_LT(st.seconds, 60.0);
+  if (!kSanitizerBuild) EXPECT_LT(st.seconds, 60.0);
   EXPECT_EQ(count_disagreements(mesh, kd, test::random_rays(mesh, 8, 200)), 0);
 }
 

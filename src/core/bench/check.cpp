@@ -540,6 +540,10 @@ std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float 
   const Mesh base = named_mesh("soup", 2000, seed);
   const double scales[] = {1e-4, 1e-2, 1.0, 1e2, 1e4};
   const double shifts[] = {0.0, 1e3, 1e5};
+  struct Sample {
+    Vec3 p, ng, d;  ///< surface point, geometric normal on the leaving side, direction
+    uint32_t prim;
+  };
   for (double shift : shifts) {
     for (double scale : scales) {
       const Mesh m = transformed(base, scale, Vec3(float(shift)));
@@ -549,6 +553,8 @@ std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float 
       r.translation = shift;
       r.epsilon = epsilon;
       Rng rng(seed ^ uint64_t(scale * 1e6) ^ uint64_t(shift));
+      std::vector<Sample> samples;
+      samples.reserve(size_t(std::max(rays_per_scale, 0)));
       for (int i = 0; i < rays_per_scale; ++i) {
         const uint32_t prim = uint32_t(rng.below(m.num_triangles()));
         const auto cr = m.corners(prim);
@@ -561,13 +567,50 @@ std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float 
         Vec3 d = rng.direction();
         if (dot(d, ng) < 0) d = -d;  // leave on the front side
         if (rng.below(2)) { ng = -ng; d = -d; }  // and on the back side
-        ++r.rays;
-        Hit h;
-        if (accel->intersect({offset_ray_origin(p, ng), 0.0f, d, kInf}, h) && h.prim == prim)
-          ++r.robust_self_hits;
-        Hit he;
-        if (accel->intersect({p, epsilon, d, kInf}, he) && he.prim == prim) ++r.epsilon_self_hits;
+        samples.push_back({p, ng, d, prim});
       }
+      // The two policies: the robust offset moves the origin off the surface along the
+      // normal; the fixed epsilon keeps the origin and skips hits closer than tmin.
+      auto robust_ray = [](const Sample& s) {
+        return Ray{offset_ray_origin(s.p, s.ng), 0.0f, s.d, kInf};
+      };
+      auto epsilon_ray = [epsilon](const Sample& s) { return Ray{s.p, epsilon, s.d, kInf}; };
+      r.rays = samples.size();
+      for (const Sample& s : samples) {
+        Hit h;
+        if (accel->intersect(robust_ray(s), h) && h.prim == s.prim) ++r.robust_self_hits;
+        Hit he;
+        if (accel->intersect(epsilon_ray(s), he) && he.prim == s.prim) ++r.epsilon_self_hits;
+      }
+      // Speed of each policy: making the ray and its closest-hit query, one thread.
+      volatile uint64_t sink = 0;  // keeps the traced answers alive
+      auto timed = [&](auto make_ray) {
+        uint64_t hits = 0;
+        const auto t0 = std::chrono::steady_clock::now();
+        for (const Sample& s : samples) {
+          Hit h;
+          hits += accel->intersect(make_ray(s), h);
+        }
+        const auto t1 = std::chrono::steady_clock::now();
+        sink = sink + hits;
+        return std::chrono::duration<double>(t1 - t0).count();
+      };
+      std::vector<double> robust_s, epsilon_s;
+      for (int rep = 0; rep < kAcneTimingReps; ++rep) {
+        if (rep % 2 == 0) {
+          robust_s.push_back(timed(robust_ray));
+          epsilon_s.push_back(timed(epsilon_ray));
+        } else {
+          epsilon_s.push_back(timed(epsilon_ray));
+          robust_s.push_back(timed(robust_ray));
+        }
+      }
+      auto median = [](std::vector<double> v) {
+        std::sort(v.begin(), v.end());
+        return v[v.size() / 2];
+      };
+      r.robust_seconds = median(robust_s);
+      r.epsilon_seconds = median(epsilon_s);
       out.push_back(r);
     }
   }

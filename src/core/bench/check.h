@@ -62,7 +62,9 @@ CheckResult judge_accelerator(const Accelerator& accel, const CheckCase& c);
 
 /// Self-intersection study: rays leaving random points on random triangles (scales 1e-4 ..
 /// 1e4, translated up to 1e5) away from the surface; counts rays that re-hit their own
-/// triangle with the robust offset and with a fixed epsilon (tmin = eps) for comparison.
+/// triangle with the robust offset and with a fixed epsilon (tmin = eps) for comparison, and
+/// times each policy (making the ray plus its closest-hit query) so that the acne rate sits
+/// beside the speed it buys.
 struct AcneResult {
   double scale = 1;
   double translation = 0;
@@ -70,7 +72,15 @@ struct AcneResult {
   uint64_t robust_self_hits = 0;
   uint64_t epsilon_self_hits = 0;
   float epsilon = 1e-4f;
+  /// Seconds to make and trace this scale's rays, one thread, median of kAcneTimingReps
+  /// passes, the two policies alternating so that a change in the machine's load hits both.
+  double robust_seconds = 0;
+  double epsilon_seconds = 0;
 };
+/// Timed passes per policy and scale in the acne study (the median is kept).
+inline constexpr int kAcneTimingReps = 5;
+/// The acne study's scene and structure, for reports.
+inline constexpr const char* kAcneSceneDescription = "2000-triangle random soup, bvh";
 std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float epsilon = 1e-4f);
 
 }  // namespace kdgrid
