@@ -28,16 +28,7 @@ kdgrid="$root/build/release/src/cli/kdgrid"
 python=/usr/bin/python3  # Debian's, which has python3-matplotlib
 # Shared scenes: $KDGRID_SCENES, else ../shared/scenes beside the checkout (or beside a parent
 # folder, as util/paths.h looks for it).
-scenes="${KDGRID_SCENES:-}"
-if [[ -z "$scenes" ]]; then
-  for base in "$root" "$root/.." "$root/../.."; do
-    if [[ -d "$base/../shared/scenes" ]]; then
-      scenes=$(cd "$base/../shared/scenes" && pwd)
-      break
-    fi
-  done
-fi
-scenes="${scenes:-$root/../shared/scenes}"
+source scripts/scenes-dir.sh
 res="${BENCH_RES:-1024}"
 reps="${BENCH_REPS:-5}"
 threads="${BENCH_THREADS:-0}"

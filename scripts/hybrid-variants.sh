@@ -12,7 +12,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 results="${1:-docs/results}"
 kdgrid="build/release/src/cli/kdgrid"
-scenes="${KDGRID_SCENES:-$(cd .. && pwd)/shared/scenes}"
+root=$(pwd)
+source scripts/scenes-dir.sh
 [[ -x "$kdgrid" ]] || { echo "hybrid-variants: build first: bash scripts/build.sh release" >&2; exit 1; }
 [[ -f "$scenes/suite.json" ]] || { echo "hybrid-variants: $scenes/suite.json not found; set KDGRID_SCENES" >&2; exit 1; }
 mkdir -p "$results"

@@ -23,16 +23,7 @@ root=$(pwd)
 results="${1:-docs/results}"
 viewer="$root/build/release/src/viewer/kdgrid-viewer"
 python=/usr/bin/python3
-scenes="${KDGRID_SCENES:-}"
-if [[ -z "$scenes" ]]; then
-  for base in "$root" "$root/.." "$root/../.."; do
-    if [[ -d "$base/../shared/scenes" ]]; then
-      scenes=$(cd "$base/../shared/scenes" && pwd)
-      break
-    fi
-  done
-fi
-scenes="${scenes:-$root/../shared/scenes}"
+source scripts/scenes-dir.sh
 passes="${VIEWER_PASSES:-16}"
 threads="${VIEWER_THREADS:-2}"
 
