@@ -152,7 +152,7 @@ meta = {"scene": "gen:landscape:%s" % n, "triangles": int(n), "res": int(res),
         "ply_write_seconds": float(gen_s), "ply_bytes": int(ply_bytes),
         "date": datetime.datetime.now().isoformat(timespec="seconds"), "cpu": cpu,
         "cores": os.cpu_count(), "memory": mem, "kernel": platform.release(),
-        "commit": sh("git rev-parse --short HEAD") + (" (modified)" if sh("git status --porcelain --untracked-files=no") else ""),
+        "commit": sh("git rev-parse --short HEAD") + (" (modified)" if sh("git status --porcelain --untracked-files=no -- src tests scripts CMakeLists.txt") else ""),
         "command": "scripts/big-scene.sh"}
 with open(out_path, "w") as f:
     json.dump({"meta": meta, "runs": runs}, f, indent=2)
