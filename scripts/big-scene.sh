@@ -19,6 +19,8 @@
 #   BIG_ACCELS      structures (default: brute bvh kdtree grid hybrid irregular embree)
 #   BIG_TIMEOUT     seconds allowed per structure (default 1800)
 #   BIG_BUDGET_MB   --memory-budget-mb for every run (default 0 = half of physical memory)
+#   BIG_TIGHT_MB    then every structure again with this budget (default 512; 0 = skip), to
+#                   show which refuse and how fast (res BIG_TIGHT_RES, default 64)
 #   BIG_IMAGE       structure whose render is kept as docs/img/big-scene.png (default bvh;
 #                   empty = none)
 #   SKIP_BUILD=1    use the existing build/release
@@ -36,6 +38,8 @@ brute_res="${BIG_BRUTE_RES:-16}"
 accels="${BIG_ACCELS:-brute bvh kdtree grid hybrid irregular embree}"
 limit="${BIG_TIMEOUT:-1800}"
 budget="${BIG_BUDGET_MB:-0}"
+tight="${BIG_TIGHT_MB:-512}"
+tight_res="${BIG_TIGHT_RES:-64}"
 keep_image="${BIG_IMAGE-bvh}"
 
 if [[ "${SKIP_BUILD:-0}" != 1 ]]; then
@@ -53,26 +57,26 @@ mem_available() { awk '/MemAvailable/ {print $2}' /proc/meminfo; }  # kB
 
 # One render in its own process. Writes one JSON line to $runs with what happened.
 measure() {
-  local accel=$1 r=$2 tag=$3
+  local accel=$1 r=$2 tag=$3 mb=${4:-$budget}
   local stats="$tmp/$tag.json" log="$tmp/$tag.log" timefile="$tmp/$tag.time" png="$tmp/$tag.png"
   local avail t0 t1 rc=0
   avail=$(mem_available)
-  echo "== $tag: kdgrid render $scene --accel $accel --res $r --spp 1" >&2
+  echo "== $tag: kdgrid render $scene --accel $accel --res $r --spp 1 --memory-budget-mb $mb" >&2
   t0=$(date +%s.%N)
   /usr/bin/time -f '%M %e' -o "$timefile" timeout "$limit" "$kdgrid" render "$scene" \
-    --accel "$accel" --res "$r" --spp 1 --memory-budget-mb "$budget" -o "$png" \
+    --accel "$accel" --res "$r" --spp 1 --memory-budget-mb "$mb" -o "$png" \
     --stats-json "$stats" >"$log" 2>&1 || rc=$?
   t1=$(date +%s.%N)
   tr '\r' '\n' <"$log" | grep -v '^\[' | grep -v '^$' >&2 || true
-  if [[ -n "$keep_image" && "$accel" == "$keep_image" && -f "$png" ]]; then
+  if [[ -n "$keep_image" && "$tag" == "$keep_image" && -f "$png" ]]; then
     mkdir -p docs/img
     cp "$png" docs/img/big-scene.png
   fi
   "$python" - "$accel" "$r" "$tag" "$rc" "$t0" "$t1" "$avail" "$stats" "$log" "$timefile" \
-    "$limit" >>"$runs" <<'EOF'
+    "$limit" "$mb" >>"$runs" <<'EOF'
 import json, os, sys
-accel, res, tag, rc, t0, t1, avail, stats, log, timefile, limit = sys.argv[1:]
-rec = {"accel": accel, "tag": tag, "res": int(res), "exit": int(rc),
+accel, res, tag, rc, t0, t1, avail, stats, log, timefile, limit, mb = sys.argv[1:]
+rec = {"accel": accel, "tag": tag, "res": int(res), "exit": int(rc), "budget_mb": int(mb),
        "wall_seconds": float(t1) - float(t0), "mem_available_before_bytes": int(avail) * 1024}
 try:
     kb, _ = open(timefile).read().split()[-2:]
@@ -114,6 +118,13 @@ for a in $accels; do
     measure "$a" "$res" "$a"
   fi
 done
+# The same scene under a tight budget: the structures that cannot fit must say so quickly.
+if [[ "$tight" != 0 ]]; then
+  for a in $accels; do
+    [[ "$a" == brute ]] && continue
+    measure "$a" "$tight_res" "$a-tight" "$tight"
+  done
+fi
 
 "$python" - "$runs" "$out_json" "$n" "$res" "$brute_res" "$gen_seconds" "$ply_bytes" \
   "$budget" "$root" <<'EOF'
@@ -141,7 +152,7 @@ meta = {"scene": "gen:landscape:%s" % n, "triangles": int(n), "res": int(res),
         "ply_write_seconds": float(gen_s), "ply_bytes": int(ply_bytes),
         "date": datetime.datetime.now().isoformat(timespec="seconds"), "cpu": cpu,
         "cores": os.cpu_count(), "memory": mem, "kernel": platform.release(),
-        "commit": sh("git rev-parse --short HEAD") + (" (modified)" if sh("git status --porcelain --untracked-files=no") else ""),
+        "commit": sh("git rev-parse --short HEAD") + (" (modified)" if sh("git status --porcelain --untracked-files=no -- src tests scripts CMakeLists.txt") else ""),
         "command": "scripts/big-scene.sh"}
 with open(out_path, "w") as f:
     json.dump({"meta": meta, "runs": runs}, f, indent=2)
@@ -151,14 +162,14 @@ def mib(b):
     return "%.0f" % (b / 2**20) if b is not None else "-"
 
 print("\n%s triangles, %sx%s, 1 spp (brute: %sx%s)\n" % (n, res, res, brute_res, brute_res))
-print("%-10s %6s %9s %9s %11s %11s %11s %9s  %s" % ("structure", "res", "build s", "MiB",
+print("%-10s %6s %6s %9s %9s %11s %11s %11s %9s  %s" % ("structure", "budget", "res", "build s", "MiB",
       "estim. MiB", "build peak", "max RSS", "render s", "outcome"))
 for r in runs:
     s = r.get("stats", {})
     peak = (s["rss_build_peak_bytes"] - s["rss_before_build_bytes"]) if s else None
     outcome = "ok" if "error" not in r else "refused after %.1f s: %s" % (r["wall_seconds"], r["error"][:90])
-    print("%-10s %6d %9s %9s %11s %11s %11s %9s  %s" % (
-        r["accel"], r["res"], "%.2f" % s["build_seconds"] if s else "-",
+    print("%-10s %6s %6d %9s %9s %11s %11s %11s %9s  %s" % (
+        r["accel"], r["budget_mb"] or "auto", r["res"], "%.2f" % s["build_seconds"] if s else "-",
         mib(s.get("bytes")) if s else "-", mib(s.get("peak_estimate_bytes")) if s else "-",
         mib(peak), mib(r.get("time_max_rss_bytes")),
         "%.2f" % s["render_seconds"] if s else "-", outcome))

@@ -131,8 +131,9 @@ void run_render(const RenderArgs& a) {
 
   const std::string scene_path = resolve_scene_path(a.scene);
   const Scene scene = load_scene(scene_path);
-  check_brute_force_work(a.accel.accel,
-                         uint64_t(settings.width) * uint64_t(settings.height) * uint64_t(a.spp),
+  // One pass: passes are progressive and Ctrl-C keeps the finished ones, but a single pass
+  // of brute force over millions of triangles would look like a hang.
+  check_brute_force_work(a.accel.accel, uint64_t(settings.width) * uint64_t(settings.height),
                          scene.mesh.num_triangles(), params);
   // Process memory by phase: the load's peak, then the build's own peak (the high-water mark
   // is reset first where the kernel allows), for --stats-json.

@@ -86,7 +86,7 @@ BuildParams AccelOptions::resolve() const {
     throw ParamError("--irr-top-density and --irr-sub-density must be positive");
   if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
   if (!(p.brute_work_limit >= 0.0))
-    throw ParamError("--brute-work-limit must be >= 0 (0 = no limit), e.g. 2e10");
+    throw ParamError("--brute-work-limit must be >= 0 (0 = no limit), e.g. 5e9");
   if (budget_mb_ > 0) p.memory_budget = uint64_t(budget_mb_) << 20;
   return p;
 }

@@ -64,7 +64,7 @@ void check_brute_force_work(const std::string& accel, uint64_t primary_rays, siz
                 params.brute_work_limit);
   std::string msg = buf;
   if (side >= 1)
-    msg += "render at --res " + std::to_string(side) + " or smaller (1 spp), ";
+    msg += "render at --res " + std::to_string(side) + " or smaller, ";
   msg += "use a structure (--accel bvh, kdtree, hybrid, ...), or raise --brute-work-limit (0 = "
          "no limit) if you mean to wait";
   throw ParamError(msg);

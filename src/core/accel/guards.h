@@ -34,7 +34,8 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
 
 /// Throws ParamError when `accel` is "brute" and primary_rays x triangles exceeds
 /// params.brute_work_limit (0 = no limit); the message gives the largest square resolution
-/// that fits and the alternatives. Other structures pass.
+/// that fits and the alternatives. Other structures pass. `kdgrid render` passes the rays of
+/// one progressive pass (later passes can be interrupted), `kdgrid bench` all its rays.
 void check_brute_force_work(const std::string& accel, uint64_t primary_rays, size_t triangles,
                             const BuildParams& params);
 
