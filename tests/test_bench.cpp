@@ -11,12 +11,15 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
 #include "bench/bench.h"
+#include "bench/profile.h"
+#include "bench/raysets.h"
 #include "bench/suite.h"
 #include "bench/sweep.h"
 #include "scene/procedural.h"
@@ -548,6 +551,87 @@ TEST(BenchCli, MalformedSuiteFailsAtTheEndAfterTheOthersRan) {
 }
 
 // ---- sweeps ------------------------------------------------------------------------------------
+
+// ---- profile: per-class single-thread costs -------------------------------------------------
+
+TEST(Profile, ClassesPartitionTheRaysByTheReferenceAndTheBox) {
+  const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
+  BuildParams p;
+  const auto ref = build_accelerator("bvh", m, p);
+  // A camera close enough that some rays miss the sphere inside its box (near the box's
+  // corners) and far enough that the image's corners miss the box.
+  Camera cam;
+  cam.eye = Vec3(0.0f, 0.0f, 4.0f);
+  cam.target = Vec3(0.0f);
+  cam.fov_deg = 50.0f;
+  const std::vector<Ray> rays = primary_rays(cam, 48, 48);
+  const RayClasses c = classify_rays(*ref, m.bounds(), rays);
+  EXPECT_EQ(c.hit.size() + c.miss_box.size() + c.miss_out.size(), rays.size());
+  ASSERT_FALSE(c.hit.empty());
+  ASSERT_FALSE(c.miss_box.empty());
+  ASSERT_FALSE(c.miss_out.empty());
+  const Box3 b = m.bounds();
+  for (const Ray& r : c.hit) {
+    Hit h;
+    EXPECT_TRUE(ref->intersect(r, h));
+  }
+  for (const auto* set : {&c.miss_box, &c.miss_out})
+    for (const Ray& r : *set) {
+      Hit h;
+      EXPECT_FALSE(ref->intersect(r, h));
+    }
+  // miss-out rays never enter the box: a float slab test agrees (to rounding).
+  for (const Ray& r : c.miss_out) {
+    float t0 = 0.0f, t1 = std::numeric_limits<float>::infinity();
+    for (int a = 0; a < 3; ++a) {
+      float ta = (b.lo[a] - r.org[a]) / r.dir[a], tb = (b.hi[a] - r.org[a]) / r.dir[a];
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+    }
+    EXPECT_GT(t0 * (1.0f + 1e-5f), t1);
+  }
+}
+
+TEST(Profile, FiguresMatchTheCountedPassAndHitCounts) {
+  const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
+  BuildParams p;
+  const auto kd = build_accelerator("kdtree", m, p);
+  Camera cam;
+  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
+  const std::vector<Ray> rays = primary_rays(cam, 32, 32);
+  const ProfileFigures f = profile_rays(*kd, rays, 2);
+  EXPECT_EQ(f.rays, rays.size());
+  RayCounters c;
+  uint64_t hits = 0;
+  for (const Ray& r : rays) {
+    Hit h;
+    hits += kd->intersect_counted(r, h, c);
+  }
+  EXPECT_EQ(f.hits, hits);
+  EXPECT_GT(f.hits, 0u);
+  EXPECT_TRUE(f.counted);
+  EXPECT_DOUBLE_EQ(f.steps, double(c.steps) / double(rays.size()));
+  EXPECT_DOUBLE_EQ(f.tests, double(c.tri_tests) / double(rays.size()));
+  EXPECT_GT(f.cold_ns, 0.0);
+  EXPECT_GE(f.warm_ns, 0.0);
+  const ProfileFigures empty = profile_rays(*kd, {}, 1);
+  EXPECT_EQ(empty.rays, 0u);
+  EXPECT_THROW(profile_rays(*kd, rays, 0), ParamError);
+}
+
+TEST(ProfileCli, PrintsEveryStructureAndClass) {
+  TempDir dir("profile");
+  const fs::path ply = dir / "sphere.ply", log = dir / "log.txt";
+  write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
+  const int rc = run_cli("profile \"" + ply.string() + "\" --res 24 --reps 1 --accel kdtree,hybrid --reference bvh", log);
+  ASSERT_EQ(rc, 0) << slurp(log);
+  const std::string out = slurp(log);
+  for (const char* s : {"| kdtree | all |", "| kdtree | hit |", "| hybrid | miss-box |", "| hybrid | miss-out |"})
+    EXPECT_NE(out.find(s), std::string::npos) << s << "\n" << out;
+  EXPECT_NE(run_cli("profile \"" + ply.string() + "\" --reps 0", log), 0);
+  EXPECT_NE(slurp(log).find("--reps must be at least 1"), std::string::npos) << slurp(log);
+}
 
 TEST(Sweep, EdgeVertexRaysAllHitAClosedMeshWithTheWatertightTest) {
   const Mesh m = make_icosphere(2);  // 320 triangles, 480 edges, 162 vertices

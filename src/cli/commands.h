@@ -13,5 +13,6 @@ void add_gen_command(CLI::App& app);
 void add_rays_command(CLI::App& app);
 void add_trace_command(CLI::App& app);
 void add_check_command(CLI::App& app);
+void add_profile_command(CLI::App& app);
 
 }  // namespace kdgrid::cli

@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
   kdgrid::cli::add_rays_command(app);
   kdgrid::cli::add_trace_command(app);
   kdgrid::cli::add_check_command(app);
+  kdgrid::cli::add_profile_command(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,85 @@
+#include "bench/profile.h"
+
+#include <algorithm>
+#include <chrono>
+#include <limits>
+
+#include "util/error.h"
+
+namespace kdgrid {
+
+namespace {
+
+bool crosses_box(const Ray& r, const Box3& box) {
+  double t0 = r.tmin, t1 = r.tmax;
+  for (int a = 0; a < 3; ++a) {
+    const double o = r.org[a], d = r.dir[a];
+    if (d == 0.0) {
+      if (o < box.lo[a] || o > box.hi[a]) return false;
+      continue;
+    }
+    double ta = (double(box.lo[a]) - o) / d, tb = (double(box.hi[a]) - o) / d;
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  }
+  return t0 <= t1;
+}
+
+/// Seconds to trace every ray `times` times in a row (1: cold order, 2: each ray twice).
+double time_pass(const Accelerator& accel, const std::vector<Ray>& rays, int times, uint64_t& hits) {
+  hits = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  for (const Ray& r : rays)
+    for (int k = 0; k < times; ++k) {
+      Hit h;
+      hits += accel.intersect(r, h);
+    }
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+RayClasses classify_rays(const Accelerator& reference, const Box3& box, const std::vector<Ray>& rays) {
+  RayClasses c;
+  for (const Ray& r : rays) {
+    Hit h;
+    if (reference.intersect(r, h))
+      c.hit.push_back(r);
+    else
+      (crosses_box(r, box) ? c.miss_box : c.miss_out).push_back(r);
+  }
+  return c;
+}
+
+ProfileFigures profile_rays(const Accelerator& accel, const std::vector<Ray>& rays, int reps) {
+  if (reps < 1) throw ParamError("profile: --reps must be at least 1");
+  ProfileFigures f;
+  f.rays = rays.size();
+  if (rays.empty()) return f;
+  double cold = std::numeric_limits<double>::infinity(), pair = cold;
+  uint64_t hits = 0, hits2 = 0;
+  for (int rep = 0; rep < reps; ++rep) {
+    cold = std::min(cold, time_pass(accel, rays, 1, hits));
+    pair = std::min(pair, time_pass(accel, rays, 2, hits2));
+  }
+  const double n = double(rays.size());
+  f.hits = hits;
+  f.cold_ns = cold * 1e9 / n;
+  f.warm_ns = std::max(0.0, pair - cold) * 1e9 / n;
+  if (accel.has_counters()) {
+    RayCounters c;
+    for (const Ray& r : rays) {
+      Hit h;
+      accel.intersect_counted(r, h, c);
+    }
+    f.counted = true;
+    f.steps = double(c.steps) / n;
+    f.leaves = double(c.leaves) / n;
+    f.tests = double(c.tri_tests) / n;
+    f.lookups = double(c.lookups) / n;
+  }
+  return f;
+}
+
+}  // namespace kdgrid
