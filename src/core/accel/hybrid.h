@@ -231,9 +231,11 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
   if (leaves_.empty()) return false;
   // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
   // negative-zero) direction components never exit on their axis: their inv is 0 and their
-  // bias +inf, so their exit t is +inf without a branch.
+  // oc +inf, so their exit t is +inf without a branch.
   constexpr double kDInf = std::numeric_limits<double>::infinity();
-  double o[3], dg[3], inv[3], bias[3];
+  // The exit over a leaf's far plane p on axis a is t = p * inv[a] + oc[a] (oc = -o * inv,
+  // +inf on a non-moving axis): one multiply and one add after the leaf's load.
+  double o[3], dg[3], inv[3], oc[3];
   int pos[3];
   bool moving[3];
   for (int a = 0; a < 3; ++a) {
@@ -243,7 +245,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     pos[a] = d > 0.0;
     dg[a] = d * inv_cell_;
     inv[a] = moving[a] ? cell_ / d : 0.0;
-    bias[a] = moving[a] ? 0.0 : kDInf;
+    oc[a] = moving[a] ? -o[a] * inv[a] : kDInf;
   }
   // Clip to the root box [0, dims].
   double t0 = ray.tmin, t1 = ray.tmax;
@@ -308,11 +310,13 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     }
     const Leaf& L = leaves_[leaf_id];
     s.step();
-    // Exit: the nearest far plane (first axis wins ties).
-    double tf[3];
-    for (int a = 0; a < 3; ++a) tf[a] = (double(pos[a] ? L.hi[a] : L.lo[a]) - o[a]) * inv[a] + bias[a];
-    const int axis = tf[0] <= tf[1] ? (tf[0] <= tf[2] ? 0 : 2) : (tf[1] <= tf[2] ? 1 : 2);
-    const double t_exit = tf[axis];
+    // Exit: the nearest far plane (first axis wins ties). Written per axis with selects and
+    // no array indexed by the exit axis, so the step stays in registers.
+    const int32_t f0 = pos[0] ? L.hi[0] : L.lo[0], f1 = pos[1] ? L.hi[1] : L.lo[1], f2 = pos[2] ? L.hi[2] : L.lo[2];
+    const double e0 = double(f0) * inv[0] + oc[0], e1 = double(f1) * inv[1] + oc[1], e2 = double(f2) * inv[2] + oc[2];
+    const bool x01 = e0 <= e1, x02 = e0 <= e2, x12 = e1 <= e2;
+    const int axis = x01 ? (x02 ? 0 : 2) : (x12 ? 1 : 2);
+    const double t_exit = x01 ? (x02 ? e0 : e2) : (x12 ? e1 : e2);
     if constexpr (S::kTrace) {
       const float tin = float(t_cur);
       s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, leaf_box(leaf_id), tin,
@@ -324,15 +328,21 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     // ray on the dragon), so the lookup is rarely wasted.
     // Next cell: on the other axes the exit point's cell, clamped into the leaf (the point
     // lies on the leaf's face, so this only removes rounding) and never moving against the
-    // ray; on the exit axis the integer cell just past the leaf's face.
-    int32_t n[3];
-    for (int b = 0; b < 3; ++b) {
+    // ray; on the exit axis the integer cell just past the leaf's face (far plane, minus one
+    // when moving down).
+    auto exit_cell = [&](int b) {
       const double f = std::floor(o[b] + t_exit * dg[b]);
-      int32_t v = f < double(L.lo[b]) ? L.lo[b] : (f >= double(L.hi[b]) ? L.hi[b] - 1 : int32_t(f));
-      n[b] = pos[b] ? std::max(v, c[b]) : std::min(v, c[b]);
-    }
-    n[axis] = pos[axis] ? L.hi[axis] : L.lo[axis] - 1;
-    const bool last = t_exit >= t1 || uint32_t(n[axis]) >= uint32_t(dims_[axis]);
+      const int32_t v = f < double(L.lo[b]) ? L.lo[b] : (f >= double(L.hi[b]) ? L.hi[b] - 1 : int32_t(f));
+      return pos[b] ? std::max(v, c[b]) : std::min(v, c[b]);
+    };
+    int32_t n[3] = {exit_cell(0), exit_cell(1), exit_cell(2)};
+    n[0] = axis == 0 ? f0 - 1 + pos[0] : n[0];
+    n[1] = axis == 1 ? f1 - 1 + pos[1] : n[1];
+    n[2] = axis == 2 ? f2 - 1 + pos[2] : n[2];
+    const bool out_of_grid = axis == 0 ? uint32_t(n[0]) >= uint32_t(dims_[0])
+                                       : (axis == 1 ? uint32_t(n[1]) >= uint32_t(dims_[1])
+                                                    : uint32_t(n[2]) >= uint32_t(dims_[2]));
+    const bool last = t_exit >= t1 || out_of_grid;
     uint32_t next_id = 0;
     if (!last) {
       next_id = lookup(n[0], n[1], n[2]);
