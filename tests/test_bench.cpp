@@ -631,6 +631,10 @@ TEST(ProfileCli, PrintsEveryStructureAndClass) {
     EXPECT_NE(out.find(s), std::string::npos) << s << "\n" << out;
   EXPECT_NE(run_cli("profile \"" + ply.string() + "\" --reps 0", log), 0);
   EXPECT_NE(slurp(log).find("--reps must be at least 1"), std::string::npos) << slurp(log);
+  // A misspelt structure fails before the scene is loaded and the reference built.
+  EXPECT_NE(run_cli("profile \"" + ply.string() + "\" --accel kdtree,hybird", log), 0);
+  EXPECT_NE(slurp(log).find("unknown accelerator 'hybird'"), std::string::npos) << slurp(log);
+  EXPECT_EQ(slurp(log).find("| structure |"), std::string::npos) << "nothing measured\n" << slurp(log);
 }
 
 TEST(Sweep, EdgeVertexRaysAllHitAClosedMeshWithTheWatertightTest) {

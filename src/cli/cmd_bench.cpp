@@ -5,7 +5,6 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
 
 #include "bench/bench.h"
 #include "bench/suite.h"
@@ -16,15 +15,6 @@
 namespace kdgrid::cli {
 
 namespace {
-
-std::vector<std::string> split_list(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ','))
-    if (!item.empty()) out.push_back(item);
-  return out;
-}
 
 void write_text(const std::string& path, const std::string& text) {
   namespace fs = std::filesystem;

@@ -4,7 +4,6 @@
 // bench/profile.h for what each figure means.
 #include <cstdio>
 #include <memory>
-#include <sstream>
 
 #include "bench/profile.h"
 #include "bench/raysets.h"
@@ -44,6 +43,10 @@ void add_profile_command(CLI::App& app) {
   a->camera.add_to(cmd);
   cmd->callback([a] {
     if (a->reps < 1) throw ParamError("profile: --reps must be at least 1 (got " + std::to_string(a->reps) + ")");
+    const std::vector<std::string> names = split_list(a->accel.accel);
+    if (names.empty()) throw ParamError("profile: --accel names no structure (e.g. --accel kdtree,hybrid)");
+    require_accelerator_names(names);
+    require_accelerator_names({a->reference});
     int w = 0, h = 0;
     parse_resolution(a->res, w, h);
     const BuildParams params = a->accel.resolve();
@@ -58,10 +61,7 @@ void add_profile_command(CLI::App& app) {
                 cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, a->reps, a->reference.c_str());
     std::printf("| structure | rays | count | cold ns/ray | warm ns/ray | steps | leaves | tests | lookups |\n");
     std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
-    std::stringstream names(a->accel.accel);
-    std::string name;
-    while (std::getline(names, name, ',')) {
-      if (name.empty()) continue;
+    for (const std::string& name : names) {
       const auto acc = build_accelerator(name, scene.mesh, params);
       const std::pair<const char*, const std::vector<Ray>*> sets[] = {
           {"all", &rays}, {"hit", &cls.hit}, {"miss-box", &cls.miss_box}, {"miss-out", &cls.miss_out}};

@@ -1,9 +1,11 @@
 #include "cli/common.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <sstream>
 
+#include "accel/accelerator.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -157,6 +159,25 @@ float parse_cell_size(const std::string& s) {
     throw ParamError("--cell-size '" + s +
                      "' must be 'auto' or a positive finite size in scene units, e.g. 0.01");
   return f;
+}
+
+std::vector<std::string> split_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+void require_accelerator_names(const std::vector<std::string>& names) {
+  const std::vector<std::string> known = accelerator_names();
+  for (const std::string& n : names) {
+    if (std::find(known.begin(), known.end(), n) != known.end()) continue;
+    std::string choices;
+    for (const std::string& k : known) choices += (choices.empty() ? "" : ", ") + k;
+    throw ParamError("unknown accelerator '" + n + "': choose one of " + choices);
+  }
 }
 
 }  // namespace kdgrid::cli

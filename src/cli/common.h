@@ -4,6 +4,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
@@ -36,6 +37,11 @@ struct CameraOptions {
   Camera apply(const Camera& base) const;
 };
 
+/// Splits a comma-separated list ("kdtree,hybrid"), dropping empty items.
+std::vector<std::string> split_list(const std::string& s);
+/// ParamError naming the unknown entry and the choices if a name in `names` is not a
+/// registered structure (checked before a scene is loaded, so a typo fails at once).
+void require_accelerator_names(const std::vector<std::string>& names);
 /// Parses "x,y,z" (ParamError naming `what` on failure).
 Vec3 parse_vec3(const std::string& s, const std::string& what);
 /// Parses "W" or "WxH" (ParamError on failure or out of 1..16384).
