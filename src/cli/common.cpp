@@ -46,6 +46,10 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "positions; 0 = the paper's plain leaves")
       ->group(g)
       ->capture_default_str();
+  cmd->add_flag("--hybrid-no-expand{false}", params.hybrid_expand_empty,
+                "Hybrid: step over the kd leaf boxes of the paper, without widening empty "
+                "leaves over the empty cells around them")
+      ->group(g);
   cmd->add_option("--bvh-leaf", params.bvh_max_leaf, "BVH: max triangles per leaf")
       ->group(g)
       ->capture_default_str();

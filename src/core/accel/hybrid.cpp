@@ -600,8 +600,11 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   while (top_count(top_level) > double(kMaxTopEntries)) ++top_level;
   top_shift_ = kBrickLog * top_level;
   for (int a = 0; a < 3; ++a) top_dims_[a] = int32_t((int64_t(dims_[a]) + (int64_t(1) << top_shift_) - 1) >> top_shift_);
+  top_stride_[0] = uint64_t(top_dims_[0]);
+  top_stride_[1] = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]);
 
-  double t_tree = 0, t_matrix = 0;
+  double t_tree = 0, t_matrix = 0, t_expand = 0;
+  std::string expand_text;
   tbb::task_arena arena(threads);
   arena.execute([&] {
     const auto t0 = std::chrono::steady_clock::now();
@@ -627,9 +630,15 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     other += nodes_.size() * sizeof(Node) + leaves_.size() * sizeof(Leaf) + leaf_depth_.size() +
              refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
     const auto t1 = std::chrono::steady_clock::now();
-    build_matrix(budget > other ? budget - other : 0);
+    const uint64_t left = budget > other ? budget - other : 0;
+    build_matrix(left);
+    const uint64_t matrix = (bricks_.size() + top_.size() + matrix_.size()) * sizeof(uint32_t);
+    const auto t2 = std::chrono::steady_clock::now();
+    expand_text = params.hybrid_expand_empty ? expand_empty_leaves(left > matrix ? left - matrix : 0)
+                                             : std::string("off (the paper's kd leaf boxes)");
+    t_expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();
     t_tree = std::chrono::duration<double>(t1 - t0).count();
-    t_matrix = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+    t_matrix = std::chrono::duration<double>(t2 - t1).count();
   });
 
   // ---- stats ----
@@ -667,9 +676,104 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                                         : std::to_string(subtree_leaves) + " leaves with more than " +
                                               std::to_string(params.hybrid_subtree_min) + " triangles, " +
                                               std::to_string(sub_nodes_.size()) + " nodes"},
-                  {"build phases", "tree " + fmt("%.3f", t_tree) + " s, matrix " + fmt("%.3f", t_matrix) + " s"}};
+                  {"empty-leaf boxes", expand_text},
+                  {"build phases", "tree " + fmt("%.3f", t_tree) + " s, matrix " + fmt("%.3f", t_matrix) +
+                                       " s, empty-leaf boxes " + fmt("%.3f", t_expand) + " s"}};
   stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;
+}
+
+std::string Hybrid::expand_empty_leaves(uint64_t budget) {
+  const int64_t nx = dims_[0], ny = dims_[1], nz = dims_[2];
+  const uint64_t entries = uint64_t(nx + 1) * uint64_t(ny + 1) * uint64_t(nz + 1);
+  if (entries > kMaxExpandEntries || entries * sizeof(uint32_t) > budget)
+    return "skipped: its table of occupied cells would take " + bytes_str(double(entries) * 4.0) +
+           (entries > kMaxExpandEntries ? " (more than " + std::to_string(kMaxExpandEntries) + " cells)"
+                                        : ", above the memory left in the budget") +
+           "; steps use the kd leaf boxes";
+  // sat(x, y, z) = the number of occupied cells (cells of leaves with triangles) in
+  // [0, x) x [0, y) x [0, z): any box's count in 8 loads (a summed-volume table).
+  const int64_t sx = nx + 1, sxy = (nx + 1) * (ny + 1);
+  std::vector<uint32_t> sat(entries, 0);
+  auto at = [&](int64_t x, int64_t y, int64_t z) -> uint32_t& { return sat[uint64_t(x + sx * y + sxy * z)]; };
+  tbb::parallel_for(size_t(0), leaves_.size(), [&](size_t i) {
+    const Leaf& l = leaves_[i];
+    if (l.count == 0) return;  // leaves partition the grid: the writes are disjoint
+    for (int32_t z = l.lo[2]; z < l.hi[2]; ++z)
+      for (int32_t y = l.lo[1]; y < l.hi[1]; ++y)
+        for (int32_t x = l.lo[0]; x < l.hi[0]; ++x) at(x + 1, y + 1, z + 1) = 1;
+  });
+  tbb::parallel_for(int64_t(1), nz + 1, [&](int64_t z) {
+    for (int64_t y = 1; y <= ny; ++y)
+      for (int64_t x = 1; x <= nx; ++x) at(x, y, z) += at(x - 1, y, z);
+    for (int64_t y = 1; y <= ny; ++y)
+      for (int64_t x = 1; x <= nx; ++x) at(x, y, z) += at(x, y - 1, z);
+  });
+  tbb::parallel_for(int64_t(1), ny + 1, [&](int64_t y) {
+    for (int64_t z = 1; z <= nz; ++z)
+      for (int64_t x = 1; x <= nx; ++x) at(x, y, z) += at(x, y, z - 1);
+  });
+  auto occupied = [&](const int32_t lo[3], const int32_t hi[3]) {
+    const int64_t x0 = lo[0], y0 = lo[1], z0 = lo[2], x1 = hi[0], y1 = hi[1], z1 = hi[2];
+    return int64_t(at(x1, y1, z1)) - at(x0, y1, z1) - at(x1, y0, z1) - at(x1, y1, z0) + at(x0, y0, z1) +
+               at(x0, y1, z0) + at(x1, y0, z0) - at(x0, y0, z0) != 0;
+  };
+  // Each empty leaf's box grows face by face, in rounds, by the most (at most its current
+  // extent, so it stays roughly cubic) that keeps it free of occupied cells; binary search
+  // per face. Leaves with triangles keep their kd boxes. Read-only table: deterministic.
+  std::atomic<uint64_t> widened{0}, cells_before{0}, cells_after{0};
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves_.size()), [&](const tbb::blocked_range<size_t>& r) {
+    uint64_t w = 0, before = 0, after = 0;
+    for (size_t i = r.begin(); i != r.end(); ++i) {
+      Leaf& l = leaves_[i];
+      if (l.count != 0) continue;
+      int32_t lo[3] = {l.lo[0], l.lo[1], l.lo[2]}, hi[3] = {l.hi[0], l.hi[1], l.hi[2]};
+      for (bool grew = true; grew;) {
+        grew = false;
+        for (int a = 0; a < 3; ++a)
+          for (int up = 0; up < 2; ++up) {
+            const int32_t room = up ? dims_[a] - hi[a] : lo[a];
+            int32_t best = 0, k0 = 1, k1 = std::min(room, hi[a] - lo[a]);
+            while (k0 <= k1) {  // the largest k in [1, k1] whose slab is free
+              const int32_t k = k0 + (k1 - k0) / 2;
+              int32_t slo[3] = {lo[0], lo[1], lo[2]}, shi[3] = {hi[0], hi[1], hi[2]};
+              if (up) {
+                slo[a] = hi[a];
+                shi[a] = hi[a] + k;
+              } else {
+                shi[a] = lo[a];
+                slo[a] = lo[a] - k;
+              }
+              if (occupied(slo, shi)) {
+                k1 = k - 1;
+              } else {
+                best = k;
+                k0 = k + 1;
+              }
+            }
+            if (best) {
+              grew = true;
+              (up ? hi[a] : lo[a]) += up ? best : -best;
+            }
+          }
+      }
+      const uint64_t v0 = uint64_t(l.hi[0] - l.lo[0]) * uint64_t(l.hi[1] - l.lo[1]) * uint64_t(l.hi[2] - l.lo[2]);
+      const uint64_t v1 = uint64_t(hi[0] - lo[0]) * uint64_t(hi[1] - lo[1]) * uint64_t(hi[2] - lo[2]);
+      w += v1 > v0;
+      before += v0;
+      after += v1;
+      for (int a = 0; a < 3; ++a) {
+        l.lo[a] = lo[a];
+        l.hi[a] = hi[a];
+      }
+    }
+    widened += w;
+    cells_before += before;
+    cells_after += after;
+  });
+  return std::to_string(widened.load()) + " empty leaves widened over empty cells (step boxes hold " +
+         fmt("%.2f", double(cells_after.load()) / double(std::max<uint64_t>(1, cells_before.load()))) +
+         "x the cells of the kd leaf boxes; table " + bytes_str(double(entries) * 4.0) + ", freed)";
 }
 
 void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {

@@ -50,12 +50,27 @@
 // it front to back over the ray's segment inside the leaf, with the same early exit. The
 // leaf-to-leaf stepping, the lookup and the step bound are unchanged.
 //
+// Empty-leaf boxes (BuildParams::hybrid_expand_empty, on by default; an extension of the
+// paper, like the irregular grid's cell expansion). The SAH cuts empty space into many small
+// empty leaves around the geometry, and a ray crosses them one step each. After the build,
+// each empty leaf's box is widened over the empty cells around it (a summed-volume table of
+// occupied cells answers "is this slab empty?" in 8 loads; faces grow in rounds by binary
+// search, at most doubling per round), and the walk steps over that box instead. The
+// matrix still maps every cell to its own kd leaf; widened boxes overlap, but every cell a
+// box covers is empty, so no triangle is skipped and the early exit stays exact. Leaves with
+// triangles keep their kd boxes. Cuts primary-ray steps on Sponza from 9.2 to 6.8 and makes
+// the hybrid 16% faster there. The table costs 4 bytes per cell while it is built, so it is
+// skipped (kd leaf boxes, a note in BuildStats) above kMaxExpandEntries cells or the budget.
+//
 // Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
-// leaf's triangles, compute the exit over the leaf's far planes, stop once the closest hit
-// lies before the exit; else step to the cell just past the exit face (exact integers on the
-// exit axis, the exit point's floor clamped into the leaf on the others and never moving
-// against the ray), look up its leaf. Every cell coordinate moves monotonically along the
-// ray, so at most nx+ny+nz+1 steps: the loop enforces that bound and counts violations.
+// leaf's triangles, compute the exit over the far planes of the leaf's (step) box, stop once
+// the closest hit lies before the exit; else step to the cell just past the exit face (exact
+// integers on the exit axis, the exit point's floor clamped into the box on the others and
+// never moving against the ray), look up its leaf. Every cell coordinate moves monotonically
+// along the ray and the exit axis's strictly, so at most nx+ny+nz+1 steps: the loop enforces
+// that bound and counts violations. The exit and the exit point use fused multiply-adds where
+// the CPU has them, and the exit point is clamped in double before a truncating conversion
+// (no floor, no branch); together 4-7% faster primary rays (A/B, one thread).
 #pragma once
 
 #include <atomic>
@@ -82,6 +97,8 @@ constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
 class Hybrid final : public AcceleratorBase<Hybrid> {
  public:
   /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 32 bytes.
+  /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
+  /// box widened over empty cells (see "Empty-leaf boxes").
   struct Leaf {
     int32_t lo[3], hi[3];
     uint32_t first, count;
@@ -123,8 +140,10 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   static constexpr int kMaxNodeEntryLeaves = 8;
   static constexpr int kMaxNodeEntryDepth = 16;
   /// The bricked matrix starts from a dense top array over blocks of 4^k cells, k >= 1 the
-  /// smallest giving at most this many blocks (128 KiB), so a lookup skips the upper levels.
-  static constexpr int kMaxTopEntries = 32768;
+  /// smallest giving at most this many blocks (1 MiB), so a lookup skips the upper levels.
+  /// 2^18 rather than 2^15: the dragon's lookups then read one brick level instead of two,
+  /// +8% primary rays at 2 threads (0.50 -> 0.54 of Embree) for 0.85 MiB more.
+  static constexpr int kMaxTopEntries = 262144;
   static constexpr int kBrickLog = 2;                          ///< 4 cells per brick axis
   static constexpr int kBrickSide = 1 << kBrickLog;
   static constexpr int kBrickEntries = kBrickSide * kBrickSide * kBrickSide;
@@ -134,6 +153,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Direct-mapped per-ray mailbox of recently tested triangles (power of two). 32 entries
   /// cut the bunny's tests per primary ray from 3.42 (8 entries) to 3.12 at no measurable cost.
   static constexpr int kMailbox = 32;
+  /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
+  /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
+  static constexpr uint64_t kMaxExpandEntries = uint64_t(1) << 25;
 
   std::string name() const override { return "hybrid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
@@ -159,7 +181,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   const std::vector<Leaf>& leaves() const { return leaves_; }
   /// Rays whose traversal reached the nx+ny+nz+1 step bound (a correct traversal never does).
   uint64_t step_bound_errors() const { return step_errors_.load(std::memory_order_relaxed); }
-  /// World box of a leaf.
+  /// World box of a leaf: the box its steps cross (an empty leaf's widened box).
   Box3 leaf_box(uint32_t leaf) const;
   /// Bytes the storage selected by `dense` would take for the current tree (computed, not
   /// allocated; the bricked figure is exact).
@@ -168,9 +190,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
  private:
   [[gnu::always_inline]] uint32_t lookup(int32_t x, int32_t y, int32_t z) const {
     if (dense_) return matrix_[uint64_t(x) + uint64_t(dims_[0]) * (uint64_t(y) + uint64_t(dims_[1]) * uint64_t(z))];
-    uint32_t e = top_[uint64_t(uint32_t(x) >> top_shift_) +
-                      uint64_t(top_dims_[0]) * (uint64_t(uint32_t(y) >> top_shift_) +
-                                                uint64_t(top_dims_[1]) * uint64_t(uint32_t(z) >> top_shift_))];
+    // Strides instead of nested products: the two multiplies run in parallel.
+    uint32_t e = top_[uint64_t(uint32_t(x) >> top_shift_) + top_stride_[0] * uint64_t(uint32_t(y) >> top_shift_) +
+                      top_stride_[1] * uint64_t(uint32_t(z) >> top_shift_)];
     int shift = top_shift_ - kBrickLog;
     while (!(e & kTagMask)) {
       const uint32_t local = ((uint32_t(x) >> shift) & (kBrickSide - 1)) |
@@ -192,6 +214,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 
   void build_tree(const Mesh& mesh, const BuildParams& params);
   void build_matrix(uint64_t budget);
+  /// Widens every empty leaf's box over the empty cells around it (see "Empty-leaf boxes"
+  /// above); returns the BuildStats text. Skipped when its table exceeds `budget` bytes.
+  std::string expand_empty_leaves(uint64_t budget);
   struct BrickBudget {
     std::atomic<uint64_t> bytes{0};
     uint64_t limit = ~uint64_t(0);
@@ -208,6 +233,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   int32_t dims_[3] = {1, 1, 1};
   int top_shift_ = kBrickLog;       ///< log2 of the top blocks' side in cells
   int32_t top_dims_[3] = {1, 1, 1};
+  uint64_t top_stride_[2] = {1, 1};  ///< top array strides of y and z
   bool dense_ = false;
   uint64_t max_steps_ = 0;
 
@@ -225,6 +251,16 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 };
 
 // ---- traversal --------------------------------------------------------------------------
+
+/// a * b + c, fused (one rounding, half the latency) where the CPU has FMA, else two
+/// operations: the step's robustness comes from its integer clamps, not from how t rounds.
+[[gnu::always_inline]] inline double mul_add(double a, double b, double c) {
+#ifdef __FMA__
+  return std::fma(a, b, c);
+#else
+  return a * b + c;
+#endif
+}
 
 template <class Tri, class S, bool kAny>
 bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
@@ -313,7 +349,8 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     // Exit: the nearest far plane (first axis wins ties). Written per axis with selects and
     // no array indexed by the exit axis, so the step stays in registers.
     const int32_t f0 = pos[0] ? L.hi[0] : L.lo[0], f1 = pos[1] ? L.hi[1] : L.lo[1], f2 = pos[2] ? L.hi[2] : L.lo[2];
-    const double e0 = double(f0) * inv[0] + oc[0], e1 = double(f1) * inv[1] + oc[1], e2 = double(f2) * inv[2] + oc[2];
+    const double e0 = mul_add(double(f0), inv[0], oc[0]), e1 = mul_add(double(f1), inv[1], oc[1]),
+                 e2 = mul_add(double(f2), inv[2], oc[2]);
     const bool x01 = e0 <= e1, x02 = e0 <= e2, x12 = e1 <= e2;
     const int axis = x01 ? (x02 ? 0 : 2) : (x12 ? 1 : 2);
     const double t_exit = x01 ? (x02 ? e0 : e2) : (x12 ? e1 : e2);
@@ -330,9 +367,14 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
     // lies on the leaf's face, so this only removes rounding) and never moving against the
     // ray; on the exit axis the integer cell just past the leaf's face (far plane, minus one
     // when moving down).
+    // The clamp is done in double before a truncating conversion: the clamped value is at
+    // least lo >= 0, where truncation is the floor, and it needs no floor instruction nor
+    // branch (a NaN coordinate, from a zero direction, clamps to lo).
     auto exit_cell = [&](int b) {
-      const double f = std::floor(o[b] + t_exit * dg[b]);
-      const int32_t v = f < double(L.lo[b]) ? L.lo[b] : (f >= double(L.hi[b]) ? L.hi[b] - 1 : int32_t(f));
+      const double x = mul_add(t_exit, dg[b], o[b]);
+      const double lo = double(L.lo[b]), hi = double(L.hi[b]) - 0.5;
+      const double xl = x > lo ? x : lo;
+      const int32_t v = int32_t(xl < hi ? xl : hi);
       return pos[b] ? std::max(v, c[b]) : std::min(v, c[b]);
     };
     int32_t n[3] = {exit_cell(0), exit_cell(1), exit_cell(2)};

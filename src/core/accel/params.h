@@ -67,6 +67,11 @@ struct BuildParams {
   /// nodes (33 MiB on the dragon) and the in-leaf walk cost as much as they save (measured
   /// with `kdgrid bench --clock cpu --hybrid-subtree 4`, see docs/BENCHMARKS.md).
   uint32_t hybrid_subtree_min = 0;
+  /// Empty-leaf boxes (an extension of the paper): the walk steps over each empty leaf's box
+  /// widened over the empty cells around it, so a ray crosses empty space in fewer steps
+  /// (primary rays on Sponza: 9.2 -> 6.8 steps; the dragon: 2.8 -> 2.4). The leaves, the
+  /// matrix and the triangle tests are unchanged. false = the paper's kd leaf boxes.
+  bool hybrid_expand_empty = true;
 
   // ---- irregular grid (Pérard-Gayot et al. 2017) -----------------------------------------
   /// Top-level density: top cells per triangle, shaped by the scene box (resolution per axis
