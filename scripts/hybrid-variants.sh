@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Measures the hybrid's variants side by side with the SAH kd-tree and Embree on the shared
-# suite's primary rays, for docs/BENCHMARKS.md ("The hybrid's variants"): the default (plain
-# leaves, bricked matrix, empty-leaf boxes), the paper's kd leaf boxes (--hybrid-no-expand),
-# leaf subtrees (--hybrid-subtree 4) and the dense matrix of the paper.
+# suite's primary rays, for docs/BENCHMARKS.md ("The hybrid's variants"): the default (leaf
+# subtrees, empty-leaf boxes, bricked matrix), plain leaves (--hybrid-subtree 0), the paper's
+# hybrid (plain leaves stepping over kd leaf boxes: --hybrid-subtree 0 --hybrid-no-expand) and
+# the dense matrix of the paper.
 # Tracing is timed with the threads' CPU clocks (--clock cpu) because this machine is shared;
 # every figure is also given as a ratio to Embree and to the kd-tree measured in the same run.
 #
@@ -25,8 +26,8 @@ variant() {
   echo "== hybrid variant $name: kdgrid ${common[*]} $*" >&2
   "$kdgrid" "${common[@]}" "$@" --json "$results/hybrid-$name.json" -q
 }
-variant plain
-variant kdboxes --hybrid-no-expand
-variant subtree --hybrid-subtree 4
+variant default
+variant plain --hybrid-subtree 0
+variant paper --hybrid-subtree 0 --hybrid-no-expand
 variant dense --dense-matrix
-echo "hybrid-variants: wrote $results/hybrid-{plain,kdboxes,subtree,dense}.json" >&2
+echo "hybrid-variants: wrote $results/hybrid-{default,plain,paper,dense}.json" >&2

@@ -258,16 +258,17 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
   const Case cases[] = {{0.0f, "auto"}, {big, "one cell"}, {tiny, "cell < smallest triangle"},
                         {explicit_cell, "explicit"}};
   for (const Case& c : cases) {
-    // Bricked and dense storage with plain leaves, bricked with a subtree in every leaf of
-    // more than 2 triangles (BuildParams::hybrid_subtree_min), and bricked stepping over the
-    // paper's kd leaf boxes (no empty-leaf boxes).
-    for (int variant = 0; variant < 4; ++variant) {
+    // The defaults (bricked, leaf subtrees over 4 triangles, empty-leaf boxes), dense
+    // storage, a subtree in every leaf of more than 2 triangles, plain leaves, and the
+    // paper's hybrid (plain leaves stepping over kd leaf boxes).
+    for (int variant = 0; variant < 5; ++variant) {
       const bool dense = variant == 1;
       Hybrid h;
       BuildParams p = params_with(c.cell, dense);
       p.memory_budget = uint64_t(2) << 30;
       if (variant == 2) p.hybrid_subtree_min = 2;
-      if (variant == 3) p.hybrid_expand_empty = false;
+      if (variant >= 3) p.hybrid_subtree_min = 0;
+      if (variant == 4) p.hybrid_expand_empty = false;
       if (dense && c.cell > 0.0f) {
         // A dense matrix over the budget must be refused, not allocated.
         const Vec3 e = m.bounds().extent();
@@ -284,8 +285,9 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
       }
       const std::string label = name + " / " + c.what + " (" + st.extra[2].second + ", " +
                                 (dense              ? "dense"
-                                 : variant == 2 ? "bricked, leaf subtrees"
-                                 : variant == 3 ? "bricked, kd leaf boxes"
+                                 : variant == 2 ? "bricked, subtrees over 2"
+                                 : variant == 3 ? "bricked, plain leaves"
+                                 : variant == 4 ? "bricked, plain leaves, kd leaf boxes"
                                                 : "bricked") +
                                 ")";
       const auto t0 = std::chrono::steady_clock::now();
@@ -360,16 +362,18 @@ Mesh extreme_scene() {
 
 void check_rays(const Mesh& m, const std::vector<Ray>& rays, float cell, const std::string& label) {
   const Reference ref = brute_reference(m, rays);
-  for (int variant = 0; variant < 4; ++variant) {
+  for (int variant = 0; variant < 5; ++variant) {
     const bool dense = variant == 1;
     Hybrid h;
     BuildParams p = params_with(cell, dense);
     if (variant == 2) p.hybrid_subtree_min = 2;
-    if (variant == 3) p.hybrid_expand_empty = false;
+    if (variant >= 3) p.hybrid_subtree_min = 0;
+    if (variant == 4) p.hybrid_expand_empty = false;
     h.build(m, p);
     const std::string v = dense              ? " dense"
-                          : variant == 2 ? " bricked, leaf subtrees"
-                          : variant == 3 ? " bricked, kd leaf boxes"
+                          : variant == 2 ? " bricked, subtrees over 2"
+                          : variant == 3 ? " bricked, plain leaves"
+                          : variant == 4 ? " bricked, plain leaves, kd leaf boxes"
                                          : " bricked";
     EXPECT_EQ(compare(h, m, rays, ref, label + v), 0);
     // And no ray reaches the step bound when counted either: one lookup per leaf step.
@@ -610,9 +614,11 @@ TEST(HybridEmptyBoxes, SameHitsInFewerSteps) {
       const auto c = part.corners(i);
       add_tri(m, c[0], c[1], c[2]);
     }
+  // Plain leaves, so that steps count leaf steps only (no subtree nodes).
   Hybrid wide, kd;
-  wide.build(m, params_with(0.0f, false));
   BuildParams p = params_with(0.0f, false);
+  p.hybrid_subtree_min = 0;
+  wide.build(m, p);
   p.hybrid_expand_empty = false;
   const BuildStats st = kd.build(m, p);
   EXPECT_NE(extra_value(st, "empty-leaf boxes").find("off"), std::string::npos);
@@ -698,7 +704,9 @@ TEST(HybridMemory, GuardRejectsAbsurdCellSize) {
 TEST(Hybrid, CountedAndFastTraversalAgree) {
   const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 4);
   Hybrid h;
-  h.build(m, params_with(0.0f, false));
+  BuildParams p = params_with(0.0f, false);
+  p.hybrid_subtree_min = 0;  // plain leaves: every step is a leaf step (no subtree nodes)
+  h.build(m, p);
   const auto rays = random_rays(m, 5000, 3);
   RayCounters total;
   for (const Ray& r : rays) {
@@ -760,7 +768,9 @@ TEST(Hybrid, TraceVisitsLeafSubtreesInRayOrder) { check_trace_order(2); }
 TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
   const Mesh m = random_soup(6, 1000, Vec3(-1), Vec3(1), 0.1f);
   Hybrid h;
-  const BuildStats st = h.build(m, params_with(0.0f, false));
+  BuildParams p = params_with(0.0f, false);
+  p.hybrid_subtree_min = 0;  // plain leaves: references are exactly the leaves' lists
+  const BuildStats st = h.build(m, p);
   uint64_t splits = 0, boxes = 0, refs = 0;
   const double cell = h.cell_size();
   h.for_each_split([&](const SplitPlane& sp) {

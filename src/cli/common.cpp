@@ -43,7 +43,7 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
       ->capture_default_str();
   cmd->add_option("--hybrid-subtree", params.hybrid_subtree_min,
                   "Hybrid: leaves with more triangles than this get a kd subtree with free split "
-                  "positions; 0 = the paper's plain leaves")
+                  "positions (default 4); 0 = the paper's plain leaves")
       ->group(g)
       ->capture_default_str();
   cmd->add_flag("--hybrid-no-expand{false}", params.hybrid_expand_empty,

@@ -42,7 +42,7 @@
 // content, not the volume nor the area of split planes across empty space. Lookup = at most
 // k dependent loads (plus a few node tests in sparse regions), no search.
 //
-// Leaf subtrees (BuildParams::hybrid_subtree_min, an extension of the paper). A leaf cannot
+// Leaf subtrees (BuildParams::hybrid_subtree_min, default 4; an extension of the paper). A leaf cannot
 // be smaller than one cell, and cells are about one triangle wide, so a plain leaf holds
 // several triangles a ray mostly misses. A leaf with more references than the threshold
 // keeps a small kd subtree whose planes lie anywhere inside it (binned SAH over the clipped

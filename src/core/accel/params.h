@@ -61,12 +61,13 @@ struct BuildParams {
   /// Leaves referencing more than this many triangles get a small kd subtree whose split
   /// planes lie anywhere inside the leaf (binned SAH, no cell alignment), walked over the
   /// ray's segment in the leaf: cells are a coarse lattice (about one triangle wide), so a
-  /// plain leaf tests every triangle it holds (3.8 per primary ray on the dragon, 12.5 on
-  /// Sponza). 0 = off: the paper's plain leaves, the default: subtrees cut the dragon's
-  /// tests per primary ray from 3.7 to 1.4 and Sponza's from 12.5 to 4.8, but the extra
-  /// nodes (33 MiB on the dragon) and the in-leaf walk cost as much as they save (measured
-  /// with `kdgrid bench --clock cpu --hybrid-subtree 4`, see docs/BENCHMARKS.md).
-  uint32_t hybrid_subtree_min = 0;
+  /// plain leaf tests every triangle it holds (3.7 per primary ray on the dragon, 12.5 on
+  /// Sponza). On by default (4) since the empty-leaf boxes: subtrees cut those tests to 1.4
+  /// and 4.8 and, with the empty space crossed in fewer steps, make primary rays 20% faster on
+  /// Sponza and 4-6% on the dragon (no loss on the bunny), for +47 to +66 bytes per triangle
+  /// and a 2-3x longer build (`scripts/hybrid-variants.sh`, `kdgrid profile`). Before the
+  /// empty-leaf boxes they gained nothing. 0 = the paper's plain leaves.
+  uint32_t hybrid_subtree_min = 4;
   /// Empty-leaf boxes (an extension of the paper): the walk steps over each empty leaf's box
   /// widened over the empty cells around it, so a ray crosses empty space in fewer steps
   /// (primary rays on Sponza: 9.2 -> 6.8 steps; the dragon: 2.8 -> 2.4). The leaves, the
