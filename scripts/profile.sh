@@ -15,7 +15,7 @@ root=$(pwd)
 source scripts/scenes-dir.sh
 [[ -x "$kdgrid" ]] || { echo "profile: build first: bash scripts/build.sh release" >&2; exit 1; }
 [[ -d "$scenes/dragon" ]] || { echo "profile: $scenes/dragon not found; set KDGRID_SCENES" >&2; exit 1; }
-common=(--res "${PROFILE_RES:-1024}" --reps "${PROFILE_REPS:-3}" --accel "${PROFILE_ACCELS:-kdtree,hybrid,embree}")
+common=(--res "${PROFILE_RES:-1024}" --reps "${PROFILE_REPS:-7}" --accel "${PROFILE_ACCELS:-kdtree,hybrid,embree}")
 tmp=$(mktemp)
 trap 'rm -f "$tmp"' EXIT
 {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <limits>
+#include <vector>
 
 #include "util/error.h"
 
@@ -57,16 +58,23 @@ ProfileFigures profile_rays(const Accelerator& accel, const std::vector<Ray>& ra
   ProfileFigures f;
   f.rays = rays.size();
   if (rays.empty()) return f;
-  double cold = std::numeric_limits<double>::infinity(), pair = cold;
+  // Cold: the fastest pass. Warm: the median over repetitions of (pair - cold) from passes
+  // run back to back, so a burst of load on a shared machine that slows one pass moves one
+  // sample instead of the difference of two minima taken at different times.
+  double cold = std::numeric_limits<double>::infinity();
+  std::vector<double> warm;
   uint64_t hits = 0, hits2 = 0;
   for (int rep = 0; rep < reps; ++rep) {
-    cold = std::min(cold, time_pass(accel, rays, 1, hits));
-    pair = std::min(pair, time_pass(accel, rays, 2, hits2));
+    const double c = time_pass(accel, rays, 1, hits);
+    const double p = time_pass(accel, rays, 2, hits2);
+    cold = std::min(cold, c);
+    warm.push_back(p - c);
   }
+  std::nth_element(warm.begin(), warm.begin() + warm.size() / 2, warm.end());
   const double n = double(rays.size());
   f.hits = hits;
   f.cold_ns = cold * 1e9 / n;
-  f.warm_ns = std::max(0.0, pair - cold) * 1e9 / n;
+  f.warm_ns = std::max(0.0, warm[warm.size() / 2]) * 1e9 / n;
   if (accel.has_counters()) {
     RayCounters c;
     for (const Ray& r : rays) {

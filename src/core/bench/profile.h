@@ -8,7 +8,8 @@
 //   miss-out  the ray misses the scene's box (per-ray set-up only),
 // and times each class on the calling thread alone, twice:
 //   cold  the rays in image order, as the benchmark traces them;
-//   warm  each ray traced again right after itself (the pair's time minus the cold time),
+//   warm  each ray traced again right after itself (the pair's time minus the cold time of
+//         the pass just before it, median over repetitions),
 //         so that the structure's data it needs is in the caches: what remains is the
 //         instructions, dependent latencies and branch mispredictions of the traversal.
 // Cold minus warm is then the cost of cache and TLB misses. Counters come from one counted
