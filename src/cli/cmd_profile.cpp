@@ -56,7 +56,7 @@ void add_profile_command(CLI::App& app) {
     const auto ref = build_accelerator(a->reference, scene.mesh, params);
     const RayClasses cls = classify_rays(*ref, scene.mesh.bounds(), rays);
     std::printf("%s: %zu triangles, %dx%d primary rays (camera --eye %g,%g,%g --target %g,%g,%g --fov %g), "
-                "one thread, minimum of %d repetitions; classes by %s\n\n",
+                "one thread, %d repetitions (cold: the fastest; warm: the median); classes by %s\n\n",
                 a->scene.c_str(), scene.mesh.num_triangles(), w, h, cam.eye.x, cam.eye.y, cam.eye.z,
                 cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, a->reps, a->reference.c_str());
     std::printf("| structure | rays | count | cold ns/ray | warm ns/ray | steps | leaves | tests | lookups |\n");
