@@ -637,6 +637,60 @@ TEST(ProfileCli, PrintsEveryStructureAndClass) {
   EXPECT_EQ(slurp(log).find("| structure |"), std::string::npos) << "nothing measured\n" << slurp(log);
 }
 
+TEST(Profile, CacheSimPassTracesEachRayOnceAndCountRaysMatchesTheCountedPass) {
+  const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
+  const auto hy = build_accelerator("hybrid", m, BuildParams{});
+  Camera cam;
+  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
+  const std::vector<Ray> rays = primary_rays(cam, 32, 32);
+  uint64_t hits = 0;
+  RayCounters c;
+  for (const Ray& r : rays) {
+    Hit h;
+    hits += hy->intersect_counted(r, h, c);
+  }
+  ASSERT_GT(hits, 0u);
+  ASSERT_LT(hits, rays.size());
+  EXPECT_EQ(cache_sim_pass(*hy, rays), hits);
+  EXPECT_EQ(cache_sim_pass(*hy, {}), 0u);
+  ProfileFigures f;
+  count_rays(*hy, rays, f);
+  EXPECT_EQ(f.rays, rays.size());
+  EXPECT_TRUE(f.counted);
+  EXPECT_DOUBLE_EQ(f.lookups, double(c.lookups) / double(rays.size()));
+  EXPECT_DOUBLE_EQ(f.tests, double(c.tri_tests) / double(rays.size()));
+  ProfileFigures e;
+  count_rays(*build_accelerator("embree", m, BuildParams{}), rays, e);
+  EXPECT_FALSE(e.counted);  // Embree has no counters
+  EXPECT_EQ(e.rays, rays.size());
+}
+
+TEST(ProfileCli, CacheSimNumbersItsPassesInCallOrder) {
+  // scripts/cache-profile.sh maps callgrind's k-th profile part (one per cache_sim_pass call)
+  // to the k-th line of this table, so the numbers must run 1..N over the non-empty classes.
+  TempDir dir("profile-cache");
+  const fs::path ply = dir / "sphere.ply", log = dir / "log.txt";
+  write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
+  const int rc = run_cli("profile \"" + ply.string() +
+                             "\" --res 24 --accel kdtree,hybrid --reference bvh --cache-sim --eye 0,0,4 --target 0,0,0 --fov 50",
+                         log);
+  ASSERT_EQ(rc, 0) << slurp(log);
+  const std::string out = slurp(log);
+  EXPECT_NE(out.find("one untimed pass per class"), std::string::npos) << out;
+  EXPECT_EQ(out.find("cold ns/ray"), std::string::npos) << out;
+  // This camera sees the sphere in the middle, the box around it and space beyond: every
+  // class is present for both structures, in structure then class order.
+  const char* expected[] = {"| 1 | kdtree | hit |",    "| 2 | kdtree | miss-box |", "| 3 | kdtree | miss-out |",
+                            "| 4 | hybrid | hit |",    "| 5 | hybrid | miss-box |", "| 6 | hybrid | miss-out |"};
+  size_t at = 0;
+  for (const char* s : expected) {
+    const size_t pos = out.find(s, at);
+    ASSERT_NE(pos, std::string::npos) << s << "\n" << out;
+    at = pos;
+  }
+  EXPECT_EQ(out.find("| 7 |"), std::string::npos) << out;
+}
+
 TEST(Sweep, EdgeVertexRaysAllHitAClosedMeshWithTheWatertightTest) {
   const Mesh m = make_icosphere(2);  // 320 triangles, 480 edges, 162 vertices
   const std::vector<Ray> rays = edge_vertex_rays(m, 2, 3);

@@ -19,6 +19,7 @@ namespace {
 struct ProfileArgs {
   std::string scene, res = "512", reference = "embree";
   int reps = 5;
+  bool cache_sim = false;
   AccelOptions accel;
   CameraOptions camera;
 };
@@ -39,6 +40,10 @@ void add_profile_command(CLI::App& app) {
   cmd->add_option("--reps", a->reps, "Timed repetitions (the minimum is reported)")->capture_default_str();
   cmd->add_option("--reference", a->reference, "Structure whose answers classify the rays")
       ->capture_default_str();
+  cmd->add_flag("--cache-sim", a->cache_sim,
+                 "Untimed: trace each class once through kdgrid::cache_sim_pass, for a cache "
+                 "simulator to collect (scripts/cache-profile.sh runs it under valgrind's callgrind); "
+                 "prints the passes in order with their counters");
   a->accel.add_to(cmd, "kdtree,hybrid,embree");
   a->camera.add_to(cmd);
   cmd->callback([a] {
@@ -55,10 +60,38 @@ void add_profile_command(CLI::App& app) {
     const std::vector<Ray> rays = primary_rays(cam, w, h);
     const auto ref = build_accelerator(a->reference, scene.mesh, params);
     const RayClasses cls = classify_rays(*ref, scene.mesh.bounds(), rays);
+    const std::string passes = a->cache_sim ? std::string("one untimed pass per class in image order")
+                                            : std::to_string(a->reps) +
+                                                  " repetitions (cold: the fastest; warm: the median)";
     std::printf("%s: %zu triangles, %dx%d primary rays (camera --eye %g,%g,%g --target %g,%g,%g --fov %g), "
-                "one thread, %d repetitions (cold: the fastest; warm: the median); classes by %s\n\n",
+                "one thread, %s; classes by %s\n\n",
                 a->scene.c_str(), scene.mesh.num_triangles(), w, h, cam.eye.x, cam.eye.y, cam.eye.z,
-                cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, a->reps, a->reference.c_str());
+                cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, passes.c_str(), a->reference.c_str());
+    if (a->cache_sim) {
+      // One line per cache_sim_pass call, in call order: pass k is the k-th profile part.
+      std::printf("| pass | structure | rays | count | hits | steps | leaves | tests | lookups |\n");
+      std::printf("|---:|---|---|---:|---:|---:|---:|---:|---:|\n");
+      int pass = 0;
+      for (const std::string& name : names) {
+        const auto acc = build_accelerator(name, scene.mesh, params);
+        const std::pair<const char*, const std::vector<Ray>*> sets[] = {
+            {"hit", &cls.hit}, {"miss-box", &cls.miss_box}, {"miss-out", &cls.miss_out}};
+        for (const auto& [label, set] : sets) {
+          if (set->empty()) continue;
+          const uint64_t hits = cache_sim_pass(*acc, *set);
+          ProfileFigures f;
+          count_rays(*acc, *set, f);
+          if (f.counted)
+            std::printf("| %d | %s | %s | %llu | %llu | %.2f | %.2f | %.2f | %.2f |\n", ++pass, name.c_str(), label,
+                        (unsigned long long)f.rays, (unsigned long long)hits, f.steps, f.leaves, f.tests, f.lookups);
+          else
+            std::printf("| %d | %s | %s | %llu | %llu | n/a | n/a | n/a | n/a |\n", ++pass, name.c_str(), label,
+                        (unsigned long long)f.rays, (unsigned long long)hits);
+          std::fflush(stdout);
+        }
+      }
+      return;
+    }
     std::printf("| structure | rays | count | cold ns/ray | warm ns/ray | steps | leaves | tests | lookups |\n");
     std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for (const std::string& name : names) {

@@ -43,4 +43,15 @@ struct ProfileFigures {
 /// Empty `rays` give zeros.
 ProfileFigures profile_rays(const Accelerator& accel, const std::vector<Ray>& rays, int reps);
 
+/// Fills `f`'s rays and, for a structure with counters, its per-ray counters from one counted
+/// pass over `rays`.
+void count_rays(const Accelerator& accel, const std::vector<Ray>& rays, ProfileFigures& f);
+
+/// Traces `rays` once, in order, on the calling thread (closest hit); returns the hits. Built
+/// where valgrind's headers are installed, it brackets the pass with callgrind client requests,
+/// so that `valgrind --tool=callgrind --instr-atstart=no` simulates exactly this pass and writes
+/// it as one profile part per call (scripts/cache-profile.sh); elsewhere, and outside valgrind,
+/// it is a plain pass.
+uint64_t cache_sim_pass(const Accelerator& accel, const std::vector<Ray>& rays);
+
 }  // namespace kdgrid
