@@ -18,13 +18,13 @@
 #     the build; the benchmark traces each set repeatedly, but no structure of the dragon
 #     fits in the caches, so a pass starts cold in both cases.
 # Builds build/callgrind (preset `callgrind`: x86-64-v3, as valgrind 3.19 decodes no AVX-512,
-# and line info) the first time: a few minutes. Each scene then takes 2-5 minutes.
+# and line info) the first time: a few minutes. Each scene then takes 2-6 minutes.
 #
 # Usage: scripts/cache-profile.sh [OUT.md]    (default docs/CACHE-PROFILE.md)
 # Environment: KDGRID_SCENES (default ../shared/scenes), CACHE_RES (1024),
 #              CACHE_ACCELS (kdtree,hybrid,embree), CACHE_LL (2097152,16,64: size,ways,line),
 #              CACHE_SCENES (newline-separated "file|camera options" under KDGRID_SCENES; default
-#              the dragon with the canonical camera and Sponza with the suite's).
+#              the dragon and the bunny with the canonical camera, Sponza with the suite's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-docs/CACHE-PROFILE.md}"
@@ -57,7 +57,7 @@ trap 'rm -rf "$work"' EXIT
   echo "(vec.h \`operator-\` inside a triangle test loads the triangle's corners; vec.h"
   echo "\`isfinite\` is the ray's own first load, the same for every structure)."
   echo
-  specs=${CACHE_SCENES:-$'dragon/dragon_vrip.ply|\nsponza_dabrovic/sponza.obj|--eye -14,3,0 --target 10,5,0 --fov 60'}
+  specs=${CACHE_SCENES:-$'dragon/dragon_vrip.ply|\nbunny/bun_zipper.ply|\nsponza_dabrovic/sponza.obj|--eye -14,3,0 --target 10,5,0 --fov 60'}
   while IFS= read -r spec; do
     [[ -n "$spec" ]] || continue
     file="${spec%%|*}"; cam="${spec#*|}"
