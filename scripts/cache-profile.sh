@@ -41,7 +41,7 @@ kdgrid="build/callgrind/src/cli/kdgrid"
 ll="${CACHE_LL:-2097152,16,64}"
 common=(--res "${CACHE_RES:-1024}" --accel "${CACHE_ACCELS:-kdtree,hybrid,embree}" --cache-sim)
 work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+trap 'rm -rf "$work" "$out.partial"' EXIT
 {
   echo "# Where the misses are: simulated caches and branches per primary ray"
   echo
@@ -88,6 +88,11 @@ def part(k):
     # thread suffix (-01), so take the k-th part file.
     files = sorted(glob.glob(os.path.join(work, "cg.out.*")), key=lambda f: int(re.search(r"cg\.out\.(\d+)", f).group(1)))
     return files[k - 1]
+
+parts = glob.glob(os.path.join(work, "cg.out.*"))
+if len(parts) != len(passes):
+    sys.exit(f"cache-profile: {len(parts)} profile parts for {len(passes)} passes: build/callgrind was built "
+             "without valgrind's headers (valgrind/callgrind.h); install valgrind, rm -rf build/callgrind and rerun")
 
 def totals(path):
     events, tot = None, None
