@@ -4,6 +4,7 @@
 // bench/profile.h for what each figure means.
 #include <cstdio>
 #include <memory>
+#include <string>
 
 #include "bench/profile.h"
 #include "bench/raysets.h"
@@ -67,47 +68,41 @@ void add_profile_command(CLI::App& app) {
                 "one thread, %s; classes by %s\n\n",
                 a->scene.c_str(), scene.mesh.num_triangles(), w, h, cam.eye.x, cam.eye.y, cam.eye.z,
                 cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, passes.c_str(), a->reference.c_str());
+    // --cache-sim: one line per cache_sim_pass call, numbered in call order, so that pass k is
+    // the k-th profile part callgrind writes; "all" is left out and empty classes are skipped.
     if (a->cache_sim) {
-      // One line per cache_sim_pass call, in call order: pass k is the k-th profile part.
       std::printf("| pass | structure | rays | count | hits | steps | leaves | tests | lookups |\n");
       std::printf("|---:|---|---|---:|---:|---:|---:|---:|---:|\n");
-      int pass = 0;
-      for (const std::string& name : names) {
-        const auto acc = build_accelerator(name, scene.mesh, params);
-        const std::pair<const char*, const std::vector<Ray>*> sets[] = {
-            {"hit", &cls.hit}, {"miss-box", &cls.miss_box}, {"miss-out", &cls.miss_out}};
-        for (const auto& [label, set] : sets) {
-          if (set->empty()) continue;
-          const uint64_t hits = cache_sim_pass(*acc, *set);
-          ProfileFigures f;
-          count_rays(*acc, *set, f);
-          if (f.counted)
-            std::printf("| %d | %s | %s | %llu | %llu | %.2f | %.2f | %.2f | %.2f |\n", ++pass, name.c_str(), label,
-                        (unsigned long long)f.rays, (unsigned long long)hits, f.steps, f.leaves, f.tests, f.lookups);
-          else
-            std::printf("| %d | %s | %s | %llu | %llu | n/a | n/a | n/a | n/a |\n", ++pass, name.c_str(), label,
-                        (unsigned long long)f.rays, (unsigned long long)hits);
-          std::fflush(stdout);
-        }
-      }
-      return;
+    } else {
+      std::printf("| structure | rays | count | cold ns/ray | warm ns/ray | steps | leaves | tests | lookups |\n");
+      std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
     }
-    std::printf("| structure | rays | count | cold ns/ray | warm ns/ray | steps | leaves | tests | lookups |\n");
-    std::printf("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    auto counters = [](const ProfileFigures& f) {
+      char buf[96] = "n/a | n/a | n/a | n/a";
+      if (f.counted) std::snprintf(buf, sizeof buf, "%.2f | %.2f | %.2f | %.2f", f.steps, f.leaves, f.tests, f.lookups);
+      return std::string(buf);
+    };
+    int pass = 0;
     for (const std::string& name : names) {
       const auto acc = build_accelerator(name, scene.mesh, params);
       const std::pair<const char*, const std::vector<Ray>*> sets[] = {
           {"all", &rays}, {"hit", &cls.hit}, {"miss-box", &cls.miss_box}, {"miss-out", &cls.miss_out}};
       for (const auto& [label, set] : sets) {
-        const ProfileFigures f = profile_rays(*acc, *set, a->reps);
-        if (f.rays == 0)
-          std::printf("| %s | %s | 0 | - | - | - | - | - | - |\n", name.c_str(), label);
-        else if (f.counted)
-          std::printf("| %s | %s | %llu | %.1f | %.1f | %.2f | %.2f | %.2f | %.2f |\n", name.c_str(), label,
-                      (unsigned long long)f.rays, f.cold_ns, f.warm_ns, f.steps, f.leaves, f.tests, f.lookups);
-        else
-          std::printf("| %s | %s | %llu | %.1f | %.1f | n/a | n/a | n/a | n/a |\n", name.c_str(), label,
-                      (unsigned long long)f.rays, f.cold_ns, f.warm_ns);
+        if (a->cache_sim) {
+          if (set == &rays || set->empty()) continue;
+          const uint64_t hits = cache_sim_pass(*acc, *set);
+          ProfileFigures f;
+          count_rays(*acc, *set, f);
+          std::printf("| %d | %s | %s | %llu | %llu | %s |\n", ++pass, name.c_str(), label, (unsigned long long)f.rays,
+                      (unsigned long long)hits, counters(f).c_str());
+        } else {
+          const ProfileFigures f = profile_rays(*acc, *set, a->reps);
+          if (f.rays == 0)
+            std::printf("| %s | %s | 0 | - | - | - | - | - | - |\n", name.c_str(), label);
+          else
+            std::printf("| %s | %s | %llu | %.1f | %.1f | %s |\n", name.c_str(), label, (unsigned long long)f.rays,
+                        f.cold_ns, f.warm_ns, counters(f).c_str());
+        }
         std::fflush(stdout);
       }
     }
