@@ -65,7 +65,7 @@ struct BuildParams {
   /// Sponza). On by default (4) since the empty-leaf boxes: subtrees cut those tests to 1.4
   /// and 4.8 and, with the empty space crossed in fewer steps, make primary rays 20% faster on
   /// Sponza and 4-6% on the dragon on an Intel Xeon (no loss on the bunny); on an AMD Zen 5,
-  /// 10% on Sponza and -5% to +1% on the scans. For +47 to +66 bytes per triangle and a 2-3x
+  /// 32% on Sponza and 8-9% on the scans. For +47 to +66 bytes per triangle and a 2-3x
   /// longer build (`scripts/hybrid-variants.sh`, `kdgrid profile`). Before the empty-leaf
   /// boxes they gained nothing. 0 = the paper's plain leaves.
   uint32_t hybrid_subtree_min = 4;
