@@ -628,7 +628,9 @@ TEST(HybridEmptyBoxes, SameHitsInFewerSteps) {
     Hit a, b;
     const bool ha = wide.intersect_counted(r, a, cw), hb = kd.intersect_counted(r, b, ck);
     ASSERT_EQ(ha, hb);
-    if (ha) ASSERT_EQ(a.t, b.t);  // the same triangles' own t, bit for bit
+    if (ha) {
+      ASSERT_EQ(a.t, b.t);  // the same triangles' own t, bit for bit
+    }
     ASSERT_EQ(wide.occluded(r), kd.occluded(r));
   }
   // Steps drop (5% here: the SAH already leaves large empty leaves around these clusters;
@@ -752,9 +754,9 @@ void check_trace_order(uint32_t subtree_min) {
       EXPECT_GE(hit.t, last.t_in - tol);
       EXPECT_LE(hit.t, last.t_out + tol);
       // The hit point lies inside the last leaf's box.
-      const Vec3 p = r.at(hit.t);
+      const Vec3 hp = r.at(hit.t);
       const Vec3 slack(1e-4f);
-      EXPECT_TRUE(Box3(last.box.lo - slack, last.box.hi + slack).contains(p));
+      EXPECT_TRUE(Box3(last.box.lo - slack, last.box.hi + slack).contains(hp));
       ++hits;
     }
   }
