@@ -63,11 +63,21 @@ std::string scratch_dir() {
 }
 
 /// Runs the viewer under a fresh virtual X server with software GL.
+/// xvfb-run can fail after the program it ran has exited ("xvfb-run: error: problem while
+/// cleaning up temporary directory", exit code 5: its cleanup races the X server's exit, seen
+/// about once in 20 runs on a loaded machine), replacing the program's exit code with its own.
+/// The runs below record the viewer's own exit code and take it from there.
 RunResult run_viewer(const std::string& dir, const std::string& args) {
+  const std::string script = dir + "/run-viewer.sh", code_file = dir + "/viewer-exit-code";
+  fs::remove(code_file);
+  std::ofstream(script) << "'" << KDGRID_VIEWER_PATH << "' " << args << "\necho $? > '" << code_file << "'\n";
   const std::string cmd = "cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
-                          "' LIBGL_ALWAYS_SOFTWARE=1 xvfb-run -a -s '-screen 0 1280x1024x24' '" +
-                          std::string(KDGRID_VIEWER_PATH) + "' " + args;
-  return run_command(cmd);
+                          "' LIBGL_ALWAYS_SOFTWARE=1 xvfb-run -a -s '-screen 0 1280x1024x24' sh '" + script + "'";
+  RunResult r = run_command(cmd);
+  std::ifstream recorded(code_file);
+  int code = 0;
+  if (recorded >> code) r.code = code;
+  return r;
 }
 
 /// The fastest structure built into this binary for scenes too big for brute force.
@@ -352,6 +362,11 @@ Driven drive_viewer(const std::string& dir, const std::string& args, const std::
                           "' LIBGL_ALWAYS_SOFTWARE=1 timeout -k 10 240 xvfb-run -a -s '-screen 0 1600x1200x24 -noreset' "
                           "bash '" + driver + "'";
   d.run = run_command(cmd);
+  // The viewer's own exit code, as the driver printed it (see run_viewer on xvfb-run's).
+  const std::string tag = "driver: viewer exit code ";
+  const size_t at = d.run.output.rfind(tag);
+  if (at != std::string::npos && d.run.code != 124 && d.run.code != 137)
+    d.run.code = std::atoi(d.run.output.c_str() + at + tag.size());
   std::ifstream log(dir + "/viewer.log");
   d.viewer_log.assign(std::istreambuf_iterator<char>(log), std::istreambuf_iterator<char>());
   d.stats = read_json(dir + "/stats.json");
