@@ -19,6 +19,7 @@
 #include "accel/accelerator.h"
 #include "bench/bench.h"
 #include "bench/profile.h"
+#include "bench/rayfile.h"
 #include "bench/raysets.h"
 #include "bench/suite.h"
 #include "bench/sweep.h"
@@ -618,6 +619,62 @@ TEST(Profile, FiguresMatchTheCountedPassAndHitCounts) {
   const ProfileFigures empty = profile_rays(*kd, {}, 1);
   EXPECT_EQ(empty.rays, 0u);
   EXPECT_THROW(profile_rays(*kd, rays, 0), ParamError);
+}
+
+// ---- traversal alone (TriangleTestKind::None, `kdgrid trace --traversal-only`) --------------
+
+// Without triangle tests every ray misses and crosses the whole structure: each structure then
+// visits, ray by ray, at least the nodes, cells and triangles it visits when it can stop at a
+// hit. Embree cannot run without its own tests and says so.
+TEST(TraversalOnly, EveryRayMissesAndEachStructureVisitsAtLeastAsMuch) {
+  const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
+  Camera cam;
+  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
+  const std::vector<Ray> rays = primary_rays(cam, 24, 24);
+  BuildParams none;
+  none.triangle_test = TriangleTestKind::None;
+  for (const std::string name : {"brute", "bvh", "grid", "kdtree", "hybrid", "irregular"}) {
+    SCOPED_TRACE(name);
+    const auto full = build_accelerator(name, m, BuildParams{});
+    const auto bare = build_accelerator(name, m, none);
+    uint64_t hits = 0, more = 0;
+    for (const Ray& r : rays) {
+      Hit h;
+      RayCounters cf, cb;
+      hits += full->intersect_counted(r, h, cf);
+      ASSERT_FALSE(bare->intersect_counted(r, h, cb));
+      ASSERT_FALSE(bare->occluded(r));
+      ASSERT_GE(cb.steps, cf.steps);
+      ASSERT_GE(cb.tri_tests, cf.tri_tests);
+      ASSERT_GE(cb.lookups, cf.lookups);
+      more += cb.steps + cb.tri_tests > cf.steps + cf.tri_tests;
+    }
+    ASSERT_GT(hits, 0u);
+    if (name != "brute") EXPECT_GT(more, 0u) << "rays that hit stop early with the tests on";
+  }
+  EXPECT_THROW(build_accelerator("embree", m, none), ParamError);
+}
+
+TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
+  TempDir dir("trace");
+  const fs::path ply = dir / "sphere.ply", rays = dir / "r.rays", log = dir / "log.txt";
+  write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
+  Camera cam;
+  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
+  write_rays(rays.string(), primary_rays(cam, 16, 16));
+  const std::string base = "trace \"" + ply.string() + "\" --rays \"" + rays.string() + "\" --repeat 1 ";
+  ASSERT_EQ(run_cli(base + "--accel hybrid --traversal-only", log), 0) << slurp(log);
+  EXPECT_NE(slurp(log).find("hit fraction 0.0000"), std::string::npos) << slurp(log);
+  EXPECT_NE(slurp(log).find("ns per lookup"), std::string::npos) << slurp(log);
+  ASSERT_EQ(run_cli(base + "--accel kdtree --traversal-only --json", log), 0) << slurp(log);
+  const json j = json::parse(slurp(log));
+  EXPECT_TRUE(j["traversal_only"].get<bool>());
+  EXPECT_EQ(j["hit_fraction"].get<double>(), 0.0);
+  EXPECT_GT(j["thread_ns_per_step"].get<double>(), 0.0);
+  ASSERT_EQ(run_cli(base + "--accel kdtree", log), 0) << slurp(log);
+  EXPECT_EQ(slurp(log).find("traversal    alone"), std::string::npos) << slurp(log);
+  EXPECT_NE(run_cli(base + "--accel embree --traversal-only", log), 0);
+  EXPECT_NE(slurp(log).find("no traversal-only timing"), std::string::npos) << slurp(log);
 }
 
 TEST(ProfileCli, PrintsEveryStructureAndClass) {

@@ -33,6 +33,7 @@ struct TraceArgs {
   int repeat = 5;
   bool json = false;
   bool any = false;
+  bool traversal_only = false;
   AccelOptions accel;
   CameraOptions camera;
 };
@@ -197,6 +198,10 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
   const BuildStats& st = accel.stats();
   const size_t tris = scene.mesh.num_triangles();
   const int threads = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  // Thread time per ray (wall time x threads / rays: exact on one thread), and per step.
+  const double thread_ns_per_ray = median * double(threads) * 1e9 * per;
+  const double steps_per_ray = double(counted.c.steps) * per;
+  const double ns_per_step = steps_per_ray > 0 ? thread_ns_per_ray / steps_per_ray : 0.0;
   if (a.json) {
     nlohmann::json j;
     j["scene"] = a.scene;
@@ -211,6 +216,13 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
     j["mrays_per_s"] = mrays;
     j["hit_fraction"] = double(counted.hits) * per;
     j["has_counters"] = accel.has_counters();
+    j["traversal_only"] = a.traversal_only;
+    if (a.traversal_only) {
+      j["thread_ns_per_ray"] = thread_ns_per_ray;
+      j["thread_ns_per_step"] = ns_per_step;
+      j["thread_ns_per_lookup"] =
+          counted.c.lookups > 0 ? thread_ns_per_ray / (double(counted.c.lookups) * per) : 0.0;
+    }
     j["per_ray"] = {{"steps", double(counted.c.steps) * per},
                     {"leaves", double(counted.c.leaves) * per},
                     {"tri_tests", double(counted.c.tri_tests) * per},
@@ -234,6 +246,16 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
                 double(counted.c.lookups) * per);
   else
     std::printf("per ray      (this structure cannot count its traversal)\n");
+  if (a.traversal_only) {
+    std::printf("traversal    alone (no triangle tested, every ray misses): %.1f ns per ray, %.2f ns "
+                "per step",
+                thread_ns_per_ray, ns_per_step);
+    // Structures that step cell to cell (grids, the hybrid): the time per lookup, which
+    // includes everything done in that cell or leaf (the hybrid's leaf subtrees).
+    if (counted.c.lookups > 0)
+      std::printf(", %.2f ns per lookup", thread_ns_per_ray / (double(counted.c.lookups) * per));
+    std::printf(" (thread time)\n");
+  }
   std::printf("build        %.4f s, %.2f Mtris/s, %llu nodes, %llu leaves, depth %u, %llu refs, "
               "%llu SAH evaluations\n",
               st.seconds, st.seconds > 0 ? double(tris) / st.seconds * 1e-6 : 0.0,
@@ -260,6 +282,9 @@ void add_trace_command(CLI::App& app) {
   auto* rays_opt = cmd->add_option("--rays", a->rays, "Ray file (.rays) to trace");
   cmd->add_option("--hits", a->hits, "Write the closest hits of the rays to this .hits file");
   cmd->add_flag("--any", a->any, "Time any-hit (occluded) queries instead of closest hits");
+  cmd->add_flag("--traversal-only", a->traversal_only,
+                "Time the traversal alone: no triangle is tested, so every ray misses and crosses "
+                "the whole structure; reports ns per ray and per traversal step");
   cmd->add_option("--threads", a->threads, "Threads for tracing; 0 = all hardware threads")
       ->capture_default_str();
   cmd->add_option("--repeat", a->repeat, "Timed repetitions (the median is reported)")
@@ -284,6 +309,11 @@ void add_trace_command(CLI::App& app) {
     const Scene scene = load_scene(resolve_scene_path(a->scene));
     BuildParams p = params;
     if (p.threads == 0) p.threads = a->threads;
+    if (a->traversal_only) {
+      if (!a->pixel.empty()) throw ParamError("--traversal-only times a .rays file: use it with --rays, not --pixel");
+      if (!a->hits.empty()) throw ParamError("--traversal-only finds no hits: drop --hits");
+      p.triangle_test = TriangleTestKind::None;
+    }
     const auto accel = build_accelerator(a->accel.accel, scene.mesh, p);
     if (!a->pixel.empty())
       trace_pixel(*a, scene, *accel);

@@ -186,7 +186,7 @@ class Accelerator {
 ///   template <class Tri, class S> bool closest(const Ray&, Hit&, S&) const;
 ///   template <class Tri, class S> bool any(const Ray&, S&) const;
 ///
-/// Tri is WatertightTest or MollerTest (chosen by BuildParams::triangle_test at build
+/// Tri is WatertightTest, MollerTest or NullTest (chosen by BuildParams::triangle_test at build
 /// time), S is NoStats / CountStats / TraceStats. Derived stores its BuildStats in stats_
 /// and the chosen triangle test in test_.
 template <class Derived>
@@ -234,13 +234,15 @@ class AcceleratorBase : public Accelerator {
     if (!ray_is_valid(ray)) return false;
     if (test_ == TriangleTestKind::Watertight)
       return self().template closest<WatertightTest>(ray, hit, s);
-    return self().template closest<MollerTest>(ray, hit, s);
+    if (test_ == TriangleTestKind::Moller) return self().template closest<MollerTest>(ray, hit, s);
+    return self().template closest<NullTest>(ray, hit, s);
   }
   template <class S>
   bool dispatch_any(const Ray& ray, S& s) const {
     if (!ray_is_valid(ray)) return false;
     if (test_ == TriangleTestKind::Watertight) return self().template any<WatertightTest>(ray, s);
-    return self().template any<MollerTest>(ray, s);
+    if (test_ == TriangleTestKind::Moller) return self().template any<MollerTest>(ray, s);
+    return self().template any<NullTest>(ray, s);
   }
 };
 

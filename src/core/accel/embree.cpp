@@ -109,6 +109,9 @@ void EmbreeAccel::release() {
 }
 
 BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
+  if (params.triangle_test == TriangleTestKind::None)
+    throw ParamError("embree: its traversal cannot run without its own triangle tests, so it has "
+                     "no traversal-only timing; drop --traversal-only or choose another --accel");
   const RTCBuildQuality quality = parse_quality(params.embree_quality);
   const auto t_start = std::chrono::steady_clock::now();
   // Memory guard before anything is allocated: the padded vertex copy plus what Embree's

@@ -28,7 +28,12 @@ TriangleTestKind parse_triangle_test(const std::string& s) {
 }
 
 const char* to_string(TriangleTestKind k) {
-  return k == TriangleTestKind::Watertight ? "watertight" : "moller";
+  switch (k) {
+    case TriangleTestKind::Watertight: return "watertight";
+    case TriangleTestKind::Moller: return "moller";
+    case TriangleTestKind::None: return "none";
+  }
+  return "?";
 }
 
 }  // namespace kdgrid

@@ -12,6 +12,10 @@ enum class TriangleTestKind {
   Watertight,
   /// Möller & Trumbore 1997: fewer operations, may leak through shared edges/vertices.
   Moller,
+  /// No test at all: every ray misses and crosses the whole structure, so a timing measures
+  /// the traversal alone (`kdgrid trace --traversal-only`). Not a rendering choice: the CLI's
+  /// --triangle-test does not accept it, and Embree refuses it.
+  None,
 };
 
 struct BuildParams {

@@ -68,6 +68,21 @@ struct WatertightTest {
   }
 };
 
+/// No test: never a hit (TriangleTestKind::None). The traversals call it where they would test
+/// a triangle; it reads nothing, so the compiler drops the loads of the triangle's corners and
+/// what remains is the traversal itself: its nodes, cells and loops over the leaves' triangles.
+/// The empty volatile asm is a side effect the compiler must keep, once per triangle: without
+/// it a traversal that can never hit has no effect at all and would be deleted whole.
+struct NullTest {
+  struct RayData {};
+  static RayData prepare(const Ray&) { return {}; }
+  static bool intersect(const RayData&, const Vec3&, const Vec3&, const Vec3&, float, float, float&,
+                        float&, float&) {
+    asm volatile("");
+    return false;
+  }
+};
+
 /// Möller-Trumbore (1997): the common fast test. Not watertight: rays through shared edges
 /// or vertices can slip between triangles (measured by `kdgrid sweep triangle`).
 struct MollerTest {
