@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # Writes docs/PROFILE.md: where each structure's time goes on the dragon and on Sponza (the
 # suite's camera), from `kdgrid profile` (single thread; rays split into hit / miss crossing
-# the scene box / miss outside it; cold and cache-warm ns per ray; counters per ray).
+# the scene box / miss outside it; cold and cache-warm ns per ray; counters per ray), then
+# the cost of each structure's traversal alone (`kdgrid trace --traversal-only`: ns per step).
 # Absolute nanoseconds depend on the machine and its load; compare rows of one run.
 #
 # Usage: scripts/profile.sh [OUT.md]    (default docs/PROFILE.md)
-# Environment: KDGRID_SCENES (default ../shared/scenes), PROFILE_RES (1024), PROFILE_REPS (3),
-#              PROFILE_ACCELS (kdtree,hybrid,embree).
+# Environment: KDGRID_SCENES (default ../shared/scenes), PROFILE_RES (1024), PROFILE_REPS (7),
+#              PROFILE_ACCELS (kdtree,hybrid,embree),
+#              PROFILE_TRAVERSAL_ACCELS (kdtree,hybrid,bvh,grid,irregular).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-docs/PROFILE.md}"
@@ -17,7 +19,7 @@ source scripts/scenes-dir.sh
 [[ -d "$scenes/dragon" ]] || { echo "profile: $scenes/dragon not found; set KDGRID_SCENES" >&2; exit 1; }
 common=(--res "${PROFILE_RES:-1024}" --reps "${PROFILE_REPS:-7}" --accel "${PROFILE_ACCELS:-kdtree,hybrid,embree}")
 tmp=$(mktemp)
-trap 'rm -f "$tmp"' EXIT
+trap 'rm -f "$tmp" "$tmp.rays"' EXIT
 {
   echo "# Where the time goes: per-class single-thread costs"
   echo
@@ -45,6 +47,44 @@ trap 'rm -f "$tmp"' EXIT
     sed "s|$scenes/||" "$tmp"
     echo
   done
+  # Traversal alone: the same primary rays with no triangle tested (`kdgrid trace
+  # --traversal-only`), so every ray crosses the whole structure; the time per step is the
+  # cost of the structure's stepping itself, the K_T of its cost model.
+  echo "## Traversal alone"
+  echo
+  echo "The same primary rays, traced with no triangle tested (\`kdgrid trace --traversal-only\`): every"
+  echo "ray misses and crosses the whole structure, so the time divided by the steps is what one step"
+  echo "of each structure costs, its K_T. A *step* is a node visited (trees; the hybrid's leaves and"
+  echo "subtree nodes), or a cell (grids); a *lookup* is one cell-to-leaf or cell lookup, the unit in"
+  echo "which grids and the hybrid advance along the ray. One thread, median of ${PROFILE_REPS:-7}; thread ns."
+  echo
+  travaccels="${PROFILE_TRAVERSAL_ACCELS:-kdtree,hybrid,bvh,grid,irregular}"
+  for spec in "dragon/dragon_vrip.ply|" "sponza_dabrovic/sponza.obj|--eye -14,3,0 --target 10,5,0 --fov 60"; do
+    file="${spec%%|*}"; cam="${spec#*|}"
+    # shellcheck disable=SC2086
+    "$kdgrid" rays "$scenes/$file" --res "${PROFILE_RES:-1024}" $cam -o "$tmp.rays" >&2
+    echo "**$file** (\`kdgrid rays\` at ${PROFILE_RES:-1024}${cam:+ $cam}, then \`kdgrid trace --rays ... --threads 1 --traversal-only --accel X\`)"
+    echo
+    echo "| structure | ns per ray | steps per ray | ns per step | lookups per ray | ns per lookup | triangles passed per ray |"
+    echo "|---|---:|---:|---:|---:|---:|---:|"
+    for accel in ${travaccels//,/ }; do
+      echo "== kdgrid trace $file --traversal-only --accel $accel" >&2
+      "$kdgrid" trace "$scenes/$file" --rays "$tmp.rays" --threads 1 --repeat "${PROFILE_REPS:-7}" \
+        --traversal-only --accel "$accel" --json > "$tmp"
+      /usr/bin/python3 - "$tmp" "$accel" <<'PY'
+import json, sys
+j = json.load(open(sys.argv[1]))
+p = j["per_ray"]
+look = p["lookups"]
+print("| %s | %.0f | %.1f | %.2f | %s | %s | %.1f |" % (
+    sys.argv[2], j["thread_ns_per_ray"], p["steps"], j["thread_ns_per_step"],
+    "%.1f" % look if look > 0 else "-", "%.1f" % j["thread_ns_per_lookup"] if look > 0 else "-",
+    p["tri_tests"]))
+PY
+    done
+    echo
+  done
+  rm -f "$tmp.rays"
 } > "$out.partial"
 mv "$out.partial" "$out"
 echo "profile: wrote $out" >&2
