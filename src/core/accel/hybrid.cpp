@@ -186,8 +186,8 @@ class TreeBuilder {
 
   /// Builds the kd subtree of a leaf with cell box [lo, hi) into node->sub_nodes/sub_refs
   /// (indices local to the leaf). Binned SAH (kSubBins per axis) with perfect splits; split
-  /// positions are rounded to float offsets from the leaf's low corner before partitioning,
-  /// so the walk sees exactly the planes the references were partitioned by.
+  /// positions are rounded to floats (grid units) before partitioning, so the walk sees
+  /// exactly the planes the references were partitioned by.
   void build_subtree(BuildNode& node) {
     std::vector<SubRef> refs;
     refs.reserve(node.prims.size());
@@ -253,10 +253,10 @@ class TreeBuilder {
       }
     }
     if (best_axis < 0) return make_leaf();
-    // The plane as the walk will see it: a float offset from the leaf's low corner.
+    // The plane as the walk will see it: a float in grid units.
     const int a = best_axis;
-    const float off = float(best_pos - double(out.lo[a]));
-    const double split = double(out.lo[a]) + double(off);
+    const float off = float(best_pos);
+    const double split = double(off);
     if (!(split > lo[a] && split < hi[a])) return make_leaf();
     double llo[3], lhi[3], rlo[3], rhi[3];
     for (int b = 0; b < 3; ++b) {

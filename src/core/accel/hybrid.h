@@ -109,8 +109,12 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// bits count the triangles the leaf references.
   static constexpr uint32_t kSubtreeFlag = 0x80000000u;
   /// Subtree node, 8 bytes. Interior: `word` is the split position as a float bit pattern,
-  /// in cells relative to the leaf's low corner; `bits` = right child << 2 | axis (the left
-  /// child follows its parent). Leaf: `word` = reference count, `bits` = first << 2 | 3.
+  /// in grid units (cells from the grid's origin), so that the walk places the plane without
+  /// the leaf's corner (one load and conversion fewer per subtree step: +3% primary rays on
+  /// the dragon, +1% on Sponza, A/B on one thread). Far from the origin a float cannot place a
+  /// plane finely (1/8 cell at a million cells): the build then finds fewer useful planes, never
+  /// a wrong one, since it partitions by the rounded plane. `bits` = right child << 2 | axis
+  /// (the left child follows its parent). Leaf: `word` = reference count, `bits` = first << 2 | 3.
   struct SubNode {
     uint32_t word;
     uint32_t bits;
@@ -515,7 +519,7 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
       s.step();
       if (ax != 3) {
         if constexpr (S::kTrace) visit_sub(StepKind::Inner);
-        const double split = double(L.lo[ax]) + double(std::bit_cast<float>(sn.word));
+        const double split = double(std::bit_cast<float>(sn.word));
         // Non-moving axes have inv = 0, so ts = 0 and only the origin's side is visited.
         const double ts = (split - w.o[ax]) * w.inv[ax];
         const bool below = w.o[ax] < split || (w.o[ax] == split && w.dg[ax] <= 0.0);
