@@ -650,7 +650,9 @@ TEST(TraversalOnly, EveryRayMissesAndEachStructureVisitsAtLeastAsMuch) {
       more += cb.steps + cb.tri_tests > cf.steps + cf.tri_tests;
     }
     ASSERT_GT(hits, 0u);
-    if (name != "brute") EXPECT_GT(more, 0u) << "rays that hit stop early with the tests on";
+    if (name != "brute") {
+      EXPECT_GT(more, 0u) << "rays that hit stop early with the tests on";
+    }
   }
   EXPECT_THROW(build_accelerator("embree", m, none), ParamError);
 }
@@ -675,6 +677,10 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   EXPECT_EQ(slurp(log).find("traversal    alone"), std::string::npos) << slurp(log);
   EXPECT_NE(run_cli(base + "--accel embree --traversal-only", log), 0);
   EXPECT_NE(slurp(log).find("no traversal-only timing"), std::string::npos) << slurp(log);
+  EXPECT_NE(run_cli(base + "--accel kdtree --traversal-only --hits \"" + (dir / "h.hits").string() + "\"", log), 0);
+  EXPECT_NE(slurp(log).find("finds no hits: drop --hits"), std::string::npos) << slurp(log);
+  EXPECT_NE(run_cli("trace \"" + ply.string() + "\" --pixel 8,8 --res 16 --accel kdtree --traversal-only", log), 0);
+  EXPECT_NE(slurp(log).find("use it with --rays, not --pixel"), std::string::npos) << slurp(log);
 }
 
 TEST(ProfileCli, PrintsEveryStructureAndClass) {

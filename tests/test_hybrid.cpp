@@ -747,6 +747,14 @@ void check_trace_order(uint32_t subtree_min) {
     for (size_t i = 1; i < tr.steps.size(); ++i) ASSERT_GE(tr.steps[i].t_in, tr.steps[i - 1].t_in);
     for (const TraceStep& s : tr.steps) ASSERT_LE(s.t_in, s.t_out);
     EXPECT_EQ(tr.counters.steps, tr.steps.size());
+    // Traced walks step over empty leaves in walk_step, the others inline in walk(): both
+    // must take the same steps, lookups and tests.
+    RayCounters c;
+    Hit counted_hit;
+    h.intersect_counted(r, counted_hit, c);
+    ASSERT_EQ(tr.counters.steps, c.steps);
+    ASSERT_EQ(tr.counters.lookups, c.lookups);
+    ASSERT_EQ(tr.counters.tri_tests, c.tri_tests);
     if (got) {
       ASSERT_FALSE(tr.steps.empty());
       const TraceStep& last = tr.steps.back();

@@ -243,6 +243,16 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   };
   template <class Tri>
   [[gnu::always_inline]] inline Exit leaf_exit(const WalkState<Tri>& w, const Leaf& L) const;
+  /// Counts one leaf step; true (and a step-bound error counted) once the ray has taken more
+  /// than the nx+ny+nz+1 steps a correct walk can take.
+  template <class Tri>
+  [[gnu::always_inline]] bool over_step_bound(WalkState<Tri>& w) const {
+    if (w.iter++ > max_steps_) {
+      step_errors_.fetch_add(1, std::memory_order_relaxed);
+      return true;
+    }
+    return false;
+  }
   /// Clips the ray to the grid and finds its entry cell's leaf; false if it misses the grid.
   template <class Tri>
   bool walk_begin(WalkState<Tri>& w, const Ray& ray) const;
@@ -317,8 +327,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
       // An empty leaf is only stepped over: inline, with the ray's state in registers.
       const Leaf& L = leaves_[w.leaf_id];
       if (L.count == 0) {
-        if (w.iter++ > max_steps_) {
-          step_errors_.fetch_add(1, std::memory_order_relaxed);
+        if (over_step_bound(w)) {
           r = StepResult::Done;
           break;
         }
@@ -435,10 +444,7 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
 
 template <class Tri, class S, bool kAny>
 Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
-  if (w.iter++ > max_steps_) {
-    step_errors_.fetch_add(1, std::memory_order_relaxed);
-    return StepResult::Done;
-  }
+  if (over_step_bound(w)) return StepResult::Done;
   const uint32_t leaf_id = w.leaf_id;
   const Leaf& L = leaves_[leaf_id];
   s.step();
