@@ -287,7 +287,9 @@ void expect_every_field(const BenchReport& rep, const std::vector<std::string>& 
         EXPECT_GT(x.ratio_to_reference, 0.0);
         EXPECT_GT(x.reference_mrays, 0.0);
         EXPECT_EQ(x.paired, a.accel != s.reference) << "every ratio is paired by default";
-        if (x.set != "shadow") EXPECT_GT(x.hits, 0u);
+        if (x.set != "shadow") {
+          EXPECT_GT(x.hits, 0u);
+        }
         EXPECT_EQ(x.counted, a.accel != "embree") << "only Embree cannot count";
         if (x.counted) {
           EXPECT_GT(x.steps_per_ray, 0.0);
@@ -371,8 +373,9 @@ TEST(Bench, ExactStructuresAgreeWithEmbree) {
   for (const auto& s : rep.scenes)
     for (const auto& a : s.structures)
       for (const auto& x : a.sets)
-        if (a.accel != "embree")
+        if (a.accel != "embree") {
           EXPECT_GE(x.agreement, 0.999) << s.name << " " << a.accel << " " << x.set;
+        }
 }
 
 TEST(Bench, BadScenesAreReportedAndTheOthersRun) {
@@ -683,6 +686,37 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   EXPECT_NE(slurp(log).find("use it with --rays, not --pixel"), std::string::npos) << slurp(log);
 }
 
+// `kdgrid rays --pixel X,Y`: copies of the very primary ray that the set has for that pixel
+// (the same-ray timing of the README); a pixel outside the image, another set or no copies
+// are refused with the fix.
+TEST(RaysCli, PixelWritesCopiesOfThatPixelsPrimaryRay) {
+  TempDir dir("rays");
+  const fs::path ply = dir / "sphere.ply", all = dir / "all.rays", one = dir / "one.rays", log = dir / "log.txt";
+  write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
+  const std::string base = "rays \"" + ply.string() + "\" --res 16x12 ";
+  ASSERT_EQ(run_cli(base + "-o \"" + all.string() + "\"", log), 0) << slurp(log);
+  ASSERT_EQ(run_cli(base + "--pixel 5,7 --count 10 -o \"" + one.string() + "\"", log), 0) << slurp(log);
+  EXPECT_NE(slurp(log).find("wrote 10 copies of the primary ray through pixel 5,7"), std::string::npos) << slurp(log);
+  const std::vector<Ray> set = read_rays(all.string()), copies = read_rays(one.string());
+  ASSERT_EQ(set.size(), 16u * 12u);
+  ASSERT_EQ(copies.size(), 10u);
+  const Ray& want = set[7 * 16 + 5];
+  for (const Ray& r : copies) {
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_EQ(r.org[a], want.org[a]);
+      EXPECT_EQ(r.dir[a], want.dir[a]);
+    }
+    EXPECT_EQ(r.tmin, want.tmin);
+    EXPECT_EQ(r.tmax, want.tmax);
+  }
+  EXPECT_NE(run_cli(base + "--pixel 16,0 -o \"" + one.string() + "\"", log), 0);
+  EXPECT_NE(slurp(log).find("must be X,Y inside the 16x12 image"), std::string::npos) << slurp(log);
+  EXPECT_NE(run_cli(base + "--set shadow --pixel 1,1 -o \"" + one.string() + "\"", log), 0);
+  EXPECT_NE(slurp(log).find("--pixel repeats one primary ray"), std::string::npos) << slurp(log);
+  EXPECT_NE(run_cli(base + "--pixel 1,1 --count 0 -o \"" + one.string() + "\"", log), 0);
+  EXPECT_NE(slurp(log).find("--count must be at least 1"), std::string::npos) << slurp(log);
+}
+
 TEST(ProfileCli, PrintsEveryStructureAndClass) {
   TempDir dir("profile");
   const fs::path ply = dir / "sphere.ply", log = dir / "log.txt";
@@ -820,7 +854,9 @@ TEST(Sweep, TriangleLeaksWatertightNever) {
   for (const auto& r : t.rows) {
     ASSERT_EQ(std::get<std::string>(r[part]), "leak");
     ++rows;
-    if (std::get<std::string>(r[test]) == "watertight") EXPECT_EQ(std::get<double>(r[leaks]), 0.0);
+    if (std::get<std::string>(r[test]) == "watertight") {
+      EXPECT_EQ(std::get<double>(r[leaks]), 0.0);
+    }
   }
   EXPECT_EQ(rows, 2u * 4u * 2u * 2u) << "sphere and torus x 4 scales x {brute, bvh} x 2 tests";
 }

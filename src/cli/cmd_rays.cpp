@@ -1,5 +1,8 @@
 // `kdgrid rays SCENE --set primary|shadow|diffuse|random -o FILE.rays`: writes a benchmark
-// ray set (BENCHMARK.md) so that any tool can trace exactly the same rays.
+// ray set (BENCHMARK.md) so that any tool can trace exactly the same rays. With --pixel X,Y
+// it writes --count copies of the primary ray through that pixel instead: traced by
+// `kdgrid trace`, they time one path through a structure with its data in the caches and its
+// branches learnt, i.e. the latency of its dependency chain alone.
 #include <cstdio>
 #include <memory>
 
@@ -15,7 +18,7 @@ namespace kdgrid::cli {
 
 namespace {
 struct RaysArgs {
-  std::string scene, set = "primary", res = "1024", out;
+  std::string scene, set = "primary", res = "1024", out, pixel;
   uint64_t seed = 1;
   size_t count = 100000;
   AccelOptions accel;
@@ -38,7 +41,11 @@ void add_rays_command(CLI::App& app) {
   cmd->add_option("--res", a->res, "Image size W or WxH of the primary rays")
       ->capture_default_str();
   cmd->add_option("--seed", a->seed, "Seed of the diffuse and random sets")->capture_default_str();
-  cmd->add_option("--count", a->count, "Number of rays of the random set")->capture_default_str();
+  cmd->add_option("--count", a->count, "Number of rays of the random set, or of copies of the --pixel ray")
+      ->capture_default_str();
+  cmd->add_option("--pixel", a->pixel,
+                  "Write --count copies of the primary ray through pixel X,Y (integers: the pixel "
+                  "centre) of the --res image instead of a set: one path timed alone");
   cmd->add_option("-o,--output", a->out, "Output .rays file")->required();
   a->accel.add_to(cmd, "bvh");
   a->camera.add_to(cmd);
@@ -52,6 +59,18 @@ void add_rays_command(CLI::App& app) {
     const Scene scene = load_scene(resolve_scene_path(a->scene));
     const Camera cam = a->camera.apply(canonical_camera(scene.mesh.bounds()));
     spec.camera = cam;
+    if (!a->pixel.empty()) {
+      if (spec.kind != RaySetKind::Primary)
+        throw ParamError("--pixel repeats one primary ray: use it without --set, or with --set primary");
+      if (a->count == 0) throw ParamError("--count must be at least 1");
+      const Ray ray = pixel_ray(cam, a->res, a->pixel);
+      write_rays(a->out, std::vector<Ray>(a->count, ray));
+      std::printf("wrote %zu copies of the primary ray through pixel %s of %dx%d (camera --eye %g,%g,%g "
+                  "--target %g,%g,%g --fov %g) to %s\n",
+                  a->count, a->pixel.c_str(), spec.width, spec.height, cam.eye.x, cam.eye.y, cam.eye.z,
+                  cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, a->out.c_str());
+      return;
+    }
     std::unique_ptr<Accelerator> accel;
     if (spec.kind == RaySetKind::Shadow || spec.kind == RaySetKind::Diffuse)
       accel = build_accelerator(a->accel.accel, scene.mesh, params);

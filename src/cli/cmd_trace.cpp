@@ -67,16 +67,8 @@ nlohmann::json build_json(const BuildStats& st, size_t tris) {
 void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& accel) {
   int w = 0, h = 0;
   parse_resolution(a.res, w, h);
-  float px = 0, py = 0;
-  if (std::sscanf(a.pixel.c_str(), "%f,%f", &px, &py) != 2 || !(px >= 0 && px < w) ||
-      !(py >= 0 && py < h))
-    throw ParamError("--pixel '" + a.pixel + "' must be X,Y inside the " + std::to_string(w) +
-                     "x" + std::to_string(h) + " image (set the size with --res WxH)");
   const Camera cam = a.camera.apply(*scene.camera);
-  const CameraFrame f = CameraFrame::make(cam, w, h);
-  // Integer pixel coordinates mean the pixel centre, as in the primary ray set.
-  const bool integral = std::floor(px) == px && std::floor(py) == py;
-  const Ray ray = f.ray(integral ? px + 0.5f : px, integral ? py + 0.5f : py);
+  const Ray ray = pixel_ray(cam, a.res, a.pixel);
   const Trace tr = accel.trace(ray);
   if (a.json) {
     nlohmann::json j;

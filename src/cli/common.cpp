@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <sstream>
 
 #include "accel/accelerator.h"
+#include "render/camera.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -153,6 +155,18 @@ void parse_resolution(const std::string& s, int& width, int& height) {
     throw ParamError("resolution '" + s + "' must be W or WxH with 1 <= W, H <= 16384, e.g. 800x600");
   width = int(w);
   height = int(h);
+}
+
+Ray pixel_ray(const Camera& cam, const std::string& res, const std::string& pixel) {
+  int w = 0, h = 0;
+  parse_resolution(res, w, h);
+  float px = 0, py = 0;
+  if (std::sscanf(pixel.c_str(), "%f,%f", &px, &py) != 2 || !(px >= 0 && px < w) || !(py >= 0 && py < h))
+    throw ParamError("--pixel '" + pixel + "' must be X,Y inside the " + std::to_string(w) + "x" +
+                     std::to_string(h) + " image (set the size with --res WxH)");
+  const CameraFrame f = CameraFrame::make(cam, w, h);
+  const bool integral = std::floor(px) == px && std::floor(py) == py;
+  return f.ray(integral ? px + 0.5f : px, integral ? py + 0.5f : py);
 }
 
 float parse_cell_size(const std::string& s) {

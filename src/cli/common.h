@@ -9,6 +9,7 @@
 #include <CLI/CLI.hpp>
 
 #include "accel/params.h"
+#include "math/ray.h"
 #include "math/vec.h"
 #include "scene/scene.h"
 
@@ -46,6 +47,10 @@ void require_accelerator_names(const std::vector<std::string>& names);
 Vec3 parse_vec3(const std::string& s, const std::string& what);
 /// Parses "W" or "WxH" (ParamError on failure or out of 1..16384).
 void parse_resolution(const std::string& s, int& width, int& height);
+/// The primary ray through pixel `pixel` ("X,Y") of a `res` ("W" or "WxH") image of `cam`:
+/// integer coordinates mean the pixel's centre, as in the primary ray set. ParamError when
+/// the pixel lies outside the image.
+Ray pixel_ray(const Camera& cam, const std::string& res, const std::string& pixel);
 /// Parses a cell size: "auto" -> 0, else a finite positive number.
 float parse_cell_size(const std::string& s);
 
