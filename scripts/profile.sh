@@ -2,13 +2,16 @@
 # Writes docs/PROFILE.md: where each structure's time goes on the dragon and on Sponza (the
 # suite's camera), from `kdgrid profile` (single thread; rays split into hit / miss crossing
 # the scene box / miss outside it; cold and cache-warm ns per ray; counters per ray), then
-# the cost of each structure's traversal alone (`kdgrid trace --traversal-only`: ns per step).
+# the cost of each structure's traversal alone (`kdgrid trace --traversal-only`: ns per step),
+# then single paths timed alone (`kdgrid rays --pixel`: one primary ray repeated, so that only
+# the latency of the structure's dependency chain along that path is left).
 # Absolute nanoseconds depend on the machine and its load; compare rows of one run.
 #
 # Usage: scripts/profile.sh [OUT.md]    (default docs/PROFILE.md)
 # Environment: KDGRID_SCENES (default ../shared/scenes), PROFILE_RES (1024), PROFILE_REPS (7),
 #              PROFILE_ACCELS (kdtree,hybrid,embree),
-#              PROFILE_TRAVERSAL_ACCELS (kdtree,hybrid,bvh,grid,irregular).
+#              PROFILE_TRAVERSAL_ACCELS (kdtree,hybrid,bvh,grid,irregular),
+#              PROFILE_PATH_ACCELS (kdtree,hybrid,bvh,embree).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-docs/PROFILE.md}"
@@ -84,6 +87,44 @@ PY
     done
     echo
   done
+  # One path alone: 2^20 copies of one primary ray. Its data stay in the first-level cache and
+  # its branches are learnt, so what is left is the latency of the structure's dependency
+  # chain along that path (the same-ray timing of the README).
+  echo "## One path alone"
+  echo
+  echo "2^20 copies of one primary ray (\`kdgrid rays --pixel X,Y --count 1048576\`, then \`kdgrid trace"
+  echo "--rays ... --threads 1 --accel X\`), median of ${PROFILE_REPS:-7}, wall ns per ray on one thread. The ray's"
+  echo "data stay in the first-level cache and the branch predictor learns its path, so the time is"
+  echo "the latency of the structure's dependency chain along that path: no cache misses, no"
+  echo "mispredictions. Pixels of the ${PROFILE_RES:-1024}² images above; counts per ray (Embree has none)."
+  echo
+  echo "| scene | pixel | structure | ns per ray | steps | lookups | tests |"
+  echo "|---|---|---|---:|---:|---:|---:|"
+  pathaccels="${PROFILE_PATH_ACCELS:-kdtree,hybrid,bvh,embree}"
+  for spec in "dragon/dragon_vrip.ply|512,512 560,480|" "sponza_dabrovic/sponza.obj|300,600 512,512|--eye -14,3,0 --target 10,5,0 --fov 60"; do
+    file="${spec%%|*}"; rest="${spec#*|}"; pixels="${rest%%|*}"; cam="${rest#*|}"
+    for px in $pixels; do
+      # shellcheck disable=SC2086
+      "$kdgrid" rays "$scenes/$file" --res "${PROFILE_RES:-1024}" $cam --pixel "$px" --count 1048576 -o "$tmp.rays" >&2
+      for accel in ${pathaccels//,/ }; do
+        echo "== kdgrid trace $file pixel $px --accel $accel" >&2
+        "$kdgrid" trace "$scenes/$file" --rays "$tmp.rays" --threads 1 --repeat "${PROFILE_REPS:-7}" \
+          --accel "$accel" --json > "$tmp"
+        /usr/bin/python3 - "$tmp" "$accel" "$file" "$px" <<'PY'
+import json, sys
+j = json.load(open(sys.argv[1]))
+ns = 1e9 * j["seconds_median"] / j["rays"]
+if j.get("has_counters"):
+    p = j["per_ray"]
+    counts = "%.0f | %s | %.0f" % (p["steps"], "%.0f" % p["lookups"] if p["lookups"] > 0 else "-", p["tri_tests"])
+else:
+    counts = "n/a | n/a | n/a"
+print("| %s | %s | %s | %.1f | %s |" % (sys.argv[3], sys.argv[4], sys.argv[2], ns, counts))
+PY
+      done
+    done
+  done
+  echo
   rm -f "$tmp.rays"
 } > "$out.partial"
 mv "$out.partial" "$out"
