@@ -715,6 +715,10 @@ TEST(RaysCli, PixelWritesCopiesOfThatPixelsPrimaryRay) {
   EXPECT_NE(slurp(log).find("--pixel repeats one primary ray"), std::string::npos) << slurp(log);
   EXPECT_NE(run_cli(base + "--pixel 1,1 --count 0 -o \"" + one.string() + "\"", log), 0);
   EXPECT_NE(slurp(log).find("--count must be at least 1"), std::string::npos) << slurp(log);
+  EXPECT_NE(run_cli(base + "--pixel 1,1 --count 100000000000 -o \"" + one.string() + "\"", log), 0);
+  EXPECT_NE(slurp(log).find("GiB of rays: use at most 134217728"), std::string::npos) << slurp(log);
+  EXPECT_NE(run_cli(base + "--set random --count 100000000000 -o \"" + one.string() + "\"", log), 0);
+  EXPECT_NE(slurp(log).find("GiB of rays: use at most 134217728"), std::string::npos) << slurp(log);
 }
 
 TEST(ProfileCli, PrintsEveryStructureAndClass) {

@@ -17,6 +17,9 @@
 namespace kdgrid::cli {
 
 namespace {
+/// --count bound: 2^27 rays are 4 GiB in memory and on disk (32 bytes each).
+constexpr size_t kMaxCount = size_t(1) << 27;
+
 struct RaysArgs {
   std::string scene, set = "primary", res = "1024", out, pixel;
   uint64_t seed = 1;
@@ -55,6 +58,10 @@ void add_rays_command(CLI::App& app) {
     parse_resolution(a->res, spec.width, spec.height);
     spec.seed = a->seed;
     spec.count = a->count;
+    if (a->count > kMaxCount)
+      throw ParamError("--count " + std::to_string(a->count) + " would take " +
+                       std::to_string(a->count * sizeof(Ray) >> 30) + " GiB of rays: use at most " +
+                       std::to_string(kMaxCount));
     const BuildParams params = a->accel.resolve();
     const Scene scene = load_scene(resolve_scene_path(a->scene));
     const Camera cam = a->camera.apply(canonical_camera(scene.mesh.bounds()));
