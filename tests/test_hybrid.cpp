@@ -728,6 +728,53 @@ TEST(Hybrid, CountedAndFastTraversalAgree) {
   EXPECT_GE(total.lookups, total.steps / 2);
 }
 
+// The walk takes the leaf its thread's previous ray reached at the same step when the exit
+// cell lies in that leaf's kd box (see "Guessed next leaf"). Guesses left by another
+// structure, by incoherent rays or by the same coherent rays must never change an answer,
+// nor the counters (every resolution counts as a lookup).
+TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
+  const Mesh ma = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
+  const Mesh mb = random_soup(5, 3000, Vec3(-1), Vec3(1), 0.08f);
+  Hybrid ha, hb;
+  ha.build(ma, params_with(0.0f, false));
+  hb.build(mb, params_with(0.13f, true));
+  // Coherent rays from one eye (neighbours cross the same leaves), then incoherent ones.
+  std::vector<Ray> ra;
+  for (int j = 0; j < 64; ++j)
+    for (int i = 0; i < 64; ++i) {
+      Ray r;
+      r.org = Vec3(0.2f, 0.1f, 4.0f);
+      r.dir = normalize(Vec3(-1.3f + 2.6f * float(i) / 63.0f, -1.3f + 2.6f * float(j) / 63.0f, -4.0f));
+      ra.push_back(r);
+    }
+  const auto more = random_rays(ma, 4096, 11);
+  ra.insert(ra.end(), more.begin(), more.end());
+  const auto rb = random_rays(mb, int(ra.size()), 12);
+  const Reference refa = brute_reference(ma, ra), refb = brute_reference(mb, rb);
+  int failures = 0;
+  uint64_t steps = 0;
+  // The two structures in turn on one thread: each finds the other's leaf ids as guesses.
+  for (size_t i = 0; i < ra.size(); ++i) {
+    failures += compare(ha, ma, {ra[i]}, Reference{{refa.hits[i]}, {refa.occluded[i]}}, "sphere, in turn");
+    failures += compare(hb, mb, {rb[i]}, Reference{{refb.hits[i]}, {refb.occluded[i]}}, "soup, in turn");
+    ASSERT_LE(failures, 5);
+    // The same ray counted right after itself (guesses right) and after the other structure's
+    // ray (guesses wrong): the same steps, lookups and tests.
+    RayCounters once, again;
+    Hit h1, h2;
+    ha.intersect_counted(ra[i], h1, once);
+    ha.intersect_counted(ra[i], h2, again);
+    ASSERT_EQ(once.steps, again.steps);
+    ASSERT_EQ(once.lookups, again.lookups);
+    ASSERT_EQ(once.tri_tests, again.tri_tests);
+    steps += once.steps;
+  }
+  EXPECT_EQ(failures, 0);
+  EXPECT_GT(steps, 4 * ra.size()) << "the rays cross several leaves, so guesses are taken";
+  // Alone again: the coherent rays with their own guesses warm.
+  EXPECT_EQ(compare(ha, ma, ra, refa, "sphere, alone"), 0);
+}
+
 void check_trace_order(uint32_t subtree_min) {
   const Mesh m = random_soup(8, 2000, Vec3(-1), Vec3(1), 0.08f);
   Hybrid h;

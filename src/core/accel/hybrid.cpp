@@ -469,6 +469,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   dense_ = params.hybrid_dense_matrix;
   nodes_.clear();
   leaves_.clear();
+  kd_boxes_.clear();
   leaf_depth_.clear();
   refs_.clear();
   sub_nodes_.clear();
@@ -627,13 +628,21 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       tris_[i] = {c[0], c[1], c[2]};
     });
     uint64_t other = 0;
-    other += nodes_.size() * sizeof(Node) + leaves_.size() * sizeof(Leaf) + leaf_depth_.size() +
+    other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(CellBox)) + leaf_depth_.size() +
              refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     build_matrix(left);
     const uint64_t matrix = (bricks_.size() + top_.size() + matrix_.size()) * sizeof(uint32_t);
     const auto t2 = std::chrono::steady_clock::now();
+    // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
+    // inside one names its leaf (the check of a guessed next leaf, see "Guessed next leaf").
+    kd_boxes_.resize(leaves_.size());
+    for (size_t i = 0; i < leaves_.size(); ++i)
+      for (int a = 0; a < 3; ++a) {
+        kd_boxes_[i].lo[a] = leaves_[i].lo[a];
+        kd_boxes_[i].hi[a] = leaves_[i].hi[a];
+      }
     expand_text = params.hybrid_expand_empty ? expand_empty_leaves(left > matrix ? left - matrix : 0)
                                              : std::string("off (the paper's kd leaf boxes)");
     t_expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();
@@ -651,12 +660,14 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(SubNode);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
+  const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(CellBox);
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
   const uint64_t b_tris = tris_.size() * (sizeof(TriVerts) + sizeof(uint32_t));
   const uint64_t b_matrix = (dense_ ? matrix_.size() : bricks_.size() + top_.size()) * sizeof(uint32_t);
-  stats_.bytes = b_tree + b_leaves + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
+  stats_.bytes = b_tree + b_leaves + b_kd_boxes + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
+                          {"leaf kd boxes", b_kd_boxes},
                           {"leaf subtrees", b_sub},
                           {"references", b_refs},
                           {"triangles (corners + ids)", b_tris},

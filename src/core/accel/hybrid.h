@@ -62,6 +62,19 @@
 // time per ray by 18% (one thread, plain leaves). The table costs 4 bytes per cell while it is
 // skipped (kd leaf boxes, a note in BuildStats) above kMaxExpandEntries cells or the budget.
 //
+// Guessed next leaf (an extension of the paper; the same leaves in the same order). A matrix
+// lookup is a chain: the exit cell's coordinates come from arithmetic on the leaf's box, and
+// top array, brick and leaf record are loaded one after the other, about 50 cycles even from
+// L1. Each thread remembers, per step index, the leaf its previous ray reached at that step;
+// the walk checks whether the exit cell lies inside that leaf's kd box (kd_boxes_, the boxes
+// before empty leaves were widened: they tile the grid, so a cell inside one names its leaf)
+// and takes it, else looks the cell up. The check is a branch that coherent rays predict, so
+// the CPU loads the guessed leaf's record while the exit is still being computed, as a
+// kd-tree's predicted descent does. A wrong guess costs one load and a mispredicted branch;
+// the answer is the matrix's either way. Every resolution counts as a lookup, so the counters
+// do not depend on the guesses. Sponza's primary rays: lookups served by the matrix 7.76 ->
+// 3.13 per ray, +19% (one thread).
+//
 // Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
 // leaf's triangles, compute the exit over the far planes of the leaf's (step) box, stop once
 // the closest hit lies before the exit; else step to the cell just past the exit face (exact
@@ -215,6 +228,25 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     return uint32_t(n->split);
   }
 
+  /// The leaf of cell n, the walk's `step`-th leaf: this thread's guess for that step (the
+  /// leaf its previous ray reached there) when n lies in its kd box, else the matrix's.
+  [[gnu::always_inline]] uint32_t next_leaf(const int32_t (&n)[3], uint64_t step) const {
+    static thread_local uint32_t guess[kGuessSteps];
+    uint32_t& g = guess[step & (kGuessSteps - 1)];
+    const uint32_t id = g;
+    bool inside = false;
+    if (id < kd_boxes_.size()) {
+      const CellBox& b = kd_boxes_[id];
+      inside = (n[0] >= b.lo[0]) & (n[0] < b.hi[0]) & (n[1] >= b.lo[1]) & (n[1] < b.hi[1]) &
+               (n[2] >= b.lo[2]) & (n[2] < b.hi[2]);
+    }
+    if (inside) [[likely]]
+      return id;
+    g = lookup(n[0], n[1], n[2]);
+    return g;
+  }
+  static constexpr uint64_t kGuessSteps = 64;
+
   template <class Tri, class S, bool kAny>
   bool walk(const Ray& ray, Hit* hit, S& s) const;
   /// One ray's walk between leaf steps: the ray in grid space, the current cell and leaf,
@@ -292,6 +324,11 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 
   std::vector<Node> nodes_;
   std::vector<Leaf> leaves_;
+  /// Each leaf's kd box (an empty leaf's before widening): they tile the grid.
+  struct CellBox {
+    int32_t lo[3], hi[3];
+  };
+  std::vector<CellBox> kd_boxes_;
   std::vector<uint8_t> leaf_depth_;
   std::vector<SubNode> sub_nodes_;  ///< leaf subtrees
   std::vector<uint32_t> refs_;      ///< per leaf, indices into tris_ (local triangle ids)
@@ -341,7 +378,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
         w.c[1] = e.n[1];
         w.c[2] = e.n[2];
         w.t_cur = e.t;
-        w.leaf_id = lookup(e.n[0], e.n[1], e.n[2]);
+        w.leaf_id = next_leaf(e.n, w.iter);
         s.lookup();
         continue;
       }
@@ -489,7 +526,7 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
   // ray on the dragon), so the lookup is rarely wasted.
   uint32_t next_id = 0;
   if (!last) {
-    next_id = lookup(n[0], n[1], n[2]);
+    next_id = next_leaf(ex.n, w.iter);
     s.lookup();
     __builtin_prefetch(leaves_.data() + next_id);
   }
