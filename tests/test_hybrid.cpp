@@ -753,6 +753,7 @@ TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
   const Reference refa = brute_reference(ma, ra), refb = brute_reference(mb, rb);
   int failures = 0;
   uint64_t steps = 0;
+  const uint64_t taken_before = Hybrid::guesses_taken();
   // The two structures in turn on one thread: each finds the other's leaf ids as guesses.
   for (size_t i = 0; i < ra.size(); ++i) {
     failures += compare(ha, ma, {ra[i]}, Reference{{refa.hits[i]}, {refa.occluded[i]}}, "sphere, in turn");
@@ -772,7 +773,10 @@ TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
   EXPECT_EQ(failures, 0);
   EXPECT_GT(steps, 4 * ra.size()) << "the rays cross several leaves, so guesses are taken";
   // Alone again: the coherent rays with their own guesses warm.
+  const uint64_t taken_in_turn = Hybrid::guesses_taken();
   EXPECT_EQ(compare(ha, ma, ra, refa, "sphere, alone"), 0);
+  EXPECT_GT(taken_in_turn, taken_before) << "a ray traced right after itself takes its guesses";
+  EXPECT_GT(Hybrid::guesses_taken(), taken_in_turn) << "coherent rays take guesses";
 }
 
 void check_trace_order(uint32_t subtree_min) {

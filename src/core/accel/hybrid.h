@@ -200,6 +200,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// The leaf covering cell (x, y, z) (must lie inside the grid).
   uint32_t leaf_at(int32_t x, int32_t y, int32_t z) const { return lookup(x, y, z); }
   const std::vector<Leaf>& leaves() const { return leaves_; }
+  /// Next leaves the calling thread took from its guesses so far, over every hybrid (tests;
+  /// see "Guessed next leaf").
+  static uint64_t guesses_taken() { return guess_state_.taken; }
   /// Rays whose traversal reached the nx+ny+nz+1 step bound (a correct traversal never does).
   uint64_t step_bound_errors() const { return step_errors_.load(std::memory_order_relaxed); }
   /// World box of a leaf: the box its steps cross (an empty leaf's widened box).
@@ -236,11 +239,10 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// (incoherent rays), so that a wrong guess's load and mispredicted branch are not paid on
   /// every step; the plain lookups then keep scoring the guesses they would have made.
   [[gnu::always_inline]] uint32_t next_leaf(const int32_t (&n)[3], uint64_t step) const {
-    static thread_local uint32_t guess[kGuessSteps];
-    static thread_local int32_t score = 0;
-    uint32_t& g = guess[step & (kGuessSteps - 1)];
+    GuessState& gs = guess_state_;
+    uint32_t& g = gs.leaf[step & (kGuessSteps - 1)];
     const uint32_t id = g;
-    if (score >= 0) {
+    if (gs.score >= 0) {
       bool inside = false;
       if (id < kd_boxes_.size()) {
         const CellBox& b = kd_boxes_[id];
@@ -248,12 +250,13 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
                  (n[2] >= b.lo[2]) & (n[2] < b.hi[2]);
       }
       if (inside) [[likely]] {
-        score = std::min(score + 1, kGuessScoreMax);
+        gs.score = std::min(gs.score + 1, kGuessScoreMax);
+        ++gs.taken;
         return id;
       }
     }
     const uint32_t found = lookup(n[0], n[1], n[2]);
-    score = found == id ? std::min(score + 1, kGuessScoreMax) : std::max(score - kGuessMissCost, kGuessScoreMin);
+    gs.score = found == id ? std::min(gs.score + 1, kGuessScoreMax) : std::max(gs.score - kGuessMissCost, kGuessScoreMin);
     g = found;
     return found;
   }
@@ -261,6 +264,16 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// guessing is on while it is >= 0 (about 3 right guesses in 4 keep it on).
   static constexpr int32_t kGuessScoreMax = 64, kGuessScoreMin = -64, kGuessMissCost = 3;
   static constexpr uint64_t kGuessSteps = 64;
+  /// One thread's guesses (the leaf its previous ray reached at each step index), their score
+  /// and the number taken; shared by every hybrid, since each checks a guess against its own
+  /// kd boxes. Zero-initialized, as every thread_local is (no member initializers: GCC
+  /// rejects them in a nested class used by its enclosing class's static member).
+  struct GuessState {
+    uint32_t leaf[kGuessSteps];
+    int32_t score;
+    uint64_t taken;
+  };
+  static inline thread_local GuessState guess_state_;
 
   template <class Tri, class S, bool kAny>
   bool walk(const Ray& ray, Hit* hit, S& s) const;
