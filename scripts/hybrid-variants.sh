@@ -3,7 +3,7 @@
 # suite's primary rays, for docs/BENCHMARKS.md ("The hybrid's variants"): the default (leaf
 # subtrees, empty-leaf boxes, bricked matrix), plain leaves (--hybrid-subtree 0), the paper's
 # hybrid (plain leaves stepping over kd leaf boxes: --hybrid-subtree 0 --hybrid-no-expand) and
-# the dense matrix of the paper.
+# the dense matrix of the paper, and the default without guessed next leaves (--hybrid-no-guess).
 # Tracing is timed with the threads' CPU clocks (--clock cpu) because this machine is shared;
 # every figure is also given as a ratio to Embree and to the kd-tree measured in the same run.
 #
@@ -30,4 +30,5 @@ variant default
 variant plain --hybrid-subtree 0
 variant paper --hybrid-subtree 0 --hybrid-no-expand
 variant dense --dense-matrix
-echo "hybrid-variants: wrote $results/hybrid-{default,plain,paper,dense}.json" >&2
+variant noguess --hybrid-no-guess
+echo "hybrid-variants: wrote $results/hybrid-{default,plain,paper,dense,noguess}.json" >&2

@@ -671,6 +671,16 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   ASSERT_EQ(run_cli(base + "--accel hybrid --traversal-only", log), 0) << slurp(log);
   EXPECT_NE(slurp(log).find("hit fraction 0.0000"), std::string::npos) << slurp(log);
   EXPECT_NE(slurp(log).find("ns per lookup"), std::string::npos) << slurp(log);
+  // The guessed next leaves, counted: neighbouring rays of a finer image take some.
+  const fs::path fine = dir / "fine.rays";
+  write_rays(fine.string(), primary_rays(cam, 128, 128));
+  const std::string fine_base = "trace \"" + ply.string() + "\" --rays \"" + fine.string() + "\" --repeat 1 ";
+  ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1", log), 0) << slurp(log);
+  EXPECT_NE(slurp(log).find("of the lookups per ray answered by the guessed next leaf"), std::string::npos)
+      << slurp(log);
+  EXPECT_EQ(slurp(log).find("guesses      0.00 "), std::string::npos) << "coherent rays take guesses\n" << slurp(log);
+  ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1 --hybrid-no-guess", log), 0) << slurp(log);
+  EXPECT_NE(slurp(log).find("guesses      0.00 "), std::string::npos) << slurp(log);
   ASSERT_EQ(run_cli(base + "--accel kdtree --traversal-only --json", log), 0) << slurp(log);
   const json j = json::parse(slurp(log));
   EXPECT_TRUE(j["traversal_only"].get<bool>());

@@ -728,7 +728,21 @@ TEST(Hybrid, CountedAndFastTraversalAgree) {
   EXPECT_GE(total.lookups, total.steps / 2);
 }
 
-// The walk takes the leaf its thread's previous ray reached at the same step when the exit
+// n x n rays from one eye through a square window over the test sphere, in image order:
+// neighbours cross the same leaves.
+std::vector<Ray> coherent_rays(int n) {
+  std::vector<Ray> rays;
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i) {
+      Ray r;
+      r.org = Vec3(0.2f, 0.1f, 4.0f);
+      r.dir = normalize(Vec3(-1.3f + 2.6f * float(i) / float(n - 1), -1.3f + 2.6f * float(j) / float(n - 1), -4.0f));
+      rays.push_back(r);
+    }
+  return rays;
+}
+
+// The walk takes the leaf its thread last reached across the same leaf face when the exit
 // cell lies in that leaf's kd box (see "Guessed next leaf"). Guesses left by another
 // structure, by incoherent rays or by the same coherent rays must never change an answer,
 // nor the counters (every resolution counts as a lookup).
@@ -739,14 +753,7 @@ TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
   ha.build(ma, params_with(0.0f, false));
   hb.build(mb, params_with(0.13f, true));
   // Coherent rays from one eye (neighbours cross the same leaves), then incoherent ones.
-  std::vector<Ray> ra;
-  for (int j = 0; j < 64; ++j)
-    for (int i = 0; i < 64; ++i) {
-      Ray r;
-      r.org = Vec3(0.2f, 0.1f, 4.0f);
-      r.dir = normalize(Vec3(-1.3f + 2.6f * float(i) / 63.0f, -1.3f + 2.6f * float(j) / 63.0f, -4.0f));
-      ra.push_back(r);
-    }
+  std::vector<Ray> ra = coherent_rays(64);
   const auto more = random_rays(ma, 4096, 11);
   ra.insert(ra.end(), more.begin(), more.end());
   const auto rb = random_rays(mb, int(ra.size()), 12);
@@ -777,6 +784,37 @@ TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
   EXPECT_EQ(compare(ha, ma, ra, refa, "sphere, alone"), 0);
   EXPECT_GT(taken_in_turn, taken_before) << "a ray traced right after itself takes its guesses";
   EXPECT_GT(Hybrid::guesses_taken(), taken_in_turn) << "coherent rays take guesses";
+}
+
+// BuildParams::hybrid_guess = false (`--hybrid-no-guess`), the paper's walk: no guess taken,
+// and the same hits and counters as the walk with guesses, ray by ray.
+TEST(Hybrid, WithoutGuessesTheSameWalk) {
+  const Mesh m = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
+  BuildParams p = params_with(0.0f, false);
+  Hybrid guessing, plain;
+  guessing.build(m, p);
+  p.hybrid_guess = false;
+  plain.build(m, p);
+  const std::vector<Ray> rays = coherent_rays(48);
+  const uint64_t before = Hybrid::guesses_taken();
+  RayCounters with_guesses, without;
+  std::vector<Hit> hits_with(rays.size()), hits_without(rays.size());
+  std::vector<char> found_with(rays.size()), found_without(rays.size());
+  for (size_t i = 0; i < rays.size(); ++i)
+    found_with[i] = guessing.intersect_counted(rays[i], hits_with[i], with_guesses);
+  const uint64_t between = Hybrid::guesses_taken();
+  EXPECT_GT(between, before) << "coherent rays take guesses";
+  for (size_t i = 0; i < rays.size(); ++i)
+    found_without[i] = plain.intersect_counted(rays[i], hits_without[i], without);
+  EXPECT_EQ(Hybrid::guesses_taken(), between) << "hybrid_guess = false takes no guess";
+  for (size_t i = 0; i < rays.size(); ++i) {
+    ASSERT_EQ(found_with[i], found_without[i]) << "ray " << i;
+    if (found_with[i]) {
+      EXPECT_EQ(hits_with[i].prim, hits_without[i].prim) << "ray " << i;
+      EXPECT_EQ(hits_with[i].t, hits_without[i].t) << "ray " << i;
+    }
+  }
+  EXPECT_EQ(with_guesses, without);
 }
 
 void check_trace_order(uint32_t subtree_min) {

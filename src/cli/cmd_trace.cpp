@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
+#include "accel/hybrid.h"
 #include "bench/rayfile.h"
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -41,6 +42,7 @@ struct TraceArgs {
 struct Counted {
   RayCounters c;
   uint64_t hits = 0;
+  uint64_t guessed = 0;  ///< the hybrid's next leaves taken from its guesses
 };
 
 void print_box(const Box3& b) {
@@ -158,17 +160,21 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
   const Counted counted = tbb::parallel_reduce(
       all, Counted{},
       [&](const tbb::blocked_range<size_t>& br, Counted acc) {
+        // The guesses taken are counted per thread: this chunk's runs on one.
+        const uint64_t guessed0 = Hybrid::guesses_taken();
         for (size_t i = br.begin(); i < br.end(); ++i) {
           Hit h;
           const bool hit = a.any ? accel.occluded_counted(rays[i], acc.c)
                                  : accel.intersect_counted(rays[i], h, acc.c);
           acc.hits += hit;
         }
+        acc.guessed += Hybrid::guesses_taken() - guessed0;
         return acc;
       },
       [](Counted x, const Counted& y) {
         x.c += y.c;
         x.hits += y.hits;
+        x.guessed += y.guessed;
         return x;
       });
 
@@ -219,7 +225,8 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
                     {"leaves", double(counted.c.leaves) * per},
                     {"tri_tests", double(counted.c.tri_tests) * per},
                     {"mailbox_skips", double(counted.c.mailbox_skips) * per},
-                    {"lookups", double(counted.c.lookups) * per}};
+                    {"lookups", double(counted.c.lookups) * per},
+                    {"guessed", double(counted.guessed) * per}};
     j["build"] = build_json(st, tris);
     std::printf("%s\n", j.dump(2).c_str());
     return;
@@ -238,6 +245,9 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
                 double(counted.c.lookups) * per);
   else
     std::printf("per ray      (this structure cannot count its traversal)\n");
+  if (accel.name() == "hybrid")
+    std::printf("guesses      %.2f of the lookups per ray answered by the guessed next leaf (counted pass)\n",
+                double(counted.guessed) * per);
   if (a.traversal_only) {
     std::printf("traversal    alone (no triangle tested, every ray misses): %.1f ns per ray, %.2f ns "
                 "per step",

@@ -52,6 +52,10 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                 "Hybrid: step over the kd leaf boxes of the paper, without widening empty "
                 "leaves over the empty cells around them")
       ->group(g);
+  cmd->add_flag("--hybrid-no-guess{false}", params.hybrid_guess,
+                "Hybrid: look every next leaf up in the matrix, as the paper does, instead of "
+                "first checking the leaf this thread last reached across the same face")
+      ->group(g);
   cmd->add_option("--bvh-leaf", params.bvh_max_leaf, "BVH: max triangles per leaf")
       ->group(g)
       ->capture_default_str();

@@ -70,6 +70,7 @@ std::string accel_flags(const std::string& name, const BuildParams& p) {
   if (p.hybrid_dense_matrix) s += " --dense-matrix";
   if (p.hybrid_subtree_min != d.hybrid_subtree_min) s += " --hybrid-subtree " + std::to_string(p.hybrid_subtree_min);
   if (!p.hybrid_expand_empty) s += " --hybrid-no-expand";
+  if (!p.hybrid_guess) s += " --hybrid-no-guess";
   if (p.grid_lambda != d.grid_lambda) s += " --grid-lambda " + fmt_float(p.grid_lambda);
   if (p.kd_intersection_cost != d.kd_intersection_cost)
     s += " --kd-cost-ratio " + fmt_float(p.kd_intersection_cost);

@@ -62,20 +62,25 @@
 // time per ray by 18% (one thread, plain leaves). The table costs 4 bytes per cell while it is
 // skipped (kd leaf boxes, a note in BuildStats) above kMaxExpandEntries cells or the budget.
 //
-// Guessed next leaf (an extension of the paper; the same leaves in the same order). A matrix
-// lookup is a chain: the exit cell's coordinates come from arithmetic on the leaf's box, and
-// top array, brick and leaf record are loaded one after the other, about 50 cycles even from
-// L1. Each thread remembers, per step index, the leaf its previous ray reached at that step;
-// the walk checks whether the exit cell lies inside that leaf's kd box (kd_boxes_, the boxes
-// before empty leaves were widened: they tile the grid, so a cell inside one names its leaf)
-// and takes it, else looks the cell up. The check is a branch that coherent rays predict, so
-// the CPU loads the guessed leaf's record while the exit is still being computed, as a
-// kd-tree's predicted descent does. A wrong guess costs one load and a mispredicted branch;
-// the answer is the matrix's either way. A per-thread score turns guessing off while guesses
-// mostly fail (incoherent rays: diffuse bounces), and on again when the lookups show that
-// they would succeed. Every resolution counts as a lookup, so the counters do not depend on
-// the guesses. Sponza's primary rays: lookups served by the matrix 7.76 -> 3.13 per ray,
-// +14-17% (one thread); the dragon and diffuse rays within the noise.
+// Guessed next leaf (BuildParams::hybrid_guess, on by default; an extension of the paper; the
+// same leaves in the same order). A matrix lookup is a chain: the exit cell's coordinates come
+// from arithmetic on the leaf's box, and top array, brick and leaf record are loaded one after
+// the other, about 50 cycles even from L1. Each thread remembers the leaf it last reached
+// across each leaf face (a direct-mapped table by leaf and exit axis: the ray's direction
+// fixes the face's side); the walk checks whether the exit cell lies inside that leaf's kd box
+// (kd_boxes_, the boxes before empty leaves were widened: they tile the grid, so a cell inside
+// one names its leaf) and takes it, else looks the cell up. The check is a branch that
+// coherent rays predict, so the CPU loads the guessed leaf's record while the exit is still
+// being computed, as a kd-tree's predicted descent does. A wrong guess costs one load and a
+// mispredicted branch; the answer is the matrix's either way. A per-thread score turns
+// guessing off while guesses mostly fail (incoherent rays: diffuse bounces), and on again when
+// the lookups show that they would succeed. Every resolution counts as a lookup, so the
+// counters do not depend on the guesses. Sponza's primary rays: 6.56 of 7.76 lookups per ray
+// answered by guesses, +21% against no guessing (one thread); the dragon (0.45 of 2.61), shadow
+// and diffuse rays within the noise. The first form keyed the guesses by step index (the leaf
+// the previous ray reached at the same step): right for 92% of Sponza's lookups and 58% of
+// the dragon's, against 97% and 71% by face (counted with guessing off), and 5% slower on
+// Sponza.
 //
 // Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
 // leaf's triangles, compute the exit over the far planes of the leaf's (step) box, stop once
@@ -233,14 +238,15 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     return uint32_t(n->split);
   }
 
-  /// The leaf of cell n, the walk's `step`-th leaf: this thread's guess for that step (the
-  /// leaf its previous ray reached there) when n lies in its kd box, else the matrix's. A
-  /// per-thread score of recent guesses switches guessing off while they mostly fail
-  /// (incoherent rays), so that a wrong guess's load and mispredicted branch are not paid on
-  /// every step; the plain lookups then keep scoring the guesses they would have made.
-  [[gnu::always_inline]] uint32_t next_leaf(const int32_t (&n)[3], uint64_t step) const {
+  /// The leaf of cell n, which the ray reaches across the face of leaf `from` on `axis`:
+  /// the leaf this thread last reached across that face (the guess) when n lies in its kd
+  /// box, else the matrix's. A per-thread score of recent guesses switches guessing off while
+  /// they mostly fail (incoherent rays), so that a wrong guess's mispredicted branch is not
+  /// paid on every step; the plain lookups then keep scoring the guesses they would have made.
+  [[gnu::always_inline]] uint32_t next_leaf(const int32_t (&n)[3], uint32_t from, int axis) const {
+    if (!guess_) return lookup(n[0], n[1], n[2]);
     GuessState& gs = guess_state_;
-    uint32_t& g = gs.leaf[step & (kGuessSteps - 1)];
+    uint32_t& g = gs.leaf[(uint64_t(from) * 3 + uint64_t(axis)) & (kGuessEntries - 1)];
     const uint32_t id = g;
     if (gs.score >= 0) {
       bool inside = false;
@@ -263,13 +269,16 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Guess score: +1 per right guess, -kGuessMissCost per wrong one, within [min, max];
   /// guessing is on while it is >= 0 (about 3 right guesses in 4 keep it on).
   static constexpr int32_t kGuessScoreMax = 64, kGuessScoreMin = -64, kGuessMissCost = 3;
-  static constexpr uint64_t kGuessSteps = 64;
-  /// One thread's guesses (the leaf its previous ray reached at each step index), their score
-  /// and the number taken; shared by every hybrid, since each checks a guess against its own
-  /// kd boxes. Zero-initialized, as every thread_local is (no member initializers: GCC
-  /// rejects them in a nested class used by its enclosing class's static member).
+  /// Guesses per thread (direct-mapped by leaf and exit axis; 16 KiB). 65536 entries would
+  /// catch 1% more on Sponza's primary rays and 3% more on the dragon's.
+  static constexpr uint64_t kGuessEntries = 4096;
+  /// One thread's guesses (the leaf last reached across each leaf face, by a hash of the leaf
+  /// and the exit axis: the ray's direction fixes the face's side), their score and the
+  /// number taken; shared by every hybrid, since each checks a guess against its own kd
+  /// boxes. Zero-initialized, as every thread_local is (no member initializers: GCC rejects
+  /// them in a nested class used by its enclosing class's static member).
   struct GuessState {
-    uint32_t leaf[kGuessSteps];
+    uint32_t leaf[kGuessEntries];
     int32_t score;
     uint64_t taken;
   };
@@ -299,6 +308,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   struct Exit {
     double t;
     int32_t n[3];
+    int axis;
     bool last;
   };
   template <class Tri>
@@ -348,6 +358,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   int32_t top_dims_[3] = {1, 1, 1};
   uint64_t top_stride_[2] = {1, 1};  ///< top array strides of y and z
   bool dense_ = false;
+  bool guess_ = true;  ///< BuildParams::hybrid_guess
   uint64_t max_steps_ = 0;
 
   std::vector<Node> nodes_;
@@ -406,7 +417,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
         w.c[1] = e.n[1];
         w.c[2] = e.n[2];
         w.t_cur = e.t;
-        w.leaf_id = next_leaf(e.n, w.iter);
+        w.leaf_id = next_leaf(e.n, w.leaf_id, e.axis);
         s.lookup();
         continue;
       }
@@ -483,6 +494,7 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
   const int axis = x01 ? (x02 ? 0 : 2) : (x12 ? 1 : 2);
   Exit ex;
   ex.t = x01 ? (x02 ? e0 : e2) : (x12 ? e1 : e2);
+  ex.axis = axis;
   // Next cell: on the other axes the exit point's cell, clamped into the leaf (the point
   // lies on the leaf's face, so this only removes rounding) and never moving against the
   // ray; on the exit axis the integer cell just past the leaf's face (far plane, minus one
@@ -554,7 +566,7 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
   // ray on the dragon), so the lookup is rarely wasted.
   uint32_t next_id = 0;
   if (!last) {
-    next_id = next_leaf(ex.n, w.iter);
+    next_id = next_leaf(ex.n, leaf_id, ex.axis);
     s.lookup();
     __builtin_prefetch(leaves_.data() + next_id);
   }
