@@ -266,6 +266,22 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     g = found;
     return found;
   }
+  /// The leaf of a ray's entry cell c: the entry leaf of this thread's previous ray when c
+  /// lies in its kd box (rays from one camera mostly start in one leaf), else the matrix's.
+  [[gnu::always_inline]] uint32_t start_leaf(const int32_t (&c)[3]) const {
+    if (!guess_) return lookup(c[0], c[1], c[2]);
+    GuessState& gs = guess_state_;
+    const uint32_t id = gs.start;
+    if (id < kd_boxes_.size()) {
+      const CellBox& b = kd_boxes_[id];
+      if ((c[0] >= b.lo[0]) & (c[0] < b.hi[0]) & (c[1] >= b.lo[1]) & (c[1] < b.hi[1]) & (c[2] >= b.lo[2]) &
+          (c[2] < b.hi[2])) [[likely]] {
+        ++gs.taken;
+        return id;
+      }
+    }
+    return gs.start = lookup(c[0], c[1], c[2]);
+  }
   /// Guess score: +1 per right guess, -kGuessMissCost per wrong one, within [min, max];
   /// guessing is on while it is >= 0 (more right guesses than wrong ones keep it on). A miss
   /// cost of 3 (on above 3 right in 4) kept guessing off on most of the dragon's primary rays
@@ -282,6 +298,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// them in a nested class used by its enclosing class's static member).
   struct GuessState {
     uint32_t leaf[kGuessEntries];
+    uint32_t start;
     int32_t score;
     uint64_t taken;
   };
@@ -477,7 +494,7 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   w.t1 = t1;
   w.t_cur = t0;
   w.iter = 0;
-  w.leaf_id = lookup(w.c[0], w.c[1], w.c[2]);
+  w.leaf_id = start_leaf(w.c);
   return true;
 }
 
