@@ -75,9 +75,10 @@
 // mispredicted branch; the answer is the matrix's either way. A per-thread score turns
 // guessing off while guesses mostly fail (incoherent rays: diffuse bounces), and on again when
 // the lookups show that they would succeed. Every resolution counts as a lookup, so the
-// counters do not depend on the guesses. Sponza's primary rays: 6.56 of 7.76 lookups per ray
-// answered by guesses, +21% against no guessing (one thread); the dragon (0.45 of 2.61), shadow
-// and diffuse rays within the noise. The first form keyed the guesses by step index (the leaf
+// counters do not depend on the guesses. Primary rays, entry leaves included: 7.57 of
+// Sponza's 7.76 lookups per ray answered by guesses and 1.99 of the dragon's 2.61; against no
+// guessing (`--hybrid-no-guess`, scripts/hybrid-variants.sh at two threads) Sponza +26-30%, the
+// dragon +3%; diffuse rays within the noise. The first form keyed the guesses by step index (the leaf
 // the previous ray reached at the same step): right for 92% of Sponza's lookups and 58% of
 // the dragon's, against 97% and 71% by face (counted with guessing off), and 5% slower on
 // Sponza.
