@@ -113,7 +113,9 @@ class TreeBuilder {
   /// Bounds (grid space) of the triangle clipped to the box [lo, hi] (Sutherland-Hodgman).
   /// False if the triangle misses the box.
   bool clip_bounds(uint32_t prim, const double lo[3], const double hi[3], double bl[3], double bh[3]) const {
-    P3 poly[16], tmp[16];
+    P3 buf[2][16];
+    P3* poly = buf[0];
+    P3* tmp = buf[1];
     int n = 3;
     const auto& tri = mesh_.triangles[prim];
     for (int k = 0; k < 3; ++k) poly[k] = grid_vertex(tri[k]);
@@ -139,7 +141,7 @@ class TreeBuilder {
         int m = 0;
         for (int k = 0; k < n; ++k) {
           const P3& p = poly[k];
-          const P3& q = poly[(k + 1) % n];
+          const P3& q = poly[k + 1 == n ? 0 : k + 1];
           const bool pin = in(p), qin = in(q);
           if (pin) tmp[m++] = p;
           if (pin != qin) {
@@ -151,7 +153,7 @@ class TreeBuilder {
           }
         }
         n = m;
-        for (int k = 0; k < n; ++k) poly[k] = tmp[k];
+        std::swap(poly, tmp);
       }
     }
     if (n == 0) return false;
@@ -185,7 +187,8 @@ class TreeBuilder {
   };
 
   /// Builds the kd subtree of a leaf with cell box [lo, hi) into node->sub_nodes/sub_refs
-  /// (indices local to the leaf). Binned SAH (kSubBins per axis) with perfect splits; split
+  /// (indices local to the leaf). SAH with perfect splits, exact over every clipped bound in
+  /// nodes of up to Hybrid::kSubExactMax references, 16 bins per axis above; split
   /// positions are rounded to floats (grid units) before partitioning, so the walk sees
   /// exactly the planes the references were partitioned by.
   void build_subtree(BuildNode& node) {
@@ -227,6 +230,45 @@ class TreeBuilder {
     double best_cost = ki_ * double(n);
     int best_axis = -1;
     double best_pos = 0.0;
+    const double ki_inv_area = ki_ / area;
+    // Cost of the plane at p on axis a with nl references on its left and nr on its right.
+    auto consider = [&](int a, double p, size_t nl, size_t nr) {
+      const double wb = w[(a + 1) % 3], wc = w[(a + 2) % 3];
+      const double wl = p - lo[a], wr = hi[a] - p;
+      const double al = wl * (wb + wc) + wb * wc, ar = wr * (wb + wc) + wb * wc;
+      double cost = kt_ + ki_inv_area * (al * double(nl) + ar * double(nr));
+      if (nl == 0 || nr == 0) cost *= 1.0 - bonus_;
+      if (cost < best_cost) {
+        best_cost = cost;
+        best_axis = a;
+        best_pos = p;
+      }
+    };
+    if (n <= size_t(Hybrid::kSubExactMax)) {
+      // Exact SAH: every clipped bound is a candidate, just outside it (4 eps, so that the
+      // reference lies wholly on one side), as the walk will see it (a float). One sweep per
+      // axis over the sorted lower and upper bounds counts each side.
+      double los[Hybrid::kSubExactMax], his[Hybrid::kSubExactMax];
+      for (int a = 0; a < 3; ++a) {
+        if (!(w[a] > 0.0)) continue;
+        for (size_t i = 0; i < n; ++i) {
+          los[i] = refs[i].lo[a];
+          his[i] = refs[i].hi[a];
+        }
+        std::sort(los, los + n);
+        std::sort(his, his + n);
+        size_t i_lo = 0, i_hi = 0, left = 0, gone = 0;
+        while (i_lo < n || i_hi < n) {
+          const bool from_lo = i_hi >= n || (i_lo < n && los[i_lo] - 4 * eps <= his[i_hi] + 4 * eps);
+          const double p = double(float(from_lo ? los[i_lo++] - 4 * eps : his[i_hi++] + 4 * eps));
+          if (!(p > lo[a] && p < hi[a])) continue;
+          // As the partition below: left if lo <= p + eps, right if hi >= p - eps.
+          while (left < n && los[left] <= p + eps) ++left;
+          while (gone < n && his[gone] < p - eps) ++gone;
+          consider(a, p, left, n - gone);
+        }
+      }
+    } else
     for (int a = 0; a < 3; ++a) {
       if (!(w[a] > 0.0)) continue;
       uint32_t starts[kBins] = {}, ends[kBins] = {};
@@ -236,20 +278,11 @@ class TreeBuilder {
         ++starts[bin(r.lo[a])];
         ++ends[bin(r.hi[a])];
       }
-      const double wb = w[(a + 1) % 3], wc = w[(a + 2) % 3];
       size_t nl = 0, nr = n;
       for (int j = 1; j < kBins; ++j) {
         nl += starts[j - 1];
         nr -= ends[j - 1];
-        const double wl = w[a] * double(j) / kBins, wr = w[a] - wl;
-        const double al = wl * (wb + wc) + wb * wc, ar = wr * (wb + wc) + wb * wc;
-        double cost = kt_ + ki_ * (al * double(nl) + ar * double(nr)) / area;
-        if (nl == 0 || nr == 0) cost *= 1.0 - bonus_;
-        if (cost < best_cost) {
-          best_cost = cost;
-          best_axis = a;
-          best_pos = lo[a] + wl;
-        }
+        consider(a, lo[a] + w[a] * double(j) / kBins, nl, nr);
       }
     }
     if (best_axis < 0) return make_leaf();
