@@ -46,8 +46,9 @@
 // be smaller than one cell, and cells are about one triangle wide, so a plain leaf holds
 // several triangles a ray mostly misses. A leaf with more references than the threshold
 // keeps a small kd subtree whose planes lie anywhere inside it (SAH over the clipped triangle
-// bounds, perfect splits, depth <= kSubMaxDepth; exact over every bound in nodes of up to
-// kSubExactMax references, 16 bins per axis above). The walk runs
+// bounds, perfect splits, depth <= kSubMaxDepth; exact over every bound in nodes of
+// kSubExactMin to kSubExactMax references, 16 bins per axis otherwise; a straddling triangle
+// is re-clipped by the split plane alone). The walk runs
 // it front to back over the ray's segment inside the leaf, with the same early exit. The
 // leaf-to-leaf stepping, the lookup and the step bound are unchanged.
 //
@@ -142,12 +143,14 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     uint32_t bits;
   };
   static constexpr int kSubMaxDepth = 6;
-  /// Subtree nodes of at most this many references choose their plane by exact SAH over
-  /// every clipped bound; larger ones by 16 bins per axis. Against 16 bins everywhere: Sponza's
-  /// triangle tests per primary ray 4.84 -> 4.24 and +5-7% (one thread), the dragon's 1.38 ->
-  /// 1.28 at the same speed, for a build 20% longer on the dragon (1.8 -> 2.2 s at two
-  /// threads, the kd-tree's 2.5 s) and 3 more bytes per triangle. Exact only from 8 or 16
-  /// references up: half or a quarter of that build time, and half of the speed.
+  /// Subtree nodes of kSubExactMin to kSubExactMax references choose their plane by exact SAH
+  /// over every clipped bound (2n candidates per axis, where 16 bins are coarser than the
+  /// references); the others by 16 bins per axis. Against 16 bins everywhere (A/B, one thread):
+  /// Sponza's triangle tests per primary ray 4.84 -> 4.63 and +4%, the dragon the same; exact
+  /// from 8 references up: tests 4.49, +1% more, and from 2 up: tests 4.24, +3-4% more, but
+  /// the dragon's build then took 1.85 s and 2.0-2.25 s at two threads, as long as the
+  /// kd-tree's (2.06-2.55 s), against 1.57 s now.
+  static constexpr int kSubExactMin = 16;
   static constexpr int kSubExactMax = 64;
   /// Tree node kept for split walks and the matrix construction; leaves point into leaves_.
   struct Node {
