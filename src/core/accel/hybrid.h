@@ -261,13 +261,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     uint32_t& g = gs.leaf[(uint64_t(from) * 3 + uint64_t(axis)) & (kGuessEntries - 1)];
     const uint32_t id = g;
     if (gs.score >= 0) {
-      bool inside = false;
-      if (id < kd_boxes_.size()) {
-        const CellBox& b = kd_boxes_[id];
-        inside = (n[0] >= b.lo[0]) & (n[0] < b.hi[0]) & (n[1] >= b.lo[1]) & (n[1] < b.hi[1]) &
-                 (n[2] >= b.lo[2]) & (n[2] < b.hi[2]);
-      }
-      if (inside) [[likely]] {
+      if (in_kd_box(id, n)) [[likely]] {
         gs.score = std::min(gs.score + 1, kGuessScoreMax);
         ++gs.taken;
         return id;
@@ -284,15 +278,20 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     if (!guess_) return lookup(c[0], c[1], c[2]);
     GuessState& gs = guess_state_;
     const uint32_t id = gs.start;
-    if (id < kd_boxes_.size()) {
-      const CellBox& b = kd_boxes_[id];
-      if ((c[0] >= b.lo[0]) & (c[0] < b.hi[0]) & (c[1] >= b.lo[1]) & (c[1] < b.hi[1]) & (c[2] >= b.lo[2]) &
-          (c[2] < b.hi[2])) [[likely]] {
-        ++gs.taken;
-        return id;
-      }
+    if (in_kd_box(id, c)) [[likely]] {
+      ++gs.taken;
+      return id;
     }
     return gs.start = lookup(c[0], c[1], c[2]);
+  }
+  /// Whether cell c lies in the kd box of leaf `id` (false for an id this structure does not
+  /// have: guesses are shared by every hybrid on the thread). The kd boxes tile the grid, so
+  /// true means that `id` is the leaf of c.
+  [[gnu::always_inline]] bool in_kd_box(uint32_t id, const int32_t (&c)[3]) const {
+    if (id >= kd_boxes_.size()) return false;
+    const CellBox& b = kd_boxes_[id];
+    return (c[0] >= b.lo[0]) & (c[0] < b.hi[0]) & (c[1] >= b.lo[1]) & (c[1] < b.hi[1]) & (c[2] >= b.lo[2]) &
+           (c[2] < b.hi[2]);
   }
   /// Guess score: +1 per right guess, -kGuessMissCost per wrong one, within [min, max];
   /// guessing is on while it is >= 0 (more right guesses than wrong ones keep it on). A miss
