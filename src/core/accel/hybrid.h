@@ -82,7 +82,7 @@
 // guessing (`--hybrid-no-guess`, scripts/hybrid-variants.sh at two threads) Sponza +26-30%, the
 // dragon +3%; diffuse rays within the noise. The first form keyed the guesses by step index (the leaf
 // the previous ray reached at the same step): right for 92% of Sponza's lookups and 58% of
-// the dragon's, against 97% and 71% by face (counted with guessing off), and 5% slower on
+// the dragon's, against 97% and 71% by face (counted with guessing off by a one-off build), and 5% slower on
 // Sponza.
 //
 // Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
