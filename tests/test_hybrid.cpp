@@ -949,6 +949,19 @@ TEST(HybridParams, AutoRuleIsReported) {
   EXPECT_NE(hm.stats().extra[1].second.find("lowered"), std::string::npos) << hm.stats().extra[1].second;
 }
 
+TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
+  // 100K small triangles: the density floor alone asks for 1.6M cells; the auto rule raises
+  // the cell until the grid has at most kHybridAutoMaxCells (the leaf subtrees resolve the
+  // geometry below a cell), and says so.
+  const Mesh m = random_soup(6, 100000, Vec3(-1), Vec3(1), 0.004f);
+  Hybrid h;
+  h.build(m, params_with(0.0f, false));
+  const double cells = double(h.dims()[0]) * h.dims()[1] * h.dims()[2];
+  EXPECT_LE(cells, kHybridAutoMaxCells);
+  EXPECT_GE(cells, 0.5 * kHybridAutoMaxCells) << "raised no further than the cap needs";
+  EXPECT_NE(h.stats().extra[1].second.find("raised"), std::string::npos) << h.stats().extra[1].second;
+}
+
 TEST(HybridParams, FlatScenesAndOversizedCells) {
   // All triangles in the plane z = 3: zero extent on z still gives one cell there.
   Mesh flat;

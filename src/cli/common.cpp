@@ -44,8 +44,8 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--hybrid-subtree", params.hybrid_subtree_min,
-                  "Hybrid: leaves with more triangles than this get a kd subtree with free split "
-                  "positions (default 4); 0 = the paper's plain leaves")
+                  "Hybrid: leaves with more triangles than this get a kd subtree built and walked as "
+                  "the kd-tree is (default 4); 0 = the paper's plain leaves")
       ->group(g)
       ->capture_default_str();
   cmd->add_flag("--hybrid-no-expand{false}", params.hybrid_expand_empty,

@@ -9,10 +9,12 @@
 #include <bit>
 #include <chrono>
 #include <cstdio>
+#include <cstring>
 #include <memory>
 #include <string>
 
 #include "accel/guards.h"
+#include "accel/kdtree.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -47,8 +49,8 @@ struct BuildNode {
   int depth = 0;
   std::unique_ptr<BuildNode> kid[2];
   std::vector<uint32_t> prims;
-  std::vector<Hybrid::SubNode> sub_nodes;  ///< leaf subtree (local indices), if any
-  std::vector<uint32_t> sub_refs;          ///< its references (mesh triangle ids)
+  std::vector<KdNode> sub_nodes;  ///< leaf subtree: its box (Hybrid::kSubBoxNodes), then its nodes
+  std::vector<uint32_t> sub_refs;  ///< its references (mesh triangle ids)
 };
 
 struct P3 {
@@ -59,7 +61,7 @@ class TreeBuilder {
  public:
   TreeBuilder(const Mesh& mesh, const double origin[3], double cell, const int32_t dims[3],
               const BuildParams& p)
-      : mesh_(mesh), inv_cell_(1.0 / cell) {
+      : mesh_(mesh), inv_cell_(1.0 / cell), cell_(cell), kd_(mesh, p, Hybrid::kSubMaxDepth) {
     for (int a = 0; a < 3; ++a) {
       origin_[a] = origin[a];
       dims_[a] = dims[a];
@@ -113,40 +115,6 @@ class TreeBuilder {
 
   /// Bounds (grid space) of the triangle clipped to the box [lo, hi] (Sutherland-Hodgman).
   /// False if the triangle misses the box.
-  /// Bounds of the triangle's part on one side of the plane x[a] = plane (upper: x >= plane,
-  /// else x <= plane); false if none.
-  bool clip_half(uint32_t prim, int a, double plane, bool upper, double bl[3], double bh[3]) const {
-    const auto& tri = mesh_.triangles[prim];
-    P3 v[3];
-    for (int k = 0; k < 3; ++k) v[k] = grid_vertex(tri[k]);
-    auto in = [&](const P3& q) { return upper ? q.v[a] >= plane : q.v[a] <= plane; };
-    bool any = false;
-    for (int b = 0; b < 3; ++b) {
-      bl[b] = std::numeric_limits<double>::infinity();
-      bh[b] = -std::numeric_limits<double>::infinity();
-    }
-    auto add = [&](const P3& q) {
-      any = true;
-      for (int b = 0; b < 3; ++b) {
-        bl[b] = std::min(bl[b], q.v[b]);
-        bh[b] = std::max(bh[b], q.v[b]);
-      }
-    };
-    for (int k = 0; k < 3; ++k) {
-      const P3& p = v[k];
-      const P3& q = v[k == 2 ? 0 : k + 1];
-      const bool pin = in(p), qin = in(q);
-      if (pin) add(p);
-      if (pin != qin) {
-        const double t = (plane - p.v[a]) / (q.v[a] - p.v[a]);
-        P3 x;
-        for (int b = 0; b < 3; ++b) x.v[b] = p.v[b] + (q.v[b] - p.v[b]) * t;
-        x.v[a] = plane;
-        add(x);
-      }
-    }
-    return any;
-  }
   bool clip_bounds(uint32_t prim, const double lo[3], const double hi[3], double bl[3], double bh[3]) const {
     P3 buf[2][16];
     P3* poly = buf[0];
@@ -215,157 +183,30 @@ class TreeBuilder {
     return true;
   }
 
-  /// A triangle reference in a leaf subtree: its bounds clipped to the subtree node's box.
-  struct SubRef {
-    uint32_t prim;
-    double lo[3], hi[3];
-  };
-
-  /// Builds the kd subtree of a leaf with cell box [lo, hi) into node->sub_nodes/sub_refs
-  /// (indices local to the leaf). SAH with perfect splits, exact over every clipped bound in
-  /// nodes of kSubExactMin to kSubExactMax references, 16 bins per axis otherwise; split
-  /// positions are rounded to floats (grid units) before partitioning, so the walk sees
-  /// exactly the planes the references were partitioned by.
+  /// Builds the kd subtree of a leaf into node.sub_nodes/sub_refs with the kd-tree's own
+  /// builder, over the leaf's world box (rounded outwards to floats, so that it holds every
+  /// point of the leaf). The subtree starts with the box of its clipped triangles.
   void build_subtree(BuildNode& node) {
-    std::vector<SubRef> refs;
-    refs.reserve(node.prims.size());
-    double blo[3], bhi[3];
+    Box3 box;
     for (int a = 0; a < 3; ++a) {
-      blo[a] = double(node.lo[a]);
-      bhi[a] = double(node.hi[a]);
+      const double l = origin_[a] + double(node.lo[a]) * cell_, h = origin_[a] + double(node.hi[a]) * cell_;
+      float fl = float(l), fh = float(h);
+      if (double(fl) > l) fl = next_float_down(fl);
+      if (double(fh) < h) fh = next_float_up(fh);
+      box.lo[a] = fl;
+      box.hi[a] = fh;
     }
-    for (uint32_t prim : node.prims) {
-      SubRef r;
-      r.prim = prim;
-      double wl[3], wh[3];
-      for (int a = 0; a < 3; ++a) {
-        wl[a] = blo[a] - Hybrid::kRangeEps;
-        wh[a] = bhi[a] + Hybrid::kRangeEps;
-      }
-      if (clip_bounds(prim, wl, wh, r.lo, r.hi)) refs.push_back(r);
-    }
-    sub_node(node, std::move(refs), blo, bhi, 0);
-  }
-
-  uint32_t sub_node(BuildNode& out, std::vector<SubRef>&& refs, const double lo[3], const double hi[3], int depth) {
-    constexpr int kBins = 16;
-    constexpr double eps = Hybrid::kRangeEps;
-    const uint32_t idx = uint32_t(out.sub_nodes.size());
-    out.sub_nodes.push_back({});
-    const size_t n = refs.size();
-    auto make_leaf = [&] {
-      out.sub_nodes[idx] = {uint32_t(n), uint32_t(out.sub_refs.size()) << 2 | 3u};
-      for (const SubRef& r : refs) out.sub_refs.push_back(r.prim);
-      return idx;
-    };
-    if (n <= 2 || depth >= Hybrid::kSubMaxDepth) return make_leaf();
-    const double w[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
-    const double area = w[0] * w[1] + w[1] * w[2] + w[2] * w[0];
-    if (!(area > 0.0)) return make_leaf();
-    double best_cost = ki_ * double(n);
-    int best_axis = -1;
-    double best_pos = 0.0;
-    const double ki_inv_area = ki_ / area;
-    // Cost of the plane at p on axis a with nl references on its left and nr on its right.
-    auto consider = [&](int a, double p, size_t nl, size_t nr) {
-      const double wb = w[(a + 1) % 3], wc = w[(a + 2) % 3];
-      const double wl = p - lo[a], wr = hi[a] - p;
-      const double al = wl * (wb + wc) + wb * wc, ar = wr * (wb + wc) + wb * wc;
-      double cost = kt_ + ki_inv_area * (al * double(nl) + ar * double(nr));
-      if (nl == 0 || nr == 0) cost *= 1.0 - bonus_;
-      if (cost < best_cost) {
-        best_cost = cost;
-        best_axis = a;
-        best_pos = p;
-      }
-    };
-    if (n >= size_t(Hybrid::kSubExactMin) && n <= size_t(Hybrid::kSubExactMax)) {
-      // Exact SAH: every clipped bound is a candidate, just outside it (4 eps, so that the
-      // reference lies wholly on one side), as the walk will see it (a float). One sweep per
-      // axis over the sorted lower and upper bounds counts each side.
-      double los[Hybrid::kSubExactMax], his[Hybrid::kSubExactMax];
-      for (int a = 0; a < 3; ++a) {
-        if (!(w[a] > 0.0)) continue;
-        for (size_t i = 0; i < n; ++i) {
-          los[i] = refs[i].lo[a];
-          his[i] = refs[i].hi[a];
-        }
-        std::sort(los, los + n);
-        std::sort(his, his + n);
-        size_t i_lo = 0, i_hi = 0, left = 0, gone = 0;
-        while (i_lo < n || i_hi < n) {
-          const bool from_lo = i_hi >= n || (i_lo < n && los[i_lo] - 4 * eps <= his[i_hi] + 4 * eps);
-          const double p = double(float(from_lo ? los[i_lo++] - 4 * eps : his[i_hi++] + 4 * eps));
-          if (!(p > lo[a] && p < hi[a])) continue;
-          // As the partition below: left if lo <= p + eps, right if hi >= p - eps.
-          while (left < n && los[left] <= p + eps) ++left;
-          while (gone < n && his[gone] < p - eps) ++gone;
-          consider(a, p, left, n - gone);
-        }
-      }
-    } else
-    for (int a = 0; a < 3; ++a) {
-      if (!(w[a] > 0.0)) continue;
-      uint32_t starts[kBins] = {}, ends[kBins] = {};
-      const double scale = double(kBins) / w[a];
-      auto bin = [&](double x) { return std::clamp(int((x - lo[a]) * scale), 0, kBins - 1); };
-      for (const SubRef& r : refs) {
-        ++starts[bin(r.lo[a])];
-        ++ends[bin(r.hi[a])];
-      }
-      size_t nl = 0, nr = n;
-      for (int j = 1; j < kBins; ++j) {
-        nl += starts[j - 1];
-        nr -= ends[j - 1];
-        consider(a, lo[a] + w[a] * double(j) / kBins, nl, nr);
-      }
-    }
-    if (best_axis < 0) return make_leaf();
-    // The plane as the walk will see it: a float in grid units.
-    const int a = best_axis;
-    const float off = float(best_pos);
-    const double split = double(off);
-    if (!(split > lo[a] && split < hi[a])) return make_leaf();
-    double llo[3], lhi[3], rlo[3], rhi[3];
-    for (int b = 0; b < 3; ++b) {
-      llo[b] = rlo[b] = lo[b];
-      lhi[b] = rhi[b] = hi[b];
-    }
-    lhi[a] = split;
-    rlo[a] = split;
-    std::vector<SubRef> left, right;
-    for (const SubRef& r : refs) {
-      // References within eps of the plane go to both sides, so no rounding loses them.
-      const bool to_left = r.lo[a] <= split + eps, to_right = r.hi[a] >= split - eps;
-      for (int side = 0; side < 2; ++side) {
-        if (!(side == 0 ? to_left : to_right)) continue;
-        const double* clo = side == 0 ? llo : rlo;
-        const double* chi = side == 0 ? lhi : rhi;
-        SubRef c = r;
-        if (to_left && to_right) {
-          // The triangle clipped by the split plane alone, its bounds kept within the
-          // reference's (the triangle already clipped to this node) and the child's box: a
-          // superset of the triangle clipped to the child's box, found with one plane instead
-          // of up to six (the dragon's build -11%, 3% more references, the same tests per ray).
-          double bl[3], bh[3];
-          if (!clip_half(r.prim, a, side == 0 ? split + eps : split - eps, side == 1, bl, bh)) continue;
-          bool empty = false;
-          for (int b = 0; b < 3; ++b) {
-            c.lo[b] = std::max({bl[b], r.lo[b], clo[b] - eps});
-            c.hi[b] = std::min({bh[b], r.hi[b], chi[b] + eps});
-            empty = empty || c.lo[b] > c.hi[b];
-          }
-          if (empty) continue;
-        }
-        (side == 0 ? left : right).push_back(c);
-      }
-    }
-    if (left.size() == n && right.size() == n) return make_leaf();  // no progress
-    std::vector<SubRef>().swap(refs);
-    sub_node(out, std::move(left), llo, lhi, depth + 1);
-    const uint32_t r = sub_node(out, std::move(right), rlo, rhi, depth + 1);
-    out.sub_nodes[idx] = {std::bit_cast<uint32_t>(off), r << 2 | uint32_t(a)};
-    return idx;
+    Box3 bounds;
+    std::vector<KdNode> nodes;
+    kd_.build(node.prims, box, nodes, node.sub_refs, bounds);
+    const float f[6] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, bounds.hi.x, bounds.hi.y, bounds.hi.z};
+    static_assert(sizeof f == Hybrid::kSubBoxNodes * sizeof(KdNode));
+    node.sub_nodes.resize(Hybrid::kSubBoxNodes + nodes.size());
+    std::memcpy(node.sub_nodes.data(), f, sizeof f);
+    std::copy(nodes.begin(), nodes.end(), node.sub_nodes.begin() + Hybrid::kSubBoxNodes);
+    charge(int64_t(node.sub_nodes.size() * sizeof(KdNode) + node.sub_refs.size() * sizeof(uint32_t)));
+    // The leaf's references are the subtree's (leaf_refs() counts what flattening copies).
+    leaf_refs_.fetch_add(uint64_t(node.sub_refs.size()) - uint64_t(node.prims.size()), std::memory_order_relaxed);
   }
 
   std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3], const int32_t hi[3],
@@ -478,7 +319,8 @@ class TreeBuilder {
 
   const Mesh& mesh_;
   double origin_[3];
-  double inv_cell_;
+  double inv_cell_, cell_;
+  KdSubtreeBuilder kd_;
   int32_t dims_[3];
   double kt_, ki_, bonus_;
   uint32_t subtree_min_ = 0;
@@ -534,7 +376,9 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
         "hybrid", ntri,
         {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(Ref)},
          {"references, triangle corners and ids (at least one of each per triangle)",
-          nt * (2 * sizeof(uint32_t) + sizeof(TriVerts))}},
+          nt * (2 * sizeof(uint32_t) + sizeof(TriVerts))},
+         {"leaf subtrees' classification flags (a byte per triangle per thread)",
+          params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
         params,
         "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
         "lower kd_max_depth");
@@ -666,6 +510,20 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     }
   }
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
+  {
+    // The grid's world box for walk_begin's float clip, widened by 2^-18 of the largest
+    // coordinate: more than that clip's rounding (a few ulps, 2^-22), so it never rejects a
+    // ray that reaches the grid.
+    double m = 0.0;
+    for (int a = 0; a < 3; ++a)
+      m = std::max({m, std::fabs(origin_[a]), std::fabs(origin_[a] + double(dims_[a]) * cell)});
+    const double widen = m * 0x1p-18 + std::numeric_limits<float>::min();
+    for (int a = 0; a < 3; ++a) {
+      wbox_.lo[a] = next_float_down(float(origin_[a] - widen));
+      wbox_.hi[a] = next_float_up(float(origin_[a] + double(dims_[a]) * cell + widen));
+    }
+    max_abs_ = std::max(max_component(abs(wbox_.lo)), max_component(abs(wbox_.hi)));
+  }
   max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
   // Top array over blocks of 4^k cells: the smallest k >= 1 giving at most kMaxTopEntries.
   int top_level = 1;
@@ -735,7 +593,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   for (const Leaf& l : leaves_) subtree_leaves += (l.count & kSubtreeFlag) != 0;
   stats_.references = refs_.size();
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
-  const uint64_t b_sub = sub_nodes_.size() * sizeof(SubNode);
+  const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
   const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(CellBox);
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
@@ -917,13 +775,18 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
         // Relocate the subtree: child and reference indices are local to the leaf.
         const uint32_t base = uint32_t(sub_nodes_.size()), ref_base = uint32_t(refs_.size());
         if (refs_.size() + n->sub_refs.size() >= (uint64_t(1) << 30) ||
-            sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 30))
-          throw ParamError("hybrid: more than 2^30 subtree references or nodes: use a larger cell size "
+            sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
+          throw ParamError("hybrid: more than 2^30 subtree references or 2^29 nodes: use a larger cell size "
                            "or --hybrid-subtree 0");
-        for (Hybrid::SubNode sn : n->sub_nodes) {
-          const uint32_t ax = sn.bits & 3u;
-          sn.bits = ax == 3 ? ((sn.bits >> 2) + ref_base) << 2 | 3u : ((sn.bits >> 2) + base) << 2 | ax;
-          sub_nodes_.push_back(sn);
+        for (size_t k = 0; k < n->sub_nodes.size(); ++k) {
+          KdNode kn = n->sub_nodes[k];
+          if (k < kSubBoxNodes) {
+          } else if (kn.leaf()) {
+            kn.prim_offset += ref_base;
+          } else {
+            kn.bits = ((kn.above() + base + kSubBoxNodes) << 2) | uint32_t(kn.axis());
+          }
+          sub_nodes_.push_back(kn);
         }
         refs_.insert(refs_.end(), n->sub_refs.begin(), n->sub_refs.end());
         l.first = base;

@@ -18,9 +18,14 @@
 //      32x15x15 cells, 238 triangle tests per primary ray) get a useful grid (0.2 m, 13 tests).
 //      If both are 0 (all triangles are points in one point) c = 1.
 //   3. c is raised until no axis has more than kHybridAutoMaxAxisCells cells and the grid has
-//      at most kHybridAutoMaxCells cells (the build bins per cell along each axis, and the
-//      dense matrix costs 4 bytes per cell), and, for the dense matrix, until cells * 4 bytes
-//      fit the memory budget.
+//      at most kHybridAutoMaxCells (2^20) cells, and, for the dense matrix, until cells * 4
+//      bytes fit the memory budget. Since the leaf subtrees are the kd-tree's (below), a cell
+//      need not be one triangle wide: the grid is there to step over empty space and to find a
+//      leaf in one lookup, and a grid of at most 2^20 cells keeps the lookups in the caches.
+//      On the dragon the floor alone gives 14M cells (354x250x159) and 0.77-0.84 of the
+//      kd-tree's speed; capped at 2^20 cells 0.86-0.87, at 2^18 0.86-0.91; Sponza (1.1M cells
+//      by the floor) 1.09-1.10 at 2^20 and 1.01-1.04 at 2^18 (`kdgrid bench --reference
+//      kdtree`, primary rays, two threads).
 //
 // Tree. A node is an integer box [lo, hi) of cells. Candidates are the interior cell
 // boundaries; for each axis the references' integer cell ranges are binned per cell (starts
@@ -42,15 +47,18 @@
 // content, not the volume nor the area of split planes across empty space. Lookup = at most
 // k dependent loads (plus a few node tests in sparse regions), no search.
 //
-// Leaf subtrees (BuildParams::hybrid_subtree_min, default 4; an extension of the paper). A leaf cannot
-// be smaller than one cell, and cells are about one triangle wide, so a plain leaf holds
-// several triangles a ray mostly misses. A leaf with more references than the threshold
-// keeps a small kd subtree whose planes lie anywhere inside it (SAH over the clipped triangle
-// bounds, perfect splits, depth <= kSubMaxDepth; exact over every bound in nodes of
-// kSubExactMin to kSubExactMax references, 16 bins per axis otherwise; a straddling triangle
-// is re-clipped by the split plane alone). The walk runs
-// it front to back over the ray's segment inside the leaf, with the same early exit. The
-// leaf-to-leaf stepping, the lookup and the step bound are unchanged.
+// Leaf subtrees (BuildParams::hybrid_subtree_min, default 4; an extension of the paper). A leaf
+// holding more references than the threshold keeps a kd subtree built by the kd-tree's own
+// builder (KdSubtreeBuilder: exact event SAH, perfect splits, the kd_* costs; at most
+// kSubMaxDepth levels) over its triangles clipped to its box, and the walk runs the kd-tree's
+// traversal (kd_traverse, in float with its rounding bound) over the ray's segment in the leaf,
+// clipped first to the box of the subtree's clipped triangles, with the same early exit. The
+// leaf-to-leaf stepping, the lookup and the step bound are unchanged. Until the eleventh
+// session the subtrees had their own builder (16 bins per axis, exact in nodes of 16 to 64
+// references, at most 6 levels, walked in double): against it, on this AMD EPYC (Zen 4) at
+// two threads, the dragon 0.77-0.82 -> 0.86-0.87 of the kd-tree and 135 -> 68 MiB, the bunny
+// 0.79 -> 0.81-0.86, dragon-200k 0.82 -> 0.84-0.86, Sponza 1.02-1.04 -> 1.00-1.10 (with the
+// 2^20-cell grid; at the old 14M-cell grid the kd subtrees gave the dragon only 0.77-0.84).
 //
 // Empty-leaf boxes (BuildParams::hybrid_expand_empty, on by default; an extension of the
 // paper, like the irregular grid's cell expansion). The SAH cuts empty space into many small
@@ -100,12 +108,14 @@
 
 #include <atomic>
 #include <bit>
+#include <cstring>
 #include <cmath>
 #include <cstdint>
 #include <limits>
 #include <vector>
 
 #include "accel/accelerator.h"
+#include "accel/kdtree.h"
 
 namespace kdgrid {
 
@@ -114,7 +124,7 @@ constexpr double kHybridAutoCellsPerTriangle = 16.0;
 /// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
 constexpr int64_t kHybridAutoMaxAxisCells = 2048;
 /// Auto rule cap on the total cell count (a dense matrix of 2^24 cells is 64 MiB).
-constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 24);
+constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 20);
 /// Explicit cell sizes may give at most this many cells along one axis (int32 coordinates,
 /// at most 12 brick levels).
 constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
@@ -131,27 +141,17 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Leaf::count bit: `first` is the root of the leaf's kd subtree in sub_nodes_ and the low
   /// bits count the triangles the leaf references.
   static constexpr uint32_t kSubtreeFlag = 0x80000000u;
-  /// Subtree node, 8 bytes. Interior: `word` is the split position as a float bit pattern,
-  /// in grid units (cells from the grid's origin), so that the walk places the plane without
-  /// the leaf's corner (one load and conversion fewer per subtree step: +3% primary rays on
-  /// the dragon, +1% on Sponza, A/B on one thread). Far from the origin a float cannot place a
-  /// plane finely (1/8 cell at a million cells): the build then finds fewer useful planes, never
-  /// a wrong one, since it partitions by the rounded plane. `bits` = right child << 2 | axis
-  /// (the left child follows its parent). Leaf: `word` = reference count, `bits` = first << 2 | 3.
-  struct SubNode {
-    uint32_t word;
-    uint32_t bits;
-  };
+  /// A leaf subtree in sub_nodes_ starts with the box of its clipped triangles (a Box3 in
+  /// this many nodes' bytes), which a ray is clipped to first, then the kd-tree's nodes.
+  static constexpr uint32_t kSubBoxNodes = 3;
+  /// Leaf subtrees are at most this many levels deep (64 leaves; fewer by the kd-tree's own
+  /// depth rule, 8 + 1.3 log2 n, below 6 triangles). Measured with `kdgrid bench --reference
+  /// kdtree` on the suite's primary rays (two threads): 6, 8, 9, 12 and the whole rule give the
+  /// same speed within the noise (the dragon 0.86-0.90 of the kd-tree, Sponza 0.99-1.10), but
+  /// deeper subtrees build longer (Sponza 0.23 s at 6 levels, 0.30 at 9, 0.34 at 12, 0.38 for
+  /// the whole rule, the kd-tree 0.32-0.35 s) and take more memory (the dragon 51, 65, 75 and
+  /// 80 MiB at the 2^18-cell grid).
   static constexpr int kSubMaxDepth = 6;
-  /// Subtree nodes of kSubExactMin to kSubExactMax references choose their plane by exact SAH
-  /// over every clipped bound (2n candidates per axis, where 16 bins are coarser than the
-  /// references); the others by 16 bins per axis. Against 16 bins everywhere (A/B, one thread):
-  /// Sponza's triangle tests per primary ray 4.84 -> 4.63 and +4%, the dragon the same; exact
-  /// from 8 references up: tests 4.49, +1% more, and from 2 up: tests 4.24, +3-4% more, but
-  /// the dragon's build then took 1.85 s and 2.0-2.25 s at two threads, as long as the
-  /// kd-tree's (2.06-2.55 s), against 1.57 s now.
-  static constexpr int kSubExactMin = 16;
-  static constexpr int kSubExactMax = 64;
   /// Tree node kept for split walks and the matrix construction; leaves point into leaves_.
   struct Node {
     int32_t split;      ///< interior: the split boundary (cell index); leaf: leaf id
@@ -322,6 +322,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   template <class Tri>
   struct WalkState {
     double o[3], dg[3], inv[3], oc[3];
+    KdRay kr;  ///< the ray as the leaf subtrees' kd traversal reads it (world space, float)
     int pos[3];
     double t1, t_cur;
     int32_t c[3];
@@ -389,6 +390,8 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   int32_t top_dims_[3] = {1, 1, 1};
   uint64_t top_stride_[2] = {1, 1};  ///< top array strides of y and z
   bool dense_ = false;
+  Box3 wbox_;            ///< the grid's world box, widened beyond rounding (walk_begin)
+  float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
   bool guess_ = true;  ///< BuildParams::hybrid_guess
   uint64_t max_steps_ = 0;
 
@@ -400,7 +403,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   };
   std::vector<CellBox> kd_boxes_;
   std::vector<uint8_t> leaf_depth_;
-  std::vector<SubNode> sub_nodes_;  ///< leaf subtrees
+  std::vector<KdNode> sub_nodes_;   ///< leaf subtrees (world space, KdTree's node layout)
   std::vector<uint32_t> refs_;      ///< per leaf, indices into tris_ (local triangle ids)
   std::vector<TriVerts> tris_;      ///< corners by local id (first-reference order)
   std::vector<uint32_t> prim_of_;   ///< local id -> the mesh's triangle index
@@ -463,6 +466,34 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
 
 template <class Tri>
 bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
+  // Cheap rejection first, in float as the kd-tree clips (most primary rays of a scanned model
+  // miss its box; `kdgrid profile` of the dragon: those rays 17.6 -> 12.9 ns): the grid's world
+  // box (wbox_) is widened so that this clip never rejects a ray that the exact one below
+  // accepts. Its reciprocals serve the leaf subtrees' traversal.
+  {
+    float f0 = ray.tmin, f1 = ray.tmax;
+    for (int a = 0; a < 3; ++a) {
+      const float o = ray.org[a], d = ray.dir[a];
+      w.kr.inv_dir[a] = 0.0f;
+      if (d == 0.0f) {
+        if (o < wbox_.lo[a] || o > wbox_.hi[a]) return false;
+        continue;
+      }
+      const float inv = w.kr.inv_dir[a] = 1.0f / d;
+      float tn = (wbox_.lo[a] - o) * inv, tf = (wbox_.hi[a] - o) * inv;
+      if (tn > tf) std::swap(tn, tf);
+      f0 = tn > f0 ? tn : f0;
+      f1 = tf < f1 ? tf : f1;
+    }
+    if (f0 > f1) return false;
+  }
+  // The rest of the ray as the subtrees' walk reads it (KdRay), for rays that reach the grid.
+  w.kr.org = ray.org;
+  w.kr.dir = ray.dir;
+  {
+    const float err_scale = std::max(max_component(abs(ray.org)), max_abs_) * 0x1p-20f;
+    for (int a = 0; a < 3; ++a) w.kr.err[a] = err_scale * std::fabs(w.kr.inv_dir[a]);
+  }
   // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
   // negative-zero) direction components never exit on their axis: their inv is 0 and their
   // oc +inf, so their exit t is +inf without a branch.
@@ -602,81 +633,62 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
     __builtin_prefetch(leaves_.data() + next_id);
   }
   if (L.count & kSubtreeFlag) {
-    // Front-to-back walk of the leaf's subtree over the ray's segment in the leaf.
-    struct Entry {
-      uint32_t node;
-      double ta, tb;
-    };
-    Entry stack[kSubMaxDepth + 1];
-    int sp = 0;
-    uint32_t ni = L.first;
-    double ta = w.t_cur, tb = std::min(t_exit, w.t1);
-    // Trace only: the boxes of the current node and of the pending ones (grid space).
-    [[maybe_unused]] double box[2][3], box_stack[kSubMaxDepth + 1][2][3];
-    if constexpr (S::kTrace)
-      for (int a = 0; a < 3; ++a) {
-        box[0][a] = L.lo[a];
-        box[1][a] = L.hi[a];
-      }
-    // Trace only: records the current subtree node (its world box, the ray's segment in it).
-    [[maybe_unused]] auto visit_sub = [&](StepKind kind) {
-      Box3 b;
-      for (int a = 0; a < 3; ++a) {
-        b.lo[a] = float(origin_[a] + box[0][a] * cell_);
-        b.hi[a] = float(origin_[a] + box[1][a] * cell_);
-      }
-      s.visit(TraceStep{kind, int(leaf_depth_[leaf_id]) + 1, leaf_id, b, float(ta), float(std::max(ta, tb))});
-    };
-    for (;;) {
-      const SubNode& sn = sub_nodes_[ni];
-      const uint32_t ax = sn.bits & 3u;
-      s.step();
-      if (ax != 3) {
-        if constexpr (S::kTrace) visit_sub(StepKind::Inner);
-        const double split = double(std::bit_cast<float>(sn.word));
-        // Non-moving axes have inv = 0, so ts = 0 and only the origin's side is visited.
-        const double ts = (split - w.o[ax]) * w.inv[ax];
-        const bool below = w.o[ax] < split || (w.o[ax] == split && w.dg[ax] <= 0.0);
-        const uint32_t near = below ? ni + 1 : (sn.bits >> 2);
-        const uint32_t far = below ? (sn.bits >> 2) : ni + 1;
-        // Trace only: the near and far boxes (near = below ? lower half : upper half).
-        [[maybe_unused]] double far_box[2][3];
-        if constexpr (S::kTrace) {
-          std::copy(&box[0][0], &box[0][0] + 6, &far_box[0][0]);
-          box[below ? 1 : 0][ax] = split;
-          far_box[below ? 0 : 1][ax] = split;
+    // The kd-tree's walk of the leaf's subtree over the ray's segment in the leaf, clipped to
+    // the subtree's box first (the two t's widened by err as the kd-tree widens its own).
+    const KdNode* sub = sub_nodes_.data() + L.first;
+    float f[6];
+    std::memcpy(f, sub, sizeof f);
+    const Box3 sub_box(Vec3(f[0], f[1], f[2]), Vec3(f[3], f[4], f[5]));
+    // The ray in a local: the loop then keeps it in registers (read through w, it was
+    // reloaded at every node).
+    const KdRay kr = w.kr;
+    const float err = std::max({kr.err[0], kr.err[1], kr.err[2]});
+    float ta = float(w.t_cur) - err, tb = float(std::min(t_exit, w.t1)) + err;
+    if (kd_clip(kr, sub_box, ta, tb)) {
+      // Tested as the kd-tree tests, with no mailbox and the closest hit in the walk's own
+      // locals (through test() and w, primary rays on the dragon were 5% slower).
+      const auto& rd = w.rd;
+      const float tmin = w.tmin;
+      uint32_t hit_local = kInvalidPrim;
+      float hit_u = 0.0f, hit_v = 0.0f;
+      auto leaf = [&](const KdNode& sn, float& best, bool& found) __attribute__((always_inline)) {
+        s.leaf();
+        const uint32_t* r = refs_.data() + sn.prim_offset;
+        for (uint32_t i = 0, count = sn.count(); i < count; ++i) {
+          const uint32_t local = r[i];
+          if constexpr (S::kCount) s.tri_test(prim_of_[local]);
+          const TriVerts& tv = tris_[local];
+          float t, u, v;
+          if (Tri::intersect(rd, tv.v0, tv.v1, tv.v2, tmin, best, t, u, v)) {
+            if constexpr (kAny) return true;
+            best = t;
+            found = true;
+            hit_local = local;
+            hit_u = u;
+            hit_v = v;
+          }
         }
-        if (ts > tb || ts <= 0.0) {
-          ni = near;
-        } else if (ts < ta) {
-          ni = far;
-          if constexpr (S::kTrace) std::copy(&far_box[0][0], &far_box[0][0] + 6, &box[0][0]);
-        } else {
-          if constexpr (S::kTrace) std::copy(&far_box[0][0], &far_box[0][0] + 6, &box_stack[sp][0][0]);
-          stack[sp++] = {far, ts, tb};
-          ni = near;
-          tb = ts;
+        return false;
+      };
+      // Traces: each node's segment as the walk sees it, within the leaf's segment and never
+      // starting before the previous node's (the walk widens its intervals by err, a bound on
+      // rounding, so a popped node may start up to 2 err before the leaf it follows).
+      [[maybe_unused]] float trace_in = float(w.t_cur);
+      auto visit = [&](StepKind kind, int depth, uint32_t, const Box3& box, float tn, float tf) {
+        trace_in = std::max(trace_in, tn);
+        const float out = std::max(trace_in, std::min(tf, float(std::min(t_exit, double(w.tmax)))));
+        s.visit(TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
+      };
+      float best = w.best;
+      bool found = w.found;
+      if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found, s, leaf, visit))
+        return StepResult::Answered;
+      if constexpr (!kAny)
+        if (hit_local != kInvalidPrim) {
+          w.best = best;
+          w.found = true;
+          w.hit = {best, prim_of_[hit_local], hit_u, hit_v};
         }
-        continue;
-      }
-      if constexpr (S::kTrace) visit_sub(StepKind::Leaf);
-      if (sn.word) {
-        if (test(refs_.data() + (sn.bits >> 2), sn.word)) return StepResult::Answered;
-        if (w.found && double(w.best) <= tb) break;
-      }
-      // Next pending child that can still hold a closer hit.
-      bool more = false;
-      while (sp > 0) {
-        const Entry e = stack[--sp];
-        if (w.found && e.ta > double(w.best)) continue;
-        if constexpr (S::kTrace) std::copy(&box_stack[sp][0][0], &box_stack[sp][0][0] + 6, &box[0][0]);
-        ni = e.node;
-        ta = e.ta;
-        tb = e.tb;
-        more = true;
-        break;
-      }
-      if (!more) break;
     }
   } else if (L.count) {
     if (test(refs_.data() + L.first, L.count)) return StepResult::Answered;

@@ -118,6 +118,11 @@ class Builder {
         budget_(int64_t(std::min<uint64_t>(effective_memory_budget(p), uint64_t(INT64_MAX)))) {}
 
   void build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth, Subtree& out);
+  /// build() of a subtree limited to `max_depth` levels (at most the builder's own limit):
+  /// it starts deeper, which also keeps it sequential (see kParallelDepth).
+  void build_subtree(std::vector<Event>& events, uint32_t n, const Box3& box, int max_depth, Subtree& out) {
+    build(events, n, box, max_depth_ - std::min(max_depth, max_depth_), out);
+  }
   uint64_t sah_evaluations() const { return sah_evals_.load(); }
 
   /// Running account of the build's memory: event lists alive in the recursion, the tree
@@ -367,6 +372,65 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
 }
 
 }  // namespace
+
+struct KdSubtreeBuilder::Impl {
+  Impl(const Mesh& m, const BuildParams& p) : mesh(m), params(p) {}
+  const Mesh& mesh;
+  BuildParams params;
+  /// One builder per thread: a Builder's classification flags are per thread already, but
+  /// its memory account then follows each thread's share of the subtrees.
+  mutable tbb::enumerable_thread_specific<std::unique_ptr<Builder>> builders;
+};
+
+KdSubtreeBuilder::KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth)
+    : impl_(std::make_unique<Impl>(mesh, params)), max_depth_(std::clamp(max_depth, 1, KdTree::kMaxDepth)) {}
+KdSubtreeBuilder::~KdSubtreeBuilder() = default;
+
+void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box, std::vector<KdNode>& nodes,
+                             std::vector<uint32_t>& prims_out, Box3& bounds) const {
+  const Mesh& mesh = impl_->mesh;
+  auto& b = impl_->builders.local();
+  if (!b) b = std::make_unique<Builder>(mesh, impl_->params, KdTree::kMaxDepth);
+  std::vector<Event> events;
+  events.reserve(prims.size() * 6);
+  bounds = Box3();
+  for (uint32_t prim : prims) {
+    Box3 cb;
+    // As in the kd-tree's perfect splits: rounding may clip away a triangle that touches the
+    // box, whose bounds are kept instead.
+    const Box3 tb = mesh.triangle_bounds(prim);
+    if (box.contains(tb.lo) && box.contains(tb.hi))
+      cb = tb;
+    else if (!clipped_bounds(mesh.corners(prim), box, cb))
+      cb = tb.intersect(box);
+    if (cb.empty()) cb = box;
+    add_events(events, prim, cb);
+    bounds.grow(cb.lo);
+    bounds.grow(cb.hi);
+  }
+  bounds = bounds.intersect(box);
+  std::sort(events.begin(), events.end(), event_less);
+  // The kd-tree's depth rule (8 + 1.3 log2 n, pbrt) for the subtree's triangles, at most
+  // max_depth_.
+  const int depth = std::min(max_depth_, int(std::lround(8.0 + 1.3 * std::log2(double(std::max<size_t>(1, prims.size()))))));
+  Subtree out;
+  b->build_subtree(events, uint32_t(prims.size()), bounds, depth, out);
+  if (b->over_budget())
+    throw ParamError("hybrid: the leaf subtrees outgrew the memory budget of " +
+                     format_bytes_iec(double(effective_memory_budget(impl_->params))) +
+                     ": triangles straddling many split planes are copied into every node they cross; "
+                     "a larger --cell-size, a lower --kd-cost-ratio, or raise --memory-budget-mb");
+  nodes = std::move(out.nodes);
+  prims_out = std::move(out.prims);
+  // One-triangle leaves hold their triangle in the node; the hybrid's leaves index its
+  // reference array (remapped to its own triangle order), so move it there.
+  for (KdNode& n : nodes)
+    if (n.leaf() && n.count() == 1) {
+      const uint32_t p = n.one_prim;
+      n.prim_offset = uint32_t(prims_out.size());
+      prims_out.push_back(p);
+    }
+}
 
 BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   const auto t_start = std::chrono::steady_clock::now();

@@ -62,16 +62,12 @@ struct BuildParams {
   /// Hybrid traversal/intersection costs for its SAH; defaults match the kd-tree's.
   float hybrid_traversal_cost = 1.0f;
   float hybrid_intersection_cost = 1.5f;
-  /// Leaves referencing more than this many triangles get a small kd subtree whose split
-  /// planes lie anywhere inside the leaf (binned SAH, no cell alignment), walked over the
-  /// ray's segment in the leaf: cells are a coarse lattice (about one triangle wide), so a
-  /// plain leaf tests every triangle it holds (3.7 per primary ray on the dragon, 12.5 on
-  /// Sponza). On by default (4) since the empty-leaf boxes: subtrees cut those tests to 1.4
-  /// and 4.8 and, with the empty space crossed in fewer steps, make primary rays 20% faster on
-  /// Sponza and 4-6% on the dragon on an Intel Xeon (no loss on the bunny); on an AMD Zen 5,
-  /// 32% on Sponza and 8-9% on the scans. For +47 to +66 bytes per triangle and a 2-3x
-  /// longer build (`scripts/hybrid-variants.sh`, `kdgrid profile`). Before the empty-leaf
-  /// boxes they gained nothing. 0 = the paper's plain leaves.
+  /// Leaves referencing more than this many triangles get a kd subtree built by the
+  /// kd-tree's builder over the leaf's triangles (split planes anywhere inside the leaf, the
+  /// kd_* costs, at most Hybrid::kSubMaxDepth levels), walked by the kd-tree's traversal over
+  /// the ray's segment in the leaf. A cell is then not a triangle wide (the auto rule caps the
+  /// grid at 2^20 cells), so a plain leaf would test tens of triangles a ray mostly misses.
+  /// 0 = the paper's plain leaves (`scripts/hybrid-variants.sh` measures both).
   uint32_t hybrid_subtree_min = 4;
   /// Empty-leaf boxes (an extension of the paper): the walk steps over each empty leaf's box
   /// widened over the empty cells around it, so a ray crosses empty space in fewer steps
