@@ -49,12 +49,13 @@ for p in ${only//,/ }; do
     *) echo "bench-all: ONLY=$only: unknown part '$p' (use suite, sweeps, check)" >&2; exit 2 ;;
   esac
 done
+# The commit measured, and whether the tree differs from it, before this script writes a file.
+commit="$(git rev-parse --short HEAD)"
+if [[ -n "$(git status --porcelain --untracked-files=no)" ]]; then commit+=" (with local changes)"; fi
 mkdir -p "$results"
 commands="$results/commands.tsv"
 # A full run starts the command list afresh; a partial one (ONLY) replaces only its own lines.
 if [[ -z "${ONLY:-}" ]]; then : >"$commands"; else touch "$commands"; fi
-commit="$(git rev-parse --short HEAD)"
-if [[ -n "$(git status --porcelain --untracked-files=no)" ]]; then commit+=" (with local changes)"; fi
 
 # Runs a command, shows its progress, and records its wall time and its text for the page.
 # Paths are written relative to the checkout so the page shows commands anyone can rerun.
