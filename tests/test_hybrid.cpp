@@ -950,9 +950,9 @@ TEST(HybridParams, AutoRuleIsReported) {
 }
 
 TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
-  // 100K small triangles: the density floor alone asks for 1.6M cells; the auto rule raises
-  // the cell until the grid has at most kHybridAutoMaxCells (the leaf subtrees resolve the
-  // geometry below a cell), and says so.
+  // 100K small triangles: their p90 extent asks for 22M cells; the auto rule raises the cell
+  // until the grid has at most kHybridAutoMaxCells (the leaf subtrees resolve the geometry
+  // below a cell), and says so.
   const Mesh m = random_soup(6, 100000, Vec3(-1), Vec3(1), 0.004f);
   Hybrid h;
   h.build(m, params_with(0.0f, false));
@@ -960,6 +960,14 @@ TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
   EXPECT_LE(cells, kHybridAutoMaxCells);
   EXPECT_GE(cells, 0.5 * kHybridAutoMaxCells) << "raised no further than the cap needs";
   EXPECT_NE(h.stats().extra[1].second.find("raised"), std::string::npos) << h.stats().extra[1].second;
+  // Plain leaves keep cells about a triangle wide, up to the larger kHybridAutoMaxCellsPlain.
+  BuildParams plain = params_with(0.0f, false);
+  plain.hybrid_subtree_min = 0;
+  Hybrid hp;
+  hp.build(m, plain);
+  const double plain_cells = double(hp.dims()[0]) * hp.dims()[1] * hp.dims()[2];
+  EXPECT_GT(plain_cells, 8.0 * kHybridAutoMaxCells);
+  EXPECT_LE(plain_cells, kHybridAutoMaxCellsPlain);
 }
 
 TEST(HybridParams, FlatScenesAndOversizedCells) {

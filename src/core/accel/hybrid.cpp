@@ -460,7 +460,9 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       rule += "; raised to " + fmt("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
               " cells per axis";
     }
-    double limit = kHybridAutoMaxCells;
+    // Plain leaves (no subtrees) need cells about a triangle wide: only the binning and the
+    // matrix bound them.
+    double limit = params.hybrid_subtree_min > 0 ? kHybridAutoMaxCells : kHybridAutoMaxCellsPlain;
     if (dense_) limit = std::min(limit, double(budget) / 4.0);
     bool raised = false;
     for (int it = 0; it < 200; ++it) {

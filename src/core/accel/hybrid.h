@@ -18,8 +18,8 @@
 //      32x15x15 cells, 238 triangle tests per primary ray) get a useful grid (0.2 m, 13 tests).
 //      If both are 0 (all triangles are points in one point) c = 1.
 //   3. c is raised until no axis has more than kHybridAutoMaxAxisCells cells and the grid has
-//      at most kHybridAutoMaxCells (2^20) cells, and, for the dense matrix, until cells * 4
-//      bytes fit the memory budget. Since the leaf subtrees are the kd-tree's (below), a cell
+//      at most kHybridAutoMaxCells (2^20) cells (kHybridAutoMaxCellsPlain, 2^24, with plain
+//      leaves), and, for the dense matrix, until cells * 4 bytes fit the memory budget. Since the leaf subtrees are the kd-tree's (below), a cell
 //      need not be one triangle wide: the grid is there to step over empty space and to find a
 //      leaf in one lookup, and a grid of at most 2^20 cells keeps the lookups in the caches.
 //      On the dragon the floor alone gives 14M cells (354x250x159) and 0.77-0.84 of the
@@ -123,8 +123,11 @@ namespace kdgrid {
 constexpr double kHybridAutoCellsPerTriangle = 16.0;
 /// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
 constexpr int64_t kHybridAutoMaxAxisCells = 2048;
-/// Auto rule cap on the total cell count (a dense matrix of 2^24 cells is 64 MiB).
+/// Auto rule cap on the total cell count with leaf subtrees (step 3 of the rule above).
 constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 20);
+/// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
+/// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
+constexpr double kHybridAutoMaxCellsPlain = double(uint64_t(1) << 24);
 /// Explicit cell sizes may give at most this many cells along one axis (int32 coordinates,
 /// at most 12 brick levels).
 constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
