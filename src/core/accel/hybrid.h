@@ -18,14 +18,19 @@
 //      32x15x15 cells, 238 triangle tests per primary ray) get a useful grid (0.2 m, 13 tests).
 //      If both are 0 (all triangles are points in one point) c = 1.
 //   3. c is raised until no axis has more than kHybridAutoMaxAxisCells cells and the grid has
-//      at most kHybridAutoMaxCells (2^20) cells (kHybridAutoMaxCellsPlain, 2^24, with plain
-//      leaves), and, for the dense matrix, until cells * 4 bytes fit the memory budget. Since the leaf subtrees are the kd-tree's (below), a cell
-//      need not be one triangle wide: the grid is there to step over empty space and to find a
-//      leaf in one lookup, and a grid of at most 2^20 cells keeps the lookups in the caches.
-//      On the dragon the floor alone gives 14M cells (354x250x159) and 0.77-0.84 of the
-//      kd-tree's speed; capped at 2^20 cells 0.86-0.87, at 2^18 0.86-0.91; Sponza (1.1M cells
-//      by the floor) 1.09-1.10 at 2^20 and 1.01-1.04 at 2^18 (`kdgrid bench --reference
-//      kdtree`, primary rays, two threads).
+//      at most kHybridAutoMaxCells (2^19) cells (kHybridAutoMaxCellsPlain, 2^24, with plain
+//      leaves), and, for the dense matrix, until cells * 4 bytes fit the memory budget. Since
+//      the leaf subtrees are the kd-tree's (below), a cell need not be one triangle wide: the
+//      grid is there to step over empty space and to find a leaf in one lookup, and a small
+//      grid keeps the lookups in the caches and the references few (a cell a triangle wide
+//      references each triangle several times, and every reference is clipped and built into
+//      a subtree again). Measured with `kdgrid bench --reference kdtree` (primary rays, two
+//      threads, AMD EPYC Zen 4): the dragon, whose floor alone gives 14M cells (354x250x159),
+//      0.77-0.84 of the kd-tree at 2^24 cells, 0.86-0.87 at 2^20, 0.86-0.91 at 2^18; Sponza,
+//      1.1M cells by the floor, 1.09-1.10 at 2^20 but a build as long as the kd-tree's (0.31
+//      s against 0.31-0.35), 1.04-1.05 at 2^19 (0.255 s against 0.33), 0.99-1.04 at 2^18
+//      (0.23-0.26 s); dragon-200k's sweep (`kdgrid sweep cellsize`, docs/BENCHMARKS.md) is
+//      fastest at 1.4-2x its 2^20-cell size.
 //
 // Tree. A node is an integer box [lo, hi) of cells. Candidates are the interior cell
 // boundaries; for each axis the references' integer cell ranges are binned per cell (starts
@@ -124,7 +129,7 @@ constexpr double kHybridAutoCellsPerTriangle = 16.0;
 /// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
 constexpr int64_t kHybridAutoMaxAxisCells = 2048;
 /// Auto rule cap on the total cell count with leaf subtrees (step 3 of the rule above).
-constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 20);
+constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 19);
 /// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
 /// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
 constexpr double kHybridAutoMaxCellsPlain = double(uint64_t(1) << 24);
