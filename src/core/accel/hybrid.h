@@ -60,10 +60,12 @@
 // clipped first to the box of the subtree's clipped triangles, with the same early exit. The
 // leaf-to-leaf stepping, the lookup and the step bound are unchanged. Until the eleventh
 // session the subtrees had their own builder (16 bins per axis, exact in nodes of 16 to 64
-// references, at most 6 levels, walked in double): against it, on this AMD EPYC (Zen 4) at
-// two threads, the dragon 0.77-0.82 -> 0.86-0.87 of the kd-tree and 135 -> 68 MiB, the bunny
-// 0.79 -> 0.81-0.86, dragon-200k 0.82 -> 0.84-0.86, Sponza 1.02-1.04 -> 1.00-1.10 (with the
-// 2^20-cell grid; at the old 14M-cell grid the kd subtrees gave the dragon only 0.77-0.84).
+// references, at most 6 levels, walked in double): against it, on an AMD EPYC (Zen 4) at
+// two threads, timed in turn with the kd-tree, the dragon 0.77-0.82 -> 0.86-0.89 of the
+// kd-tree and 135 -> 58 MiB, the bunny 0.79 -> 0.81-0.86, dragon-200k 0.82 -> 0.86, Sponza
+// 1.02-1.04 -> 1.02-1.05, with the 2^19-cell grid of the auto rule (at the old 14M-cell
+// grid the kd subtrees gave the dragon only 0.77-0.84). Builds take longer than the old
+// subtrees' (Sponza 0.14 -> 0.26 s, the kd-tree 0.35 s).
 //
 // Empty-leaf boxes (BuildParams::hybrid_expand_empty, on by default; an extension of the
 // paper, like the irregular grid's cell expansion). The SAH cuts empty space into many small
@@ -90,8 +92,9 @@
 // mispredicted branch; the answer is the matrix's either way. A per-thread score turns
 // guessing off while guesses mostly fail (incoherent rays: diffuse bounces), and on again when
 // the lookups show that they would succeed. Every resolution counts as a lookup, so the
-// counters do not depend on the guesses. Primary rays, entry leaves included: 7.57 of
-// Sponza's 7.76 lookups per ray answered by guesses and 1.99 of the dragon's 2.61; against no
+// counters do not depend on the guesses. Primary rays at 077d933 (the 2^24-cell grid), entry
+// leaves included: 7.57 of Sponza's 7.76 lookups per ray answered by guesses and 1.99 of the
+// dragon's 2.61 (at fc6c047 and its 2^19-cell grid, Sponza +22% with guesses); against no
 // guessing (`--hybrid-no-guess`, scripts/hybrid-variants.sh at two threads) Sponza +26-30%, the
 // dragon +3%; diffuse rays within the noise. The first form keyed the guesses by step index (the leaf
 // the previous ray reached at the same step): right for 92% of Sponza's lookups and 58% of
