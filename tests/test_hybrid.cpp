@@ -528,6 +528,50 @@ TEST(HybridExtremeRays, RaysMissingTheBox) {
   }
 }
 
+TEST(HybridExtremeRays, RaysGrazingTheSceneBoxEdgesAndCorners) {
+  // The walk first clips rays to the grid's box in float, before the exact clip: that box is
+  // widened so that rounding never rejects a ray that reaches the grid. A cube of 12 triangles
+  // is its own scene box; rays from far away aimed at points of its edges and corners touch
+  // the box (and the triangles) in a single point or segment, far from the origin and near it.
+  for (const float offset : {0.0f, 1e3f, 1e5f}) {
+    Mesh m;
+    const Vec3 lo(offset, offset * 0.5f, -offset), hi = lo + Vec3(1.0f, 2.0f, 0.5f);
+    const Vec3 c[8] = {{lo.x, lo.y, lo.z}, {hi.x, lo.y, lo.z}, {lo.x, hi.y, lo.z}, {hi.x, hi.y, lo.z},
+                       {lo.x, lo.y, hi.z}, {hi.x, lo.y, hi.z}, {lo.x, hi.y, hi.z}, {hi.x, hi.y, hi.z}};
+    for (const Vec3& p : c) m.positions.push_back(p);
+    const uint32_t quads[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
+    for (const auto& q : quads) {
+      m.triangles.push_back({q[0], q[1], q[2]});
+      m.triangles.push_back({q[0], q[2], q[3]});
+    }
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
+    std::vector<Ray> rays;
+    for (int i = 0; i < 6000; ++i) {
+      // A point on an edge (two coordinates at the box's bounds) or a corner (three).
+      Vec3 target;
+      for (int a = 0; a < 3; ++a) target[a] = lo[a] + (hi[a] - lo[a]) * u(rng);
+      const int fixed = i % 4 == 0 ? 3 : 2, skip = i % 3;
+      for (int a = 0, k = 0; a < 3 && k < fixed; ++a) {
+        if (fixed == 2 && a == skip) continue;
+        target[a] = (rng() & 1) ? hi[a] : lo[a];
+        ++k;
+      }
+      Ray r;
+      r.org = target + Vec3(s(rng), s(rng), s(rng)) * (50.0f + offset * 1e-3f);
+      r.dir = target - r.org;
+      rays.push_back(r);
+    }
+    const Reference ref = brute_reference(m, rays);
+    int hits = 0;
+    for (const Hit& h : ref.hits) hits += h.valid();
+    EXPECT_GT(hits, 1000) << "offset " << offset;
+    Hybrid h;
+    h.build(m, params_with(0.0f, false));
+    EXPECT_EQ(compare(h, m, rays, ref, "cube at offset " + std::to_string(offset)), 0);
+  }
+}
+
 TEST(HybridExtremeRays, Scales1eMinus6And1e6AndTranslation1e5) {
   const Mesh base = extreme_scene();
   struct Case {

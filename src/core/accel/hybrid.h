@@ -521,7 +521,10 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
     w.inv[a] = moving[a] ? cell_ / d : 0.0;
     w.oc[a] = moving[a] ? -w.o[a] * w.inv[a] : kDInf;
   }
-  // Clip to the root box [0, dims].
+  // Clip to the root box [0, dims], each slab widened by a bound on its rounding (a few ulps
+  // of o and dims in units of t): a ray that touches the box at an edge or a corner, where the
+  // triangles on the box's faces meet, would otherwise be rejected when its entry t rounds up
+  // past its exit t (3% of rays aimed at a cube's edges and corners were lost so).
   double t0 = ray.tmin, t1 = ray.tmax;
   for (int a = 0; a < 3; ++a) {
     if (!moving[a]) {
@@ -530,6 +533,9 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
     }
     double ta = (0.0 - w.o[a]) * w.inv[a], tb = (double(dims_[a]) - w.o[a]) * w.inv[a];
     if (ta > tb) std::swap(ta, tb);
+    const double err = (std::fabs(w.o[a]) + double(dims_[a])) * std::fabs(w.inv[a]) * 0x1p-46;
+    ta -= err;
+    tb += err;
     t0 = ta > t0 ? ta : t0;
     t1 = tb < t1 ? tb : t1;
   }

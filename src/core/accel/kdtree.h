@@ -145,15 +145,16 @@ struct KdRay {
 
 /// The kd-tree's traversal (see the file comment) as a template, for the hybrid's leaf
 /// subtrees: the same walk as KdTree::traverse below, which keeps its own copy because the
-/// kd-tree written through this template ran its primary rays 6% slower (dragon, two threads,
-/// A/B against Embree; 8% more instructions under callgrind). A change to one belongs in both.
+/// kd-tree written through this template ran its primary rays 5-7% slower (dragon and Sponza,
+/// two threads, A/B against Embree, tried twice: with the clip out of line, 8% more
+/// instructions under callgrind; again with it inline). A change to one belongs in both.
 /// It walks front to back over [t_min, t_max] from nodes[root], whose box is `root_box` (used
-/// for traces).
-/// `leaf(node, best, found)` tests a leaf's triangles, updating the closest hit's t (`best`)
-/// and whether there is one (`found`), and returns true when an any-hit query is answered (the
-/// walk then returns true at once); they are copied in and out, as the walk's own locals. The walk ends after a leaf
-/// once the closest hit lies before every node left on the stack. Traced walks call
-/// `visit(kind, depth, node, box, t_min, t_max)` for each node, depth counted from the root.
+/// for traces). `leaf(node, best, found)` tests a leaf's triangles, updating the closest hit's
+/// t (`best`) and whether there is one (`found`), and returns true when an any-hit query is
+/// answered (the walk then returns true at once); best and found are copied in and out, as the
+/// walk's own locals. The walk ends after a leaf once the closest hit lies before every node
+/// left on the stack. Traced walks call `visit(kind, depth, node, box, t_min, t_max)` for each
+/// node, depth counted from the root.
 template <class S, class LeafFn, class VisitFn>
 [[gnu::always_inline]] inline bool kd_traverse(const KdNode* nodes, uint32_t root, const KdRay& r, float t_min,
                                                float t_max, [[maybe_unused]] const Box3& root_box, float& best_io,
