@@ -6,6 +6,8 @@
 #pragma once
 
 #include <cmath>
+#include <cstring>
+#include <type_traits>
 #include <utility>
 
 #include "math/ray.h"
@@ -13,26 +15,41 @@
 
 namespace kdgrid {
 
+/// v's coordinate on axis k (0..2) as one indexed load from memory: its bytes are copied (a
+/// defined read of the object's representation; Vec3 is three packed floats).
+[[gnu::always_inline]] inline float component(const Vec3& v, int k) {
+  static_assert(std::is_standard_layout_v<Vec3> && sizeof(Vec3) == 3 * sizeof(float));
+  float f;
+  std::memcpy(&f, reinterpret_cast<const unsigned char*>(&v) + sizeof(float) * unsigned(k), sizeof f);
+  return f;
+}
+
 /// Watertight ray/triangle intersection (Woop, Benthin, Wald, JCGT 2013). Vertices are
 /// transformed into a ray-aligned shear space in which the 2D edge functions of two
 /// triangles sharing an edge are exact negatives of each other, so a ray can never pass
 /// between them. Edge functions that come out exactly zero are recomputed in double, as the
 /// paper prescribes. Requires -ffp-contract=off (set in CMake) to keep that symmetry.
 struct WatertightTest {
+  /// The ray's origin is stored permuted (ox = org[kx], ...): intersect() reads each corner's
+  /// coordinates on kx, ky, kz straight from memory (component()), so the permutation costs
+  /// one indexed load per coordinate instead of a chain of selects (Vec3::operator[] with a
+  /// run-time index: 45 of the test's 124 instructions under callgrind on the dragon).
   struct RayData {
-    Vec3 org;
+    float ox, oy, oz;
     int kx, ky, kz;
     float sx, sy, sz;
   };
 
   static RayData prepare(const Ray& r) {
     RayData d;
-    d.org = r.org;
     const Vec3 a = abs(r.dir);
     d.kz = max_dimension(a);
     d.kx = d.kz == 2 ? 0 : d.kz + 1;
     d.ky = d.kx == 2 ? 0 : d.kx + 1;
     if (r.dir[d.kz] < 0.0f) std::swap(d.kx, d.ky);  // keep winding
+    d.ox = r.org[d.kx];
+    d.oy = r.org[d.ky];
+    d.oz = r.org[d.kz];
     d.sx = r.dir[d.kx] / r.dir[d.kz];
     d.sy = r.dir[d.ky] / r.dir[d.kz];
     d.sz = 1.0f / r.dir[d.kz];
@@ -41,10 +58,11 @@ struct WatertightTest {
 
   static bool intersect(const RayData& d, const Vec3& v0, const Vec3& v1, const Vec3& v2,
                         float tmin, float tmax, float& t_out, float& u_out, float& v_out) {
-    const Vec3 A = v0 - d.org, B = v1 - d.org, C = v2 - d.org;
-    const float ax = A[d.kx] - d.sx * A[d.kz], ay = A[d.ky] - d.sy * A[d.kz];
-    const float bx = B[d.kx] - d.sx * B[d.kz], by = B[d.ky] - d.sy * B[d.kz];
-    const float cx = C[d.kx] - d.sx * C[d.kz], cy = C[d.ky] - d.sy * C[d.kz];
+    // The corners about the origin, on the permuted axes (A = v0 - org, read as A[kx], ...).
+    const float Az = component(v0, d.kz) - d.oz, Bz = component(v1, d.kz) - d.oz, Cz = component(v2, d.kz) - d.oz;
+    const float ax = (component(v0, d.kx) - d.ox) - d.sx * Az, ay = (component(v0, d.ky) - d.oy) - d.sy * Az;
+    const float bx = (component(v1, d.kx) - d.ox) - d.sx * Bz, by = (component(v1, d.ky) - d.oy) - d.sy * Bz;
+    const float cx = (component(v2, d.kx) - d.ox) - d.sx * Cz, cy = (component(v2, d.ky) - d.oy) - d.sy * Cz;
     float U = cx * by - cy * bx;
     float V = ax * cy - ay * cx;
     float W = bx * ay - by * ax;
@@ -56,7 +74,7 @@ struct WatertightTest {
     if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return false;
     const float det = U + V + W;
     if (det == 0.0f) return false;
-    const float az = d.sz * A[d.kz], bz = d.sz * B[d.kz], cz = d.sz * C[d.kz];
+    const float az = d.sz * Az, bz = d.sz * Bz, cz = d.sz * Cz;
     const float T = U * az + V * bz + W * cz;
     const float inv_det = 1.0f / det;
     const float t = T * inv_det;
