@@ -183,7 +183,7 @@ template <class S, class LeafFn, class VisitFn>
     if (!n.leaf()) {
       if constexpr (S::kTrace) visit(StepKind::Inner, depth, node, box, t_min, t_max);
       const int a = n.axis();
-      const float split = n.split, o = r.org[a], d = r.dir[a];
+      const float split = n.split, o = component(r.org, a), d = component(r.dir, a);
       const uint32_t below = node + 1, above = n.above();
       uint32_t first, second;
       bool visit_first = true, visit_second = true;
@@ -198,16 +198,16 @@ template <class S, class LeafFn, class VisitFn>
         // pbrt's belowFirst = (o < split) || (o == split && d <= 0), written by direction so
         // that it also holds for rays with tmin < 0: before crossing, the ray is below the
         // plane if it moves up.
-        const float t_plane = (split - o) * r.inv_dir[a];
+        const float t_plane = (split - o) * component(r.inv_dir, a), err = component(r.err, a);
         first = d > 0.0f ? below : above;
         second = first == below ? above : below;
-        if (t_plane - r.err[a] > t_max) {
+        if (t_plane - err > t_max) {
           visit_second = false;
-        } else if (t_plane + r.err[a] < t_min) {
+        } else if (t_plane + err < t_min) {
           visit_first = false;
         } else {
-          first_max = std::min(t_max, t_plane + r.err[a]);
-          second_min = std::max(t_min, t_plane - r.err[a]);
+          first_max = std::min(t_max, t_plane + err);
+          second_min = std::max(t_min, t_plane - err);
         }
       }
       Box3 box_first, box_second;
@@ -324,7 +324,7 @@ bool KdTree::traverse(const Ray& ray, Hit& hit, S& s) const {
     if (!n.leaf()) {
       if constexpr (S::kTrace) s.visit({StepKind::Inner, depth, node, box, t_min, t_max});
       const int a = n.axis();
-      const float split = n.split, o = ray.org[a], d = ray.dir[a];
+      const float split = n.split, o = component(ray.org, a), d = component(ray.dir, a);
       const uint32_t below = node + 1, above = n.above();
       uint32_t first, second;
       bool visit_first = true, visit_second = true;
@@ -339,16 +339,16 @@ bool KdTree::traverse(const Ray& ray, Hit& hit, S& s) const {
         // pbrt's belowFirst = (o < split) || (o == split && d <= 0), written by direction so
         // that it also holds for rays with tmin < 0: before crossing, the ray is below the
         // plane if it moves up.
-        const float t_plane = (split - o) * inv_dir[a];
+        const float t_plane = (split - o) * component(inv_dir, a), e = component(err, a);
         first = d > 0.0f ? below : above;
         second = first == below ? above : below;
-        if (t_plane - err[a] > t_max) {
+        if (t_plane - e > t_max) {
           visit_second = false;
-        } else if (t_plane + err[a] < t_min) {
+        } else if (t_plane + e < t_min) {
           visit_first = false;
         } else {
-          first_max = std::min(t_max, t_plane + err[a]);
-          second_min = std::max(t_min, t_plane - err[a]);
+          first_max = std::min(t_max, t_plane + e);
+          second_min = std::max(t_min, t_plane - e);
         }
       }
       Box3 box_first, box_second;

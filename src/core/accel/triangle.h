@@ -6,23 +6,12 @@
 #pragma once
 
 #include <cmath>
-#include <cstring>
-#include <type_traits>
 #include <utility>
 
 #include "math/ray.h"
 #include "math/vec.h"
 
 namespace kdgrid {
-
-/// v's coordinate on axis k (0..2) as one indexed load from memory: its bytes are copied (a
-/// defined read of the object's representation; Vec3 is three packed floats).
-[[gnu::always_inline]] inline float component(const Vec3& v, int k) {
-  static_assert(std::is_standard_layout_v<Vec3> && sizeof(Vec3) == 3 * sizeof(float));
-  float f;
-  std::memcpy(&f, reinterpret_cast<const unsigned char*>(&v) + sizeof(float) * unsigned(k), sizeof f);
-  return f;
-}
 
 /// Watertight ray/triangle intersection (Woop, Benthin, Wald, JCGT 2013). Vertices are
 /// transformed into a ray-aligned shear space in which the 2D edge functions of two

@@ -6,7 +6,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
+#include <type_traits>
 
 namespace kdgrid {
 
@@ -54,6 +56,16 @@ inline Vec3 max(const Vec3& a, const Vec3& b) {
 inline Vec3 abs(const Vec3& v) { return {std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)}; }
 inline float max_component(const Vec3& v) { return std::max(v.x, std::max(v.y, v.z)); }
 inline float min_component(const Vec3& v) { return std::min(v.x, std::min(v.y, v.z)); }
+/// v's coordinate on axis k (0..2) for a k known only at run time, as one indexed load from
+/// memory: its bytes are copied (a defined read of the object's representation; Vec3 is three
+/// packed floats). Vec3::operator[] compiles to a chain of selects instead, which in the
+/// watertight test and the kd traversals cost more than the arithmetic around it.
+[[gnu::always_inline]] inline float component(const Vec3& v, int k) {
+  static_assert(std::is_standard_layout_v<Vec3> && sizeof(Vec3) == 3 * sizeof(float));
+  float f;
+  std::memcpy(&f, reinterpret_cast<const unsigned char*>(&v) + sizeof(float) * unsigned(k), sizeof f);
+  return f;
+}
 inline int max_dimension(const Vec3& v) {
   return (v.x > v.y) ? (v.x > v.z ? 0 : 2) : (v.y > v.z ? 1 : 2);
 }
