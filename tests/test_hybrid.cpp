@@ -533,7 +533,13 @@ TEST(HybridExtremeRays, RaysGrazingTheSceneBoxEdgesAndCorners) {
   // widened so that rounding never rejects a ray that reaches the grid. A cube of 12 triangles
   // is its own scene box; rays from far away aimed at points of its edges and corners touch
   // the box (and the triangles) in a single point or segment, far from the origin and near it.
-  for (const float offset : {0.0f, 1e3f, 1e5f}) {
+  // Origins 50-150 units away, and (offset 0) 1e4 and 1e6 away, where the rounding of the
+  // float pre-clip grows with the origin's coordinates rather than the box's.
+  struct Case {
+    float offset, distance;
+  };
+  for (const Case cs : {Case{0.0f, 50.0f}, Case{1e3f, 50.0f}, Case{1e5f, 50.0f}, Case{0.0f, 1e4f}, Case{0.0f, 1e6f}}) {
+    const float offset = cs.offset;
     Mesh m;
     const Vec3 lo(offset, offset * 0.5f, -offset), hi = lo + Vec3(1.0f, 2.0f, 0.5f);
     const Vec3 c[8] = {{lo.x, lo.y, lo.z}, {hi.x, lo.y, lo.z}, {lo.x, hi.y, lo.z}, {hi.x, hi.y, lo.z},
@@ -558,17 +564,18 @@ TEST(HybridExtremeRays, RaysGrazingTheSceneBoxEdgesAndCorners) {
         ++k;
       }
       Ray r;
-      r.org = target + Vec3(s(rng), s(rng), s(rng)) * (50.0f + offset * 1e-3f);
+      r.org = target + Vec3(s(rng), s(rng), s(rng)) * (cs.distance + offset * 1e-3f);
       r.dir = target - r.org;
       rays.push_back(r);
     }
     const Reference ref = brute_reference(m, rays);
     int hits = 0;
     for (const Hit& h : ref.hits) hits += h.valid();
-    EXPECT_GT(hits, 1000) << "offset " << offset;
+    const std::string what = "cube at offset " + std::to_string(offset) + ", origins " + std::to_string(cs.distance) + " away";
+    EXPECT_GT(hits, 1000) << what;
     Hybrid h;
     h.build(m, params_with(0.0f, false));
-    EXPECT_EQ(compare(h, m, rays, ref, "cube at offset " + std::to_string(offset)), 0);
+    EXPECT_EQ(compare(h, m, rays, ref, what), 0);
   }
 }
 
