@@ -577,8 +577,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     if (guess_) kd_boxes_.resize(leaves_.size());
     for (size_t i = 0; i < kd_boxes_.size(); ++i)
       for (int a = 0; a < 3; ++a) {
-        kd_boxes_[i].lo[a] = leaves_[i].lo[a];
-        kd_boxes_[i].hi[a] = leaves_[i].hi[a];
+        kd_boxes_[i].lo[a] = int32_t(leaves_[i].lo[a]);
+        kd_boxes_[i].hi[a] = int32_t(leaves_[i].hi[a]);
       }
     expand_text = params.hybrid_expand_empty ? expand_empty_leaves(left > matrix ? left - matrix : 0)
                                              : std::string("off (the paper's kd leaf boxes)");
@@ -647,9 +647,9 @@ std::string Hybrid::expand_empty_leaves(uint64_t budget) {
   tbb::parallel_for(size_t(0), leaves_.size(), [&](size_t i) {
     const Leaf& l = leaves_[i];
     if (l.count == 0) return;  // leaves partition the grid: the writes are disjoint
-    for (int32_t z = l.lo[2]; z < l.hi[2]; ++z)
-      for (int32_t y = l.lo[1]; y < l.hi[1]; ++y)
-        for (int32_t x = l.lo[0]; x < l.hi[0]; ++x) at(x + 1, y + 1, z + 1) = 1;
+    for (int32_t z = int32_t(l.lo[2]); z < int32_t(l.hi[2]); ++z)
+      for (int32_t y = int32_t(l.lo[1]); y < int32_t(l.hi[1]); ++y)
+        for (int32_t x = int32_t(l.lo[0]); x < int32_t(l.hi[0]); ++x) at(x + 1, y + 1, z + 1) = 1;
   });
   tbb::parallel_for(int64_t(1), nz + 1, [&](int64_t z) {
     for (int64_t y = 1; y <= ny; ++y)
@@ -675,7 +675,11 @@ std::string Hybrid::expand_empty_leaves(uint64_t budget) {
     for (size_t i = r.begin(); i != r.end(); ++i) {
       Leaf& l = leaves_[i];
       if (l.count != 0) continue;
-      int32_t lo[3] = {l.lo[0], l.lo[1], l.lo[2]}, hi[3] = {l.hi[0], l.hi[1], l.hi[2]};
+      int32_t lo[3], hi[3];
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = int32_t(l.lo[a]);
+        hi[a] = int32_t(l.hi[a]);
+      }
       for (bool grew = true; grew;) {
         grew = false;
         for (int a = 0; a < 3; ++a)
@@ -877,10 +881,10 @@ void Hybrid::build_matrix(uint64_t budget) {
     matrix_.assign(nx * ny * nz, 0);
     tbb::parallel_for(size_t(0), leaves_.size(), [&](size_t li) {
       const Leaf& l = leaves_[li];
-      for (int32_t z = l.lo[2]; z < l.hi[2]; ++z)
-        for (int32_t y = l.lo[1]; y < l.hi[1]; ++y) {
+      for (int32_t z = int32_t(l.lo[2]); z < int32_t(l.hi[2]); ++z)
+        for (int32_t y = int32_t(l.lo[1]); y < int32_t(l.hi[1]); ++y) {
           uint32_t* row = matrix_.data() + (uint64_t(y) + ny * uint64_t(z)) * nx;
-          std::fill(row + l.lo[0], row + l.hi[0], uint32_t(li));
+          std::fill(row + int32_t(l.lo[0]), row + int32_t(l.hi[0]), uint32_t(li));
         }
     });
     return;
@@ -937,8 +941,8 @@ Box3 Hybrid::leaf_box(uint32_t leaf) const {
   const Leaf& l = leaves_[leaf];
   Box3 b;
   for (int a = 0; a < 3; ++a) {
-    b.lo[a] = float(origin_[a] + double(l.lo[a]) * cell_);
-    b.hi[a] = float(origin_[a] + double(l.hi[a]) * cell_);
+    b.lo[a] = float(origin_[a] + l.lo[a] * cell_);
+    b.hi[a] = float(origin_[a] + l.hi[a] * cell_);
   }
   return b;
 }

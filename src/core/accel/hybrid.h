@@ -101,17 +101,20 @@
 // the dragon's, against 97% and 71% by face (counted with guessing off by a one-off build), and 5% slower on
 // Sponza.
 //
-// Traversal. Clip the ray to the root box, look up the entry cell's leaf, then loop: test the
-// leaf's triangles, compute the exit over the far planes of the leaf's (step) box, stop once
-// the closest hit lies before the exit; else step to the cell just past the exit face (exact
-// integers on the exit axis, the exit point's floor clamped into the box on the others and
-// never moving against the ray), look up its leaf. Every cell coordinate moves monotonically
-// along the ray and the exit axis's strictly, so at most nx+ny+nz+1 steps: the loop enforces
-// that bound and counts violations. The exit and the exit point use fused multiply-adds where
-// the CPU has them, and the exit point is clamped in double before a truncating conversion
-// (no floor); together 4-7% faster primary rays (A/B, one thread). Empty leaves, most of the
-// steps (about 6 of Sponza's 7.8 per primary ray), are stepped over inline in the ray's loop;
-// a leaf with triangles goes through the out-of-line walk_step.
+// Traversal. Clip the ray in float to the grid's box, widened by the kd-tree's rounding bound
+// (so the clip's entry t is never later than the ray's: the walk starts in the entry cell
+// clamped into the grid, and monotone stepping reaches every cell the ray crosses), look up
+// the entry cell's leaf, then loop: test the leaf's triangles, compute the exit over the far
+// planes of the leaf's (step) box, stop once the closest hit lies before the exit; else step
+// to the cell just past the exit face (exact integers on the exit axis, the exit point's floor
+// clamped into the box on the others and never moving against the ray), look up its leaf.
+// Every cell coordinate moves monotonically along the ray and the exit axis's strictly, so at
+// most nx+ny+nz+1 steps: the loop enforces that bound and counts violations. The exit and the
+// exit point use fused multiply-adds where the CPU has them, and the exit point is clamped in
+// double before a truncating conversion (no floor); together 4-7% faster primary rays (A/B,
+// one thread). Empty leaves, most of the steps (about 6 of Sponza's 7.8 per primary ray), are
+// stepped over inline in the ray's loop; a leaf with triangles goes through the out-of-line
+// walk_step.
 #pragma once
 
 #include <atomic>
@@ -145,8 +148,10 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 32 bytes.
   /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
   /// box widened over empty cells (see "Empty-leaf boxes").
-  struct Leaf {
-    int32_t lo[3], hi[3];
+  struct alignas(64) Leaf {
+    /// The step box in cells: whole numbers, held as doubles so that the walk's exit reads
+    /// them with no conversion (7 per step; one cache line per leaf all the same).
+    double lo[3], hi[3];
     uint32_t first, count;
   };
   /// Leaf::count bit: `first` is the root of the leaf's kd subtree in sub_nodes_ and the low
@@ -559,10 +564,10 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
   // the exit cell and starts the next lookup before the compares resolve. (The same code
   // computing all three exit cells and then overriding the exit axis's compiled to selects,
   // whose chain the lookup had to wait for: Sponza's primary rays are 7% faster this way.)
-  const int32_t f0 = w.pos[0] ? L.hi[0] : L.lo[0], f1 = w.pos[1] ? L.hi[1] : L.lo[1],
-                f2 = w.pos[2] ? L.hi[2] : L.lo[2];
-  const double e0 = mul_add(double(f0), w.inv[0], w.oc[0]), e1 = mul_add(double(f1), w.inv[1], w.oc[1]),
-               e2 = mul_add(double(f2), w.inv[2], w.oc[2]);
+  const double f0 = w.pos[0] ? L.hi[0] : L.lo[0], f1 = w.pos[1] ? L.hi[1] : L.lo[1],
+               f2 = w.pos[2] ? L.hi[2] : L.lo[2];
+  const double e0 = mul_add(f0, w.inv[0], w.oc[0]), e1 = mul_add(f1, w.inv[1], w.oc[1]),
+               e2 = mul_add(f2, w.inv[2], w.oc[2]);
   const bool x01 = e0 <= e1, x02 = e0 <= e2, x12 = e1 <= e2;
   const int axis = x01 ? (x02 ? 0 : 2) : (x12 ? 1 : 2);
   Exit ex;
@@ -577,14 +582,14 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
   // coordinate, from a zero direction, clamps to lo).
   auto exit_cell = [&](int b) {
     const double x = mul_add(ex.t, w.dg[b], w.o[b]);
-    const double lo = double(L.lo[b]), hi = double(L.hi[b]) - 0.5;
+    const double lo = L.lo[b], hi = L.hi[b] - 0.5;
     const double xl = x > lo ? x : lo;
     const int32_t v = int32_t(xl < hi ? xl : hi);
     return w.pos[b] ? std::max(v, w.c[b]) : std::min(v, w.c[b]);
   };
-  ex.n[0] = axis == 0 ? f0 - 1 + w.pos[0] : exit_cell(0);
-  ex.n[1] = axis == 1 ? f1 - 1 + w.pos[1] : exit_cell(1);
-  ex.n[2] = axis == 2 ? f2 - 1 + w.pos[2] : exit_cell(2);
+  ex.n[0] = axis == 0 ? int32_t(f0) - 1 + w.pos[0] : exit_cell(0);
+  ex.n[1] = axis == 1 ? int32_t(f1) - 1 + w.pos[1] : exit_cell(1);
+  ex.n[2] = axis == 2 ? int32_t(f2) - 1 + w.pos[2] : exit_cell(2);
   const bool out_of_grid = axis == 0 ? uint32_t(ex.n[0]) >= uint32_t(dims_[0])
                                      : (axis == 1 ? uint32_t(ex.n[1]) >= uint32_t(dims_[1])
                                                   : uint32_t(ex.n[2]) >= uint32_t(dims_[2]));
