@@ -1,6 +1,8 @@
 // Properties of the ray/triangle tests over seeded random triangles and rays.
 #include <gtest/gtest.h>
 
+#include <cstring>
+#include <limits>
 #include <random>
 
 #include "accel/brute.h"
@@ -106,6 +108,20 @@ TEST(Triangle, WatertightNeverLeaksThroughSharedEdge) {
   }
   EXPECT_GT(tested, 15000);
   EXPECT_EQ(leaks, 0);
+}
+
+// component(v, k), the watertight test's and the kd traversals' read of a run-time axis, is
+// v[k] bit for bit (signed zeros and NaN payloads included), on every axis.
+TEST(Triangle, ComponentReadsTheAxisBitForBit) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (const Vec3 v : {Vec3(1.5f, -2.25f, 3e-38f), Vec3(-0.0f, 0.0f, -0.0f), Vec3(nan, -1e30f, 7.0f)})
+    for (int k = 0; k < 3; ++k) {
+      const float a = component(v, k), b = v[k];
+      uint32_t ba, bb;
+      std::memcpy(&ba, &a, sizeof a);
+      std::memcpy(&bb, &b, sizeof b);
+      EXPECT_EQ(ba, bb) << "axis " << k;
+    }
 }
 
 }  // namespace

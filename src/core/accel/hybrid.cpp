@@ -514,8 +514,10 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
   {
     // The grid's world box for walk_begin's float clip, widened by 2^-18 of the largest
-    // coordinate: more than that clip's rounding (a few ulps, 2^-22), so it never rejects a
-    // ray that reaches the grid.
+    // coordinate: it contains the exact (double) grid box after rounding to float. The
+    // rounding of the clip itself grows with the ray's origin, not with this box, and is
+    // covered per ray by the clip's err (walk_begin); this widening alone lost rays from far
+    // away that graze the box.
     double m = 0.0;
     for (int a = 0; a < 3; ++a)
       m = std::max({m, std::fabs(origin_[a]), std::fabs(origin_[a] + double(dims_[a]) * cell)});
