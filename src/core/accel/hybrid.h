@@ -493,31 +493,18 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   // rejects a ray that reaches the grid, and its entry t is never later than the ray's entry
   // into the grid: the walk starts there (below). Its reciprocals and err serve the leaf
   // subtrees' traversal.
-  float f0 = ray.tmin, f1 = ray.tmax;
+  w.kr.org = ray.org;
+  w.kr.dir = ray.dir;
   {
     const float err_scale = std::max(max_component(abs(ray.org)), max_abs_) * 0x1p-20f;
     for (int a = 0; a < 3; ++a) {
-      const float o = ray.org[a], d = ray.dir[a];
-      w.kr.inv_dir[a] = 0.0f;
-      w.kr.err[a] = 0.0f;
-      if (d == 0.0f) {
-        if (o < wbox_.lo[a] || o > wbox_.hi[a]) return false;
-        continue;
-      }
-      const float inv = w.kr.inv_dir[a] = 1.0f / d;
-      const float err = w.kr.err[a] = err_scale * std::fabs(inv);
-      float tn = (wbox_.lo[a] - o) * inv, tf = (wbox_.hi[a] - o) * inv;
-      if (tn > tf) std::swap(tn, tf);
-      tn -= err;
-      tf += err;
-      f0 = tn > f0 ? tn : f0;
-      f1 = tf < f1 ? tf : f1;
+      const float d = ray.dir[a];
+      w.kr.inv_dir[a] = d == 0.0f ? 0.0f : 1.0f / d;
+      w.kr.err[a] = err_scale * std::fabs(w.kr.inv_dir[a]);
     }
-    if (!(f0 <= f1)) return false;
   }
-  // The rest of the ray as the subtrees' walk reads it (KdRay), for rays that reach the grid.
-  w.kr.org = ray.org;
-  w.kr.dir = ray.dir;
+  float f0 = ray.tmin, f1 = ray.tmax;
+  if (!kd_clip(w.kr, wbox_, f0, f1)) return false;
   // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
   // negative-zero) direction components never exit on their axis: their inv is 0 and their
   // oc +inf, so their exit t is +inf without a branch.
