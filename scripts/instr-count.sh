@@ -1,0 +1,81 @@
+#!/usr/bin/env bash
+# Instructions per ray of each structure's closest-hit query, counted by valgrind's callgrind on
+# a band of the canonical camera's primary rays: the measure to compare a change with its parent
+# before timing it. The count does not depend on the machine's load (the same commit gives the
+# same figure to a few instructions), where `kdgrid bench` moves by 2-3% between paired runs on
+# a shared machine. Instructions are not time: a change that saves instructions but adds a cache
+# miss or a dependent load can still be slower, so confirm with `kdgrid bench --reference`.
+#
+# What is counted: AcceleratorBase<...>::intersect(ray, hit), everything inside it (the ray's
+# validation, the traversal, the triangle tests) for the uncounted pass of `kdgrid trace`
+# (intersect_counted, the pass that fills the counters, is left out), divided by the band's
+# rays. The build and the file I/O are not counted. The band is ROWS rows of the --res image
+# centred on the image (default 64 of 1024: 65536 rays, 2-3 minutes per structure on the dragon,
+# most of it the build under valgrind).
+#
+# Builds build/callgrind (preset `callgrind`: x86-64-v3, as valgrind 3.19 decodes no AVX-512)
+# the first time.
+#
+# Usage: scripts/instr-count.sh [SCENE] [ACCELS]
+#   SCENE   a scene file (default $KDGRID_SCENES/dragon/dragon_vrip.ply)
+#   ACCELS  comma-separated structures of the project (default kdtree,hybrid); not embree, whose
+#           counted pass calls its uncounted query, so the two cannot be told apart here
+# Environment: KDGRID_SCENES (default ../shared/scenes), RES (1024), ROWS (64), and
+#              KDGRID_ARGS (extra options for `kdgrid rays` and `kdgrid trace`, e.g. a camera:
+#              "--eye -14,3,0 --target 10,5,0 --fov 60" for the suite's Sponza view).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+# shellcheck disable=SC2034  # read by scenes-dir.sh
+root=$(pwd)
+source scripts/scenes-dir.sh
+scene="${1:-$scenes/dragon/dragon_vrip.ply}"
+accels="${2:-kdtree,hybrid}"
+res="${RES:-1024}"
+rows="${ROWS:-64}"
+command -v valgrind >/dev/null || { echo "instr-count: valgrind not found: bash scripts/install-deps.sh (or apt-get install valgrind)" >&2; exit 1; }
+[[ -f "$scene" ]] || { echo "instr-count: scene $scene not found; pass a scene file or set KDGRID_SCENES" >&2; exit 1; }
+[[ "$res" =~ ^[0-9]+$ && "$rows" =~ ^[0-9]+$ && "$rows" -ge 1 && "$rows" -le "$res" ]] ||
+  { echo "instr-count: RES ($res) and ROWS ($rows) must be whole numbers with 1 <= ROWS <= RES" >&2; exit 1; }
+grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo ||
+  { echo "instr-count: the callgrind preset targets x86-64-v3 (AVX2, FMA); this CPU lacks them" >&2; exit 1; }
+cmake --preset callgrind >/dev/null
+cmake --build build/callgrind --target kdgrid -j "${KDGRID_JOBS:-$(nproc)}" >&2
+kdgrid="build/callgrind/src/cli/kdgrid"
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+# shellcheck disable=SC2086
+"$kdgrid" rays "$scene" --set primary --res "$res" -o "$work/all.rays" ${KDGRID_ARGS:-} >/dev/null
+# The band: rows [res/2 - rows/2, +rows) of the square image (BENCHMARK.md's header: "RAYS",
+# u32 version, u64 count, then 32 bytes per ray in image order).
+/usr/bin/python3 - "$work/all.rays" "$work/band.rays" "$res" "$rows" <<'EOF'
+import struct, sys
+src, dst, res, rows = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+with open(src, "rb") as f:
+    head = f.read(16)
+    magic, version, count = head[:4], *struct.unpack("<IQ", head[4:])
+    if magic != b"RAYS" or count != res * res:
+        sys.exit(f"instr-count: {src}: expected {res * res} rays, the header says {count}")
+    first = (res - rows) // 2 * res
+    f.seek(16 + 32 * first)
+    body = f.read(32 * rows * res)
+with open(dst, "wb") as f:
+    f.write(magic + struct.pack("<IQ", version, rows * res))
+    f.write(body)
+EOF
+n=$((rows * res))
+echo "Instructions per closest-hit ray (callgrind, AcceleratorBase::intersect inclusive), $(basename "$scene"), the middle $rows rows of ${res}x${res} primary rays ($n rays), at $(git rev-parse --short HEAD)$(git diff --quiet -- src || echo ' (modified)')"
+echo
+echo "| structure | instructions per ray | hit fraction |"
+echo "|---|---:|---:|"
+IFS=, read -ra list <<< "$accels"
+for a in "${list[@]}"; do
+  [[ "$a" != embree ]] || { echo "instr-count: embree is not counted here (see the usage); docs/CACHE-PROFILE.md has its instructions per ray" >&2; exit 1; }
+  # shellcheck disable=SC2086
+  valgrind --tool=callgrind --toggle-collect='kdgrid::AcceleratorBase<*>::intersect(kdgrid::Ray const&, kdgrid::Hit&) const' \
+    --callgrind-out-file="$work/cg.$a" "$kdgrid" trace "$scene" --rays "$work/band.rays" --accel "$a" --threads 1 \
+    --repeat 1 ${KDGRID_ARGS:-} > "$work/trace.$a" 2> "$work/valgrind.$a" ||
+    { cat "$work/trace.$a" "$work/valgrind.$a" >&2; exit 1; }
+  ir=$(sed -n 's/^summary: *\([0-9]*\).*/\1/p; s/^totals: *\([0-9]*\).*/\1/p' "$work/cg.$a" | head -1)
+  hits=$(sed -n 's/^hit fraction *//p' "$work/trace.$a")
+  awk -v a="$a" -v ir="$ir" -v n="$n" -v h="$hits" 'BEGIN { printf "| %s | %.1f | %s |\n", a, ir / n, h }'
+done
