@@ -229,7 +229,9 @@ TEST(KdTree, BuildsLargeMeshQuickly) {
   std::printf("kd-tree over %zu triangles: %.2f s, %llu nodes, %llu refs, depth %u\n",
               mesh.num_triangles(), st.seconds, (unsigned long long)st.nodes,
               (unsigned long long)st.references, st.max_depth);
-  if (!kSanitizerBuild) EXPECT_LT(st.seconds, 60.0);
+  if (!kSanitizerBuild) {
+    EXPECT_LT(st.seconds, 60.0);
+  }
   EXPECT_EQ(count_disagreements(mesh, kd, test::random_rays(mesh, 8, 200)), 0);
 }
 

@@ -527,8 +527,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       wbox_.hi[a] = next_float_up(float(origin_[a] + double(dims_[a]) * cell + widen));
     }
     max_abs_ = std::max(max_component(abs(wbox_.lo)), max_component(abs(wbox_.hi)));
-    wlo_ = Float4{wbox_.lo.x, wbox_.lo.y, wbox_.lo.z, -kInf};
-    whi_ = Float4{wbox_.hi.x, wbox_.hi.y, wbox_.hi.z, kInf};
+    wclip_.set(wbox_);
   }
   max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
   // Top array over blocks of 4^k cells: the smallest k >= 1 giving at most kMaxTopEntries.

@@ -410,9 +410,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   uint64_t top_stride_[2] = {1, 1};  ///< top array strides of y and z
   bool dense_ = false;
   Box3 wbox_;            ///< the grid's world box, widened beyond rounding (walk_begin)
-  /// wbox_'s corners as walk_begin's vectors reads them (lane 3: -inf and +inf).
-  using Float4 = float __attribute__((vector_size(16)));
-  Float4 wlo_ = {0.0f, 0.0f, 0.0f, 0.0f}, whi_ = {0.0f, 0.0f, 0.0f, 0.0f};
+  ClipBox4 wclip_;       ///< wbox_ as kd_begin reads it
   float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
   bool guess_ = true;  ///< BuildParams::hybrid_guess
   uint64_t max_steps_ = 0;
@@ -496,42 +494,16 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   // without it (origins 1e4 away from a unit cube: 99 rays in 6000). So this clip never
   // rejects a ray that reaches the grid, and its entry t is never later than the ray's entry
   // into the grid: the walk starts there (below). Its reciprocals and err serve the leaf
-  // subtrees' traversal. The set-up is most of a short ray's work, so it computes the three
-  // axes at once, in GCC's vector extensions (AVX where the target has it, else SSE2 pairs):
-  // the same operations as kd_clip, lane by lane, with the same results bit for bit.
+  // subtrees' traversal. kd_begin computes the three axes at once, as the grid-space ray
+  // below does in double (GCC's vector extensions: AVX where the target has it, else SSE2
+  // pairs): the set-up is most of a short ray's work.
+  float f0, f1;
+  if (!kd_begin(ray, wclip_, max_abs_, w.kr, f0, f1)) return false;
   using v4d = double __attribute__((vector_size(32)));
-  using v4f = float __attribute__((vector_size(16)));
   using v4i = int32_t __attribute__((vector_size(16)));
-  static_assert(sizeof(Ray) == 32 && offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 &&
-                offsetof(Ray, tmax) == 28);
-  v4f of, df;  // (org, tmin) and (dir, tmax): lane 3 is not used
+  Float4 of, df;  // (org, tmin) and (dir, tmax): lane 3 is not used (kd_begin checks the layout)
   std::memcpy(&of, reinterpret_cast<const char*>(&ray), sizeof of);
   std::memcpy(&df, reinterpret_cast<const char*>(&ray) + offsetof(Ray, dir), sizeof df);
-  const v4f fzero = {0.0f, 0.0f, 0.0f, 0.0f};
-  const v4i fmoving = df != fzero;
-  const v4f inv_f = fmoving ? 1.0f / df : fzero;
-  const float err_scale = std::max(max_component(abs(ray.org)), max_abs_) * 0x1p-20f;
-  const v4f err_f = err_scale * (inv_f < fzero ? -inv_f : inv_f);
-  w.kr.org = ray.org;
-  w.kr.dir = ray.dir;
-  w.kr.inv_dir = Vec3(inv_f[0], inv_f[1], inv_f[2]);
-  w.kr.err = Vec3(err_f[0], err_f[1], err_f[2]);
-  float f0 = ray.tmin, f1 = ray.tmax;
-  {
-    // kd_clip against wbox_: a zero direction component never bounds t, and the origin must
-    // lie inside its slab.
-    const v4f tn = (wlo_ - of) * inv_f, tf = (whi_ - of) * inv_f;
-    const v4i swap = tn > tf;
-    const v4f near = (swap ? tf : tn) - err_f, far = (swap ? tn : tf) + err_f;
-    const v4i outside = ~fmoving & ((of < wlo_) | (of > whi_));
-    if (outside[0] | outside[1] | outside[2]) return false;
-    for (int a = 0; a < 3; ++a)
-      if (fmoving[a]) {
-        f0 = near[a] > f0 ? near[a] : f0;
-        f1 = far[a] < f1 ? far[a] : f1;
-      }
-    if (!(f0 <= f1)) return false;
-  }
   // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
   // negative-zero) direction components never exit on their axis: their inv is 0 and their
   // oc +inf, so their exit t is +inf without a branch.

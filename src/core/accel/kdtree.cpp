@@ -477,6 +477,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
     return stats_;
   }
   max_abs_ = std::max(max_component(abs(bounds_.lo)), max_component(abs(bounds_.hi)));
+  clip_box_.set(bounds_);
   const int max_depth =
       params.kd_max_depth > 0
           ? params.kd_max_depth
