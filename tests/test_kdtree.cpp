@@ -3,6 +3,9 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cmath>
+#include <cstring>
+#include <random>
 #include <set>
 
 #include "accel/kdtree.h"
@@ -233,6 +236,70 @@ TEST(KdTree, BuildsLargeMeshQuickly) {
     EXPECT_LT(st.seconds, 60.0);
   }
   EXPECT_EQ(count_disagreements(mesh, kd, test::random_rays(mesh, 8, 200)), 0);
+}
+
+// kd_begin, the traversals' set-up computed for three axes at once, gives what the scalar form
+// (reciprocal, err, kd_clip per axis) gives, bit for bit: reciprocals, err, hit or miss and the
+// clipped interval. The rays include zero and negative-zero direction components (inside and
+// outside their slab), origins on the box's faces, far origins and finite tmin/tmax.
+TEST(KdTree, BeginMatchesScalarClipBitForBit) {
+  auto bits = [](float f) {
+    uint32_t b;
+    std::memcpy(&b, &f, sizeof b);
+    return b;
+  };
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  const Box3 box(Vec3(-1.0f, 0.5f, 2.0f), Vec3(3.0f, 0.75f, 1e3f));
+  ClipBox4 cb;
+  cb.set(box);
+  const float max_abs = std::max(max_component(abs(box.lo)), max_component(abs(box.hi)));
+  int hits = 0, misses = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const float scale = (i % 5 == 0) ? 1e6f : (i % 5 == 1 ? 1e-3f : 10.0f);
+    Ray ray;
+    ray.org = Vec3(u(rng), u(rng), u(rng)) * scale + Vec3(1.0f, 0.6f, 500.0f);
+    ray.dir = Vec3(u(rng), u(rng), u(rng));
+    for (int a = 0; a < 3; ++a) {
+      const int k = (i / 7 + a) % 6;
+      if (k == 0) ray.dir[a] = 0.0f;
+      if (k == 1) ray.dir[a] = -0.0f;
+      if (k == 2 && i % 3 == 0) ray.org[a] = (i % 2) ? box.lo[a] : box.hi[a];
+    }
+    if (i % 4 == 0) {
+      ray.tmin = 0.5f;
+      ray.tmax = 200.0f;
+    }
+    // The scalar form.
+    KdRay ref;
+    ref.org = ray.org;
+    ref.dir = ray.dir;
+    const float err_scale = std::max(max_component(abs(ray.org)), max_abs) * 0x1p-20f;
+    for (int a = 0; a < 3; ++a) {
+      ref.inv_dir[a] = ray.dir[a] == 0.0f ? 0.0f : 1.0f / ray.dir[a];
+      ref.err[a] = err_scale * std::fabs(ref.inv_dir[a]);
+    }
+    float r0 = ray.tmin, r1 = ray.tmax;
+    const bool ref_hit = kd_clip(ref, box, r0, r1);
+    KdRay kr;
+    float t0, t1;
+    const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1);
+    ASSERT_EQ(hit, ref_hit) << "ray " << i;
+    for (int a = 0; a < 3; ++a) {
+      ASSERT_EQ(bits(kr.inv_dir[a]), bits(ref.inv_dir[a])) << "ray " << i << " axis " << a;
+      ASSERT_EQ(bits(kr.err[a]), bits(ref.err[a])) << "ray " << i << " axis " << a;
+    }
+    if (hit) {
+      ASSERT_EQ(bits(t0), bits(r0)) << "ray " << i;
+      ASSERT_EQ(bits(t1), bits(r1)) << "ray " << i;
+      ++hits;
+    } else {
+      ++misses;
+    }
+  }
+  // Both outcomes were exercised.
+  EXPECT_GT(hits, 1000);
+  EXPECT_GT(misses, 1000);
 }
 
 TEST(KdTree, RegisteredInFactory) {

@@ -119,7 +119,6 @@
 
 #include <atomic>
 #include <bit>
-#include <cstddef>
 #include <cstring>
 #include <cmath>
 #include <cstdint>
@@ -146,7 +145,7 @@ constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
 
 class Hybrid final : public AcceleratorBase<Hybrid> {
  public:
-  /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 32 bytes.
+  /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.
   /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
   /// box widened over empty cells (see "Empty-leaf boxes").
   struct alignas(64) Leaf {
@@ -501,9 +500,8 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   if (!kd_begin(ray, wclip_, max_abs_, w.kr, f0, f1)) return false;
   using v4d = double __attribute__((vector_size(32)));
   using v4i = int32_t __attribute__((vector_size(16)));
-  Float4 of, df;  // (org, tmin) and (dir, tmax): lane 3 is not used (kd_begin checks the layout)
-  std::memcpy(&of, reinterpret_cast<const char*>(&ray), sizeof of);
-  std::memcpy(&df, reinterpret_cast<const char*>(&ray) + offsetof(Ray, dir), sizeof df);
+  Float4 of, df;  // lane 3 (tmin, tmax) is not used
+  load_ray4(ray, of, df);
   // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
   // negative-zero) direction components never exit on their axis: their inv is 0 and their
   // oc +inf, so their exit t is +inf without a branch.
