@@ -554,6 +554,27 @@ TEST(BenchCli, MalformedSuiteFailsAtTheEndAfterTheOthersRan) {
   EXPECT_GE(box_results, 2u * 3u) << "the good suite still ran";
 }
 
+// --only keeps the named scenes of a suite (with their cameras), so that one scene of the
+// shared suite can be timed alone; a name the suite lacks is refused with the names it has.
+TEST(BenchCli, OnlyRunsTheNamedScenesAndRefusesUnknownNames) {
+  TempDir dir("clionly");
+  const fs::path suite = write_small_suite(dir);
+  const fs::path out = dir / "out.json", log = dir / "log.txt";
+  ASSERT_EQ(run_cli("bench --accel brute --sets primary --suite \"" + suite.string() +
+                        "\" --only box2 --res 8 --reps 1 --json \"" + out.string() + "\"",
+                    log),
+            0)
+      << slurp(log);
+  const json j = json::parse(slurp(out));
+  ASSERT_FALSE(j["results"].empty());
+  for (const auto& r : j["results"]) EXPECT_EQ(r["scene"], "box2");
+  const int rc = run_cli("bench --accel brute --suite \"" + suite.string() + "\" --only nosuch --res 8 --reps 1", log);
+  EXPECT_NE(rc, 0);
+  const std::string text = slurp(log);
+  EXPECT_NE(text.find("no scene named 'nosuch'"), std::string::npos) << text;
+  EXPECT_NE(text.find("box, box2"), std::string::npos) << "lists the suite's scenes: " << text;
+}
+
 // ---- sweeps ------------------------------------------------------------------------------------
 
 // ---- profile: per-class single-thread costs -------------------------------------------------

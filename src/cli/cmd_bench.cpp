@@ -2,6 +2,7 @@
 // (BENCHMARK.md). Progress goes to stderr, the Markdown tables to stdout, and --json/--md
 // write the reports. A failed scene or structure is reported and the others still run; the
 // exit code is non-zero at the end if anything failed.
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -31,6 +32,7 @@ void write_text(const std::string& path, const std::string& text) {
 struct BenchArgs {
   std::vector<std::string> suites;
   std::vector<std::string> scenes;
+  std::string only;
   std::string sets = "primary,shadow,diffuse";
   int threads = 0;
   int reps = 5;
@@ -55,6 +57,8 @@ void add_bench_command(CLI::App& app) {
   a->accel.add_to(cmd, "");
   cmd->get_option("--accel")->description(
       "Comma-separated structures; default: every registered one except brute");
+  cmd->add_option("--only", a->only,
+                  "Run only these scenes of the suite, by name (comma-separated), e.g. sponza");
   cmd->add_option("--sets", a->sets, "Ray sets: primary, shadow, diffuse (comma-separated)")
       ->capture_default_str();
   cmd->add_option("--threads", a->threads, "Tracing threads (tbb::global_control); 0 = all")
@@ -121,6 +125,25 @@ void add_bench_command(CLI::App& app) {
         suite.scenes.push_back(bad);
         suite_errors.push_back(e.what());
       }
+    }
+    if (!a->only.empty()) {
+      // Keep the named scenes, in the suite's order; a name the suite lacks is an error that
+      // lists the names it has.
+      std::vector<std::string> wanted;
+      for (size_t b = 0; b <= a->only.size();) {
+        const size_t e = std::min(a->only.find(',', b), a->only.size());
+        if (e > b) wanted.push_back(a->only.substr(b, e - b));
+        b = e + 1;
+      }
+      std::string names;
+      for (const auto& s : suite.scenes) names += (names.empty() ? "" : ", ") + s.name;
+      for (const auto& w : wanted)
+        if (std::none_of(suite.scenes.begin(), suite.scenes.end(), [&](const SuiteScene& s) { return s.name == w; }))
+          throw ParamError("--only " + a->only + ": the suite has no scene named '" + w + "'; its scenes: " +
+                           (names.empty() ? std::string("none") : names));
+      std::erase_if(suite.scenes, [&](const SuiteScene& s) {
+        return std::find(wanted.begin(), wanted.end(), s.name) == wanted.end();
+      });
     }
     if (o.progress) {
       for (const auto& e : suite_errors) o.progress("suite error: " + e);
