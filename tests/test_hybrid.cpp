@@ -795,8 +795,10 @@ std::vector<Ray> coherent_rays(int n) {
 
 // The walk takes the leaf its thread last reached across the same leaf face when the exit
 // cell lies in that leaf's kd box (see "Guessed next leaf"). Guesses left by another
-// structure, by incoherent rays or by the same coherent rays must never change an answer,
-// nor the counters (every resolution counts as a lookup).
+// structure (which claim_guesses must clear: in_kd_box no longer checks that a guessed id is
+// one of this structure's leaves, so without the claim this test fails), by incoherent rays or
+// by the same coherent rays must never change an answer, nor the counters (every resolution
+// counts as a lookup).
 TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
   const Mesh ma = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
   const Mesh mb = random_soup(5, 3000, Vec3(-1), Vec3(1), 0.08f);
@@ -812,7 +814,7 @@ TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
   int failures = 0;
   uint64_t steps = 0;
   const uint64_t taken_before = Hybrid::guesses_taken();
-  // The two structures in turn on one thread: each finds the other's leaf ids as guesses.
+  // The two structures in turn on one thread: each finds the other's guesses in the table.
   for (size_t i = 0; i < ra.size(); ++i) {
     failures += compare(ha, ma, {ra[i]}, Reference{{refa.hits[i]}, {refa.occluded[i]}}, "sphere, in turn");
     failures += compare(hb, mb, {rb[i]}, Reference{{refb.hits[i]}, {refb.occluded[i]}}, "soup, in turn");

@@ -240,7 +240,8 @@ TEST(KdTree, BuildsLargeMeshQuickly) {
 
 // kd_begin, the traversals' set-up computed for three axes at once, gives what the scalar form
 // (reciprocal, err, kd_clip per axis) gives, bit for bit: reciprocals, err, hit or miss and the
-// clipped interval. The rays include zero and negative-zero direction components (inside and
+// clipped interval; and kd_clip4 (the hybrid's clip to a leaf subtree's box, from kd_begin's
+// KdRay4) what kd_clip gives on a second box. The rays include zero and negative-zero direction components (inside and
 // outside their slab), origins on the box's faces, far origins and finite tmin/tmax.
 TEST(KdTree, BeginMatchesScalarClipBitForBit) {
   auto bits = [](float f) {
@@ -254,7 +255,11 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
   ClipBox4 cb;
   cb.set(box);
   const float max_abs = std::max(max_component(abs(box.lo)), max_component(abs(box.hi)));
-  int hits = 0, misses = 0;
+  // A second, smaller box for kd_clip4 (the hybrid's clip to a leaf subtree's box), with faces
+  // that some origins lie on; its corners as kd_clip4 reads them.
+  const Box3 sub(Vec3(0.25f, 0.55f, 400.0f), Vec3(2.0f, 0.7f, 600.0f));
+  const Float4 sub_lo = {sub.lo.x, sub.lo.y, sub.lo.z, -kInf}, sub_hi = {sub.hi.x, sub.hi.y, sub.hi.z, kInf};
+  int hits = 0, misses = 0, sub_hits = 0, sub_misses = 0;
   for (int i = 0; i < 20000; ++i) {
     const float scale = (i % 5 == 0) ? 1e6f : (i % 5 == 1 ? 1e-3f : 10.0f);
     Ray ray;
@@ -265,6 +270,7 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
       if (k == 0) ray.dir[a] = 0.0f;
       if (k == 1) ray.dir[a] = -0.0f;
       if (k == 2 && i % 3 == 0) ray.org[a] = (i % 2) ? box.lo[a] : box.hi[a];
+      if (k == 3 && i % 3 == 0) ray.org[a] = (i % 2) ? sub.lo[a] : sub.hi[a];
     }
     if (i % 4 == 0) {
       ray.tmin = 0.5f;
@@ -282,9 +288,23 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
     float r0 = ray.tmin, r1 = ray.tmax;
     const bool ref_hit = kd_clip(ref, box, r0, r1);
     KdRay kr;
-    float t0, t1;
-    const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1);
+    KdRay4 r4;
+    float t0 = 0.0f, t1 = 0.0f;
+    const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1, &r4);
     ASSERT_EQ(hit, ref_hit) << "ray " << i;
+    if (hit) {
+      // kd_clip4 against kd_clip on the smaller box, over an interval within [t0, t1].
+      float s0 = t0 + 0.25f * (t1 - t0), s1 = t1, q0 = s0, q1 = s1;
+      const bool sub_ref = kd_clip(ref, sub, s0, s1);
+      ASSERT_EQ(kd_clip4(r4, sub_lo, sub_hi, q0, q1), sub_ref) << "ray " << i;
+      if (sub_ref) {
+        ASSERT_EQ(bits(q0), bits(s0)) << "ray " << i;
+        ASSERT_EQ(bits(q1), bits(s1)) << "ray " << i;
+        ++sub_hits;
+      } else {
+        ++sub_misses;
+      }
+    }
     for (int a = 0; a < 3; ++a) {
       ASSERT_EQ(bits(kr.inv_dir[a]), bits(ref.inv_dir[a])) << "ray " << i << " axis " << a;
       ASSERT_EQ(bits(kr.err[a]), bits(ref.err[a])) << "ray " << i << " axis " << a;
@@ -300,6 +320,8 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
   // Both outcomes were exercised.
   EXPECT_GT(hits, 1000);
   EXPECT_GT(misses, 1000);
+  EXPECT_GT(sub_hits, 500);
+  EXPECT_GT(sub_misses, 500);
 }
 
 TEST(KdTree, RegisteredInFactory) {

@@ -199,7 +199,7 @@ class TreeBuilder {
     Box3 bounds;
     std::vector<KdNode> nodes;
     kd_.build(node.prims, box, nodes, node.sub_refs, bounds);
-    const float f[6] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, bounds.hi.x, bounds.hi.y, bounds.hi.z};
+    const float f[8] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, -kInf, bounds.hi.x, bounds.hi.y, bounds.hi.z, kInf};
     static_assert(sizeof f == Hybrid::kSubBoxNodes * sizeof(KdNode));
     node.sub_nodes.resize(Hybrid::kSubBoxNodes + nodes.size());
     std::memcpy(node.sub_nodes.data(), f, sizeof f);
@@ -399,6 +399,10 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   bricks_.clear();
   top_.clear();
   step_errors_.store(0);
+  {
+    static std::atomic<uint64_t> builds{0};
+    uid_ = ++builds;
+  }
   stats_ = {};
   stats_.peak_estimate = estimate;
 
@@ -578,11 +582,14 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     // inside one names its leaf (the check of a guessed next leaf, see "Guessed next leaf";
     // not kept without guesses).
     if (guess_) kd_boxes_.resize(leaves_.size());
-    for (size_t i = 0; i < kd_boxes_.size(); ++i)
+    for (size_t i = 0; i < kd_boxes_.size(); ++i) {
       for (int a = 0; a < 3; ++a) {
         kd_boxes_[i].lo[a] = int32_t(leaves_[i].lo[a]);
         kd_boxes_[i].hi[a] = int32_t(leaves_[i].hi[a]);
       }
+      kd_boxes_[i].lo[3] = std::numeric_limits<int32_t>::min();
+      kd_boxes_[i].hi[3] = std::numeric_limits<int32_t>::max();
+    }
     expand_text = params.hybrid_expand_empty ? expand_empty_leaves(left > matrix ? left - matrix : 0)
                                              : std::string("off (the paper's kd leaf boxes)");
     t_expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();

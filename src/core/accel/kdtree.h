@@ -35,6 +35,7 @@
 // mailbox lookup (measured by the counters: tri_tests vs. distinct triangles).
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <cstring>
@@ -141,7 +142,8 @@ struct KdRay {
 };
 
 /// Clips [t0, t1] to `box` (widened by err); false if the ray misses it. A zero direction
-/// component never bounds t: the origin must lie inside the slab.
+/// component never bounds t: the origin must lie inside the slab. The scalar form of
+/// kd_begin's clip and of kd_clip4, which its tests hold them to bit for bit.
 [[gnu::always_inline]] inline bool kd_clip(const KdRay& r, const Box3& box, float& t0, float& t1) {
   for (int a = 0; a < 3; ++a) {
     if (r.dir[a] == 0.0f) {
@@ -158,6 +160,35 @@ struct KdRay {
   return t0 <= t1;
 }
 
+/// The ray as kd_clip4 reads it, an axis per lane: origin, reciprocal direction and err as in
+/// KdRay, and `fixed`, all ones on the axes the ray does not move along. The fourth lane is an
+/// axis that never bounds t (origin, reciprocal and err 0, fixed).
+struct KdRay4 {
+  Float4 org, inv, err;
+  Int4 fixed;
+};
+
+/// kd_clip with the three axes as lanes: the same [t0, t1] bit for bit (the slabs' near and far
+/// t's combined by one maximum and one minimum instead of in axis order: no NaN can arise, so
+/// the order does not matter). `lo` and `hi` hold the box's corners with -inf and +inf in the
+/// fourth lane (ClipBox4's layout).
+[[gnu::always_inline]] inline bool kd_clip4(const KdRay4& r, Float4 lo, Float4 hi, float& t0, float& t1) {
+  const Float4 inf = {kInf, kInf, kInf, kInf};
+  const Int4 outside = r.fixed & ((r.org < lo) | (r.org > hi));
+  const Float4 tn = (lo - r.org) * r.inv, tf = (hi - r.org) * r.inv;
+  const Int4 swap = tn > tf;
+  Float4 near = r.fixed ? -inf : (swap ? tf : tn) - r.err;
+  Float4 far = r.fixed ? inf : (swap ? tn : tf) + r.err;
+  near = near > __builtin_shuffle(near, Int4{2, 3, 0, 1}) ? near : __builtin_shuffle(near, Int4{2, 3, 0, 1});
+  far = far < __builtin_shuffle(far, Int4{2, 3, 0, 1}) ? far : __builtin_shuffle(far, Int4{2, 3, 0, 1});
+  const float n = std::max(near[0], near[1]), f = std::min(far[0], far[1]);
+  t0 = n > t0 ? n : t0;
+  t1 = f < t1 ? f : t1;
+  uint64_t out[2];
+  std::memcpy(out, &outside, sizeof out);
+  return (out[0] | out[1]) == 0 && t0 <= t1;
+}
+
 /// A ray's (org, tmin) and (dir, tmax) as four float lanes each, from Ray's layout (the
 /// fourth lane, tmin or tmax, is for the caller to ignore).
 [[gnu::always_inline]] inline void load_ray4(const Ray& ray, Float4& org, Float4& dir) {
@@ -171,11 +202,11 @@ struct KdRay {
 /// component; err from max(|org|, max_abs) as KdRay says) and [t0, t1] = [tmin, tmax] clipped
 /// to `box`, each slab widened by err. The same operations as kd_clip lane by lane, with the
 /// same results bit for bit (KdTree.BeginMatchesScalarClipBitForBit); false if the ray misses
-/// the box. Against the loop over the axes it replaced, instructions per closest-hit ray
+/// the box. With `r4`, the ray as kd_clip4 reads it too. Against the loop over the axes it replaced, instructions per closest-hit ray
 /// (scripts/instr-count.sh, the dragon's central primary rays): the kd-tree 1476.2 -> 1464.6,
 /// the hybrid's pre-clip 1548.7 -> 1518.7.
 [[gnu::always_inline]] inline bool kd_begin(const Ray& ray, const ClipBox4& box, float max_abs, KdRay& kr, float& t0,
-                                            float& t1) {
+                                            float& t1, KdRay4* r4 = nullptr) {
   Float4 o, d;  // the fourth lanes (tmin, tmax) are not used
   load_ray4(ray, o, d);
   const Float4 zero = {0.0f, 0.0f, 0.0f, 0.0f};
@@ -190,6 +221,13 @@ struct KdRay {
   // A zero direction component never bounds t: the origin must lie inside its slab.
   const Int4 outside = ~moving & ((o < box.lo) | (o > box.hi));
   if (outside[0] | outside[1] | outside[2]) return false;
+  if (r4) {
+    const Int4 xyz = {-1, -1, -1, 0};
+    r4->org = xyz ? o : zero;
+    r4->inv = xyz ? inv : zero;
+    r4->err = xyz ? err : zero;
+    r4->fixed = ~(moving & xyz);
+  }
   const Float4 tn = (box.lo - o) * inv, tf = (box.hi - o) * inv;
   const Int4 swap = tn > tf;
   const Float4 near = (swap ? tf : tn) - err, far = (swap ? tn : tf) + err;
