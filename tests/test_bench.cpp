@@ -568,7 +568,8 @@ TEST(BenchCli, OnlyRunsTheNamedScenesAndRefusesUnknownNames) {
   const json j = json::parse(slurp(out));
   ASSERT_FALSE(j["results"].empty());
   for (const auto& r : j["results"]) EXPECT_EQ(r["scene"], "box2");
-  const int rc = run_cli("bench --accel brute --suite \"" + suite.string() + "\" --only nosuch --res 8 --reps 1", log);
+  const int rc = run_cli(
+      "bench --accel brute --suite \"" + suite.string() + "\" --only nosuch --res 8 --reps 1", log);
   EXPECT_NE(rc, 0);
   const std::string text = slurp(log);
   EXPECT_NE(text.find("no scene named 'nosuch'"), std::string::npos) << text;

@@ -241,8 +241,9 @@ TEST(KdTree, BuildsLargeMeshQuickly) {
 // kd_begin, the traversals' set-up computed for three axes at once, gives what the scalar form
 // (reciprocal, err, kd_clip per axis) gives, bit for bit: reciprocals, err, hit or miss and the
 // clipped interval; and kd_clip4 (the hybrid's clip to a leaf subtree's box, from kd_begin's
-// KdRay4) what kd_clip gives on a second box. The rays include zero and negative-zero direction components (inside and
-// outside their slab), origins on the box's faces, far origins and finite tmin/tmax.
+// KdRay4) what kd_clip gives on a second box. The rays include zero and negative-zero direction
+// components (inside and outside their slab), origins on the box's faces, far origins and
+// finite tmin/tmax.
 TEST(KdTree, BeginMatchesScalarClipBitForBit) {
   auto bits = [](float f) {
     uint32_t b;

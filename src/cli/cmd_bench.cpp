@@ -138,7 +138,8 @@ void add_bench_command(CLI::App& app) {
       std::string names;
       for (const auto& s : suite.scenes) names += (names.empty() ? "" : ", ") + s.name;
       for (const auto& w : wanted)
-        if (std::none_of(suite.scenes.begin(), suite.scenes.end(), [&](const SuiteScene& s) { return s.name == w; }))
+        if (std::none_of(suite.scenes.begin(), suite.scenes.end(),
+                         [&](const SuiteScene& s) { return s.name == w; }))
           throw ParamError("--only " + a->only + ": the suite has no scene named '" + w + "'; its scenes: " +
                            (names.empty() ? std::string("none") : names));
       std::erase_if(suite.scenes, [&](const SuiteScene& s) {

@@ -199,7 +199,8 @@ class TreeBuilder {
     Box3 bounds;
     std::vector<KdNode> nodes;
     kd_.build(node.prims, box, nodes, node.sub_refs, bounds);
-    const float f[8] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, -kInf, bounds.hi.x, bounds.hi.y, bounds.hi.z, kInf};
+    const float f[8] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, -kInf,
+                        bounds.hi.x, bounds.hi.y, bounds.hi.z, kInf};
     static_assert(sizeof f == Hybrid::kSubBoxNodes * sizeof(KdNode));
     node.sub_nodes.resize(Hybrid::kSubBoxNodes + nodes.size());
     std::memcpy(node.sub_nodes.data(), f, sizeof f);

@@ -404,8 +404,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   [[gnu::always_inline]] inline Exit leaf_exit(const WalkState<Tri>& w, const Leaf& L) const;
   /// The rest of leaf_exit once the exit axis A is known (a branch per axis: see leaf_exit).
   template <int A, class Tri>
-  [[gnu::always_inline]] inline void exit_through(const WalkState<Tri>& w, Double4 lo, Double4 hi, Double4 far,
-                                                  double t, Exit& ex) const;
+  [[gnu::always_inline]] inline void exit_through(const WalkState<Tri>& w, const Double4& lo,
+                                                  const Double4& hi, const Double4& far, double t,
+                                                  Exit& ex) const;
   /// Counts one leaf step; true (and a step-bound error counted) once the ray has taken more
   /// than the nx+ny+nz+1 steps a correct walk can take.
   template <class Tri>
@@ -489,12 +490,14 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   return a * b + c;
 #endif
 }
-/// The same lane by lane (the same results as the scalar form on each lane).
-[[gnu::always_inline]] inline Double4 mul_add(Double4 a, Double4 b, Double4 c) {
+/// The same lane by lane (the same results as the scalar form on each lane). Vectors pass by
+/// reference: by value, a target without AVX would pass them differently (-Wpsabi).
+[[gnu::always_inline]] inline void mul_add(const Double4& a, const Double4& b, const Double4& c,
+                                           Double4& out) {
 #ifdef __FMA__
-  return __builtin_ia32_vfmaddpd256(a, b, c);
+  out = __builtin_ia32_vfmaddpd256(a, b, c);
 #else
-  return a * b + c;
+  out = a * b + c;
 #endif
 }
 
@@ -618,7 +621,8 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
   std::memcpy(&lo, L.lo, sizeof lo);
   std::memcpy(&hi, L.hi, sizeof hi);
   const Double4 far = w.up_d ? hi : lo;
-  const Double4 e = mul_add(far, w.inv, w.oc);
+  Double4 e;
+  mul_add(far, w.inv, w.oc, e);
   const double e0 = e[0], e1 = e[1], e2 = e[2];
   Exit ex;
   if (e0 <= e1 && e0 <= e2)
@@ -631,7 +635,8 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
 }
 
 template <int A, class Tri>
-void Hybrid::exit_through(const WalkState<Tri>& w, Double4 lo, Double4 hi, Double4 far, double t, Exit& ex) const {
+void Hybrid::exit_through(const WalkState<Tri>& w, const Double4& lo, const Double4& hi,
+                          const Double4& far, double t, Exit& ex) const {
   // Next cell: on the other axes the exit point's cell, clamped into the leaf (the point
   // lies on the leaf's face, so this only removes rounding) and never moving against the
   // ray; on the exit axis A the integer cell just past the leaf's face (the far plane, minus
@@ -641,7 +646,8 @@ void Hybrid::exit_through(const WalkState<Tri>& w, Double4 lo, Double4 hi, Doubl
   // coordinate, from a zero direction, clamps to lo).
   ex.axis = A;
   ex.t = t;
-  const Double4 x = mul_add(Double4{t, t, t, t}, w.dg, w.o);
+  Double4 x;
+  mul_add(Double4{t, t, t, t}, w.dg, w.o, x);
   const Double4 hm = hi - 0.5;
   const Double4 xl = x > lo ? x : lo;
   const Int4 v = __builtin_convertvector(xl < hm ? xl : hm, Int4);

@@ -202,9 +202,9 @@ struct KdRay4 {
 /// component; err from max(|org|, max_abs) as KdRay says) and [t0, t1] = [tmin, tmax] clipped
 /// to `box`, each slab widened by err. The same operations as kd_clip lane by lane, with the
 /// same results bit for bit (KdTree.BeginMatchesScalarClipBitForBit); false if the ray misses
-/// the box. With `r4`, the ray as kd_clip4 reads it too. Against the loop over the axes it replaced, instructions per closest-hit ray
-/// (scripts/instr-count.sh, the dragon's central primary rays): the kd-tree 1476.2 -> 1464.6,
-/// the hybrid's pre-clip 1548.7 -> 1518.7.
+/// the box. With `r4`, the ray as kd_clip4 reads it too. Against the loop over the axes it
+/// replaced, instructions per closest-hit ray (scripts/instr-count.sh, the dragon's central
+/// primary rays): the kd-tree 1476.2 -> 1464.6, the hybrid's pre-clip 1548.7 -> 1518.7.
 [[gnu::always_inline]] inline bool kd_begin(const Ray& ray, const ClipBox4& box, float max_abs, KdRay& kr, float& t0,
                                             float& t1, KdRay4* r4 = nullptr) {
   Float4 o, d;  // the fourth lanes (tmin, tmax) are not used
