@@ -535,6 +535,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     wclip_.set(wbox_);
   }
   max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
+  origin4_ = Double4{origin_[0], origin_[1], origin_[2], 0.0};
+  top4_ = Double4{double(dims_[0] - 1), double(dims_[1] - 1), double(dims_[2] - 1), 0.0};
   // Top array over blocks of 4^k cells: the smallest k >= 1 giving at most kMaxTopEntries.
   int top_level = 1;
   auto top_count = [&](int k) {

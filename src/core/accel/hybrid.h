@@ -321,11 +321,15 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     Int4 lo, hi;
     std::memcpy(&lo, b.lo, sizeof lo);
     std::memcpy(&hi, b.hi, sizeof hi);
-    // The four lanes at once (lane 3 always passes), then "all lanes" as two 64-bit halves.
+    // The four lanes at once (lane 3 always passes), then "all lanes".
     const Int4 in = (c >= lo) & (c < hi);
+#ifdef __SSE__
+    return __builtin_ia32_movmskps((Float4)in) == 0xf;  // a vector cast: the same bits
+#else
     uint64_t half[2];
     std::memcpy(half, &in, sizeof half);
     return (half[0] & half[1]) == ~uint64_t(0);
+#endif
   }
   /// Guess score: +1 per right guess, -kGuessMissCost per wrong one, within [min, max];
   /// guessing is on while it is >= 0 (more right guesses than wrong ones keep it on). A miss
@@ -446,6 +450,8 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
+  Double4 origin4_ = {0, 0, 0, 0};  ///< origin_ and 0, for the walk's set-up
+  Double4 top4_ = {0, 0, 0, 0};     ///< the last cell on each axis (dims_ - 1) and 0, in double
   double cell_ = 1.0, inv_cell_ = 1.0;
   int32_t dims_[3] = {1, 1, 1};
   int top_shift_ = kBrickLog;       ///< log2 of the top blocks' side in cells
@@ -568,8 +574,7 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   const Long4 xyz = {-1, -1, -1, 0};
   const Double4 od = xyz ? __builtin_convertvector(of, Double4) : zero;
   const Double4 d = xyz ? __builtin_convertvector(df, Double4) : zero;
-  const Double4 origin = {origin_[0], origin_[1], origin_[2], 0.0};
-  const Double4 o = (od - origin) * inv_cell_;
+  const Double4 o = (od - origin4_) * inv_cell_;
   const Long4 moving = d != zero;
   const Double4 inv = moving ? cell_ / d : zero;
   w.o = o;
@@ -589,10 +594,9 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   // The entry cell: clamped into the grid in double, then truncated (the floor, as the value
   // is >= 0; a NaN clamps to 0).
   const double t0 = f0, t1 = f1;
-  const Double4 top = {double(dims_[0] - 1), double(dims_[1] - 1), double(dims_[2] - 1), 0.0};
   const Double4 x = o + t0 * w.dg;
   const Double4 xl = x > zero ? x : zero;
-  w.c = __builtin_convertvector(xl < top ? xl : top, Int4);
+  w.c = __builtin_convertvector(xl < top4_ ? xl : top4_, Int4);
   w.rd = Tri::prepare(ray);
   w.tmin = ray.tmin;
   w.tmax = ray.tmax;
