@@ -89,14 +89,18 @@
 // one names its leaf) and takes it, else looks the cell up. The check is a branch that
 // coherent rays predict, so the CPU loads the guessed leaf's record while the exit is still
 // being computed, as a kd-tree's predicted descent does. A wrong guess costs one load and a
-// mispredicted branch; the answer is the matrix's either way. A per-thread score turns
+// mispredicted branch; the answer is the matrix's either way. The table is the thread's,
+// claimed by the structure that walks (claim_guesses): another structure's leaf ids are
+// cleared first, so every guess names one of this structure's leaves. A per-thread score turns
 // guessing off while guesses mostly fail (incoherent rays: diffuse bounces), and on again when
 // the lookups show that they would succeed. Every resolution counts as a lookup, so the
 // counters do not depend on the guesses. Primary rays at 077d933 (the 2^24-cell grid), entry
 // leaves included: 7.57 of Sponza's 7.76 lookups per ray answered by guesses and 1.99 of the
 // dragon's 2.61 (at fc6c047 and its 2^19-cell grid, Sponza +22% with guesses); against no
 // guessing (`--hybrid-no-guess`, scripts/hybrid-variants.sh at two threads) Sponza +26-30%, the
-// dragon +3%; diffuse rays within the noise. The first form keyed the guesses by step index (the leaf
+// dragon +3%; diffuse rays within the noise. With the four-lane step (b68edae, the variants run)
+// the hybrid is 1.11 (dragon) and 1.6 (Sponza) times the kd-tree with guesses, 1.02 and 0.91
+// without. The first form keyed the guesses by step index (the leaf
 // the previous ray reached at the same step): right for 92% of Sponza's lookups and 58% of
 // the dragon's, against 97% and 71% by face (counted with guessing off by a one-off build), and 5% slower on
 // Sponza.
@@ -115,6 +119,18 @@
 // one thread). Empty leaves, most of the steps (about 6 of Sponza's 7.8 per primary ray), are
 // stepped over inline in the ray's loop; a leaf with triangles goes through the out-of-line
 // walk_step.
+//
+// The step in four lanes (the fourteenth session). The ray's grid-space numbers, its cell and
+// the leaf's box are vectors of x, y, z and a dummy fourth axis that never exits: the three
+// exit t's are one FMA after the leaf's two 32-byte loads, the exit point, its clamp into the
+// leaf, its truncation and the monotone clamp against the current cell are one operation
+// each, the guessed leaf's kd box is checked by two compares and a movemask, and a leaf
+// subtree's box clips the ray by kd_clip4. Only the exit axis is still found by scalar compares,
+// which stay branches (one arm per axis, exit_through<A>) so that the CPU predicts the axis and
+// starts the guessed next leaf's loads early. Instructions per closest-hit ray (callgrind, the
+// dragon's middle 64 rows of primary rays): 1517 -> 1267 with walk_begin inlined (the kd-tree:
+// 1465); paired with the kd-tree on the dragon's primary rays 0.97-1.02 -> 1.09-1.14, Sponza
+// 1.16 -> 1.37-1.41. The hits are bitwise those of the scalar step.
 #pragma once
 
 #include <atomic>
