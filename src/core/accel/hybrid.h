@@ -135,6 +135,7 @@
 
 #include <atomic>
 #include <bit>
+#include <cstddef>
 #include <cstring>
 #include <cmath>
 #include <cstdint>
@@ -642,9 +643,12 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
   // axis is a constant in each branch (exit_through<A>). (The scalar form that computed all
   // three exit cells and then overrode the exit axis's compiled to selects, whose chain the
   // lookup had to wait for: Sponza's primary rays were 7% slower.)
+  static_assert(offsetof(Leaf, first) == 24 && offsetof(Leaf, hi) == 32 && offsetof(Leaf, pad) == 56 &&
+                sizeof(Leaf) == 64);
   Double4 lo, hi;
-  std::memcpy(&lo, L.lo, sizeof lo);
-  std::memcpy(&hi, L.hi, sizeof hi);
+  const char* bytes = reinterpret_cast<const char*>(&L);  // the record's two halves
+  std::memcpy(&lo, bytes, sizeof lo);
+  std::memcpy(&hi, bytes + offsetof(Leaf, hi), sizeof hi);
   const Double4 far = w.up_d ? hi : lo;
   Double4 e;
   mul_add(far, w.inv, w.oc, e);
@@ -668,7 +672,7 @@ void Hybrid::exit_through(const WalkState<Tri>& w, const Double4& lo, const Doub
   // one when moving down). All four lanes are computed, then lane A is taken from the face.
   // The clamp is done in double before a truncating conversion: the clamped value is at
   // least lo >= 0, where truncation is the floor, so it needs no floor instruction (a NaN
-  // coordinate, from a zero direction, clamps to lo).
+  // coordinate would clamp to lo).
   ex.axis = A;
   ex.t = t;
   Double4 x;
