@@ -574,6 +574,9 @@ TEST(BenchCli, OnlyRunsTheNamedScenesAndRefusesUnknownNames) {
   const std::string text = slurp(log);
   EXPECT_NE(text.find("no scene named 'nosuch'"), std::string::npos) << text;
   EXPECT_NE(text.find("box, box2"), std::string::npos) << "lists the suite's scenes: " << text;
+  // A list of no names is refused too, not taken as "run nothing".
+  EXPECT_NE(run_cli("bench --accel brute --suite \"" + suite.string() + "\" --only , --res 8 --reps 1", log), 0);
+  EXPECT_NE(slurp(log).find("names no scene"), std::string::npos) << slurp(log);
 }
 
 // ---- sweeps ------------------------------------------------------------------------------------

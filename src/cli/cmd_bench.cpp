@@ -129,14 +129,12 @@ void add_bench_command(CLI::App& app) {
     if (!a->only.empty()) {
       // Keep the named scenes, in the suite's order; a name the suite lacks is an error that
       // lists the names it has.
-      std::vector<std::string> wanted;
-      for (size_t b = 0; b <= a->only.size();) {
-        const size_t e = std::min(a->only.find(',', b), a->only.size());
-        if (e > b) wanted.push_back(a->only.substr(b, e - b));
-        b = e + 1;
-      }
+      const std::vector<std::string> wanted = split_list(a->only);
       std::string names;
       for (const auto& s : suite.scenes) names += (names.empty() ? "" : ", ") + s.name;
+      if (wanted.empty())
+        throw ParamError("--only '" + a->only + "' names no scene; give suite scene names, e.g. --only sponza (the suite's: " +
+                         (names.empty() ? std::string("none") : names) + ")");
       for (const auto& w : wanted)
         if (std::none_of(suite.scenes.begin(), suite.scenes.end(),
                          [&](const SuiteScene& s) { return s.name == w; }))

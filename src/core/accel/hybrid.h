@@ -338,15 +338,8 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     Int4 lo, hi;
     std::memcpy(&lo, b.lo, sizeof lo);
     std::memcpy(&hi, b.hi, sizeof hi);
-    // The four lanes at once (lane 3 always passes), then "all lanes".
-    const Int4 in = (c >= lo) & (c < hi);
-#ifdef __SSE__
-    return __builtin_ia32_movmskps((Float4)in) == 0xf;  // a vector cast: the same bits
-#else
-    uint64_t half[2];
-    std::memcpy(half, &in, sizeof half);
-    return (half[0] & half[1]) == ~uint64_t(0);
-#endif
+    // The four lanes at once (lane 3 always passes).
+    return all_lanes((c >= lo) & (c < hi));
   }
   /// Guess score: +1 per right guess, -kGuessMissCost per wrong one, within [min, max];
   /// guessing is on while it is >= 0 (more right guesses than wrong ones keep it on). A miss

@@ -86,6 +86,27 @@ class KdSubtreeBuilder {
 /// Four float lanes (GCC's vector extensions, SSE): x, y, z and a fourth that is padding.
 using Float4 = float __attribute__((vector_size(16)));
 using Int4 = int32_t __attribute__((vector_size(16)));
+/// Whether any lane of a lane mask (all ones or zero per lane) is set, or all four are: one
+/// movemask where the target has SSE, else the two 64-bit halves.
+[[gnu::always_inline]] inline bool any_lane(Int4 m) {
+#ifdef __SSE__
+  return __builtin_ia32_movmskps((Float4)m) != 0;  // a vector cast: the same bits
+#else
+  uint64_t half[2];
+  std::memcpy(half, &m, sizeof half);
+  return (half[0] | half[1]) != 0;
+#endif
+}
+[[gnu::always_inline]] inline bool all_lanes(Int4 m) {
+#ifdef __SSE__
+  return __builtin_ia32_movmskps((Float4)m) == 0xf;
+#else
+  uint64_t half[2];
+  std::memcpy(half, &m, sizeof half);
+  return (half[0] & half[1]) == ~uint64_t(0);
+#endif
+}
+
 /// A box as kd_begin reads it: its corners' x, y, z, with -inf and +inf in the fourth lane.
 struct ClipBox4 {
   Float4 lo = {kInf, kInf, kInf, -kInf}, hi = {-kInf, -kInf, -kInf, kInf};
@@ -179,14 +200,15 @@ struct KdRay4 {
   const Int4 swap = tn > tf;
   Float4 near = r.fixed ? -inf : (swap ? tf : tn) - r.err;
   Float4 far = r.fixed ? inf : (swap ? tn : tf) + r.err;
-  near = near > __builtin_shuffle(near, Int4{2, 3, 0, 1}) ? near : __builtin_shuffle(near, Int4{2, 3, 0, 1});
-  far = far < __builtin_shuffle(far, Int4{2, 3, 0, 1}) ? far : __builtin_shuffle(far, Int4{2, 3, 0, 1});
+  // The largest near and smallest far t of the four lanes: lanes 0-1 against 2-3, then 0 and 1.
+  const Float4 near_swapped = __builtin_shuffle(near, Int4{2, 3, 0, 1});
+  const Float4 far_swapped = __builtin_shuffle(far, Int4{2, 3, 0, 1});
+  near = near > near_swapped ? near : near_swapped;
+  far = far < far_swapped ? far : far_swapped;
   const float n = std::max(near[0], near[1]), f = std::min(far[0], far[1]);
   t0 = n > t0 ? n : t0;
   t1 = f < t1 ? f : t1;
-  uint64_t out[2];
-  std::memcpy(out, &outside, sizeof out);
-  return (out[0] | out[1]) == 0 && t0 <= t1;
+  return !any_lane(outside) && t0 <= t1;
 }
 
 /// A ray's (org, tmin) and (dir, tmax) as four float lanes each, from Ray's layout (the
