@@ -61,7 +61,7 @@ class Builder {
  public:
   Builder(const Mesh& mesh, const BuildParams& p, std::vector<BvhNode>& slots,
           std::vector<uint32_t>& prims)
-      : mesh_(mesh), p_(p), slots_(slots), prims_(prims) {
+      : p_(p), slots_(slots), prims_(prims) {
     const size_t n = mesh.num_triangles();
     boxes_.resize(n);
     centroids_.resize(n);
@@ -204,7 +204,6 @@ class Builder {
     return f > 0.0f ? std::min(int(f), k - 1) : 0;
   }
 
-  const Mesh& mesh_;
   const BuildParams& p_;
   std::vector<BvhNode>& slots_;
   std::vector<uint32_t>& prims_;

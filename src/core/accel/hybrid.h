@@ -675,7 +675,7 @@ void Hybrid::exit_through(const WalkState<Tri>& w, const Double4& lo, const Doub
   const Int4 v = __builtin_convertvector(xl < hm ? xl : hm, Int4);
   const Int4 mono = w.up ? (v > w.c ? v : w.c) : (v < w.c ? v : w.c);
   const Int4 face = __builtin_convertvector(far, Int4) + w.down;
-  ex.n = __builtin_shuffle(mono, face, Int4{A == 0 ? 4 : 0, A == 1 ? 5 : 1, A == 2 ? 6 : 2, 3});
+  ex.n = __builtin_shufflevector(mono, face, A == 0 ? 4 : 0, A == 1 ? 5 : 1, A == 2 ? 6 : 2, 3);
   ex.out = uint32_t(face[A]) >= uint32_t(dims_[A]);
 }
 

@@ -201,8 +201,8 @@ struct KdRay4 {
   Float4 near = r.fixed ? -inf : (swap ? tf : tn) - r.err;
   Float4 far = r.fixed ? inf : (swap ? tn : tf) + r.err;
   // The largest near and smallest far t of the four lanes: lanes 0-1 against 2-3, then 0 and 1.
-  const Float4 near_swapped = __builtin_shuffle(near, Int4{2, 3, 0, 1});
-  const Float4 far_swapped = __builtin_shuffle(far, Int4{2, 3, 0, 1});
+  const Float4 near_swapped = __builtin_shufflevector(near, near, 2, 3, 0, 1);
+  const Float4 far_swapped = __builtin_shufflevector(far, far, 2, 3, 0, 1);
   near = near > near_swapped ? near : near_swapped;
   far = far < far_swapped ? far : far_swapped;
   const float n = std::max(near[0], near[1]), f = std::min(far[0], far[1]);
