@@ -24,7 +24,7 @@ case "$kind" in
     cmake --preset asan >/dev/null
     cmake --build build/asan -j "$jobs" --target kdgrid_tests kdgrid
     export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1" UBSAN_OPTIONS="print_stacktrace=1"
-    ctest --test-dir build/asan --output-on-failure -j "$jobs" -E '^Viewer\.'
+    ctest --test-dir build/asan --output-on-failure -j "$jobs" -E '^(Viewer|Portability)\.'
     ;;
   thread)
     cmake --preset tsan >/dev/null
