@@ -325,6 +325,64 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
   EXPECT_GT(sub_misses, 500);
 }
 
+// A subnormal direction component has an infinite reciprocal and an infinite err, so its slab
+// gives NaN t's (inf - inf, or 0 * inf with the origin on a face). kd_clip's loop over the axes
+// drops a NaN; the lane reductions of kd_begin and kd_clip4 may instead keep it in place of
+// another axis's bound. Either way the interval only widens: the traversals then visit more,
+// never less. So the lane forms must hit whenever kd_clip hits, with an interval that contains
+// kd_clip's (and bit for bit the same reciprocals and err).
+TEST(KdTree, LaneClipsContainScalarClipWithSubnormalDirections) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  const Box3 box(Vec3(-1.0f, -2.0f, -0.5f), Vec3(1.0f, 2.0f, 0.5f));
+  ClipBox4 cb;
+  cb.set(box);
+  const Float4 lo = {box.lo.x, box.lo.y, box.lo.z, -kInf}, hi = {box.hi.x, box.hi.y, box.hi.z, kInf};
+  const float max_abs = 2.0f;
+  int hits = 0, nan_axes = 0;
+  for (int i = 0; i < 20000; ++i) {
+    Ray ray;
+    ray.org = Vec3(u(rng), u(rng), u(rng)) * 3.0f;
+    ray.dir = Vec3(u(rng), u(rng), u(rng));
+    for (int a = 0; a < 3; ++a) {
+      const int k = (i / 3 + a) % 4;
+      if (k == 0) ray.dir[a] = (i % 2 ? -1.0f : 1.0f) * 1e-40f;  // subnormal
+      if (k == 1 && i % 2) ray.org[a] = (i % 4 < 2) ? box.lo[a] : box.hi[a];
+    }
+    KdRay ref;
+    ref.org = ray.org;
+    ref.dir = ray.dir;
+    const float err_scale = std::max(max_component(abs(ray.org)), max_abs) * 0x1p-20f;
+    for (int a = 0; a < 3; ++a) {
+      ref.inv_dir[a] = ray.dir[a] == 0.0f ? 0.0f : 1.0f / ray.dir[a];
+      ref.err[a] = err_scale * std::fabs(ref.inv_dir[a]);
+      if (std::isinf(ref.inv_dir[a])) ++nan_axes;
+    }
+    float r0 = ray.tmin, r1 = ray.tmax;
+    const bool ref_hit = kd_clip(ref, box, r0, r1);
+    KdRay kr;
+    KdRay4 r4;
+    float t0 = 0.0f, t1 = 0.0f;
+    const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1, &r4);
+    for (int a = 0; a < 3; ++a) {
+      ASSERT_EQ(std::memcmp(&kr.inv_dir[a], &ref.inv_dir[a], sizeof(float)), 0) << "ray " << i;
+      ASSERT_EQ(std::memcmp(&kr.err[a], &ref.err[a], sizeof(float)), 0) << "ray " << i;
+    }
+    if (!ref_hit) continue;
+    ++hits;
+    ASSERT_TRUE(hit) << "ray " << i;
+    EXPECT_LE(t0, r0) << "ray " << i;
+    EXPECT_GE(t1, r1) << "ray " << i;
+    float q0 = ray.tmin, q1 = ray.tmax;
+    ASSERT_TRUE(kd_clip4(r4, lo, hi, q0, q1)) << "ray " << i;
+    EXPECT_LE(q0, r0) << "ray " << i;
+    EXPECT_GE(q1, r1) << "ray " << i;
+    if (HasFailure()) return;
+  }
+  EXPECT_GT(hits, 1000);
+  EXPECT_GT(nan_axes, 5000);
+}
+
 TEST(KdTree, RegisteredInFactory) {
   auto a = make_accelerator("kdtree");
   EXPECT_EQ(a->name(), "kdtree");

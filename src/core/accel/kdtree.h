@@ -190,9 +190,11 @@ struct KdRay4 {
 };
 
 /// kd_clip with the three axes as lanes: the same [t0, t1] bit for bit (the slabs' near and far
-/// t's combined by one maximum and one minimum instead of in axis order: no NaN can arise, so
-/// the order does not matter). `lo` and `hi` hold the box's corners with -inf and +inf in the
-/// fourth lane (ClipBox4's layout).
+/// t's combined by one maximum and one minimum instead of in axis order), except for a
+/// subnormal direction component: its reciprocal and err are infinite and its slab's t's NaN,
+/// which kd_clip drops and this reduction may keep in place of another axis's bound, so the
+/// interval can only be wider (KdTree.LaneClipsContainScalarClipWithSubnormalDirections).
+/// `lo` and `hi` hold the box's corners with -inf and +inf in the fourth lane (ClipBox4's layout).
 [[gnu::always_inline]] inline bool kd_clip4(const KdRay4& r, Float4 lo, Float4 hi, float& t0, float& t1) {
   const Float4 inf = {kInf, kInf, kInf, kInf};
   const Int4 outside = r.fixed & ((r.org < lo) | (r.org > hi));
@@ -222,11 +224,13 @@ struct KdRay4 {
 
 /// The kd traversals' set-up, the three axes at once: `kr` for `ray` (reciprocals, 0 on a zero
 /// component; err from max(|org|, max_abs) as KdRay says) and [t0, t1] = [tmin, tmax] clipped
-/// to `box`, each slab widened by err. The same operations as kd_clip lane by lane, with the
-/// same results bit for bit (KdTree.BeginMatchesScalarClipBitForBit); false if the ray misses
-/// the box. With `r4`, the ray as kd_clip4 reads it too. Against the loop over the axes it
-/// replaced, instructions per closest-hit ray (scripts/instr-count.sh, the dragon's central
-/// primary rays): the kd-tree 1476.2 -> 1464.6, the hybrid's pre-clip 1548.7 -> 1518.7.
+/// to `box` by kd_clip4, each slab widened by err: the results of kd_clip bit for bit
+/// (KdTree.BeginMatchesScalarClipBitForBit; a subnormal direction component only widens the
+/// interval, see kd_clip4); false if the ray misses the box. With `r4`, the ray as kd_clip4
+/// reads it is kept for the caller. Against the loop over the axes it replaced, instructions
+/// per closest-hit ray (scripts/instr-count.sh, the dragon's central primary rays): the
+/// kd-tree 1476.2 -> 1464.6, the hybrid's pre-clip 1548.7 -> 1518.7; the clip by kd_clip4
+/// instead of its own scalar tail, the kd-tree 1464.6 -> 1455.6 and the hybrid 1264.9 -> 1254.9.
 [[gnu::always_inline]] inline bool kd_begin(const Ray& ray, const ClipBox4& box, float max_abs, KdRay& kr, float& t0,
                                             float& t1, KdRay4* r4 = nullptr) {
   Float4 o, d;  // the fourth lanes (tmin, tmax) are not used
@@ -240,27 +244,18 @@ struct KdRay4 {
   kr.dir = ray.dir;
   kr.inv_dir = Vec3(inv[0], inv[1], inv[2]);
   kr.err = Vec3(err[0], err[1], err[2]);
-  // A zero direction component never bounds t: the origin must lie inside its slab.
-  const Int4 outside = ~moving & ((o < box.lo) | (o > box.hi));
-  if (outside[0] | outside[1] | outside[2]) return false;
-  if (r4) {
-    const Int4 xyz = {-1, -1, -1, 0};
-    r4->org = xyz ? o : zero;
-    r4->inv = xyz ? inv : zero;
-    r4->err = xyz ? err : zero;
-    r4->fixed = ~(moving & xyz);
-  }
-  const Float4 tn = (box.lo - o) * inv, tf = (box.hi - o) * inv;
-  const Int4 swap = tn > tf;
-  const Float4 near = (swap ? tf : tn) - err, far = (swap ? tn : tf) + err;
+  // The clip itself is kd_clip4's: a zero direction component never bounds t, and the
+  // origin must lie inside its slab.
+  const Int4 xyz = {-1, -1, -1, 0};
+  KdRay4 own;
+  KdRay4& k4 = r4 ? *r4 : own;
+  k4.org = xyz ? o : zero;
+  k4.inv = xyz ? inv : zero;
+  k4.err = xyz ? err : zero;
+  k4.fixed = ~(moving & xyz);
   t0 = ray.tmin;
   t1 = ray.tmax;
-  for (int a = 0; a < 3; ++a)
-    if (moving[a]) {
-      t0 = near[a] > t0 ? near[a] : t0;
-      t1 = far[a] < t1 ? far[a] : t1;
-    }
-  return t0 <= t1;
+  return kd_clip4(k4, box.lo, box.hi, t0, t1);
 }
 
 /// The kd-tree's traversal (see the file comment) as a template, for the hybrid's leaf
