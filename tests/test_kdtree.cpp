@@ -238,6 +238,20 @@ TEST(KdTree, BuildsLargeMeshQuickly) {
   EXPECT_EQ(count_disagreements(mesh, kd, test::random_rays(mesh, 8, 200)), 0);
 }
 
+// The ray as the scalar set-up builds it (the form kd_begin is held to): reciprocals, 0 on a
+// zero component, and err from max(|org|, max_abs).
+KdRay scalar_kd_ray(const Ray& ray, float max_abs) {
+  KdRay ref;
+  ref.org = ray.org;
+  ref.dir = ray.dir;
+  const float err_scale = std::max(max_component(abs(ray.org)), max_abs) * 0x1p-20f;
+  for (int a = 0; a < 3; ++a) {
+    ref.inv_dir[a] = ray.dir[a] == 0.0f ? 0.0f : 1.0f / ray.dir[a];
+    ref.err[a] = err_scale * std::fabs(ref.inv_dir[a]);
+  }
+  return ref;
+}
+
 // kd_begin, the traversals' set-up computed for three axes at once, gives what the scalar form
 // (reciprocal, err, kd_clip per axis) gives, bit for bit: reciprocals, err, hit or miss and the
 // clipped interval; and kd_clip4 (the hybrid's clip to a leaf subtree's box, from kd_begin's
@@ -278,14 +292,7 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
       ray.tmax = 200.0f;
     }
     // The scalar form.
-    KdRay ref;
-    ref.org = ray.org;
-    ref.dir = ray.dir;
-    const float err_scale = std::max(max_component(abs(ray.org)), max_abs) * 0x1p-20f;
-    for (int a = 0; a < 3; ++a) {
-      ref.inv_dir[a] = ray.dir[a] == 0.0f ? 0.0f : 1.0f / ray.dir[a];
-      ref.err[a] = err_scale * std::fabs(ref.inv_dir[a]);
-    }
+    const KdRay ref = scalar_kd_ray(ray, max_abs);
     float r0 = ray.tmin, r1 = ray.tmax;
     const bool ref_hit = kd_clip(ref, box, r0, r1);
     KdRay kr;
@@ -349,15 +356,9 @@ TEST(KdTree, LaneClipsContainScalarClipWithSubnormalDirections) {
       if (k == 0) ray.dir[a] = (i % 2 ? -1.0f : 1.0f) * 1e-40f;  // subnormal
       if (k == 1 && i % 2) ray.org[a] = (i % 4 < 2) ? box.lo[a] : box.hi[a];
     }
-    KdRay ref;
-    ref.org = ray.org;
-    ref.dir = ray.dir;
-    const float err_scale = std::max(max_component(abs(ray.org)), max_abs) * 0x1p-20f;
-    for (int a = 0; a < 3; ++a) {
-      ref.inv_dir[a] = ray.dir[a] == 0.0f ? 0.0f : 1.0f / ray.dir[a];
-      ref.err[a] = err_scale * std::fabs(ref.inv_dir[a]);
+    KdRay ref = scalar_kd_ray(ray, max_abs);
+    for (int a = 0; a < 3; ++a)
       if (std::isinf(ref.inv_dir[a])) ++nan_axes;
-    }
     float r0 = ray.tmin, r1 = ray.tmax;
     const bool ref_hit = kd_clip(ref, box, r0, r1);
     KdRay kr;

@@ -132,14 +132,14 @@ void add_bench_command(CLI::App& app) {
       const std::vector<std::string> wanted = split_list(a->only);
       std::string names;
       for (const auto& s : suite.scenes) names += (names.empty() ? "" : ", ") + s.name;
+      if (names.empty()) names = "none";
       if (wanted.empty())
         throw ParamError("--only '" + a->only + "' names no scene; give suite scene names, e.g. --only sponza (the suite's: " +
-                         (names.empty() ? std::string("none") : names) + ")");
+                         names + ")");
       for (const auto& w : wanted)
         if (std::none_of(suite.scenes.begin(), suite.scenes.end(),
                          [&](const SuiteScene& s) { return s.name == w; }))
-          throw ParamError("--only " + a->only + ": the suite has no scene named '" + w + "'; its scenes: " +
-                           (names.empty() ? std::string("none") : names));
+          throw ParamError("--only " + a->only + ": the suite has no scene named '" + w + "'; its scenes: " + names);
       std::erase_if(suite.scenes, [&](const SuiteScene& s) {
         return std::find(wanted.begin(), wanted.end(), s.name) == wanted.end();
       });
