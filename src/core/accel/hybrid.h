@@ -143,14 +143,11 @@
 #include <vector>
 
 #include "accel/accelerator.h"
-#include "accel/kdtree.h"
+#include "accel/kd_kernel.h"
+#include "math/simd.h"
 
 namespace kdgrid {
 
-/// Four double lanes and four int64 lanes (GCC's vector extensions: AVX where the target has it,
-/// else SSE2 pairs); Int4 (kdtree.h) holds four int32 lanes.
-using Double4 = double __attribute__((vector_size(32)));
-using Long4 = int64_t __attribute__((vector_size(32)));
 
 /// Auto rule density floor: at least this many cells per triangle (step 2 of the rule above).
 constexpr double kHybridAutoCellsPerTriangle = 16.0;
@@ -490,7 +487,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   };
   std::vector<CellBox> kd_boxes_;
   std::vector<uint8_t> leaf_depth_;
-  std::vector<KdNode> sub_nodes_;   ///< leaf subtrees (world space, KdTree's node layout)
+  std::vector<KdNode> sub_nodes_;   ///< leaf subtrees (world space, KdNode layout)
   std::vector<uint32_t> refs_;      ///< per leaf, indices into tris_ (local triangle ids)
   std::vector<TriVerts> tris_;      ///< corners by local id (first-reference order)
   std::vector<uint32_t> prim_of_;   ///< local id -> the mesh's triangle index
@@ -501,26 +498,6 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 };
 
 // ---- traversal --------------------------------------------------------------------------
-
-/// a * b + c, fused (one rounding, half the latency) where the CPU has FMA, else two
-/// operations: the step's robustness comes from its integer clamps, not from how t rounds.
-[[gnu::always_inline]] inline double mul_add(double a, double b, double c) {
-#ifdef __FMA__
-  return std::fma(a, b, c);
-#else
-  return a * b + c;
-#endif
-}
-/// The same lane by lane (the same results as the scalar form on each lane). Vectors pass by
-/// reference: by value, a target without AVX would pass them differently (-Wpsabi).
-[[gnu::always_inline]] inline void mul_add(const Double4& a, const Double4& b, const Double4& c,
-                                           Double4& out) {
-#ifdef __FMA__
-  out = __builtin_ia32_vfmaddpd256(a, b, c);
-#else
-  out = a * b + c;
-#endif
-}
 
 template <class Tri, class S, bool kAny>
 bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
