@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Measures everything docs/BENCHMARKS.md shows and regenerates that page from the results:
+# Measures everything docs/RESULTS.md shows and regenerates that page from the results:
 # the benchmark suite (kdgrid bench), the sweeps (kdgrid sweep), the extreme-ray suite with the
 # acne study (kdgrid check --acne, the accuracy side of the secondary-ray offset), the plots
 # (scripts/plot) and the page (scripts/bench-report). Numbers are never copied by hand. The
@@ -11,7 +11,7 @@
 # Usage: scripts/bench-all.sh [RESULTS_DIR]        (default docs/results)
 # Environment:
 #   KDGRID_SCENES   shared scenes (default ../shared/scenes beside the checkout)
-#   BENCH_RES       primary rays per side for the suite (default 1024, BENCHMARK.md)
+#   BENCH_RES       primary rays per side for the suite (default 1024, docs/RAYSETS.md)
 #   BENCH_REPS      timed repetitions per set (default 5)
 #   BENCH_THREADS   threads, 0 = all (default 0)
 #   SWEEP_SCENE     scene of the cellsize/lambda/kdcost/triangle sweeps (default dragon-200k)
@@ -141,4 +141,4 @@ with open(os.path.join(results, "run.json"), "w") as f:
 EOF
 
 "$python" scripts/plot "$results" --out docs/img
-"$python" scripts/bench-report "$results" --img-dir docs/img --out docs/BENCHMARKS.md
+"$python" scripts/bench-report "$results" --img-dir docs/img --out docs/RESULTS.md

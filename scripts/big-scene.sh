@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The big-scene test of issue 7: a generated 10-million-triangle landscape must build and
+# The big-scene test: a generated 10-million-triangle landscape must build and
 # render within memory with every structure, or fail fast with a clear message.
 #
 # For each structure, in its own process (so each peak resident set is its own):
@@ -25,7 +25,7 @@
 #                   empty = none)
 #   SKIP_BUILD=1    use the existing build/release
 #   SKIP_PLY=1      do not time the PLY writer
-# Then scripts/bench-report docs/results shows the figures in docs/BENCHMARKS.md.
+# Then scripts/bench-report docs/results shows the figures in docs/RESULTS.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)

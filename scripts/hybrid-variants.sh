@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Measures the hybrid's variants side by side with the SAH kd-tree and Embree on the shared
-# suite's primary rays, for docs/BENCHMARKS.md ("The hybrid's variants"): the default (leaf
+# suite's primary rays, for docs/RESULTS.md ("The hybrid's variants"): the default (leaf
 # subtrees, empty-leaf boxes, bricked matrix), plain leaves (--hybrid-subtree 0), the paper's
 # hybrid (plain leaves stepping over kd leaf boxes: --hybrid-subtree 0 --hybrid-no-expand) and
 # the dense matrix of the paper, and the default without guessed next leaves (--hybrid-no-guess).

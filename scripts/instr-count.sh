@@ -45,7 +45,7 @@ work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 # shellcheck disable=SC2086
 "$kdgrid" rays "$scene" --set primary --res "$res" -o "$work/all.rays" ${KDGRID_ARGS:-} >/dev/null
-# The band: rows [res/2 - rows/2, +rows) of the square image (BENCHMARK.md's header: "RAYS",
+# The band: rows [res/2 - rows/2, +rows) of the square image (docs/RAYSETS.md's header: "RAYS",
 # u32 version, u64 count, then 32 bytes per ray in image order).
 /usr/bin/python3 - "$work/all.rays" "$work/band.rays" "$res" "$rows" <<'EOF'
 import struct, sys

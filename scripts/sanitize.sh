@@ -2,13 +2,13 @@
 # Sanitizer runs for CI and developers.
 #   scripts/sanitize.sh address   the whole test suite under ASan+UBSan (viewer not built)
 #   scripts/sanitize.sh thread    the render/upload hand-over and the live rebuild under TSan:
-#                                 a scripted viewer session (render worker, UI thread, rebuild
+#                                 a scripted viewer run (render worker, UI thread, rebuild
 #                                 thread, a load through the drop handler, cancel on every
 #                                 change, wake-ups of the sleeping UI) with a pick under Xvfb
 # Brute-force references are shared with the release build's cache when it exists (CI runs
 # the release suite first, so no reference is recomputed under a sanitizer).
-# Cost on 2 cores with no compiler cache (measured for issue #7): address, build 31 CPU-min
-# and suite 17.5 CPU-min, about 24 minutes; thread, build 5 CPU-min and a 15 s session. The
+# Cost on 2 cores with no compiler cache (measured): address, build 31 CPU-min
+# and suite 17.5 CPU-min, about 24 minutes; thread, build 5 CPU-min and a 15 s viewer run. The
 # address run is the whole suite but the viewer tests (the viewer is not built): it fits CI's
 # budget, so nothing is left out; big scanned meshes (bunny, dragon) cost the most there, in
 # kd-tree builds, not in brute force.
@@ -38,7 +38,7 @@ case "$kind" in
       --width 320 --height 240 --frames 10 --min-samples 3 --rebuild-cell-size 0.5 \
       --pick 160,120 --overlay boxes --heatmap steps --drop assets/cornell.gltf \
       --screenshot build/tsan/tsan-viewer.png
-    echo "tsan: viewer session with live rebuild and a dropped scene: no data races reported"
+    echo "tsan: viewer run with live rebuild and a dropped scene: no data races reported"
     ;;
   *) echo "usage: scripts/sanitize.sh address|thread" >&2; exit 2 ;;
 esac

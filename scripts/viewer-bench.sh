@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# Measures the interactive viewer for docs/BENCHMARKS.md ("Viewer"): pass (progressive frame)
+# Measures the interactive viewer for docs/RESULTS.md ("Viewer"): pass (progressive frame)
 # time, UI frame time and Mrays/s at 1280x720 on the bunny and Sponza with the viewer's
 # default structure, 2 threads, one sample per pixel per pass with shadows; and the live
 # rebuild of the full dragon with the hybrid at its automatic cell size.
 #
 # kdgrid-viewer runs in its scripted mode under xvfb-run, so the OpenGL side is Mesa's
 # llvmpipe (software): uploads and drawing run on the CPU. Each run writes --stats-json; this
-# script gathers them into RESULTS_DIR/viewer.json and regenerates docs/BENCHMARKS.md with
+# script gathers them into RESULTS_DIR/viewer.json and regenerates docs/RESULTS.md with
 # scripts/bench-report over the results already there (it reruns nothing else).
 #
 # Usage: scripts/viewer-bench.sh [RESULTS_DIR]        (default docs/results)
@@ -137,5 +137,5 @@ print("wrote", out)
 EOF
 
 if [[ "${SKIP_REPORT:-0}" != 1 ]]; then
-  "$python" scripts/bench-report "$results" --img-dir docs/img --out docs/BENCHMARKS.md
+  "$python" scripts/bench-report "$results" --img-dir docs/img --out docs/RESULTS.md
 fi

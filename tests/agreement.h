@@ -1,4 +1,4 @@
-// The differential agreement harness (STYLE.md rule 3): every structure must return what
+// The differential agreement harness (docs/DESIGN.md, "Testing"): every structure must return what
 // brute force returns on the same rays. Used by test_agreement.cpp and by any test that
 // wants to check a structure against the reference.
 //
@@ -58,7 +58,7 @@ struct AgreementRule {
 
 /// Structures that are not held to exact agreement: Embree intersects with its own triangle
 /// test, so rays through shared edges may legitimately pick the other triangle or slip. Camera
-/// rays must agree on 99.99% (the bar). Secondary rays start on surfaces, where Embree
+/// rays must agree on 99.99% of rays. Secondary rays start on surfaces, where Embree
 /// reports t = 0 hits on overlapping coplanar neighbours of the surface the ray leaves (2% of
 /// the diffuse rays of the coplanar-quads scene, measured), so they are held to 97%.
 inline AgreementRule rule_for(const std::string& structure, const std::string& set = "primary") {

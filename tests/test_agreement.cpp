@@ -137,7 +137,7 @@ TEST_P(Agreement, MatchesBruteForce) {
     for (const Hit& h : set.reference) hits += h.valid();
   }
   // A workload that never hits anything would agree vacuously. Thin slivers are hit by few
-  // rays (about 3% here), so the bar is 1% of the rays: still thousands of hits per scene.
+  // rays (about 3% here), so the threshold is 1% of the rays: still thousands of hits per scene.
   EXPECT_GT(hits, w->total_rays() / 100);
 }
 

@@ -204,6 +204,28 @@ TEST(BenchSuite, DefaultSuiteFallsBackToTheProjectAssets) {
   }
 }
 
+// An installed kdgrid (PREFIX/bin) finds its assets in PREFIX/share/kdgrid/assets, found at run
+// time rather than through a source path compiled in: seen here from a working directory laid
+// out like an install, which is searched before the executable's own checkout.
+TEST(BenchSuite, DefaultSuiteFoundInAnInstalledLayout) {
+  TempDir dir("installedsuite");
+  fs::create_directories(dir / "bin");
+  fs::create_directories(dir / "share" / "kdgrid" / "assets");
+  write_file(dir / "share" / "kdgrid" / "assets" / "suite.json", R"({"scenes": []})");
+  const char* old = std::getenv("KDGRID_SCENES");
+  const std::string saved = old ? old : "";
+  ::setenv("KDGRID_SCENES", dir.path().c_str(), 1);  // a scenes folder without suite.json
+  const fs::path cwd = fs::current_path();
+  fs::current_path(dir / "bin");
+  const std::string found = default_suite_path();
+  fs::current_path(cwd);
+  if (old)
+    ::setenv("KDGRID_SCENES", saved.c_str(), 1);
+  else
+    ::unsetenv("KDGRID_SCENES");
+  EXPECT_EQ(fs::path(found), (dir / "share" / "kdgrid" / "assets" / "suite.json").lexically_normal());
+}
+
 // ---- statistics and memory -------------------------------------------------------------------
 
 TEST(BenchStats, Median) {

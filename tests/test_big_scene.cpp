@@ -1,4 +1,4 @@
-// Big scenes (issue 7): the landscape generator, the memory guard of every structure, the
+// Big scenes: the landscape generator, the memory guard of every structure, the
 // brute-force work limit, and how the CLI reports them. The 10-million-triangle run itself is
 // scripts/big-scene.sh (minutes per structure); here a moderate scene stands in for it.
 #include <gtest/gtest.h>
@@ -320,7 +320,7 @@ TEST(BigScene, EveryStructureAgreesWithEmbreeOnALargeLandscape) {
   size_t hits = 0;
   for (size_t i = 0; i < rays.size(); ++i) hits += embree->intersect(rays[i], ref[i]);
   ASSERT_GT(hits, rays.size() / 3) << "the rays must mostly hit something";
-  // Embree uses its own triangle test: the bar of the agreement suite for camera rays,
+  // Embree uses its own triangle test: the threshold of the agreement suite for camera rays,
   // 99.99%, becomes 99.9% here where a few thousand rays make one edge case 0.02%.
   test::AgreementRule rule = test::rule_for("embree");
   rule.min_fraction = 0.999;

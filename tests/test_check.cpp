@@ -45,7 +45,7 @@ std::vector<std::string> structures() {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllStructures, ExtremeRays, ::testing::ValuesIn(structures()),
-                         [](const auto& info) { return info.param; });
+                         [](const auto& test_info) { return test_info.param; });
 
 // The judge itself must be able to fail: brute force over half the triangles, judged against
 // the whole mesh's reference, disagrees.
@@ -64,7 +64,7 @@ TEST(Acne, RobustOffsetNeverRehitsItsOwnTriangle) {
   for (const auto& r : run_acne_study(3000, 7)) {
     EXPECT_EQ(r.robust_self_hits, 0u) << "scale " << r.scale << " translation " << r.translation;
     eps_hits += r.epsilon_self_hits;
-    // Each policy's speed is measured wherever there are rays to trace (BENCHMARKS.md shows
+    // Each policy's speed is measured wherever there are rays to trace (docs/RESULTS.md shows
     // it beside the acne rate).
     if (r.rays > 0) {
       EXPECT_GT(r.robust_seconds, 0.0) << "scale " << r.scale;

@@ -1,5 +1,5 @@
 // The hybrid grid/kd-tree against brute force on procedural meshes at several cell sizes and
-// both matrix storages, the extreme rays of DESIGN.md's numerical rules, memory behaviour on
+// both matrix storages, the extreme rays of docs/DESIGN.md's numerical rules, memory behaviour on
 // a teapot-in-a-stadium scene, counters and traces, and parameter validation.
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// .rays/.hits files (BENCHMARK.md) and the benchmark ray sets.
+// .rays/.hits files (docs/RAYSETS.md) and the benchmark ray sets.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -55,7 +55,7 @@ TEST(RayFile, RoundTripKeepsEveryBit) {
       EXPECT_TRUE(bits_equal(back[i].tmin, rays[i].tmin));
       EXPECT_TRUE(bits_equal(back[i].tmax, rays[i].tmax));
     }
-  // The header is exactly what BENCHMARK.md specifies.
+  // The header is exactly what docs/RAYSETS.md specifies.
   const auto bytes = serialize_rays(rays);
   EXPECT_EQ(std::memcmp(bytes.data(), "RAYS", 4), 0);
   uint32_t version;

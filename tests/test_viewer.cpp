@@ -483,7 +483,7 @@ TEST(Viewer, InputSpeedKeysAndHomeFramesTheScene) {
   const auto& st = d.stats["state"];
   // + + - = : 1.25^3 / 1.25 (= is + without shift).
   EXPECT_NEAR(st["speed_scale"].get<float>(), 1.5625f, 1e-5f);
-  // Home: the canonical framing of the scene's bounds (BENCHMARK.md), with the fov kept.
+  // Home: the canonical framing of the scene's bounds (docs/RAYSETS.md), with the fov kept.
   const Scene scene = load_scene(kDefaultScene);
   const Camera start = json_camera(st["start_camera"]), end = json_camera(st["camera"]);
   const Camera want = canonical_camera(scene.mesh.bounds(), start.fov_deg);

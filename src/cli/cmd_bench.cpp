@@ -1,5 +1,5 @@
 // `kdgrid bench`: every structure side by side on the same rays, against Embree
-// (BENCHMARK.md). Progress goes to stderr, the Markdown tables to stdout, and --json/--md
+// (docs/RAYSETS.md). Progress goes to stderr, the Markdown tables to stdout, and --json/--md
 // write the reports. A failed scene or structure is reported and the others still run; the
 // exit code is non-zero at the end if anything failed.
 #include <algorithm>
@@ -48,7 +48,7 @@ struct BenchArgs {
 
 void add_bench_command(CLI::App& app) {
   auto* cmd = app.add_subcommand(
-      "bench", "Benchmark every structure on the same rays against Embree (BENCHMARK.md)");
+      "bench", "Benchmark every structure on the same rays against Embree (docs/RAYSETS.md)");
   auto a = std::make_shared<BenchArgs>();
   cmd->add_option("scenes", a->scenes, "Scene files to run instead of a suite (canonical camera)");
   cmd->add_option("--suite", a->suites,
@@ -65,7 +65,7 @@ void add_bench_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--reps", a->reps, "Timed repetitions per set; the median is reported")
       ->capture_default_str();
-  cmd->add_option("--res", a->res, "Primary rays: W or WxH pixels (BENCHMARK.md: 1024)")
+  cmd->add_option("--res", a->res, "Primary rays: W or WxH pixels (docs/RAYSETS.md: 1024)")
       ->capture_default_str();
   cmd->add_option("--json", a->json, "Write the results as JSON here");
   cmd->add_option("--md", a->md, "Write the results as Markdown tables here");

@@ -1,5 +1,5 @@
 // `kdgrid rays SCENE --set primary|shadow|diffuse|random -o FILE.rays`: writes a benchmark
-// ray set (BENCHMARK.md) so that any tool can trace exactly the same rays. With --pixel X,Y
+// ray set (docs/RAYSETS.md) so that any tool can trace exactly the same rays. With --pixel X,Y
 // it writes --count copies of the primary ray through that pixel instead: traced by
 // `kdgrid trace`, they time one path through a structure with its data in the caches and its
 // branches learnt, i.e. the latency of its dependency chain alone.
@@ -32,8 +32,8 @@ struct RaysArgs {
 void add_rays_command(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "rays",
-      "Write a benchmark ray set (.rays, BENCHMARK.md). The camera is the canonical camera of "
-      "BENCHMARK.md unless --eye/--target/--fov are given, even if the scene file has its own "
+      "Write a benchmark ray set (.rays, docs/RAYSETS.md). The camera is the canonical camera of "
+      "docs/RAYSETS.md unless --eye/--target/--fov are given, even if the scene file has its own "
       "camera, so that ray sets are comparable across scenes and tools.");
   auto a = std::make_shared<RaysArgs>();
   cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();

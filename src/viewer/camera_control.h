@@ -15,7 +15,7 @@ class CameraControl {
  public:
   /// Sets the camera and the scene size that scales movement speeds.
   void reset(const Camera& cam, const Box3& scene_bounds);
-  /// Frames the whole scene (the canonical camera of BENCHMARK.md) keeping the fov.
+  /// Frames the whole scene (the canonical camera of docs/RAYSETS.md) keeping the fov.
   void frame_scene();
 
   const Camera& camera() const { return cam_; }

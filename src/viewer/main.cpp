@@ -123,8 +123,11 @@ int main(int argc, char** argv) {
     app.parse(argc, argv);
     o.accel_given = app.get_option("--accel")->count() > 0;
     o.cell_size_given = app.get_option("--cell-size")->count() > 0;
-    if (o.scene.empty()) o.scene = KDGRID_DEFAULT_SCENE;
-    o.scene = kdgrid::resolve_scene_path(o.scene, KDGRID_SOURCE_DIR);
+    if (o.scene.empty()) o.scene = kdgrid::find_asset("cornell.gltf");
+    if (o.scene.empty())
+      throw kdgrid::ParamError("no scene given and assets/cornell.gltf was found neither under "
+                               "the current directory nor beside the executable: give a scene file");
+    o.scene = kdgrid::resolve_scene_path(o.scene);
     // Validate everything that can be validated before a window opens.
     (void)o.accel.resolve();
     if (o.accel_given) (void)kdgrid::make_accelerator(o.accel.accel);

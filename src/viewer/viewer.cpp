@@ -200,7 +200,7 @@ void Viewer::init_gl() {
   trace_lines_.init();
 
   // Our callbacks first; ImGui's backend then chains to them, so ImGui sees input first and
-  // we gate on WantCaptureMouse / WantCaptureKeyboard (STYLE.md rule 8).
+  // we gate on WantCaptureMouse / WantCaptureKeyboard (docs/DESIGN.md, "The viewer").
   glfwSetKeyCallback(window_, [](GLFWwindow* w, int k, int s, int a, int m) { self(w)->on_key(k, s, a, m); });
   glfwSetMouseButtonCallback(window_, [](GLFWwindow* w, int b, int a, int m) {
     self(w)->on_mouse_button(b, a, m);

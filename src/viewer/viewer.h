@@ -51,7 +51,7 @@ struct ViewerOptions {
   std::string stats_json;            ///< run statistics and final state, written at exit
   std::string drop;                  ///< scripted: load this file through the drop handler
   /// Scripted runs swap without vsync, so this caps their frame rate the way a 60 Hz display
-  /// caps an interactive session; 0 = unlimited.
+  /// caps an interactive run; 0 = unlimited.
   int max_fps = 60;
   int threads = 0;                   ///< --threads as given (0 = all), for the statistics
   bool scripted() const { return frames > 0 || hold > 0; }

@@ -1,4 +1,4 @@
-// The accelerator contract (DESIGN.md): every acceleration structure — brute force, BVH,
+// The accelerator contract (docs/DESIGN.md): every acceleration structure — brute force, BVH,
 // uniform grid, SAH kd-tree, the hybrid grid/kd-tree, the irregular grid and Embree —
 // implements this interface, so the renderer, benchmark, tests and viewer treat them alike.
 //

@@ -582,7 +582,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     const uint64_t matrix = (bricks_.size() + top_.size() + matrix_.size()) * sizeof(uint32_t);
     const auto t2 = std::chrono::steady_clock::now();
     // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
-    // inside one names its leaf (the check of a guessed next leaf, see "Guessed next leaf";
+    // inside one names its leaf (the check of a guessed next leaf, see hybrid.h, "Next-leaf cache";
     // not kept without guesses).
     if (guess_) kd_boxes_.resize(leaves_.size());
     for (size_t i = 0; i < kd_boxes_.size(); ++i) {

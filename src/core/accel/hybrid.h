@@ -1,136 +1,47 @@
-// The hybrid regular grid / kd-tree (DESIGN.md "The hybrid", after D. Muñoz Díaz): an SAH
-// kd-tree whose split planes lie only on the boundaries of a regular lattice of basic cells,
-// plus a cell -> leaf matrix so that a ray steps from leaf to leaf by index arithmetic, like
-// a uniform grid, instead of descending the tree.
+// The hybrid regular grid / kd-tree (after D. Muñoz Díaz; docs/HYBRID.md): an SAH kd-tree
+// whose split planes lie only on the boundaries of a regular grid of basic cells, plus a
+// cell -> leaf map, so that a ray steps from leaf to leaf by index arithmetic, like a uniform
+// grid, instead of descending the tree.
 //
-// Grid. Basic cell edge `cell` (BuildParams::cell_size, scene units). The root box starts at
-// the scene's low corner and has dims[a] = max(1, ceil(extent[a] / cell)) cells per axis,
-// computed in double so that every vertex lies inside it. All stepping arithmetic happens in
-// "grid space", g = (p - origin) / cell, in double: cell boundaries are the integers.
+// Grid. Cells of edge `cell` (BuildParams::cell_size) from the scene's low corner, dims[a] =
+// max(1, ceil(extent[a] / cell)) per axis. The walk works in grid space, g = (p - origin) /
+// cell, in double, where cell boundaries are the integers.
 //
-// Auto cell size (cell_size <= 0), the rule reported in BuildStats::extra "auto rule":
-//   1. c = the cell_percentile-th percentile (default 90) of the triangles' largest
-//      bounding-box extent: "the minimum cell size that can fit most of the primitives".
-//   2. Density floor: c is lowered, if needed, to the size giving the scene box at least
-//      kHybridAutoCellsPerTriangle cells per triangle (edge = (volume / (16 N))^(1/3), over the
-//      non-flat axes). Scenes with uniform triangles (scans) are unaffected (p90 already gives
-//      ~8-16 cells per triangle); scenes mixing huge and tiny triangles (Sponza: p90 = 1.1 m,
-//      32x15x15 cells, 238 triangle tests per primary ray) get a useful grid (0.2 m, 13 tests).
-//      If both are 0 (all triangles are points in one point) c = 1.
-//   3. c is raised until no axis has more than kHybridAutoMaxAxisCells cells and the grid has
-//      at most kHybridAutoMaxCells (2^19) cells (kHybridAutoMaxCellsPlain, 2^24, with plain
-//      leaves), and, for the dense matrix, until cells * 4 bytes fit the memory budget. Since
-//      the leaf subtrees are the kd-tree's (below), a cell need not be one triangle wide: the
-//      grid is there to step over empty space and to find a leaf in one lookup, and a small
-//      grid keeps the lookups in the caches and the references few (a cell a triangle wide
-//      references each triangle several times, and every reference is clipped and built into
-//      a subtree again). Measured with `kdgrid bench --reference kdtree` (primary rays, two
-//      threads, AMD EPYC Zen 4): the dragon, whose floor alone gives 14M cells (354x250x159),
-//      0.77-0.84 of the kd-tree at 2^24 cells, 0.86-0.87 at 2^20, 0.86-0.91 at 2^18; Sponza,
-//      1.1M cells by the floor, 1.09-1.10 at 2^20 but a build as long as the kd-tree's (0.31
-//      s against 0.31-0.35), 1.04-1.05 at 2^19 (0.255 s against 0.33), 0.99-1.04 at 2^18
-//      (0.23-0.26 s); dragon-200k's sweep (`kdgrid sweep cellsize`, docs/BENCHMARKS.md) is
-//      fastest at 1.4-2x its 2^20-cell size.
+// Auto cell size (cell_size <= 0; BuildStats::extra "auto rule"): the cell_percentile-th
+// percentile (default 90) of the triangles' largest extents, lowered to give the scene box at
+// least kHybridAutoCellsPerTriangle cells per triangle, then raised until the grid has at most
+// kHybridAutoMaxCells cells (kHybridAutoMaxAxisCells per axis, the dense map within budget).
 //
-// Tree. A node is an integer box [lo, hi) of cells. Candidates are the interior cell
-// boundaries; for each axis the references' integer cell ranges are binned per cell (starts
-// and ends), so one prefix sum gives N_left/N_right for every boundary: the SAH is exact, in
-// O(n + cells) per node. Reference ranges come from the triangle clipped to the node box
-// (Sutherland-Hodgman, "perfect splits"), widened by kRangeEps cells so that geometry lying
-// on a boundary is referenced on both sides. Leaf when no split beats the leaf cost, when the
-// node is one cell on every axis, or at the maximum depth 8 + 1.3 log2(N) (pbrt's rule,
-// capped at 64). Subtrees build in parallel (oneTBB); output is deterministic.
+// Tree. A node is an integer box of cells; its candidates are the interior cell boundaries,
+// binned per cell so one prefix sum gives exact SAH counts. References are the triangles
+// clipped to the node box ("perfect splits"). Subtrees build in parallel; output is
+// deterministic.
 //
-// Matrix. Each basic cell maps to the id of the leaf covering it. Dense storage (the paper,
-// BuildParams::hybrid_dense_matrix): one uint32 per cell. Default bricked storage: a dense
-// top array over blocks of 4^k cells (at most kMaxTopEntries), each the root of a sparse
-// hierarchy of 4x4x4 bricks; an entry is a tagged uint32: a leaf id
-// (the whole region belongs to that leaf), the index of a child brick, or, for a region of
-// more than 4^3 cells crossed by only a few split planes, the kd node whose short descent (at
-// most kMaxNodeEntryDepth nodes) resolves it. A large empty leaf costs O(1) entries and only
-// regions where many leaves meet (where the triangles are) are refined, so memory follows the
-// content, not the volume nor the area of split planes across empty space. Lookup = at most
-// k dependent loads (plus a few node tests in sparse regions), no search.
+// Cell map. Every cell maps to the id of the leaf covering it: one uint32 per cell (the dense
+// map, BuildParams::hybrid_dense_matrix), or by default a dense top array over blocks of 4^k
+// cells whose entries name a leaf, a 4x4x4 brick or a kd node with a short descent, so memory
+// follows the content rather than the volume. A lookup is at most k dependent loads.
 //
-// Leaf subtrees (BuildParams::hybrid_subtree_min, default 4; an extension of the paper). A leaf
-// holding more references than the threshold keeps a kd subtree built by the kd-tree's own
-// builder (KdSubtreeBuilder: exact event SAH, perfect splits, the kd_* costs; at most
-// kSubMaxDepth levels) over its triangles clipped to its box, and the walk runs the kd-tree's
-// traversal (kd_traverse, in float with its rounding bound) over the ray's segment in the leaf,
-// clipped first to the box of the subtree's clipped triangles, with the same early exit. The
-// leaf-to-leaf stepping, the lookup and the step bound are unchanged. Until the eleventh
-// session the subtrees had their own builder (16 bins per axis, exact in nodes of 16 to 64
-// references, at most 6 levels, walked in double): against it, on an AMD EPYC (Zen 4) at
-// two threads, timed in turn with the kd-tree, the dragon 0.77-0.82 -> 0.86-0.89 of the
-// kd-tree and 135 -> 58 MiB, the bunny 0.79 -> 0.81-0.86, dragon-200k 0.82 -> 0.86, Sponza
-// 1.02-1.04 -> 1.02-1.05, with the 2^19-cell grid of the auto rule (at the old 14M-cell
-// grid the kd subtrees gave the dragon only 0.77-0.84). Builds take longer than the old
-// subtrees' (Sponza 0.14 -> 0.26 s, the kd-tree 0.35 s).
+// Leaf subtrees (BuildParams::hybrid_subtree_min). A leaf of more triangles keeps a kd subtree
+// of at most kSubMaxDepth levels, built by the kd-tree's own builder and walked by its
+// traversal (kd_traverse) over the ray's segment in the leaf; so a cell need not be a triangle
+// wide and the grid stays small.
 //
-// Empty-leaf boxes (BuildParams::hybrid_expand_empty, on by default; an extension of the
-// paper, like the irregular grid's cell expansion). The SAH cuts empty space into many small
-// empty leaves around the geometry, and a ray crosses them one step each. After the build,
-// each empty leaf's box is widened over the empty cells around it (a summed-volume table of
-// occupied cells answers "is this slab empty?" in 8 loads; faces grow in rounds by binary
-// search, at most doubling per round), and the walk steps over that box instead. The
-// matrix still maps every cell to its own kd leaf; widened boxes overlap, but every cell a
-// box covers is empty, so no triangle is skipped and the early exit stays exact. Leaves with
-// triangles keep their kd boxes. Cuts primary-ray steps on Sponza from 9.2 to 6.8 and the
-// time per ray by 18% (one thread, plain leaves). The table costs 4 bytes per cell while it is
-// skipped (kd leaf boxes, a note in BuildStats) above kMaxExpandEntries cells or the budget.
+// Widened empty leaves (BuildParams::hybrid_expand_empty). Each empty leaf's box is grown over
+// the empty cells around it (a summed-volume table of occupied cells), and the walk steps over
+// that box: fewer steps through empty space, the same hits.
 //
-// Guessed next leaf (BuildParams::hybrid_guess, on by default; an extension of the paper; the
-// same leaves in the same order). A matrix lookup is a chain: the exit cell's coordinates come
-// from arithmetic on the leaf's box, and top array, brick and leaf record are loaded one after
-// the other, about 50 cycles even from L1. Each thread remembers the leaf it last reached
-// across each leaf face (a direct-mapped table by leaf and exit axis: the ray's direction
-// fixes the face's side); the walk checks whether the exit cell lies inside that leaf's kd box
-// (kd_boxes_, the boxes before empty leaves were widened: they tile the grid, so a cell inside
-// one names its leaf) and takes it, else looks the cell up. The check is a branch that
-// coherent rays predict, so the CPU loads the guessed leaf's record while the exit is still
-// being computed, as a kd-tree's predicted descent does. A wrong guess costs one load and a
-// mispredicted branch; the answer is the matrix's either way. The table is the thread's,
-// claimed by the structure that walks (claim_guesses): another structure's leaf ids are
-// cleared first, so every guess names one of this structure's leaves. A per-thread score turns
-// guessing off while guesses mostly fail (incoherent rays: diffuse bounces), and on again when
-// the lookups show that they would succeed. Every resolution counts as a lookup, so the
-// counters do not depend on the guesses. Primary rays at 077d933 (the 2^24-cell grid), entry
-// leaves included: 7.57 of Sponza's 7.76 lookups per ray answered by guesses and 1.99 of the
-// dragon's 2.61 (at fc6c047 and its 2^19-cell grid, Sponza +22% with guesses); against no
-// guessing (`--hybrid-no-guess`, scripts/hybrid-variants.sh at two threads) Sponza +26-30%, the
-// dragon +3%; diffuse rays within the noise. With the four-lane step (b68edae, the variants run)
-// the hybrid is 1.11 (dragon) and 1.6 (Sponza) times the kd-tree with guesses, 1.02 and 0.91
-// without. The first form keyed the guesses by step index (the leaf
-// the previous ray reached at the same step): right for 92% of Sponza's lookups and 58% of
-// the dragon's, against 97% and 71% by face (counted with guessing off by a one-off build), and 5% slower on
-// Sponza.
+// Next-leaf cache (BuildParams::hybrid_guess; "guess" in the code). Each thread remembers the
+// leaf it last reached across each leaf face; the walk takes it when the exit cell lies in
+// that leaf's kd box (kd_boxes_ tile the grid, so the check is exact), else looks the cell up.
+// Coherent rays predict the check, so the next leaf's record loads while the exit is being
+// computed. A per-thread score turns the cache off while it mostly misses.
 //
-// Traversal. Clip the ray in float to the grid's box, widened by the kd-tree's rounding bound
-// (so the clip's entry t is never later than the ray's: the walk starts in the entry cell
-// clamped into the grid, and monotone stepping reaches every cell the ray crosses), look up
-// the entry cell's leaf, then loop: test the leaf's triangles, compute the exit over the far
-// planes of the leaf's (step) box, stop once the closest hit lies before the exit; else step
-// to the cell just past the exit face (exact integers on the exit axis, the exit point's floor
-// clamped into the box on the others and never moving against the ray), look up its leaf.
-// Every cell coordinate moves monotonically along the ray and the exit axis's strictly, so at
-// most nx+ny+nz+1 steps: the loop enforces that bound and counts violations. The exit and the
-// exit point use fused multiply-adds where the CPU has them, and the exit point is clamped in
-// double before a truncating conversion (no floor); together 4-7% faster primary rays (A/B,
-// one thread). Empty leaves, most of the steps (about 6 of Sponza's 7.8 per primary ray), are
-// stepped over inline in the ray's loop; a leaf with triangles goes through the out-of-line
-// walk_step.
-//
-// The step in four lanes (the fourteenth session). The ray's grid-space numbers, its cell and
-// the leaf's box are vectors of x, y, z and a dummy fourth axis that never exits: the three
-// exit t's are one FMA after the leaf's two 32-byte loads, the exit point, its clamp into the
-// leaf, its truncation and the monotone clamp against the current cell are one operation
-// each, the guessed leaf's kd box is checked by two compares and a movemask, and a leaf
-// subtree's box clips the ray by kd_clip4. Only the exit axis is still found by scalar compares,
-// which stay branches (one arm per axis, exit_through<A>) so that the CPU predicts the axis and
-// starts the guessed next leaf's loads early. Instructions per closest-hit ray (callgrind, the
-// dragon's middle 64 rows of primary rays): 1517 -> 1267 with walk_begin inlined (the kd-tree:
-// 1465); paired with the kd-tree on the dragon's primary rays 0.97-1.02 -> 1.09-1.14, Sponza
-// 1.16 -> 1.37-1.41. The hits are bitwise those of the scalar step.
+// Walk. Clip the ray in float to the grid's box, widened by the kd-tree's rounding bound; look
+// up the entry cell's leaf; then test the leaf's triangles (through a per-ray mailbox), compute
+// the exit over the leaf box's far planes in four lanes (x, y, z and a dummy axis), stop once
+// the closest hit lies before the exit, else step to the cell past the exit face. Cells move
+// monotonically along the ray, so at most nx+ny+nz+1 steps; the loop enforces that bound.
 #pragma once
 
 #include <atomic>
@@ -149,11 +60,13 @@
 namespace kdgrid {
 
 
-/// Auto rule density floor: at least this many cells per triangle (step 2 of the rule above).
+/// Auto rule density floor: at least this many cells per triangle, so that scenes mixing huge
+/// and tiny triangles (Sponza) still get a useful grid.
 constexpr double kHybridAutoCellsPerTriangle = 16.0;
 /// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
 constexpr int64_t kHybridAutoMaxAxisCells = 2048;
-/// Auto rule cap on the total cell count with leaf subtrees (step 3 of the rule above).
+/// Auto rule cap on the total cell count with leaf subtrees: the subtrees resolve the geometry,
+/// and a small grid keeps lookups in the caches and references few (docs/HYBRID.md, "The cell size").
 constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 19);
 /// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
 /// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
@@ -166,7 +79,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
  public:
   /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.
   /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
-  /// box widened over empty cells (see "Empty-leaf boxes").
+  /// box widened over empty cells (see "Widened empty leaves").
   struct alignas(64) Leaf {
     /// The step box in cells: whole numbers, held as doubles so that the walk's exit reads
     /// them with no conversion (7 per step; one cache line per leaf all the same). lo and hi
@@ -184,15 +97,8 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// as two ClipBox4 lanes, x, y, z, -inf and x, y, z, +inf, in this many nodes' bytes), which
   /// a ray is clipped to first (kd_clip4), then the kd-tree's nodes.
   static constexpr uint32_t kSubBoxNodes = 4;
-  /// Leaf subtrees are at most this many levels deep (64 leaves; fewer by the kd-tree's own
-  /// depth rule, 8 + 1.3 log2 n, below 6 triangles). Measured with `kdgrid bench --reference
-  /// kdtree` on the suite's primary rays (two threads): 6, 8, 9, 12 and the whole rule give the
-  /// same speed within the noise (the dragon 0.86-0.90 of the kd-tree, Sponza 0.99-1.10), but
-  /// deeper subtrees build longer (Sponza 0.23 s at 6 levels, 0.30 at 9, 0.34 at 12, 0.38 for
-  /// the whole rule, the kd-tree 0.32-0.35 s) and take more memory (the dragon 51, 65, 75 and
-  /// 80 MiB at the 2^18-cell grid). Again after the triangle test's fix (675eb16): 9 levels test
-  /// 1.0 triangles per primary ray instead of 1.6 and execute 2% fewer instructions, but ran at
-  /// the same 0.94-0.96 of the kd-tree, built 35% longer and took 73 MiB instead of 58.
+  /// Leaf subtrees are at most this many levels deep (64 leaves): deeper ones test fewer
+  /// triangles but build longer and take more memory for no speed (docs/HYBRID.md, "Leaf subtrees").
   static constexpr int kSubMaxDepth = 6;
   /// Tree node kept for split walks and the matrix construction; leaves point into leaves_.
   struct Node {
@@ -220,9 +126,8 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   static constexpr int kMaxNodeEntryLeaves = 8;
   static constexpr int kMaxNodeEntryDepth = 16;
   /// The bricked matrix starts from a dense top array over blocks of 4^k cells, k >= 1 the
-  /// smallest giving at most this many blocks (1 MiB), so a lookup skips the upper levels.
-  /// 2^18 rather than 2^15: the dragon's lookups then read one brick level instead of two,
-  /// +8% primary rays at 2 threads (0.50 -> 0.54 of Embree) for 0.85 MiB more.
+  /// smallest giving at most this many blocks (1 MiB), so a lookup skips the upper levels
+  /// (the dragon's lookups read one brick level instead of two; docs/HYBRID.md, "The cell map").
   static constexpr int kMaxTopEntries = 262144;
   static constexpr int kBrickLog = 2;                          ///< 4 cells per brick axis
   static constexpr int kBrickSide = 1 << kBrickLog;
@@ -230,8 +135,8 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
   /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
   static constexpr double kRangeEps = 1e-6;
-  /// Direct-mapped per-ray mailbox of recently tested triangles (power of two). 32 entries
-  /// cut the bunny's tests per primary ray from 3.42 (8 entries) to 3.12 at no measurable cost.
+  /// Direct-mapped per-ray mailbox of recently tested triangles (power of two): a triangle
+  /// referenced by several leaves is tested once; 32 entries catch most repeats at no cost.
   static constexpr int kMailbox = 32;
   /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
   /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
@@ -260,7 +165,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   uint32_t leaf_at(int32_t x, int32_t y, int32_t z) const { return lookup(x, y, z); }
   const std::vector<Leaf>& leaves() const { return leaves_; }
   /// Next leaves the calling thread took from its guesses so far, over every hybrid (tests;
-  /// see "Guessed next leaf").
+  /// see "Next-leaf cache").
   static uint64_t guesses_taken() { return guess_state_.taken; }
   /// Rays whose traversal reached the nx+ny+nz+1 step bound (a correct traversal never does).
   uint64_t step_bound_errors() const { return step_errors_.load(std::memory_order_relaxed); }
@@ -429,26 +334,22 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
     return false;
   }
   /// Clips the ray to the grid and finds its entry cell's leaf; false if it misses the grid.
-  /// Inlined into walk(): as its own function (GCC's choice until then) every ray paid a call
-  /// and the stores that build the walk's state, those that kd_begin then overwrites included;
-  /// inlined, 1302 -> 1267 instructions per ray (callgrind, the dragon's middle rows), paired
-  /// with the kd-tree 1.02-1.08 -> 1.09-1.14 (4 runs each, interleaved), the bunny 1.00-1.03 ->
-  /// 1.05-1.08 (3 runs each).
+  /// Inlined into walk(): out of line, every ray pays a call and the stores that build the
+  /// walk's state (3% of a dragon ray's instructions; docs/HYBRID.md, "The walk").
   template <class Tri>
   [[gnu::always_inline]] inline bool walk_begin(WalkState<Tri>& w, const Ray& ray) const;
   /// One leaf step: tests the leaf's triangles and moves to the next leaf. Out of line on
   /// purpose: as its own function, with the ray's state in memory, the step compiled better
-  /// than inlined in the ray's loop (A/B on Zen 5, `kdgrid trace` of the 1024^2 primary rays:
-  /// the dragon +5% on one thread, +6% at two, Sponza +7.5%; forcing it inline lost the gain).
+  /// than inlined in the ray's loop (5-8% faster primary rays; docs/HYBRID.md, "The walk").
   /// Empty leaves do not come here (traced walks excepted): walk() steps over them inline,
-  /// with nothing to test, which made Sponza's primary rays another 4% faster.
+  /// with nothing to test.
   template <class Tri, class S, bool kAny>
   [[gnu::noinline]] StepResult walk_step(WalkState<Tri>& w, S& s) const;
 
   void build_tree(const Mesh& mesh, const BuildParams& params);
   void build_matrix(uint64_t budget);
-  /// Widens every empty leaf's box over the empty cells around it (see "Empty-leaf boxes"
-  /// above); returns the BuildStats text. Skipped when its table exceeds `budget` bytes.
+  /// Widens every empty leaf's box over the empty cells around it (see "Widened empty
+  /// leaves" above); returns the BuildStats text. Skipped when its table exceeds `budget` bytes.
   std::string expand_empty_leaves(uint64_t budget);
   struct BrickBudget {
     std::atomic<uint64_t> bytes{0};
@@ -725,9 +626,7 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
       // test() and w, primary rays on the dragon were 5% slower), but through the ray's
       // mailbox: a triangle that crosses cell boundaries is referenced by every grid leaf it
       // touches and by several leaves of a subtree, and a second test of the whole triangle
-      // can only repeat the first (best only decreases). Primary rays at 9c460f3, two
-      // threads, paired with the kd-tree (7 runs each, interleaved): tests per ray 1.65 ->
-      // 1.50 on the dragon, speed 0.93-0.99 -> 0.95-1.01 (medians 0.97 and 0.99).
+      // can only repeat the first (best only decreases).
       const auto& rd = w.rd;
       const float tmin = w.tmin;
       uint32_t hit_local = kInvalidPrim;

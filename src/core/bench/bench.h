@@ -1,4 +1,4 @@
-// The benchmark runner behind `kdgrid bench` (BENCHMARK.md "Figures"): every structure side
+// The benchmark runner behind `kdgrid bench` (docs/RAYSETS.md "Figures"): every structure side
 // by side on the same rays, in one run, with every throughput also given as a ratio to the
 // reference (Embree's rtcIntersect1/rtcOccluded1) measured on the same rays in the same run.
 //
@@ -25,13 +25,13 @@ struct BenchOptions {
   /// Structures to measure, in table order; empty = every registered structure except brute
   /// (O(N) per ray: only on request). The reference is always run first and reported too.
   std::vector<std::string> accels;
-  /// Ray sets (BENCHMARK.md): "primary", "shadow", "diffuse".
+  /// Ray sets (docs/RAYSETS.md): "primary", "shadow", "diffuse".
   std::vector<std::string> sets = {"primary", "shadow", "diffuse"};
   /// Worker threads for tracing (and parallel builders); 0 = all hardware threads.
   int threads = 0;
-  /// Timed repetitions of each set; the median is reported (BENCHMARK.md asks for >= 5).
+  /// Timed repetitions of each set; the median is reported (docs/RAYSETS.md asks for >= 5).
   int reps = 5;
-  /// Primary image size: one ray per pixel. BENCHMARK.md's canonical size is 1024 x 1024.
+  /// Primary image size: one ray per pixel. docs/RAYSETS.md's canonical size is 1024 x 1024.
   int width = 1024, height = 1024;
   /// If set, ray sets are read from DIR/<scene>.<set>.rays when that file exists, and written
   /// there when it does not, so other tools can trace exactly the same rays.

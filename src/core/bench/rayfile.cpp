@@ -46,7 +46,7 @@ std::vector<Ray> parse_rays(const void* data, size_t size, const std::string& na
                     " bytes, shorter than the 16-byte .rays header: not a ray file");
   if (std::memcmp(p, "RAYS", 4) != 0)
     throw LoadError(name + ": does not start with the magic 'RAYS': not a .rays file "
-                    "(see BENCHMARK.md for the format)");
+                    "(see docs/RAYSETS.md for the format)");
   uint32_t version;
   uint64_t n;
   std::memcpy(&version, p + 4, 4);

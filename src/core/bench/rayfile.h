@@ -1,4 +1,4 @@
-// `.rays` and `.hits` files (BENCHMARK.md): little-endian binary, so the same rays can be
+// `.rays` and `.hits` files (docs/RAYSETS.md): little-endian binary, so the same rays can be
 // traced by kdgrid, Embree or any other tool and the hits compared record by record.
 //
 //   .rays: magic "RAYS", uint32 version 1, uint64 N, then N x {ox oy oz tmin dx dy dz tmax}

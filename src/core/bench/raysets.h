@@ -1,4 +1,4 @@
-// The benchmark ray sets of BENCHMARK.md, generated deterministically from a mesh:
+// The benchmark ray sets of docs/RAYSETS.md, generated deterministically from a mesh:
 //
 //   primary  one ray per pixel centre of a camera (canonical unless given), row by row.
 //   shadow   from each primary hit, offset off the surface, towards the benchmark point light
@@ -33,7 +33,7 @@ enum class RaySetKind { Primary, Shadow, Diffuse, Random };
 RaySetKind parse_ray_set(const std::string& s);
 const char* to_string(RaySetKind k);
 
-/// Default image size of the primary set (BENCHMARK.md).
+/// Default image size of the primary set (docs/RAYSETS.md).
 constexpr int kDefaultRaySetResolution = 1024;
 
 /// One ray per pixel centre of `cam`, rows top to bottom.

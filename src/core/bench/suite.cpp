@@ -105,7 +105,7 @@ Suite parse_suite(const std::string& text, const std::string& base_dir, const st
 Suite load_suite(const std::string& path) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec))
-    throw LoadError(path + ": suite file not found; give --suite FILE.json (see BENCHMARK.md)");
+    throw LoadError(path + ": suite file not found; give --suite FILE.json (see docs/RAYSETS.md)");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw LoadError(path + ": cannot open the suite file for reading");
   std::stringstream ss;
@@ -119,20 +119,7 @@ std::string default_suite_path(const std::string& project_dir) {
   const std::string dir = scenes_dir(project_dir);
   if (!dir.empty() && fs::is_regular_file(fs::path(dir) / "suite.json", ec))
     return (fs::path(dir) / "suite.json").string();
-  std::vector<fs::path> roots;
-  if (!project_dir.empty()) roots.emplace_back(project_dir);
-  roots.push_back(fs::current_path(ec));
-  // The executable lives in build/<preset>/src/cli inside the checkout.
-  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  if (!ec) {
-    fs::path p = exe.parent_path();
-    for (int up = 0; up < 5 && !p.empty(); ++up, p = p.parent_path()) roots.push_back(p);
-  }
-  for (const fs::path& r : roots) {
-    const fs::path cand = r / "assets" / "suite.json";
-    if (fs::is_regular_file(cand, ec)) return cand.lexically_normal().string();
-  }
-  return "";
+  return find_asset("suite.json", project_dir);
 }
 
 Suite single_scene_suite(const std::string& file, const std::optional<Camera>& camera) {

@@ -1,4 +1,4 @@
-// Benchmark suite files (BENCHMARK.md): a JSON list of scenes, each a file relative to the
+// Benchmark suite files (docs/RAYSETS.md): a JSON list of scenes, each a file relative to the
 // suite file and a camera (null = the canonical camera). `kdgrid bench` reads them so that
 // anyone can run the same suite on their own scenes.
 //
@@ -20,7 +20,7 @@ namespace kdgrid {
 struct SuiteScene {
   std::string name;              ///< label in the tables; defaults to the file's stem
   std::string file;              ///< absolute or relative to the working directory
-  std::optional<Camera> camera;  ///< empty = canonical camera of BENCHMARK.md
+  std::optional<Camera> camera;  ///< empty = canonical camera of docs/RAYSETS.md
   std::string error;             ///< non-empty if the entry is unusable
 };
 
@@ -38,7 +38,7 @@ Suite parse_suite(const std::string& text, const std::string& base_dir, const st
 Suite load_suite(const std::string& path);
 
 /// The default suite: $KDGRID_SCENES/suite.json or ../shared/scenes/suite.json (scenes_dir()),
-/// else `project_dir`/assets/suite.json. Empty if none exists.
+/// else the project's assets/suite.json (find_asset). Empty if none exists.
 std::string default_suite_path(const std::string& project_dir = "");
 
 /// A suite with a single scene file (what `kdgrid bench SCENE` runs).

@@ -21,6 +21,7 @@
 #include "scene/load.h"
 #include "scene/procedural.h"
 #include "util/error.h"
+#include "util/paths.h"
 
 namespace kdgrid {
 
@@ -337,18 +338,7 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
 
 // ---- spp ---------------------------------------------------------------------------------------
 
-std::string find_cornell() {
-  std::error_code ec;
-  std::vector<fs::path> roots = {fs::current_path(ec)};
-  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
-  if (!ec)
-    for (fs::path p = exe.parent_path(); !p.empty() && roots.size() < 7; p = p.parent_path())
-      roots.push_back(p);
-  for (const auto& r : roots)
-    if (fs::is_regular_file(r / "assets" / "cornell.gltf", ec))
-      return (r / "assets" / "cornell.gltf").string();
-  return "";
-}
+std::string find_cornell() { return find_asset("cornell.gltf"); }
 
 /// The image as a display shows it: linear values clamped to [0, 1]. The emissive panel's
 /// radiance is far above 1, so the plain RMSE is dominated by its jittered edges.

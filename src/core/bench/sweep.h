@@ -31,7 +31,7 @@ struct SweepOptions {
   /// Scene file. Empty for spp means assets/cornell.gltf (else the procedural cornell box);
   /// the other kinds need one.
   std::string scene;
-  /// Camera of the primary rays; empty = the canonical camera of BENCHMARK.md.
+  /// Camera of the primary rays; empty = the canonical camera of docs/RAYSETS.md.
   std::optional<Camera> camera;
   /// Values of the swept knob; empty = the kind's defaults (see sweep_default_values()).
   std::vector<double> values;

@@ -1,4 +1,4 @@
-// Rays and hits, exactly the quantities of the .rays/.hits files (BENCHMARK.md).
+// Rays and hits, exactly the quantities of the .rays/.hits files (docs/RAYSETS.md).
 #pragma once
 
 #include <cstdint>

@@ -1,4 +1,4 @@
-// Pinhole camera rays with exactly the pixel mapping of BENCHMARK.md, shared by the
+// Pinhole camera rays with exactly the pixel mapping of docs/RAYSETS.md, shared by the
 // renderer, the primary ray set, the viewer's picking and `kdgrid trace`.
 #pragma once
 
@@ -13,7 +13,7 @@ struct CameraFrame {
   int width = 1, height = 1;
 
   /// fwd = normalize(target - eye), right = normalize(cross(fwd, world_up)),
-  /// up = cross(right, fwd) (BENCHMARK.md).
+  /// up = cross(right, fwd) (docs/RAYSETS.md).
   static CameraFrame make(const Camera& cam, int width, int height);
 
   /// Ray through image position (x, y) in pixels, (0, 0) the top-left corner of the image:

@@ -11,7 +11,7 @@
 namespace kdgrid {
 
 /// Indexed triangle mesh in world space. Triangle i is the i-th face of the source file
-/// after fan triangulation (BENCHMARK.md), so hit indices are comparable across tools.
+/// after fan triangulation (docs/RAYSETS.md), so hit indices are comparable across tools.
 struct Mesh {
   std::vector<Vec3> positions;
   std::vector<std::array<uint32_t, 3>> triangles;

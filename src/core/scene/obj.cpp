@@ -1,5 +1,5 @@
 // OBJ + MTL through tinyobjloader. tinyobjloader is asked not to triangulate so that polygons
-// are fan-triangulated here, in file order, exactly as BENCHMARK.md numbers triangles.
+// are fan-triangulated here, in file order, exactly as docs/RAYSETS.md numbers triangles.
 #include <tiny_obj_loader.h>
 
 #include <algorithm>
@@ -185,7 +185,7 @@ Scene load_obj(const std::string& path) {
         mat = int(mats.size());  // the default material appended below
         uses_default = true;
       }
-      // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (BENCHMARK.md).
+      // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (docs/RAYSETS.md).
       const uint32_t v0 = add_vertex(sh.mesh.indices[k]);
       uint32_t prev = add_vertex(sh.mesh.indices[k + 1]);
       for (size_t j = 2; j < m; ++j) {

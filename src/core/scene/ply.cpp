@@ -439,7 +439,7 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
           const int64_t m = r.read_int(pr.count_type);
           if (m < 3) r.fail("has " + std::to_string(m) + " vertices; a face needs at least 3");
           if (uint64_t(m) > r.remaining()) r.fail_eof();
-          // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (BENCHMARK.md).
+          // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (docs/RAYSETS.md).
           uint32_t first = 0, prev = 0;
           for (int64_t j = 0; j < m; ++j) {
             const int64_t idx = r.read_int(pr.type);

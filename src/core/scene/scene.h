@@ -76,15 +76,15 @@ struct Scene {
   Vec3 background{0.0f};            ///< radiance of rays that escape
 
   /// Fills what the file did not give: a grey diffuse material, the canonical camera
-  /// (BENCHMARK.md), a default light; then validates the mesh. Throws LoadError.
+  /// (docs/RAYSETS.md), a default light; then validates the mesh. Throws LoadError.
   void finalize();
   bool has_reflective_material() const;
   bool has_refractive_material() const;
 };
 
-/// The canonical primary camera of BENCHMARK.md for a box [lo, hi].
+/// The canonical primary camera of docs/RAYSETS.md for a box [lo, hi].
 Camera canonical_camera(const Box3& bounds, float fov_deg = 45.0f);
-/// The benchmark point light position c + (0, 2r, 0) + 0.5 r d (BENCHMARK.md, shadow set).
+/// The benchmark point light position c + (0, 2r, 0) + 0.5 r d (docs/RAYSETS.md, shadow set).
 Vec3 canonical_light_position(const Box3& bounds);
 
 }  // namespace kdgrid

@@ -1,5 +1,5 @@
 // Scene writers: what `kdgrid gen` produces. Triangle order is preserved by every writer, so
-// hit indices (BENCHMARK.md) agree between the generated file and the scene it came from.
+// hit indices (docs/RAYSETS.md) agree between the generated file and the scene it came from.
 #pragma once
 
 #include <string>

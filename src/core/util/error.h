@@ -1,5 +1,5 @@
 // Errors that reach the user. Every message names the file or parameter, the problem and,
-// where there is one, the fix (STYLE.md rule 12). The CLI prints what() and exits non-zero.
+// where there is one, the fix (docs/DESIGN.md, "Errors"). The CLI prints what() and exits non-zero.
 #pragma once
 
 #include <stdexcept>
