@@ -1013,19 +1013,18 @@ void Viewer::draw_panels() {
     if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
       opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
     }
-    // Both plots run from 0 to their history's maximum, which the overlay names, so that
-    // their height reads as a fraction of a stated value.
-    const auto plot = [](const char* name, const std::deque<float>& hist, const char* fmt) {
+    // Both plots run from 0 to their history's maximum, which the overlay names (with the
+    // latest value), so that their height reads as a fraction of a stated value.
+    const auto plot = [](const char* name, const std::deque<float>& hist, const char* unit) {
       std::vector<float> v(hist.begin(), hist.end());
       const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
-      const float lo = v.empty() ? 0.0f : *std::min_element(v.begin(), v.end());
-      char overlay[96];
-      std::snprintf(overlay, sizeof overlay, fmt, v.empty() ? 0.0f : v.back(), lo, hi);
+      char overlay[64];
+      std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(), unit, hi);
       ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f, ImVec2(0, 40));
     };
-    plot("Mrays/s", mrays_hist_, "%.3g now, %.3g-%.3g (axis 0-max)");
+    plot("Mrays/s", mrays_hist_, "");
     // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
-    plot("frame work", frame_ms_hist_, "%.1f ms now, %.1f-%.1f ms");
+    plot("frame work", frame_ms_hist_, " ms");
     ImGui::Text("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
                 cam_.speed_scale());
     if (ImGui::Button("print camera (C)")) print_camera();
