@@ -121,7 +121,7 @@ std::shared_ptr<World> build_world(std::shared_ptr<const Scene> scene, const std
   auto w = std::make_shared<World>();
   w->scene = std::move(scene);
   w->name = name;
-  w->params = params;  // as requested: the token and thread share are this build's only
+  w->params = params;  // as requested; the token and thread count below belong to this build only
   BuildParams p = params;
   p.cancel = &cancel;
   p.threads = background_build_threads();
