@@ -59,7 +59,7 @@ void add_profile_command(CLI::App& app) {
     const Scene scene = load_scene(resolve_scene_path(a->scene));
     const Camera cam = a->camera.apply(canonical_camera(scene.mesh.bounds()));
     const std::vector<Ray> rays = primary_rays(cam, w, h);
-    const auto ref = build_accelerator(a->reference, scene.mesh, params);
+    const auto ref = build_interruptible(a->reference, scene.mesh, params);
     const RayClasses cls = classify_rays(*ref, scene.mesh.bounds(), rays);
     const std::string passes = a->cache_sim ? std::string("one untimed pass per class in image order")
                                             : std::to_string(a->reps) +
@@ -84,7 +84,7 @@ void add_profile_command(CLI::App& app) {
     };
     int pass = 0;
     for (const std::string& name : names) {
-      const auto acc = build_accelerator(name, scene.mesh, params);
+      const auto acc = build_interruptible(name, scene.mesh, params);
       const std::pair<const char*, const std::vector<Ray>*> sets[] = {
           {"all", &rays}, {"hit", &cls.hit}, {"miss-box", &cls.miss_box}, {"miss-out", &cls.miss_out}};
       for (const auto& [label, set] : sets) {

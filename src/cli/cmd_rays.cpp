@@ -80,7 +80,7 @@ void add_rays_command(CLI::App& app) {
     }
     std::unique_ptr<Accelerator> accel;
     if (spec.kind == RaySetKind::Shadow || spec.kind == RaySetKind::Diffuse)
-      accel = build_accelerator(a->accel.accel, scene.mesh, params);
+      accel = build_interruptible(a->accel.accel, scene.mesh, params);
     const std::vector<Ray> rays = make_ray_set(spec, scene.mesh, accel.get());
     write_rays(a->out, rays);
     if (spec.kind == RaySetKind::Random)

@@ -140,7 +140,7 @@ void run_render(const RenderArgs& a) {
   const uint64_t load_peak = process_peak_rss_bytes();
   const bool phase_peaks = reset_peak_rss();
   const uint64_t rss_before_build = current_rss_bytes();
-  const auto accel = build_accelerator(a.accel.accel, scene.mesh, params);
+  const auto accel = build_interruptible(a.accel.accel, scene.mesh, params);
   const double build_seconds = accel->stats().seconds;
   const uint64_t build_peak = peak_rss_since_reset(), rss_after_build = current_rss_bytes();
 

@@ -316,7 +316,7 @@ void add_trace_command(CLI::App& app) {
       if (!a->hits.empty()) throw ParamError("--traversal-only finds no hits: drop --hits");
       p.triangle_test = TriangleTestKind::None;
     }
-    const auto accel = build_accelerator(a->accel.accel, scene.mesh, p);
+    const auto accel = build_interruptible(a->accel.accel, scene.mesh, p);
     if (!a->pixel.empty())
       trace_pixel(*a, scene, *accel);
     else

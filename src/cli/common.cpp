@@ -1,13 +1,16 @@
 #include "cli/common.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <sstream>
 
 #include "accel/accelerator.h"
 #include "render/camera.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -199,6 +202,34 @@ void require_accelerator_names(const std::vector<std::string>& names) {
     std::string choices;
     for (const std::string& k : known) choices += (choices.empty() ? "" : ", ") + k;
     throw ParamError("unknown accelerator '" + n + "': choose one of " + choices);
+  }
+}
+
+namespace {
+// Set by SIGINT while build_interruptible runs (CancelToken::cancel is a lock-free store).
+CancelToken g_build_interrupt;
+extern "C" void on_build_sigint(int) { g_build_interrupt.cancel(); }
+}  // namespace
+
+std::unique_ptr<Accelerator> build_interruptible(const std::string& name, const Mesh& mesh,
+                                                 const BuildParams& params) {
+  BuildParams p = params;
+  p.cancel = &g_build_interrupt;
+  g_build_interrupt.reset();
+  const auto t0 = std::chrono::steady_clock::now();
+  auto old_handler = std::signal(SIGINT, on_build_sigint);
+  struct Restore {
+    decltype(old_handler) h;
+    ~Restore() { std::signal(SIGINT, h == SIG_ERR ? SIG_DFL : h); }
+  } restore{old_handler};
+  try {
+    return build_accelerator(name, mesh, p);
+  } catch (const BuildCancelled&) {
+    char secs[32];
+    std::snprintf(secs, sizeof secs, "%.1f", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    throw BuildCancelled("interrupted (Ctrl-C) while building " + name + " over " +
+                         std::to_string(mesh.num_triangles()) + " triangles, " + secs +
+                         " s in; the build stopped and nothing was written");
   }
 }
 

@@ -8,6 +8,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "accel/accelerator.h"
 #include "accel/params.h"
 #include "math/ray.h"
 #include "math/vec.h"
@@ -53,5 +54,12 @@ void parse_resolution(const std::string& s, int& width, int& height);
 Ray pixel_ray(const Camera& cam, const std::string& res, const std::string& pixel);
 /// Parses a cell size: "auto" -> 0, else a finite positive number.
 float parse_cell_size(const std::string& s);
+
+/// build_accelerator() that Ctrl-C (SIGINT) cancels: while it builds, SIGINT sets the build's
+/// cancel token (BuildParams::cancel) instead of killing the process, and the builder stops
+/// within about 100 ms with BuildCancelled, which main() reports with exit code 130. The
+/// previous SIGINT handler is back in place when it returns or throws.
+std::unique_ptr<Accelerator> build_interruptible(const std::string& name, const Mesh& mesh,
+                                                 const BuildParams& params);
 
 }  // namespace kdgrid::cli

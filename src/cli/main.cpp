@@ -3,6 +3,7 @@
 #include <exception>
 
 #include "cli/commands.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 int main(int argc, char** argv) {
@@ -22,6 +23,10 @@ int main(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  } catch (const kdgrid::BuildCancelled& e) {
+    // Ctrl-C during a build (cli::build_interruptible): 128 + SIGINT, as the shell reports it.
+    std::fprintf(stderr, "kdgrid: %s\n", e.what());
+    return 130;
   } catch (const kdgrid::Error& e) {
     std::fprintf(stderr, "kdgrid: error: %s\n", e.what());
     return 1;

@@ -23,12 +23,15 @@ uint64_t RenderWorker::post(RenderJob job) {
   uint64_t id;
   {
     std::lock_guard lk(job_mutex_);
+    const bool let_finish = job.preview && running_preview_;
     job_ = std::move(job);
     id = ++job_id_;
     job_changed_ = true;
     // Under the lock so the worker cannot clear it between taking the old job and starting
-    // its pass: any pass that starts on the old job is cancelled.
-    cancel_.store(true);
+    // its pass: any pass that starts on the old job is cancelled. A preview pass followed by
+    // another preview runs to its end, so that a moving camera always gets pictures (the
+    // worker takes the newest job as soon as it is done).
+    if (!let_finish) cancel_.store(true);
     busy_.store(true, std::memory_order_relaxed);
   }
   job_cv_.notify_all();
@@ -73,6 +76,7 @@ void RenderWorker::loop() {
         job = job_;
         id = job_id_;
         job_changed_ = false;
+        running_preview_ = job.preview;
         cancel_.store(false);
         changed = true;
         error_.clear();
@@ -107,6 +111,7 @@ void RenderWorker::loop() {
       local.samples = renderer->samples();
       local.mode = job.settings.mode;
       local.job_id = id;
+      local.preview = job.preview;
       local.pass_seconds = secs;
       const RenderCounters& rc = renderer->counters();
       local.pass_counters.primary = rc.primary - rays_before.primary;

@@ -1,6 +1,10 @@
 // The progressive render loop on its own thread. The UI thread posts what to render (scene,
 // structure, camera, size, mode) and picks up the newest completed pass; it never waits on a
-// pass. Every change cancels the running pass and restarts accumulation.
+// pass. A new job restarts accumulation and cancels the running pass (between tiles), except
+// that a preview pass (a reduced-resolution pass of a moving camera, sized to take a few tens
+// of milliseconds) runs to its end when the next job is another preview: cancelling it at
+// every frame of a camera move would show nothing until the move ends, while finishing it
+// shows a picture one pass behind the newest camera, and the newest job starts right after.
 #pragma once
 
 #include <atomic>
@@ -37,6 +41,9 @@ struct RenderJob {
   Camera camera;
   RenderSettings settings;
   int max_samples = 256;  ///< stop accumulating here (the image no longer changes visibly)
+  /// A reduced-resolution pass of a moving camera: a later preview job lets it finish (see
+  /// the top of this file); any other job cancels it.
+  bool preview = false;
 };
 
 /// One completed, resolved image.
@@ -46,6 +53,7 @@ struct RenderedImage {
   int samples = 0;
   RenderMode mode = RenderMode::Shaded;
   uint64_t job_id = 0;        ///< which post() produced it
+  bool preview = false;       ///< RenderJob::preview of that job
   double pass_seconds = 0;    ///< wall time of the pass that completed it
   uint64_t pass_rays = 0;     ///< rays traced by that pass
   RenderCounters pass_counters;  ///< the same, by kind (primary, shadow, ...)
@@ -60,8 +68,8 @@ class RenderWorker {
   RenderWorker(const RenderWorker&) = delete;
   RenderWorker& operator=(const RenderWorker&) = delete;
 
-  /// Replaces the job; cancels the running pass at once. Returns the job id that images
-  /// rendered from this job will carry.
+  /// Replaces the job; cancels the running pass at once unless both it and `job` are
+  /// previews. Returns the job id that images rendered from this job will carry.
   uint64_t post(RenderJob job);
 
   /// If a pass completed since the last call, swaps its image into `out` and returns true.
@@ -85,6 +93,7 @@ class RenderWorker {
   std::string error_;       // guarded by job_mutex_
 
   std::atomic<bool> cancel_{false};
+  bool running_preview_ = false;  // guarded by job_mutex_: the job being rendered is a preview
   std::atomic<bool> busy_{false};
 
   std::mutex image_mutex_;

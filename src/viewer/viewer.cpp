@@ -106,6 +106,32 @@ struct WakeUiOnExit {
   ~WakeUiOnExit() { glfwPostEmptyEvent(); }
 };
 
+/// Threads a background build may use: all but one of those the process may use, so that the
+/// render worker keeps a core and the picture follows the camera while a structure builds (a
+/// build on every core starves the passes, which then take seconds). At least 1.
+int background_build_threads() {
+  const int n = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+  return std::max(1, n - 1);
+}
+
+/// The body of a background load or build: builds `name` over `scene` with `params`, polling
+/// `cancel` (BuildCancelled when it is set).
+std::shared_ptr<World> build_world(std::shared_ptr<const Scene> scene, const std::string& name,
+                                   const BuildParams& params, const CancelToken& cancel) {
+  auto w = std::make_shared<World>();
+  w->scene = std::move(scene);
+  w->name = name;
+  w->params = params;  // as requested; the token and thread count below belong to this build only
+  BuildParams p = params;
+  p.cancel = &cancel;
+  p.threads = background_build_threads();
+  cancel.check();  // cancelled while the scene loaded
+  const auto t0 = Clock::now();
+  w->accel = build_accelerator(name, w->scene->mesh, p);
+  w->build_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return w;
+}
+
 void push_history(std::deque<float>& h, float v) {
   h.push_back(v);
   while (h.size() > 120) h.pop_front();
@@ -248,7 +274,8 @@ void Viewer::shutdown() {
   // The worker goes first: it may hold the last reference to a world.
   worker_.reset();
   if (task_) {
-    task_->result.wait();  // a build cannot be interrupted; finish it before tearing down
+    cancel_task();  // a build stops within about 100 ms (a scene still loading finishes first)
+    task_->result.wait();
     task_.reset();
   }
   if (!window_) return;
@@ -318,17 +345,10 @@ void Viewer::start_load(const std::string& path) {
   t.kind = "load";
   t.new_scene = true;
   t.started = Clock::now();
-  t.result = std::async(std::launch::async, [path, name, params] {
+  t.cancel = std::make_shared<CancelToken>();
+  t.result = std::async(std::launch::async, [path, name, params, cancel = t.cancel] {
     const WakeUiOnExit wake;
-    auto scene = std::make_shared<Scene>(load_scene(path));
-    auto w = std::make_shared<World>();
-    w->scene = scene;
-    w->name = name;
-    w->params = params;
-    const auto t0 = Clock::now();
-    w->accel = build_accelerator(name, scene->mesh, params);
-    w->build_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-    return w;
+    return build_world(std::make_shared<Scene>(load_scene(path)), name, params, *cancel);
   });
   task_ = std::move(t);
 }
@@ -336,7 +356,10 @@ void Viewer::start_load(const std::string& path) {
 void Viewer::start_build(const std::string& name, const BuildParams& params) {
   if (!world_) return;
   if (task_) {
-    pending_build_ = {name, params};  // newest request wins; builds cannot be interrupted
+    // The newest request wins: a running build stops (its old structure keeps rendering)
+    // and this one starts when it has; a load of a new scene runs to its end first.
+    if (!task_->new_scene) cancel_task();
+    pending_build_ = {name, params};
     return;
   }
   task_error_.clear();
@@ -345,18 +368,19 @@ void Viewer::start_build(const std::string& name, const BuildParams& params) {
   t.what = "building " + name;
   t.kind = name == accel_name_ ? "rebuild" : "build";
   t.started = Clock::now();
-  t.result = std::async(std::launch::async, [scene, name, params] {
+  t.cancel = std::make_shared<CancelToken>();
+  t.result = std::async(std::launch::async, [scene, name, params, cancel = t.cancel] {
     const WakeUiOnExit wake;
-    auto w = std::make_shared<World>();
-    w->scene = scene;
-    w->name = name;
-    w->params = params;
-    const auto t0 = Clock::now();
-    w->accel = build_accelerator(name, scene->mesh, params);
-    w->build_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-    return w;
+    return build_world(scene, name, params, *cancel);
   });
   task_ = std::move(t);
+}
+
+void Viewer::cancel_task() {
+  if (!task_ || task_->cancel->cancelled()) return;
+  task_->cancel->cancel();
+  task_->cancelled_at = Clock::now();
+  pending_build_.reset();
 }
 
 void Viewer::poll_tasks() {
@@ -377,6 +401,15 @@ void Viewer::poll_tasks() {
     rec.stats = w->accel->stats();
     rec.cell_size = w->params.cell_size;
     install_world(std::move(w), new_scene);
+  } catch (const BuildCancelled&) {
+    // Not an error: the old structure stays and renders.
+    rec.cancelled = true;
+    rec.error = "cancelled";
+    rec.cancel_seconds = std::chrono::duration<double>(Clock::now() - task_->cancelled_at).count();
+    message_ = "cancelled " + task_->what + (world_ ? "; showing " + world_->name : "");
+    std::printf("kdgrid-viewer: cancelled %s after %.3f s (it stopped %.3f s after the request)\n",
+                task_->what.c_str(), rec.wall_seconds, rec.cancel_seconds);
+    std::fflush(stdout);
   } catch (const std::exception& e) {
     task_error_ = e.what();
     rec.error = e.what();
@@ -433,9 +466,15 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
     // Ctrl+Q quits (plain Q is "down"); a --hold run then finishes like a closed window.
     glfwSetWindowShouldClose(window_, GLFW_TRUE);
     if (end_reason_.empty()) end_reason_ = "ctrl+q";
+    cancel_task();  // a running build stops rather than delaying the exit
     return;
   }
   switch (key) {
+    case GLFW_KEY_ESCAPE:
+      // Cancels the running build; its old structure stays. The start-up scene's first build
+      // has none, so it is not cancelled (Ctrl+Q quits).
+      if (world_) cancel_task();
+      break;
     case GLFW_KEY_TAB:
       cam_.toggle_mode();
       break;
@@ -573,12 +612,24 @@ void Viewer::sync_render_job() {
     last_seen_camera_ = c;
     last_move_ = now;
   }
-  const bool preview = !opts_.scripted() && now - last_move_ < std::chrono::milliseconds(150);
-  const float scale = opts_.resolution_scale * (preview ? kPreviewScale : 1.0f);
+  // --frames runs render every frame at full resolution (reproducible screenshots); --hold
+  // runs are driven like a person's session and preview as one.
+  const bool preview = opts_.frames <= 0 && now - last_move_ < std::chrono::milliseconds(150);
+  float scale = opts_.resolution_scale;
+  if (preview) {
+    // The resolution at which a pass takes kPreviewPassSeconds at the measured speed.
+    float f = kPreviewScale;
+    if (pixels_per_second_ > 0)
+      f = float(std::sqrt(pixels_per_second_ * kPreviewPassSeconds / (double(fw) * double(fh))));
+    scale = std::clamp(f, kMinPreviewScale * opts_.resolution_scale, opts_.resolution_scale);
+  }
   const int w = std::max(1, int(std::lround(fw * scale)));
   const int h = std::max(1, int(std::lround(fh * scale)));
   posted_preview_ = preview;
-  if (world_.get() == posted_world_ && w == posted_w_ && h == posted_h_ && mode_ == posted_mode_ &&
+  // A moving camera is posted however little it moved; a preview whose size alone changed
+  // (the speed estimate moved) is not reposted for that.
+  const bool same_size = (w == posted_w_ && h == posted_h_) || (preview && posted_preview_job_);
+  if (world_.get() == posted_world_ && same_size && mode_ == posted_mode_ &&
       opts_.max_samples == posted_max_samples_ && same_camera(c, posted_camera_))
     return;
   RenderJob job;
@@ -588,7 +639,11 @@ void Viewer::sync_render_job() {
   job.settings.height = h;
   job.settings.mode = mode_;
   job.max_samples = opts_.max_samples;
+  job.preview = preview;
   posted_job_ = worker_->post(std::move(job));
+  post_times_.emplace_back(posted_job_, now);
+  while (post_times_.size() > 256) post_times_.pop_front();
+  posted_preview_job_ = preview;
   posted_world_ = world_.get();
   posted_w_ = w;
   posted_h_ = h;
@@ -604,9 +659,23 @@ void Viewer::receive_image() {
     if (image_.pass_seconds > 0) {
       last_mrays_ = float(double(image_.pass_rays) / image_.pass_seconds * 1e-6);
       push_history(mrays_hist_, last_mrays_);
+      // The speed the next preview is sized by, in pixels per second: a slower pass lowers it
+      // at once (a build or another process took the cores: the next preview must shrink to
+      // stay on time), a faster one raises it gradually (one lucky pass does not double it).
+      const double pps = double(image_.width) * double(image_.height) / image_.pass_seconds;
+      pixels_per_second_ = pixels_per_second_ > 0 && pps > pixels_per_second_
+                               ? 0.7 * pixels_per_second_ + 0.3 * pps
+                               : pps;
     }
     PassRecord pr;
     pr.job = image_.job_id;
+    pr.preview = image_.preview;
+    const auto now = Clock::now();
+    pr.shown_at = std::chrono::duration<double>(now - run_started_).count();
+    // Motion to photon: the job was posted in the frame that handled the input that moved
+    // the camera to what this image shows.
+    for (const auto& [job, at] : post_times_)
+      if (job == image_.job_id) pr.latency_ms = std::chrono::duration<double, std::milli>(now - at).count();
     pr.width = image_.width;
     pr.height = image_.height;
     pr.samples = image_.samples;
@@ -772,6 +841,9 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   for (const PassRecord& p : passes_) {
     const uint64_t rays = p.rays.total();
     passes.push_back({{"job", p.job},
+                      {"preview", p.preview},
+                      {"latency_ms", p.latency_ms},
+                      {"shown_at", p.shown_at},
                       {"width", p.width},
                       {"height", p.height},
                       {"samples", p.samples},
@@ -790,6 +862,7 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   for (const BuildRecord& b : builds_) {
     json e = {{"kind", b.kind}, {"accel", b.accel}, {"scene", b.scene}, {"build_seconds", b.build_seconds},
               {"wall_seconds", b.wall_seconds}, {"requested_cell_size", b.cell_size}};
+    if (b.cancelled) e["cancel_seconds"] = b.cancel_seconds;
     if (!b.error.empty()) {
       e["error"] = b.error;
     } else {
@@ -826,6 +899,11 @@ void Viewer::draw_panels() {
   if (task_) {
     const double secs = std::chrono::duration<double>(Clock::now() - task_->started).count();
     ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
+    ImGui::SameLine();
+    if (task_->cancel->cancelled())
+      ImGui::TextDisabled("cancelling");
+    else if (ImGui::SmallButton("cancel (Esc)"))
+      cancel_task();
     // Builds report no progress, so show motion rather than a fraction.
     ImGui::ProgressBar(float(std::fmod(secs, 1.0)), ImVec2(-1, 0), "");
   }
@@ -935,12 +1013,18 @@ void Viewer::draw_panels() {
     if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
       opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
     }
-    std::vector<float> v(mrays_hist_.begin(), mrays_hist_.end());
-    ImGui::PlotLines("Mrays/s", v.data(), int(v.size()), 0, nullptr, 0.0f, FLT_MAX, ImVec2(0, 40));
-    std::vector<float> ft(frame_ms_hist_.begin(), frame_ms_hist_.end());
-    char label[64];
-    std::snprintf(label, sizeof label, "%.1f ms", ft.empty() ? 0.0f : ft.back());
-    ImGui::PlotLines("frame", ft.data(), int(ft.size()), 0, label, 0.0f, FLT_MAX, ImVec2(0, 40));
+    // Both plots run from 0 to their history's maximum, which the overlay names (with the
+    // latest value), so that their height reads as a fraction of a stated value.
+    const auto plot = [](const char* name, const std::deque<float>& hist, const char* unit) {
+      std::vector<float> v(hist.begin(), hist.end());
+      const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
+      char overlay[64];
+      std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(), unit, hi);
+      ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f, ImVec2(0, 40));
+    };
+    plot("Mrays/s", mrays_hist_, "");
+    // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
+    plot("frame work", frame_ms_hist_, " ms");
     ImGui::Text("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
                 cam_.speed_scale());
     if (ImGui::Button("print camera (C)")) print_camera();
@@ -1122,6 +1206,7 @@ int Viewer::run() {
   drop_done_ = opts_.drop.empty();
 
   const auto started = Clock::now();
+  run_started_ = started;
   auto last = started;
   bool pick_done = !opts_.pick.has_value();
   int exit_code = 0;
@@ -1143,7 +1228,6 @@ int Viewer::run() {
     const auto now = Clock::now();
     const float dt = std::chrono::duration<float>(now - last).count();
     last = now;
-    push_history(frame_ms_hist_, dt * 1000.0f);
     if (frame_count_ > 0) frame_interval_ms_.push_back(dt * 1000.0f);
 
     // A --hold run treats a close request (Ctrl+Q, the window manager) as the end of the
@@ -1159,9 +1243,11 @@ int Viewer::run() {
       break;
     }
     if (closing && end_reason_.empty()) end_reason_ = "window closed";
+    if (closing) cancel_task();  // whatever closed the window: a running build stops
 
     const bool had_world = world_ != nullptr;
     poll_tasks();
+    if (!world_ && !task_ && !had_world && closing) break;  // closed during the first build
     if (!world_ && !task_ && !had_world) {
       // The start-up scene failed to load: nothing to show; say why and stop.
       std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
@@ -1253,7 +1339,10 @@ int Viewer::run() {
     // With a software GL (llvmpipe) the drawing happens here, when the frame is flushed.
     frame_swap_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - swap_start).count());
     // What the UI thread did this frame: events, hand-over, upload, panels, drawing, swap.
-    frame_work_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - now).count());
+    // The frame plot shows this, not the interval: an idle loop sleeps between frames.
+    const float work_ms = std::chrono::duration<float, std::milli>(Clock::now() - now).count();
+    frame_work_ms_.push_back(work_ms);
+    push_history(frame_ms_hist_, work_ms);
   }
   if (!opts_.stats_json.empty()) write_stats(opts_.stats_json, exit_code);
   shutdown();

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "cli/common.h"
+#include "util/cancel.h"
 #include "viewer/camera_control.h"
 #include "viewer/image_view.h"
 #include "viewer/overlay.h"
@@ -81,6 +82,7 @@ class Viewer {
   // ---- world: scene + structure, built off the UI thread
   void start_load(const std::string& path);
   void start_build(const std::string& name, const BuildParams& params);
+  void cancel_task();
   void poll_tasks();
   void install_world(std::shared_ptr<const World> w, bool new_scene);
   BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
@@ -119,13 +121,16 @@ class Viewer {
   RenderMode mode_ = RenderMode::Shaded;
   std::unique_ptr<RenderWorker> worker_;
 
-  // Background tasks: one build/load at a time; a newer request waits in pending_*.
+  // Background tasks: one build/load at a time; a newer build request cancels a running build
+  // and waits in pending_* until it has stopped (a load runs to its end first).
   struct Task {
     std::future<std::shared_ptr<World>> result;
     std::string what;      // shown next to the spinner
     std::string kind;      // "load", "rebuild" or "build", for the statistics
     bool new_scene = false;
     std::chrono::steady_clock::time_point started;
+    std::shared_ptr<CancelToken> cancel;  // the build's BuildParams::cancel
+    std::chrono::steady_clock::time_point cancelled_at;  // when cancel_task() set it
   };
   std::optional<Task> task_;
   std::optional<std::pair<std::string, BuildParams>> pending_build_;
@@ -133,7 +138,18 @@ class Viewer {
   bool scripted_rebuild_started_ = false, scripted_rebuild_done_ = false;
 
   // Render job tracking.
-  static constexpr float kPreviewScale = 0.35f;  ///< resolution factor while the camera moves
+  /// Resolution factor of the first preview of a moving camera, before any pass has been
+  /// timed; later previews size themselves to kPreviewPassSeconds.
+  static constexpr float kPreviewScale = 0.35f;
+  /// Frame-time target of a preview pass while the camera moves, in seconds: the preview's
+  /// pixel count is chosen from the measured pixels per second of recent passes so that one
+  /// pass takes about this long, as a viewport lowers its pixel size to hold a frame rate.
+  /// 0.06 s gives 10+ pictures per second with the motion-to-photon time about two passes
+  /// (the pass in flight finishes, then the newest camera's).
+  static constexpr double kPreviewPassSeconds = 0.06;
+  /// Bounds of the preview's resolution factor (per axis, times --resolution-scale): below
+  /// 0.05 a 1280-wide window gets under 64 pixels across, too coarse to steer by.
+  static constexpr float kMinPreviewScale = 0.05f;
   static constexpr float kRadPerPixel = 0.005f;  ///< orbit / look turn per window unit of drag
   /// Longest sleep of an idle UI loop (nothing moving, no build), in seconds: input and new
   /// passes wake it at once, so this only bounds how stale anything else can get.
@@ -150,6 +166,11 @@ class Viewer {
   int posted_max_samples_ = 0;
   uint64_t posted_job_ = 0;
   bool posted_preview_ = false;  ///< the camera moved within the last moment
+  bool posted_preview_job_ = false;  ///< posted_job_ is a preview
+  double pixels_per_second_ = 0;  ///< smoothed render speed of recent passes (0 = none yet)
+  /// When each recent job was posted (motion-to-photon figures in --stats-json).
+  std::deque<std::pair<uint64_t, std::chrono::steady_clock::time_point>> post_times_;
+  std::chrono::steady_clock::time_point run_started_{};  ///< run()'s start, for the statistics
 
   // The displayed image.
   RenderedImage image_;
@@ -167,6 +188,9 @@ class Viewer {
   float last_mrays_ = 0;
   struct PassRecord {
     uint64_t job = 0;
+    bool preview = false;
+    double latency_ms = 0;       // the job's post (its camera's input) to its image's upload
+    double shown_at = 0;         // seconds since start-up, for the intervals between pictures
     int width = 0, height = 0, samples = 0;
     double seconds = 0;
     RenderCounters rays;
@@ -179,6 +203,8 @@ class Viewer {
     BuildStats stats;
     float cell_size = 0;         // requested; 0 = auto
     std::string error;
+    bool cancelled = false;
+    double cancel_seconds = 0;   // cancel request to the build's end
   };
   std::vector<float> frame_interval_ms_, frame_work_ms_, frame_swap_ms_, colorize_ms_, upload_ms_;
   std::vector<PassRecord> passes_;

@@ -11,6 +11,7 @@
 #include <type_traits>
 
 #include "accel/guards.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -75,6 +76,7 @@ class Builder {
 
   /// Builds the subtree over prims_[begin, end) into slots [slot, slot + 2n - 1).
   SubStats build(uint32_t slot, uint32_t begin, uint32_t end, int depth) {
+    check_cancel(p_.cancel);
     SubStats st;
     st.max_depth = uint32_t(depth);
     const uint32_t n = end - begin;

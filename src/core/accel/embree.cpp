@@ -7,6 +7,7 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -56,6 +57,11 @@ bool memory_monitor(void* user, ssize_t bytes, bool post) {
 void error_callback(void* user, RTCError code, const char* str) {
   auto* msg = static_cast<std::string*>(user);
   *msg = std::string("Embree error ") + std::to_string(int(code)) + ": " + (str ? str : "");
+}
+
+/// Embree calls this during the commit; returning false stops the build (RTC_ERROR_CANCELLED).
+bool keep_building(void* token, double /*progress*/) {
+  return !static_cast<const CancelToken*>(token)->cancelled();
 }
 
 RTCBuildQuality parse_quality(const std::string& q) {
@@ -147,6 +153,8 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   // reference agrees with kdgrid's watertight test as closely as possible.
   rtcSetSceneFlags(st.scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(st.scene, quality);
+  if (params.cancel)
+    rtcSetSceneProgressMonitorFunction(st.scene, keep_building, const_cast<CancelToken*>(params.cancel));
 
   const size_t nv = mesh.num_vertices(), nt = mesh.num_triangles();
   if (nt > 0) {
@@ -168,6 +176,11 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   }
   rtcCommitScene(st.scene);
   const RTCError err = rtcGetDeviceError(st.device);
+  if (params.cancel && params.cancel->cancelled()) {
+    release();
+    vertices_ = {};
+    throw BuildCancelled();
+  }
   if (st.memory.over_limit.load()) {
     const double held = double(std::max<int64_t>(0, st.memory.peak.load()));
     release();

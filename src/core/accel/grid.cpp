@@ -10,6 +10,7 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -197,6 +198,7 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   // Count pass.
   arena.execute([&] {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tris, 256), [&](const auto& r) {
+      check_cancel(params.cancel);
       for (size_t i = r.begin(); i < r.end(); ++i)
         for_cells_of(i, [&](uint64_t cidx) {
           std::atomic_ref<uint32_t>(counts[cidx]).fetch_add(1, std::memory_order_relaxed);
@@ -207,6 +209,7 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   uint64_t total = 0;
   uint64_t empty = 0;
   for (uint64_t c = 0; c < cells; ++c) {
+    if ((c & 0xFFFFF) == 0) check_cancel(params.cancel);
     const uint64_t n = counts[c];
     empty += n == 0;
     counts[c] = uint32_t(total);
@@ -233,6 +236,7 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   std::vector<uint32_t> cursor(offsets_.begin(), offsets_.end() - 1);
   arena.execute([&] {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tris, 256), [&](const auto& r) {
+      check_cancel(params.cancel);
       for (size_t i = r.begin(); i < r.end(); ++i)
         for_cells_of(i, [&](uint64_t cidx) {
           const uint32_t at =
@@ -241,6 +245,7 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
         });
     });
     tbb::parallel_for(tbb::blocked_range<uint64_t>(0, cells, 1024), [&](const auto& r) {
+      check_cancel(params.cancel);
       for (uint64_t c = r.begin(); c < r.end(); ++c)
         if (offsets_[c + 1] - offsets_[c] > 1)
           std::sort(refs_.begin() + offsets_[c], refs_.begin() + offsets_[c + 1]);

@@ -15,6 +15,7 @@
 
 #include "accel/guards.h"
 #include "accel/kdtree.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -61,7 +62,7 @@ class TreeBuilder {
  public:
   TreeBuilder(const Mesh& mesh, const double origin[3], double cell, const int32_t dims[3],
               const BuildParams& p)
-      : mesh_(mesh), inv_cell_(1.0 / cell), cell_(cell), kd_(mesh, p, Hybrid::kSubMaxDepth) {
+      : mesh_(mesh), inv_cell_(1.0 / cell), cell_(cell), kd_(mesh, p, Hybrid::kSubMaxDepth), cancel_(p.cancel) {
     for (int a = 0; a < 3; ++a) {
       origin_[a] = origin[a];
       dims_[a] = dims[a];
@@ -212,6 +213,7 @@ class TreeBuilder {
 
   std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3], const int32_t hi[3],
                                    int depth) {
+    check_cancel(cancel_);
     auto node = std::make_unique<BuildNode>();
     charge(int64_t(sizeof(BuildNode)));
     nodes_made_.fetch_add(1, std::memory_order_relaxed);
@@ -322,6 +324,7 @@ class TreeBuilder {
   double origin_[3];
   double inv_cell_, cell_;
   KdSubtreeBuilder kd_;
+  const CancelToken* cancel_;  // polled once per node
   int32_t dims_[3];
   double kt_, ki_, bonus_;
   uint32_t subtree_min_ = 0;
@@ -556,6 +559,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   arena.execute([&] {
     const auto t0 = std::chrono::steady_clock::now();
     build_tree(mesh, params);
+    check_cancel(params.cancel);
     // Local triangle ids in first-reference order (leaves are numbered depth-first).
     std::vector<uint32_t> local_of(ntri, kInvalidPrim);
     prim_of_.clear();
@@ -579,6 +583,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     build_matrix(left);
+    check_cancel(params.cancel);
     const uint64_t matrix = (bricks_.size() + top_.size() + matrix_.size()) * sizeof(uint32_t);
     const auto t2 = std::chrono::steady_clock::now();
     // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell

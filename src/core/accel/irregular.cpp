@@ -11,6 +11,7 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -148,10 +149,13 @@ struct IrregularGrid::Builder {
     std::vector<uint32_t> top_count, top_begin, top_refs;
     assign_top_references(top_count, top_begin, top_refs);
     subdivide(top_count, top_begin, top_refs);
+    check_cancel(params.cancel);
     cells_before_merge = cells.size();
     if (params.irregular_merge) merge();
     cells_after_merge = cells.size();
+    check_cancel(params.cancel);
     expand();
+    check_cancel(params.cancel);
     finish();
   }
 
@@ -274,6 +278,7 @@ struct IrregularGrid::Builder {
     std::atomic<uint64_t> listed{0};
     std::atomic<bool> over{false};
     tbb::parallel_for(size_t(0), num_chunks, [&](size_t ch) {
+      check_cancel(params.cancel);
       if (over.load(std::memory_order_relaxed)) return;
       auto& out = pairs[ch];
       const size_t end = std::min(valid.size(), (ch + 1) * kChunk);
@@ -371,6 +376,7 @@ struct IrregularGrid::Builder {
       if (count[t] > 0) nonempty.push_back(uint32_t(t));
     std::vector<SubOut> outs(nonempty.size());
     tbb::parallel_for(size_t(0), nonempty.size(), [&](size_t idx) {
+      check_cancel(params.cancel);
       const uint32_t t = nonempty[idx];
       const auto& l = logs[t];
       const int32_t tx = int32_t(t % r[0]), ty = int32_t((t / r[0]) % r[1]),
@@ -479,6 +485,7 @@ struct IrregularGrid::Builder {
     std::vector<uint32_t> next(n, kNone), prev(n, kNone), ucount(n, 0);
     std::atomic<uint64_t> evaluations{0};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& rg) {
+      check_cancel(params.cancel);
       uint64_t evals = 0;
       for (size_t i = rg.begin(); i < rg.end(); ++i) {
         const BCell& c1 = cells[i];
@@ -572,7 +579,10 @@ struct IrregularGrid::Builder {
     for (int round = 0; round < kMergeMaxRounds; ++round) {
       const uint64_t before = cells.size();
       uint64_t removed = 0;
-      for (int axis = 0; axis < 3; ++axis) removed += merge_pass(axis);
+      for (int axis = 0; axis < 3; ++axis) {
+        check_cancel(params.cancel);
+        removed += merge_pass(axis);
+      }
       ++merge_rounds;
       if (double(removed) < std::max(kMergeStopFraction * double(before), double(kMergeMinCells)))
         break;
@@ -637,6 +647,7 @@ struct IrregularGrid::Builder {
     if (!params.irregular_expand) return;
     std::atomic<uint64_t> grown{0};
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& rg) {
+      check_cancel(params.cancel);
       uint64_t local = 0;
       for (size_t i = rg.begin(); i < rg.end(); ++i) {
         bool open[6] = {true, true, true, true, true, true};

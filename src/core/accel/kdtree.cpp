@@ -12,6 +12,7 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -115,6 +116,7 @@ class Builder {
         ki_(p.kd_intersection_cost),
         empty_mult_(1.0f - p.kd_empty_bonus),
         max_depth_(max_depth),
+        cancel_(p.cancel),
         budget_(int64_t(std::min<uint64_t>(effective_memory_budget(p), uint64_t(INT64_MAX)))) {}
 
   void build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth, Subtree& out);
@@ -167,6 +169,7 @@ class Builder {
   const Mesh& mesh_;
   float kt_, ki_, empty_mult_;
   int max_depth_;
+  const CancelToken* cancel_;  // polled once per node
   std::atomic<uint64_t> sah_evals_{0};
   const int64_t budget_;
   std::atomic<int64_t> live_{0}, peak_{0};
@@ -186,6 +189,7 @@ Builder::Split Builder::find_split(const std::vector<Event>& events, uint32_t n,
   size_t i = 0;
   const size_t size = events.size();
   for (int a = 0; a < 3; ++a) {
+    check_cancel(cancel_);  // the root's sweep over millions of events takes a while
     uint32_t nl = 0, nr = n;
     const float lo = box.lo[a], hi = box.hi[a];
     while (i < size && events[i].axis == a) {
@@ -240,6 +244,7 @@ void Builder::leaf(std::vector<Event>& events, Subtree& out) {
 
 void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth,
                     Subtree& out) {
+  check_cancel(cancel_);
   if (n == 0 || depth >= max_depth_ || over_budget()) return leaf(events, out);
   const Split sp = find_split(events, n, box);
   if (sp.axis < 0 || !(sp.cost < ki_ * float(n))) return leaf(events, out);
@@ -283,6 +288,7 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
   charge(int64_t((left.capacity() + right.capacity()) * sizeof(Event) +
                  both.capacity() * sizeof(uint32_t)));
   release(events);
+  check_cancel(cancel_);
 
   // Perfect splits: straddling triangles get new events from their bounds clipped to each
   // child; only these are sorted, then merged with the (already sorted) one-sided events.
@@ -322,6 +328,7 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
   charge(-int64_t(both.capacity() * sizeof(uint32_t)));
   std::vector<uint32_t>().swap(both);
   const uint32_t nl = n_left_only + nb, nr = n_right_only + nb;
+  check_cancel(cancel_);
 
   const size_t self = out.nodes.size();
   int64_t cap = tree_capacity(out);
@@ -490,8 +497,12 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   arena.execute([&] {
     std::vector<Event> events;
     events.reserve(n * 6);
-    for (size_t i = 0; i < n; ++i) add_events(events, uint32_t(i), mesh.triangle_bounds(i));
+    for (size_t i = 0; i < n; ++i) {
+      if (i % 65536 == 0) check_cancel(params.cancel);
+      add_events(events, uint32_t(i), mesh.triangle_bounds(i));
+    }
     tbb::parallel_sort(events.begin(), events.end(), event_less);
+    check_cancel(params.cancel);
     builder.build(events, uint32_t(n), bounds_, 0, tree);
   });
   auto throw_over_budget = [&](uint64_t nodes) {

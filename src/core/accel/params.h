@@ -7,6 +7,8 @@
 
 namespace kdgrid {
 
+class CancelToken;  // util/cancel.h
+
 enum class TriangleTestKind {
   /// Woop, Benthin & Wald 2013: no ray passes between triangles sharing an edge or vertex.
   Watertight,
@@ -112,6 +114,13 @@ struct BuildParams {
   /// on 2 cores at the ~5e7 tests per second per core measured on the 10M-triangle landscape
   /// (shadow rays can double it); 0 = no limit. Other structures ignore it.
   double brute_work_limit = 5e9;
+
+  // ---- cancellation ----------------------------------------------------------------------
+  /// Set from another thread (or a signal handler) to stop the build: every builder polls it
+  /// in its loops and throws BuildCancelled (util/cancel.h) within about 100 ms. Not owned;
+  /// it must outlive the build, and is not used once build() has returned. nullptr = the
+  /// build cannot be cancelled.
+  const CancelToken* cancel = nullptr;
 };
 
 /// Resolves memory_budget = 0 to half of physical memory.
