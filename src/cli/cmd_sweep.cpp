@@ -3,12 +3,12 @@
 // same stem); without --out the CSV goes to stdout. Progress goes to stderr.
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
 #include "bench/sweep.h"
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -28,10 +28,7 @@ struct SweepArgs {
 void write_text(const std::filesystem::path& p, const std::string& text) {
   std::error_code ec;
   if (p.has_parent_path()) std::filesystem::create_directories(p.parent_path(), ec);
-  std::ofstream f(p, std::ios::binary);
-  if (!f) throw Error(p.string() + ": cannot open for writing; check the directory is writable");
-  f << text;
-  if (!f) throw Error(p.string() + ": write failed (disk full?)");
+  write_file_atomically(p.string(), text);
 }
 
 }  // namespace

@@ -71,8 +71,8 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--memory-budget-mb", budget_mb_,
-                  "Refuse builds whose estimated peak exceeds this (MiB); 0 = half of physical "
-                  "memory")
+                  "Refuse builds whose estimated peak exceeds this (MiB); 0 = half of the memory "
+                  "available (the smallest of physical memory, the cgroup limit, ulimit -v)")
       ->group(g);
   cmd->add_option("--brute-work-limit", params.brute_work_limit,
                   "Brute force: refuse above this many primary-ray x triangle tests (0 = no "
@@ -99,6 +99,11 @@ BuildParams AccelOptions::resolve() const {
   if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
   if (!(p.brute_work_limit >= 0.0))
     throw ParamError("--brute-work-limit must be >= 0 (0 = no limit), e.g. 5e9");
+  // MiB to bytes must not wrap: 2^44 MiB is 2^64 bytes.
+  constexpr long kMaxBudgetMb = (long(1) << 44) - 1;
+  if (budget_mb_ > kMaxBudgetMb)
+    throw ParamError("--memory-budget-mb " + std::to_string(budget_mb_) + " is too large: at most " +
+                     std::to_string(kMaxBudgetMb) + " MiB (0 = half of the memory available)");
   if (budget_mb_ > 0) p.memory_budget = uint64_t(budget_mb_) << 20;
   return p;
 }
