@@ -303,6 +303,20 @@ TEST(HostileFiles, DefaultMemoryBudgetHonoursUlimit) {
   EXPECT_EQ(WEXITSTATUS(status), 0) << "the default budget ignores ulimit -v";
 }
 
+TEST(HostileFiles, ZeroSizeSceneDoesNotBlameFlagsThatWereNotGiven) {
+  TempDir tmp;
+  const std::string ply = tmp.write(
+      "point.ply",
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+      "1 1 1\n1 1 1\n1 1 1\n3 0 1 2\n");
+  const CliResult r =
+      run_cli("render \"" + ply + "\" --res 8 --spp 1 -o \"" + tmp.path("p.png") + "\"", tmp);
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_EQ(r.err.find("--eye and --target are the same point"), std::string::npos) << r.err;
+  EXPECT_CONTAINS(r.err, "zero size");
+}
+
 // ---------------------------------------------------------------------------------------
 // Inputs: regular files of bounded size
 

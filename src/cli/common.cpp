@@ -125,8 +125,16 @@ Camera CameraOptions::apply(const Camera& base) const {
     c.fov_deg = fov;
   }
   if (!eye.empty() || !target.empty()) c.name = "command line";
-  if (length(c.target - c.eye) == 0.0f)
-    throw ParamError("--eye and --target are the same point: the camera has no view direction");
+  if (length(c.target - c.eye) == 0.0f) {
+    if (!eye.empty() && !target.empty())
+      throw ParamError("--eye and --target are the same point: the camera has no view direction");
+    // Neither flag (or only one) made them equal: the scene's camera, or the canonical camera
+    // of a scene without extent.
+    throw ParamError(std::string("the camera's eye and target are the same point (") +
+                     (eye.empty() && target.empty() ? "" : "with --eye or --target given, ") +
+                     "from the scene's camera, or the scene has zero size: all its vertices at "
+                     "one point); give both --eye X,Y,Z and --target X,Y,Z");
+  }
   return c;
 }
 
