@@ -285,6 +285,22 @@ TEST(HostileFiles, MemoryBudgetThatWouldOverflowIsRefused) {
   EXPECT_CONTAINS(r.err, "--memory-budget-mb 17592186044417 is too large");
 }
 
+TEST(HostileFiles, BuildRunningOutOfMemorySaysSoWithTheBudget) {
+  TempDir tmp;
+  // A budget far above what ulimit -v leaves: the estimate passes, the allocations fail (on
+  // the machine this was written on, 600 MB leave the hybrid build of 500000 triangles short).
+  const CliResult r = run_cli("render gen:landscape:500000 --accel hybrid --memory-budget-mb "
+                              "100000 --res 8 --spp 1 -o \"" + tmp.path("m.png") + "\"",
+                              tmp, "ulimit -v 600000;");
+  EXPECT_EQ(r.err.find("internal error"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("bad_alloc"), std::string::npos) << r.err;
+  if (r.exit_code != 0) {
+    EXPECT_EQ(r.exit_code, 1) << r.err;
+    EXPECT_CONTAINS(r.err, "ran out of memory");
+    EXPECT_CONTAINS(r.err, "available to");
+  }
+}
+
 TEST(HostileFiles, DefaultMemoryBudgetHonoursUlimit) {
   // In a child (the limit cannot be raised again): with ulimit -v at 3 GiB the default budget
   // is at most half of it, whatever the machine's physical memory.
