@@ -248,6 +248,20 @@ TEST(HostileFiles, OutputDirectoryIsRefusedBeforeRendering) {
   EXPECT_CONTAINS(g.err, "is a directory");
 }
 
+TEST(HostileFiles, SweepAndBenchOutputsAreCheckedBeforeRunning) {
+  TempDir tmp;
+  fs::create_directories(tmp.path("s.csv"));
+  CliResult r = run_cli("sweep spp --spp-max 64 --res 64 -q -o \"" + tmp.path("s") + "\"", tmp,
+                        "ulimit -t 20;");
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_CONTAINS(r.err, "is a directory");
+  fs::create_directories(tmp.path("b.json"));
+  r = run_cli("bench gen:sphere --accel bvh -q --json \"" + tmp.path("b.json") + "\"", tmp,
+              "ulimit -t 20;");
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_CONTAINS(r.err, "is a directory");
+}
+
 TEST(HostileFiles, BadRaysPathIsReportedBeforeTheBuild) {
   TempDir tmp;
   fs::create_directories(tmp.path("dir.rays"));

@@ -93,13 +93,20 @@ void add_sweep_command(CLI::App& app) {
     if (!a->quiet)
       o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
+    // The outputs are checked before the sweep runs, not after it.
+    std::filesystem::path base(a->out);
+    if (base.extension() == ".csv" || base.extension() == ".json") base.replace_extension();
+    if (!a->out.empty()) {
+      std::error_code ec;
+      if (base.has_parent_path()) std::filesystem::create_directories(base.parent_path(), ec);
+      check_output_path(base.string() + ".csv", "--out", {".csv"}, {a->scene});
+      check_output_path(base.string() + ".json", "--out", {".json"}, {a->scene});
+    }
     const SweepTable t = run_sweep(o);
     if (a->out.empty()) {
       std::printf("%s", sweep_to_csv(t).c_str());
       return;
     }
-    std::filesystem::path base(a->out);
-    if (base.extension() == ".csv" || base.extension() == ".json") base.replace_extension();
     write_text(base.string() + ".csv", sweep_to_csv(t));
     write_text(base.string() + ".json", sweep_to_json(t));
     if (!a->quiet) std::fprintf(stderr, "wrote %s.csv and %s.json\n", base.c_str(), base.c_str());
