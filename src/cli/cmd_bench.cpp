@@ -5,12 +5,12 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 
 #include "bench/bench.h"
 #include "bench/suite.h"
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -22,11 +22,7 @@ void write_text(const std::string& path, const std::string& text) {
   std::error_code ec;
   const fs::path p(path);
   if (p.has_parent_path()) fs::create_directories(p.parent_path(), ec);
-  std::ofstream f(path, std::ios::binary);
-  if (!f)
-    throw Error(path + ": cannot open for writing; check the directory exists and is writable");
-  f << text;
-  if (!f) throw Error(path + ": write failed (disk full?)");
+  write_file_atomically(path, text);
 }
 
 struct BenchArgs {
@@ -150,6 +146,15 @@ void add_bench_command(CLI::App& app) {
                  (suite.path.empty() ? std::string("(command line)") : suite.path));
     }
 
+    // Outputs are checked before the benchmark runs, not after it.
+    for (const auto& [path, option, ext] : {std::tuple{a->json, "--json", ".json"},
+                                            std::tuple{a->md, "--md", ".md"}}) {
+      if (path.empty()) continue;
+      std::error_code ec;
+      if (std::filesystem::path(path).has_parent_path())
+        std::filesystem::create_directories(std::filesystem::path(path).parent_path(), ec);
+      check_output_path(path, option, {ext});
+    }
     const BenchReport rep = run_bench(suite, o);
     if (!a->json.empty()) write_text(a->json, bench_to_json(rep));
     if (!a->md.empty()) write_text(a->md, bench_to_markdown(rep));

@@ -5,7 +5,6 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
-#include <fstream>
 #include <mutex>
 #include <thread>
 
@@ -16,6 +15,7 @@
 #include "bench/check.h"
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -103,6 +103,13 @@ void add_check_command(CLI::App& app) {
     if (o->rays < 1 || o->rays > 1000000)
       throw ParamError("--rays " + std::to_string(o->rays) + " must be between 1 and 1000000");
     if (!(o->timeout > 0)) throw ParamError("--timeout must be a positive number of seconds");
+    if (o->threads < 0)
+      throw ParamError("--threads " + std::to_string(o->threads) +
+                       " must be >= 0 (0 = all hardware threads)");
+    if (o->acne_rays < 1 || o->acne_rays > 10000000)
+      throw ParamError("--acne-rays " + std::to_string(o->acne_rays) +
+                       " must be between 1 and 10000000 (rays per scale of the acne study)");
+    if (!o->json.empty()) check_output_path(o->json, "--json", {".json"});
     std::vector<std::string> accels = split_list(o->accel);
     if (accels.empty())
       for (const auto& n : accelerator_names())
@@ -184,7 +191,6 @@ void add_check_command(CLI::App& app) {
                   mrays(rays, robust_s), mrays(rays, eps_s));
     }
     if (!o->json.empty()) {
-      std::ofstream f(o->json);
       const nlohmann::json meta = {{"rays_per_family", o->rays},
                                    {"seed", o->seed},
                                    {"threads", effective_threads(o->threads)},
@@ -193,8 +199,8 @@ void add_check_command(CLI::App& app) {
                                    {"acne_scene", kAcneSceneDescription},
                                    {"acne_threads", 1},
                                    {"acne_timing_reps", kAcneTimingReps}};
-      f << nlohmann::json{{"meta", meta}, {"check", out}, {"acne", acne}}.dump(2) << "\n";
-      if (!f) throw Error(o->json + ": cannot write the JSON report");
+      write_file_atomically(
+          o->json, nlohmann::json{{"meta", meta}, {"check", out}, {"acne", acne}}.dump(2) + "\n");
     }
     if (failures) {
       std::printf("\ncheck: %llu failing structure x scene results (see above)\n",

@@ -1,6 +1,4 @@
 // `kdgrid gen NAME -o FILE`: writes a procedural scene (scene/procedural.h).
-#include <unistd.h>
-
 #include <cstdio>
 #include <filesystem>
 #include <memory>
@@ -8,6 +6,7 @@
 #include "cli/commands.h"
 #include "scene/procedural.h"
 #include "scene/write.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -23,7 +22,7 @@ void add_gen_command(CLI::App& app) {
   auto a = std::make_shared<Args>();
   cmd->add_option("name", a->name, "Generator name (see above)")->required();
   cmd->add_option("-o,--output", a->output,
-                  "Output file: .gltf (materials, camera, lights), .ply or .obj")
+                  "Output file: .gltf or .glb (materials, camera, lights), .ply or .obj")
       ->required();
   cmd->add_option("--count,--triangles", a->params.count,
                   "Triangle/quad count (0 = the generator's default; landscape: exact triangles)")
@@ -33,18 +32,10 @@ void add_gen_command(CLI::App& app) {
       ->capture_default_str();
   cmd->callback([a] {
     namespace fs = std::filesystem;
-    std::string ext = fs::path(a->output).extension().string();
-    for (char& ch : ext) ch = char(std::tolower(static_cast<unsigned char>(ch)));
-    if (ext != ".gltf" && ext != ".ply" && ext != ".obj")
-      throw ParamError(a->output + ": unsupported output format '" + ext +
-                       "'; kdgrid gen writes .gltf, .ply or .obj");
-    fs::path dir = fs::path(a->output).parent_path();
-    if (dir.empty()) dir = ".";
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec))
-      throw ParamError(a->output + ": output directory '" + dir.string() + "' does not exist");
+    check_output_path(a->output, "-o", {".gltf", ".glb", ".ply", ".obj"});
     const Scene scene = generate_scene(a->name, a->params);
     write_scene(scene, a->output);
+    std::error_code ec;
     std::printf("%s: %s, %zu triangles, %zu vertices, %zu bytes\n", a->output.c_str(),
                 a->name.c_str(), scene.mesh.num_triangles(), scene.mesh.num_vertices(),
                 size_t(fs::file_size(a->output, ec)));

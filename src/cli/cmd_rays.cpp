@@ -11,6 +11,7 @@
 #include "cli/commands.h"
 #include "cli/common.h"
 #include "scene/load.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 #include "util/paths.h"
 
@@ -63,7 +64,9 @@ void add_rays_command(CLI::App& app) {
                        std::to_string(a->count * sizeof(Ray) >> 30) + " GiB of rays: use at most " +
                        std::to_string(kMaxCount));
     const BuildParams params = a->accel.resolve();
-    const Scene scene = load_scene(resolve_scene_path(a->scene));
+    const std::string scene_path = resolve_scene_path(a->scene);
+    check_output_path(a->out, "-o", {".rays"}, {scene_path});
+    const Scene scene = load_scene(scene_path);
     const Camera cam = a->camera.apply(canonical_camera(scene.mesh.bounds()));
     spec.camera = cam;
     if (!a->pixel.empty()) {

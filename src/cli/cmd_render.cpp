@@ -20,6 +20,7 @@
 #include "render/image_io.h"
 #include "render/renderer.h"
 #include "scene/load.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 #include "util/paths.h"
 
@@ -49,19 +50,6 @@ struct RenderArgs {
   std::string stats_json;
 };
 
-/// Throws ParamError unless the directory `path` will be written into exists and is writable.
-void check_output_directory(const std::string& path) {
-  namespace fs = std::filesystem;
-  fs::path dir = fs::path(path).parent_path();
-  if (dir.empty()) dir = ".";
-  std::error_code ec;
-  if (!fs::is_directory(dir, ec))
-    throw ParamError(path + ": output directory '" + dir.string() +
-                     "' does not exist; create it first (mkdir -p " + dir.string() + ")");
-  if (::access(dir.c_str(), W_OK) != 0)
-    throw ParamError(path + ": output directory '" + dir.string() + "' is not writable");
-}
-
 /// Heat maps as PNG: counts / max through a blue-cyan-green-yellow-red ramp (EXR keeps raw
 /// counts, which is what comparisons want).
 void heat_ramp(std::vector<float>& rgb) {
@@ -75,24 +63,6 @@ void heat_ramp(std::vector<float>& rgb) {
     const int k = std::min(3, int(x));
     const float f = x - float(k);
     for (int c = 0; c < 3; ++c) rgb[i + c] = stops[k][c] * (1 - f) + stops[k + 1][c] * f;
-  }
-}
-
-/// Writes `text` to a temporary file beside `path`, then renames it over `path`.
-void write_file_atomically(const std::string& path, const std::string& text) {
-  const std::string tmp = path + ".tmp" + std::to_string(::getpid());
-  std::FILE* f = std::fopen(tmp.c_str(), "wb");
-  if (!f) throw Error(tmp + ": cannot open for writing; check the directory is writable");
-  const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
-  if (std::fclose(f) != 0 || !ok) {
-    std::remove(tmp.c_str());
-    throw Error(tmp + ": writing failed (disk full?)");
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) {
-    std::remove(tmp.c_str());
-    throw Error(path + ": cannot replace it (" + ec.message() + ")");
   }
 }
 
@@ -110,8 +80,8 @@ void run_render(const RenderArgs& a) {
   if (a.max_depth < 0) throw ParamError("--max-depth must be >= 0");
   RenderSettings settings;
   parse_resolution(a.res, settings.width, settings.height);
-  check_image_extension(a.output);
-  check_output_directory(a.output);
+  const std::string scene_path = resolve_scene_path(a.scene);
+  check_output_path(a.output, "-o", {".png", ".exr"}, {scene_path});
   const BuildParams params = a.accel.resolve();
   make_accelerator(a.accel.accel);  // an unknown --accel fails here, before the scene loads
   settings.max_depth = a.max_depth;
@@ -127,9 +97,9 @@ void run_render(const RenderArgs& a) {
   if (a.threads > 0)
     threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
 
-  if (!a.stats_json.empty()) check_output_directory(a.stats_json);
+  if (!a.stats_json.empty())
+    check_output_path(a.stats_json, "--stats-json", {".json"}, {scene_path, a.output});
 
-  const std::string scene_path = resolve_scene_path(a.scene);
   const Scene scene = load_scene(scene_path);
   // One pass: passes are progressive and Ctrl-C keeps the finished ones, but a single pass
   // of brute force over millions of triangles would look like a hang.

@@ -3,12 +3,12 @@
 // same stem); without --out the CSV goes to stdout. Progress goes to stderr.
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
 #include "bench/sweep.h"
 #include "cli/commands.h"
 #include "cli/common.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 
 namespace kdgrid::cli {
@@ -28,10 +28,7 @@ struct SweepArgs {
 void write_text(const std::filesystem::path& p, const std::string& text) {
   std::error_code ec;
   if (p.has_parent_path()) std::filesystem::create_directories(p.parent_path(), ec);
-  std::ofstream f(p, std::ios::binary);
-  if (!f) throw Error(p.string() + ": cannot open for writing; check the directory is writable");
-  f << text;
-  if (!f) throw Error(p.string() + ": write failed (disk full?)");
+  write_file_atomically(p.string(), text);
 }
 
 }  // namespace
@@ -96,13 +93,20 @@ void add_sweep_command(CLI::App& app) {
     if (!a->quiet)
       o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };
 
+    // The outputs are checked before the sweep runs, not after it.
+    std::filesystem::path base(a->out);
+    if (base.extension() == ".csv" || base.extension() == ".json") base.replace_extension();
+    if (!a->out.empty()) {
+      std::error_code ec;
+      if (base.has_parent_path()) std::filesystem::create_directories(base.parent_path(), ec);
+      check_output_path(base.string() + ".csv", "--out", {".csv"}, {a->scene});
+      check_output_path(base.string() + ".json", "--out", {".json"}, {a->scene});
+    }
     const SweepTable t = run_sweep(o);
     if (a->out.empty()) {
       std::printf("%s", sweep_to_csv(t).c_str());
       return;
     }
-    std::filesystem::path base(a->out);
-    if (base.extension() == ".csv" || base.extension() == ".json") base.replace_extension();
     write_text(base.string() + ".csv", sweep_to_csv(t));
     write_text(base.string() + ".json", sweep_to_json(t));
     if (!a->quiet) std::fprintf(stderr, "wrote %s.csv and %s.json\n", base.c_str(), base.c_str());

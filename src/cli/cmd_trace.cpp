@@ -21,6 +21,7 @@
 #include "cli/common.h"
 #include "render/camera.h"
 #include "scene/load.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 #include "util/paths.h"
 
@@ -126,8 +127,8 @@ void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& acce
               (unsigned long long)tr.counters.lookups);
 }
 
-void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel) {
-  const std::vector<Ray> rays = read_rays(a.rays);
+void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel,
+                const std::vector<Ray>& rays) {
   const size_t n = rays.size();
   std::vector<Hit> hits(n);
   const tbb::blocked_range<size_t> all(0, n, 256);
@@ -308,7 +309,16 @@ void add_trace_command(CLI::App& app) {
     const BuildParams params = a->accel.resolve();
     tbb::global_control gc(tbb::global_control::max_allowed_parallelism,
                            size_t(effective_threads(a->threads)));
-    const Scene scene = load_scene(resolve_scene_path(a->scene));
+    // Inputs and outputs are checked, and the rays read, before the scene is loaded and the
+    // structure built: a bad path fails in milliseconds.
+    const std::string scene_path = resolve_scene_path(a->scene);
+    if (!a->hits.empty()) {
+      if (a->rays.empty()) throw ParamError("--hits needs --rays FILE.rays: it writes their hits");
+      check_output_path(a->hits, "--hits", {".hits"}, {scene_path, a->rays});
+    }
+    std::vector<Ray> rays;
+    if (!a->rays.empty()) rays = read_rays(a->rays);
+    const Scene scene = load_scene(scene_path);
     BuildParams p = params;
     if (p.threads == 0) p.threads = a->threads;
     if (a->traversal_only) {
@@ -320,7 +330,7 @@ void add_trace_command(CLI::App& app) {
     if (!a->pixel.empty())
       trace_pixel(*a, scene, *accel);
     else
-      trace_file(*a, scene, *accel);
+      trace_file(*a, scene, *accel, rays);
   });
 }
 

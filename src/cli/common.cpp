@@ -74,8 +74,8 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--memory-budget-mb", budget_mb_,
-                  "Refuse builds whose estimated peak exceeds this (MiB); 0 = half of physical "
-                  "memory")
+                  "Refuse builds whose estimated peak exceeds this (MiB); 0 = half of the memory "
+                  "available (the smallest of physical memory, the cgroup limit, ulimit -v)")
       ->group(g);
   cmd->add_option("--brute-work-limit", params.brute_work_limit,
                   "Brute force: refuse above this many primary-ray x triangle tests (0 = no "
@@ -102,6 +102,11 @@ BuildParams AccelOptions::resolve() const {
   if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
   if (!(p.brute_work_limit >= 0.0))
     throw ParamError("--brute-work-limit must be >= 0 (0 = no limit), e.g. 5e9");
+  // MiB to bytes must not wrap: 2^44 MiB is 2^64 bytes.
+  constexpr long kMaxBudgetMb = (long(1) << 44) - 1;
+  if (budget_mb_ > kMaxBudgetMb)
+    throw ParamError("--memory-budget-mb " + std::to_string(budget_mb_) + " is too large: at most " +
+                     std::to_string(kMaxBudgetMb) + " MiB (0 = half of the memory available)");
   if (budget_mb_ > 0) p.memory_budget = uint64_t(budget_mb_) << 20;
   return p;
 }
@@ -123,8 +128,16 @@ Camera CameraOptions::apply(const Camera& base) const {
     c.fov_deg = fov;
   }
   if (!eye.empty() || !target.empty()) c.name = "command line";
-  if (length(c.target - c.eye) == 0.0f)
-    throw ParamError("--eye and --target are the same point: the camera has no view direction");
+  if (length(c.target - c.eye) == 0.0f) {
+    if (!eye.empty() && !target.empty())
+      throw ParamError("--eye and --target are the same point: the camera has no view direction");
+    // Neither flag (or only one) made them equal: the scene's camera, or the canonical camera
+    // of a scene without extent.
+    throw ParamError(std::string("the camera's eye and target are the same point (") +
+                     (eye.empty() && target.empty() ? "" : "with --eye or --target given, ") +
+                     "from the scene's camera, or the scene has zero size: all its vertices at "
+                     "one point); give both --eye X,Y,Z and --target X,Y,Z");
+  }
   return c;
 }
 

@@ -1,10 +1,12 @@
 // `kdgrid`: the command-line front end of kdgrid_core (render, info, rays, trace, bench, gen).
 #include <cstdio>
 #include <exception>
+#include <new>
 
 #include "cli/commands.h"
 #include "util/cancel.h"
 #include "util/error.h"
+#include "util/memory.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"kdgrid: a ray tracer for studying acceleration structures (hybrid grid/kd-tree)"};
@@ -29,6 +31,14 @@ int main(int argc, char** argv) {
     return 130;
   } catch (const kdgrid::Error& e) {
     std::fprintf(stderr, "kdgrid: error: %s\n", e.what());
+    return 1;
+  } catch (const std::bad_alloc&) {
+    // Builds report their own (accel/guards.h); this is any other allocation that failed.
+    std::fprintf(stderr,
+                 "kdgrid: error: ran out of memory (an allocation failed); %.0f MiB are available "
+                 "to kdgrid (the smallest of physical memory, the cgroup limit and ulimit -v): "
+                 "use a smaller scene, resolution or ray count, or run with more memory\n",
+                 double(kdgrid::available_memory_bytes()) / double(1 << 20));
     return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "kdgrid: internal error: %s\n", e.what());

@@ -1,10 +1,12 @@
 #include <chrono>
+#include <new>
 
 #include "accel/accelerator.h"
 #include "accel/brute.h"
 #include "accel/bvh.h"
 #include "accel/embree.h"
 #include "accel/grid.h"
+#include "accel/guards.h"
 #include "accel/hybrid.h"
 #include "accel/irregular.h"
 #include "accel/kdtree.h"
@@ -32,7 +34,13 @@ std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
 std::unique_ptr<Accelerator> build_accelerator(const std::string& name, const Mesh& mesh,
                                                const BuildParams& params) {
   auto a = make_accelerator(name);
-  a->build(mesh, params);
+  try {
+    a->build(mesh, params);
+  } catch (const std::bad_alloc&) {
+    // An estimate below the budget can still meet a smaller real limit (a cgroup or ulimit
+    // tightened since, other processes): say what ran out instead of "std::bad_alloc".
+    throw_build_out_of_memory(name, mesh.num_triangles(), params);
+  }
   return a;
 }
 

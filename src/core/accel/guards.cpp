@@ -4,6 +4,7 @@
 #include <cstdio>
 
 #include "util/error.h"
+#include "util/memory.h"
 
 namespace kdgrid {
 
@@ -40,12 +41,23 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
     throw ParamError(structure + ": building over " + std::to_string(triangles) +
                      " triangles needs about " + format_bytes_iec(need) + " at its peak (" +
                      detail + "), above the memory budget of " + format_bytes_iec(double(budget)) +
-                     (params.memory_budget > 0 ? "" : " (half of physical memory)") + "; " + fix +
+                     (params.memory_budget > 0 ? "" : " (half of the memory available to kdgrid)") + "; " + fix +
                      (fix.empty() ? "" : ", or ") +
-                     "raise --memory-budget-mb (BuildParams::memory_budget; 0 = half of "
-                     "physical memory) if the machine has the memory");
+                     "raise --memory-budget-mb (BuildParams::memory_budget; 0 = half of the "
+                     "memory available) if the machine has the memory");
   }
   return uint64_t(std::ceil(need));
+}
+
+void throw_build_out_of_memory(const std::string& structure, size_t triangles,
+                               const BuildParams& params) {
+  throw ParamError(structure + ": building over " + std::to_string(triangles) +
+                   " triangles ran out of memory (an allocation failed) with a memory budget of " +
+                   format_bytes_iec(double(effective_memory_budget(params))) + " and " +
+                   format_bytes_iec(double(available_memory_bytes())) +
+                   " available to the process (the smallest of physical memory, the cgroup "
+                   "limit and ulimit -v); lower --memory-budget-mb so the estimate refuses "
+                   "first, use a leaner structure (--accel bvh), or run with more memory");
 }
 
 void check_brute_force_work(const std::string& accel, uint64_t primary_rays, size_t triangles,

@@ -39,6 +39,13 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
 void check_brute_force_work(const std::string& accel, uint64_t primary_rays, size_t triangles,
                             const BuildParams& params);
 
+/// Throws ParamError saying that building `structure` over `triangles` triangles ran out of
+/// memory (an allocation failed), with the memory budget, the memory available to the process
+/// (util/memory.h: physical, cgroup, ulimit -v) and the fixes. Called where a build catches
+/// std::bad_alloc.
+[[noreturn]] void throw_build_out_of_memory(const std::string& structure, size_t triangles,
+                                            const BuildParams& params);
+
 /// "12.3 MiB", "1.50 GiB", "512 bytes".
 std::string format_bytes_iec(double bytes);
 

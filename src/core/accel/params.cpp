@@ -1,18 +1,15 @@
 #include "accel/params.h"
 
-#include <unistd.h>
-
 #include <thread>
 
 #include "util/error.h"
+#include "util/memory.h"
 
 namespace kdgrid {
 
 uint64_t effective_memory_budget(const BuildParams& p) {
   if (p.memory_budget > 0) return p.memory_budget;
-  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-  if (pages <= 0 || page <= 0) return uint64_t(4) << 30;
-  return uint64_t(pages) * uint64_t(page) / 2;
+  return default_memory_budget_bytes();
 }
 
 int effective_threads(int threads) {

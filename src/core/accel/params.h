@@ -103,7 +103,8 @@ struct BuildParams {
 
   // ---- memory guard ----------------------------------------------------------------------
   /// Every structure estimates the peak bytes of its build before allocating (accel/guards.h)
-  /// and refuses with a ParamError above this many bytes; 0 = auto (half of physical memory).
+  /// and refuses with a ParamError above this many bytes; 0 = auto (half of the memory
+  /// available: the smallest of physical memory, the cgroup limit and ulimit -v; util/memory.h).
   /// The mesh itself is not counted: it belongs to the caller.
   uint64_t memory_budget = 0;
 
@@ -123,7 +124,7 @@ struct BuildParams {
   const CancelToken* cancel = nullptr;
 };
 
-/// Resolves memory_budget = 0 to half of physical memory.
+/// Resolves memory_budget = 0 to default_memory_budget_bytes() (util/memory.h).
 uint64_t effective_memory_budget(const BuildParams& p);
 /// Resolves threads = 0 to the hardware thread count.
 int effective_threads(int threads);

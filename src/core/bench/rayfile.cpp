@@ -2,42 +2,16 @@
 
 #include <bit>
 #include <cstring>
-#include <fstream>
-#include <iterator>
 
+#include "util/atomic_file.h"
 #include "util/error.h"
+#include "util/input_file.h"
 
 namespace kdgrid {
 
 // The formats are little-endian and records are copied with memcpy; a big-endian port would
 // need byte swaps here.
 static_assert(std::endian::native == std::endian::little, "rayfile.cpp assumes little-endian");
-
-namespace {
-
-std::vector<uint8_t> read_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw LoadError(path + ": cannot open the file for reading (check the path)");
-  in.seekg(0, std::ios::end);
-  const std::streamoff size = in.tellg();
-  if (size < 0) throw LoadError(path + ": cannot determine the file size");
-  in.seekg(0, std::ios::beg);
-  std::vector<uint8_t> data(static_cast<size_t>(size));
-  if (size > 0 && !in.read(reinterpret_cast<char*>(data.data()), size))
-    throw LoadError(path + ": read failed after " + std::to_string(in.gcount()) + " of " +
-                    std::to_string(size) + " bytes");
-  return data;
-}
-
-void write_file(const std::string& path, const std::vector<uint8_t>& bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) throw Error(path + ": cannot open the file for writing (check the directory exists)");
-  out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
-  out.close();
-  if (!out) throw Error(path + ": write failed (disk full?)");
-}
-
-}  // namespace
 
 std::vector<Ray> parse_rays(const void* data, size_t size, const std::string& name) {
   const auto* p = static_cast<const uint8_t*>(data);
@@ -80,7 +54,7 @@ std::vector<Ray> parse_rays(const void* data, size_t size, const std::string& na
 }
 
 std::vector<Ray> read_rays(const std::string& path) {
-  const auto data = read_file(path);
+  const std::string data = read_input_file(path);
   return parse_rays(data.data(), data.size(), path);
 }
 
@@ -101,7 +75,8 @@ std::vector<uint8_t> serialize_rays(const std::vector<Ray>& rays) {
 }
 
 void write_rays(const std::string& path, const std::vector<Ray>& rays) {
-  write_file(path, serialize_rays(rays));
+  const auto bytes = serialize_rays(rays);
+  write_file_atomically(path, {reinterpret_cast<const char*>(bytes.data()), bytes.size()});
 }
 
 std::vector<Hit> parse_hits(const void* data, size_t size, const std::string& name,
@@ -125,7 +100,7 @@ std::vector<Hit> parse_hits(const void* data, size_t size, const std::string& na
 }
 
 std::vector<Hit> read_hits(const std::string& path, int64_t expected_count) {
-  const auto data = read_file(path);
+  const std::string data = read_input_file(path);
   return parse_hits(data.data(), data.size(), path, expected_count);
 }
 
@@ -143,7 +118,8 @@ std::vector<uint8_t> serialize_hits(const std::vector<Hit>& hits) {
 }
 
 void write_hits(const std::string& path, const std::vector<Hit>& hits) {
-  write_file(path, serialize_hits(hits));
+  const auto bytes = serialize_hits(hits);
+  write_file_atomically(path, {reinterpret_cast<const char*>(bytes.data()), bytes.size()});
 }
 
 }  // namespace kdgrid

@@ -1,32 +1,43 @@
 #include "render/image_io.h"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
-#include <unistd.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
-#include <filesystem>
+#include <cstring>
 
 #include "render/renderer.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
 namespace {
 
-std::string lower_extension(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
-  return ext;
-}
-
 float srgb_to_linear(float c) {
   return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
 }
 
 constexpr const char* kMetaPrefix = "kdgrid:";
+
+/// Error unless `bytes` decode as a `width` x `height` image (header only) and, for PNG, end
+/// in the IEND chunk that closes every complete PNG.
+void verify_encoded_image(const std::string& path, const std::string& format_name,
+                          const std::vector<unsigned char>& bytes, int width, int height) {
+  static const unsigned char kIend[12] = {0, 0, 0, 0, 'I', 'E', 'N', 'D', 0xAE, 0x42, 0x60, 0x82};
+  const bool png = lower_extension(format_name) == ".png";
+  if (png && (bytes.size() < 12 || std::memcmp(bytes.data() + bytes.size() - 12, kIend, 12) != 0))
+    throw Error(path + ": the PNG encoder produced an incomplete image (" +
+                std::to_string(bytes.size()) + " bytes, no IEND chunk); the file was not changed");
+  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
+  auto in = OIIO::ImageInput::open(format_name, nullptr, &reader);
+  if (!in || in->spec().width != width || in->spec().height != height)
+    throw Error(path + ": the encoded image does not read back as " + std::to_string(width) +
+                "x" + std::to_string(height) + (in ? "" : " (" + OIIO::geterror() + ")") +
+                "; the file was not changed");
+  in->close();
+}
 
 }  // namespace
 
@@ -46,26 +57,21 @@ void write_image(const std::string& path, int width, int height, const std::vect
                      std::to_string(height) + " RGB");
   const bool png = lower_extension(path) == ".png";
 
-  // Temporary file beside the target (same filesystem, so the rename is atomic) keeping the
-  // extension, from which OpenImageIO picks the format.
-  namespace fs = std::filesystem;
-  static std::atomic<unsigned> counter{0};
-  const fs::path target(path);
-  std::string tmp_name = ".";  // built stepwise: GCC 12 warns falsely on "." + std::string
-  tmp_name += target.stem().string();
-  tmp_name += ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
-  tmp_name += target.extension().string();
-  const fs::path tmp = target.parent_path() / tmp_name;
-
+  // Encoded in memory (OpenImageIO's PNG writer does not report a failed write to a file),
+  // checked by decoding the header back, then written through AtomicFile, whose writes and
+  // close are all checked: a full disk leaves the old image in place.
   ImageSpec spec(width, height, 3, png ? TypeDesc::UINT8 : TypeDesc::FLOAT);
   for (const auto& [key, value] : metadata) spec.attribute(kMetaPrefix + key, value);
   if (!png) spec.attribute("compression", "zip");
 
-  auto out = ImageOutput::create(tmp.string());
+  const std::string format_name = png ? "x.png" : "x.exr";  // picks the encoder
+  auto out = ImageOutput::create(format_name);
   if (!out) throw Error(path + ": cannot create an image writer: " + OIIO::geterror());
-  if (!out->open(tmp.string(), spec))
-    throw Error(path + ": cannot open for writing (" + out->geterror() +
-                "); check that the directory exists and is writable");
+  std::vector<unsigned char> encoded;
+  Filesystem::IOVecOutput sink(encoded);
+  out->set_ioproxy(&sink);
+  if (!out->open(format_name, spec))
+    throw Error(path + ": cannot start encoding the image: " + out->geterror());
   bool ok;
   if (png) {
     std::vector<uint8_t> bytes;
@@ -79,17 +85,10 @@ void write_image(const std::string& path, int width, int height, const std::vect
     ok = false;
     err = out->geterror();
   }
-  if (!ok) {
-    std::error_code ec;
-    fs::remove(tmp, ec);
-    throw Error(path + ": writing the image failed: " + err);
-  }
-  std::error_code ec;
-  fs::rename(tmp, target, ec);
-  if (ec) {
-    fs::remove(tmp, ec);
-    throw Error(path + ": cannot move the finished image into place: " + ec.message());
-  }
+  if (!ok) throw Error(path + ": encoding the image failed: " + err + "; the file was not changed");
+  verify_encoded_image(path, format_name, encoded, width, height);
+  write_file_atomically(path, std::string_view(reinterpret_cast<const char*>(encoded.data()),
+                                               encoded.size()));
 }
 
 ImageRGB read_image(const std::string& path) {

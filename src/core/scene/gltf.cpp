@@ -1,10 +1,13 @@
 // glTF 2.0 (.gltf/.glb) through tinygltf: the default scene's node tree is flattened into one
 // world-space mesh. tinygltf parses JSON and decodes images but does not check that accessors
 // stay inside their buffers, so every accessor is bounds-checked here before it is read.
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
 #include <tiny_gltf.h>
 
 #include <algorithm>
 #include <array>
+#include <cfloat>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -12,9 +15,12 @@
 #include <fstream>
 #include <map>
 
+#include "accel/guards.h"
 #include "scene/image_io.h"
 #include "scene/load.h"
 #include "util/error.h"
+#include "util/input_file.h"
+#include "util/memory.h"
 
 namespace kdgrid {
 
@@ -223,6 +229,21 @@ bool extension_number(const tinygltf::ExtensionMap& ext, const char* name, const
   return true;
 }
 
+/// Deepest node hierarchy read (levels below a scene's root nodes): the builder recurses.
+constexpr int kMaxNodeDepth = 1000;
+/// Most node instances after expanding the hierarchy: far above real scenes (Sponza has a few
+/// hundred), far below what a hostile file can declare with nodes that list a child twice.
+constexpr double kMaxNodeInstances = double(1 << 24);
+/// Bytes per triangle of the expanded mesh for the memory check: positions, normals and uvs
+/// of three unshared vertices plus indices and material ids (3*32 + 12 + 4).
+constexpr double kMeshBytesPerTriangle = 112;
+
+std::string number_text(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
 class GltfBuilder {
  public:
   GltfBuilder(const tinygltf::Model& model, const std::string& path, Scene& scene)
@@ -247,6 +268,7 @@ class GltfBuilder {
       for (size_t i = 0; i < model_.nodes.size(); ++i)
         if (!is_child[i]) roots.push_back(int(i));
     }
+    check_expansion(roots);
     on_path_.assign(model_.nodes.size(), false);
     for (int r : roots) visit(r, Mat4(), 0);
     if (skipped_prims_ > 0)
@@ -320,9 +342,10 @@ class GltfBuilder {
     if (index < 0 || size_t(index) >= model_.nodes.size())
       throw LoadError(path_ + ": the scene refers to node " + std::to_string(index) +
                       " but the file has " + std::to_string(model_.nodes.size()) + " nodes");
-    if (on_path_[size_t(index)] || depth > 1000)
+    if (on_path_[size_t(index)])
       throw LoadError(path_ + ": node " + std::to_string(index) +
                       " is its own ancestor; the node hierarchy must be a tree");
+    if (depth > kMaxNodeDepth) throw too_deep(index);
     on_path_[size_t(index)] = true;
     const tinygltf::Node& node = model_.nodes[size_t(index)];
     const Mat4 world = parent * local_transform(node);
@@ -337,6 +360,89 @@ class GltfBuilder {
     add_light(node, world);
     for (int c : node.children) visit(c, world, depth + 1);
     on_path_[size_t(index)] = false;
+  }
+
+  LoadError too_deep(int index) const {
+    return LoadError(path_ + ": the node hierarchy is more than " + std::to_string(kMaxNodeDepth) +
+                     " levels deep (node " + std::to_string(index) + "); kdgrid reads at most " +
+                     std::to_string(kMaxNodeDepth) + " levels: flatten the hierarchy");
+  }
+
+  /// Triangles of one instance of mesh `m`, from its accessors' counts (0 for what add_mesh
+  /// will report as broken).
+  double mesh_triangles(int m) const {
+    if (m < 0 || size_t(m) >= model_.meshes.size()) return 0;
+    double tris = 0;
+    for (const tinygltf::Primitive& prim : model_.meshes[size_t(m)].primitives) {
+      int acc = prim.indices;
+      if (acc < 0) {
+        const auto it = prim.attributes.find("POSITION");
+        acc = it == prim.attributes.end() ? -1 : it->second;
+      }
+      if (acc < 0 || size_t(acc) >= model_.accessors.size()) continue;
+      const double n = double(model_.accessors[size_t(acc)].count);
+      const int mode = prim.mode < 0 ? TINYGLTF_MODE_TRIANGLES : prim.mode;
+      if (mode == TINYGLTF_MODE_TRIANGLES) tris += std::floor(n / 3);
+      else if (mode == TINYGLTF_MODE_TRIANGLE_STRIP || mode == TINYGLTF_MODE_TRIANGLE_FAN)
+        tris += std::max(0.0, n - 2);
+    }
+    return tris;
+  }
+
+  struct Expansion {
+    double instances = 0, triangles = 0;
+  };
+
+  /// Node instances and triangles under node `index` once the hierarchy is expanded (a node
+  /// listed twice by its parent is expanded twice), memoised per node, so that a small file
+  /// whose nodes each list the next one twice is refused before 2^40 instances are built.
+  Expansion expand(int index, int depth, std::vector<int>& state, std::vector<Expansion>& memo) {
+    if (index < 0 || size_t(index) >= model_.nodes.size()) return {};  // visit() reports it
+    if (depth > kMaxNodeDepth) throw too_deep(index);
+    int& st = state[size_t(index)];
+    if (st == 1)
+      throw LoadError(path_ + ": node " + std::to_string(index) +
+                      " is its own ancestor; the node hierarchy must be a tree");
+    if (st == 2) return memo[size_t(index)];
+    st = 1;
+    const tinygltf::Node& node = model_.nodes[size_t(index)];
+    Expansion e{1, mesh_triangles(node.mesh)};
+    for (int c : node.children) {
+      const Expansion ce = expand(c, depth + 1, state, memo);
+      e.instances += ce.instances;
+      e.triangles += ce.triangles;
+    }
+    st = 2;
+    memo[size_t(index)] = e;
+    return e;
+  }
+
+  void check_expansion(const std::vector<int>& roots) {
+    std::vector<int> state(model_.nodes.size(), 0);
+    std::vector<Expansion> memo(model_.nodes.size());
+    Expansion total;
+    for (int r : roots) {
+      const Expansion e = expand(r, 0, state, memo);
+      total.instances += e.instances;
+      total.triangles += e.triangles;
+    }
+    char buf[64];
+    if (total.instances > double(kMaxNodeInstances)) {
+      std::snprintf(buf, sizeof buf, "%.4g", total.instances);
+      throw LoadError(path_ + ": the node hierarchy expands to " + buf +
+                      " node instances (nodes listed more than once are expanded once per "
+                      "listing), above the limit of " + std::to_string(kMaxNodeInstances) +
+                      "; list each child once or use fewer instances");
+    }
+    const double bytes = total.triangles * kMeshBytesPerTriangle;
+    const uint64_t budget = default_memory_budget_bytes();
+    if (bytes > double(budget)) {
+      std::snprintf(buf, sizeof buf, "%.4g", total.triangles);
+      throw LoadError(path_ + ": the node hierarchy expands to " + buf +
+                      " triangles, about " + format_bytes_iec(bytes) +
+                      " as a mesh, above the memory budget of " + format_bytes_iec(double(budget)) +
+                      " (half of the memory available); use fewer instances or a smaller mesh");
+    }
   }
 
   void add_camera(const tinygltf::Node& node, const Mat4& world) {
@@ -382,6 +488,16 @@ class GltfBuilder {
     l.position = world.point(Vec3(0.0f));
     l.direction = normalize(world.vector(Vec3(0, 0, -1)));
     l.color = factor3(gl.color, Vec3(1.0f));
+    // A value outside a float's range would become infinite (a black image), a negative one
+    // would subtract light (negative EXR values): both are refused, naming the light.
+    const std::string which = "light " + std::to_string(li) + " '" + gl.name + "'";
+    if (!(gl.intensity >= 0.0 && gl.intensity <= double(FLT_MAX)))
+      throw LoadError(path_ + ": " + which + " has intensity " + number_text(gl.intensity) +
+                      "; give a finite number between 0 and 3.4e38 (candela or lux)");
+    for (double c : gl.color)
+      if (!(c >= 0.0 && c <= double(FLT_MAX)))
+        throw LoadError(path_ + ": " + which + " has colour component " + number_text(c) +
+                        "; give finite numbers >= 0 (usually 0 to 1)");
     l.intensity = float(gl.intensity);
     l.inner_cone = float(gl.spot.innerConeAngle);
     l.outer_cone = float(gl.spot.outerConeAngle);
@@ -513,6 +629,146 @@ class GltfBuilder {
   size_t skipped_prims_ = 0;
 };
 
+std::string lower_ext(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
+}
+
+uint32_t le32(const std::string& d, size_t at) {
+  return uint32_t(uint8_t(d[at])) | uint32_t(uint8_t(d[at + 1])) << 8 |
+         uint32_t(uint8_t(d[at + 2])) << 16 | uint32_t(uint8_t(d[at + 3])) << 24;
+}
+
+/// Checks the 12-byte GLB header and the chunk headers, naming the field that is wrong
+/// (tinygltf says only "Invalid glTF binary").
+void check_glb_header(const std::string& d, const std::string& path) {
+  auto fail = [&](const std::string& problem) {
+    throw LoadError(path + ": broken .glb: " + problem);
+  };
+  const size_t size = d.size();
+  if (size < 12)
+    fail("the file has " + std::to_string(size) + " bytes, fewer than the 12-byte header");
+  if (d.compare(0, 4, "glTF") != 0)
+    fail("bytes 0-3 are '" + printable(std::string_view(d).substr(0, 4)) +
+         "', not the magic 'glTF'" + (d[0] == '{' ? " (this is JSON: rename it to .gltf)" : ""));
+  if (le32(d, 4) != 2)
+    fail("header version (bytes 4-7) is " + std::to_string(le32(d, 4)) +
+         "; kdgrid reads glTF 2 binaries");
+  const uint64_t length = le32(d, 8);
+  if (length > size)
+    throw LoadError(path + ": truncated .glb: its header length (bytes 8-11) says " +
+                    std::to_string(length) + " bytes but the file has " + std::to_string(size));
+  if (length != size)
+    fail("header length (bytes 8-11) says " + std::to_string(length) + " bytes but the file has " +
+         std::to_string(size) + ": bytes follow the end");
+  size_t at = 12;
+  for (int chunk = 0; at < size; ++chunk) {
+    const std::string which = chunk == 0 ? "first (JSON) chunk" : "chunk " + std::to_string(chunk);
+    if (size - at < 8)
+      fail(which + " header at byte " + std::to_string(at) + " needs 8 bytes, only " +
+           std::to_string(size - at) + " remain");
+    const uint64_t len = le32(d, at), type = le32(d, at + 4);
+    if (len > size - at - 8)
+      fail(which + " length (bytes " + std::to_string(at) + "-" + std::to_string(at + 3) +
+           ") is " + std::to_string(len) + " but only " + std::to_string(size - at - 8) +
+           " bytes follow its header");
+    if (chunk == 0 && type != 0x4E4F534Au)
+      fail(which + " type (bytes 16-19) is '" + printable(std::string_view(d).substr(16, 4)) +
+           "', not 'JSON'");
+    if (chunk == 1 && type != 0x004E4942u)
+      fail(which + " type (bytes " + std::to_string(at + 4) + "-" + std::to_string(at + 7) +
+           ") is '" + printable(std::string_view(d).substr(at + 4, 4)) + "', not 'BIN'");
+    at += 8 + size_t(len);
+  }
+  if (size == 12) fail("the header is followed by no JSON chunk");
+}
+
+/// What the file callbacks need: the scene's folder, outside which nothing is read.
+struct GltfFiles {
+  std::filesystem::path folder;
+};
+
+/// tinygltf's reader of buffer and image files: inside the scene's folder only (a URI of
+/// ../../etc/passwd must not read, or reveal the size of, files elsewhere), regular files of
+/// bounded size only (util/input_file.h).
+bool read_scene_file(std::vector<unsigned char>* out, std::string* err, const std::string& file,
+                     void* user) {
+  namespace fs = std::filesystem;
+  const auto* files = static_cast<const GltfFiles*>(user);
+  std::error_code ec;
+  const fs::path full = fs::weakly_canonical(fs::absolute(file), ec);
+  const auto rel = full.lexically_relative(files->folder);
+  if (ec || rel.empty() || *rel.begin() == "..") {
+    if (err)
+      *err += "the URI points outside the scene's folder " + files->folder.string() +
+              "; kdgrid reads buffers and images from that folder (and below) only: copy the "
+              "file there";
+    return false;
+  }
+  try {
+    const std::string text = read_input_file(file, "glTF buffer or image");
+    out->assign(text.begin(), text.end());
+  } catch (const LoadError& e) {
+    if (err) *err += e.what();
+    return false;
+  }
+  return true;
+}
+
+bool refuse_write(std::string* err, const std::string&, const std::vector<unsigned char>&, void*) {
+  if (err) *err += "kdgrid does not write files while loading";
+  return false;
+}
+
+/// Decodes a glTF image (PNG or JPEG bytes from a file, a data URI or a buffer view) with
+/// OpenImageIO: the header is read first and an image whose pixels would not fit the memory
+/// budget is refused before decoding (stb_image, tinygltf's default, has neither check nor a
+/// useful message for large images).
+bool decode_image(tinygltf::Image* image, const int index, std::string* err, std::string* warn,
+                  int, int, const unsigned char* bytes, int size, void*) {
+  const bool png = size >= 8 && std::memcmp(bytes, "\x89PNG", 4) == 0;
+  const bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8;
+  const std::string name = "image " + std::to_string(index);
+  if (!png && !jpeg) {
+    if (warn) *warn += name + ": neither PNG nor JPEG; material left untextured\n";
+    return true;  // an unusable image is a warning: the texture is dropped, not the scene
+  }
+  const std::string format = png ? "x.png" : "x.jpg";
+  OIIO::Filesystem::IOMemReader reader(bytes, size_t(size));
+  auto in = OIIO::ImageInput::open(format, nullptr, &reader);
+  if (!in) {
+    if (warn) *warn += name + ": cannot decode (" + OIIO::geterror() + "); material left untextured\n";
+    return true;
+  }
+  const OIIO::ImageSpec& spec = in->spec();
+  const int used = std::min(spec.nchannels, 4);
+  std::string why;
+  if (spec.width <= 0 || spec.height <= 0 || used <= 0 || spec.depth > 1)
+    why = "unsupported image layout";
+  else if (!texture_fits_budget(spec.width, spec.height, used, why))
+    ;
+  else {
+    image->image.resize(size_t(spec.width) * size_t(spec.height) * size_t(used));
+    if (!in->read_image(0, 0, 0, used, OIIO::TypeDesc::UINT8, image->image.data())) {
+      why = in->geterror();
+      image->image.clear();
+    }
+  }
+  if (!why.empty()) {
+    if (warn) *warn += name + ": " + why + "; material left untextured\n";
+    return true;
+  }
+  image->width = spec.width;
+  image->height = spec.height;
+  image->component = used;
+  image->bits = 8;
+  image->pixel_type = TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE;
+  (void)err;
+  return true;
+}
+
 void print_lines(const std::string& path, const char* kind, const std::string& text) {
   size_t start = 0;
   while (start < text.size()) {
@@ -529,30 +785,26 @@ void print_lines(const std::string& path, const char* kind, const std::string& t
 
 Scene load_gltf(const std::string& path) {
   namespace fs = std::filesystem;
-  std::string ext = fs::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
+  const bool binary = lower_ext(path) == ".glb";
+  const std::string data = read_input_file(path);
+  if (binary) check_glb_header(data, path);
+  GltfFiles files;
+  std::error_code ec;
+  files.folder = fs::weakly_canonical(fs::absolute(fs::path(path)).parent_path(), ec);
   tinygltf::TinyGLTF loader;
+  loader.SetFsCallbacks({&tinygltf::FileExists, &tinygltf::ExpandFilePath, &read_scene_file,
+                         &refuse_write, &files});
+  loader.SetImageLoader(&decode_image, &files);
   tinygltf::Model model;
   std::string err, warn;
-  const bool ok = ext == ".glb" ? loader.LoadBinaryFromFile(&model, &err, &warn, path)
-                                : loader.LoadASCIIFromFile(&model, &err, &warn, path);
+  const std::string base_dir = fs::path(path).parent_path().string();
+  const bool ok =
+      binary ? loader.LoadBinaryFromMemory(&model, &err, &warn,
+                                           reinterpret_cast<const unsigned char*>(data.data()),
+                                           unsigned(data.size()), base_dir)
+             : loader.LoadASCIIFromString(&model, &err, &warn, data.data(), unsigned(data.size()),
+                                          base_dir);
   if (!ok) {
-    if (ext == ".glb") {
-      // tinygltf says only "Invalid glTF binary" for a cut file; say what is wrong.
-      std::error_code ec;
-      const auto size = fs::file_size(path, ec);
-      std::ifstream in(path, std::ios::binary);
-      unsigned char h[12] = {};
-      if (!ec && in.read(reinterpret_cast<char*>(h), 12) && std::memcmp(h, "glTF", 4) == 0) {
-        const uint64_t declared =
-            uint64_t(h[8]) | uint64_t(h[9]) << 8 | uint64_t(h[10]) << 16 | uint64_t(h[11]) << 24;
-        if (declared > size)
-          throw LoadError(path + ": truncated .glb: its header declares " +
-                          std::to_string(declared) + " bytes but the file has " +
-                          std::to_string(size));
-      }
-    }
     std::string e = err.empty() ? warn : err;
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
     std::replace(e.begin(), e.end(), '\n', ' ');

@@ -3,9 +3,11 @@
 
 #include <cmath>
 #include <cstring>
+#include <sstream>
 #include <unordered_map>
 
 #include "scene/write.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -251,11 +253,14 @@ void write_gltf(const Scene& scene, const std::string& path) {
   model.scenes.push_back(gscene);
   model.defaultScene = 0;
 
+  // Serialised in memory (.glb: binary container, .gltf: JSON with the buffer as a data URI),
+  // then written through AtomicFile so that a failed write leaves no broken file.
   tinygltf::TinyGLTF writer;
-  if (!writer.WriteGltfSceneToFile(&model, path, /*embedImages=*/true, /*embedBuffers=*/true,
-                                   /*prettyPrint=*/false, /*writeBinary=*/false))
-    throw Error(path +
-                ": cannot write the glTF file; check that the directory exists and is writable");
+  std::ostringstream text;
+  const bool binary = lower_extension(path) == ".glb";
+  if (!writer.WriteGltfSceneToStream(&model, text, /*prettyPrint=*/false, binary) || !text)
+    throw Error(path + ": cannot serialise the glTF model");
+  write_file_atomically(path, text.view());
 }
 
 }  // namespace kdgrid

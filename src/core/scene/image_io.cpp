@@ -2,6 +2,11 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include "accel/guards.h"
+#include "util/error.h"
+#include "util/input_file.h"
+#include "util/memory.h"
+
 namespace kdgrid {
 
 std::vector<uint8_t> to_rgb8(const uint8_t* pixels, size_t count, int channels) {
@@ -17,7 +22,25 @@ std::vector<uint8_t> to_rgb8(const uint8_t* pixels, size_t count, int channels) 
   return rgb;
 }
 
+bool texture_fits_budget(int width, int height, int channels, std::string& why) {
+  // While decoding: the pixels as read (`channels` bytes each) plus the RGB8 copy.
+  const double bytes = double(width) * double(height) * double(channels + 3);
+  const uint64_t budget = default_memory_budget_bytes();
+  if (bytes <= double(budget)) return true;
+  why = std::to_string(width) + "x" + std::to_string(height) + " pixels would take " +
+        format_bytes_iec(bytes) + " to decode, above the memory budget of " +
+        format_bytes_iec(double(budget)) +
+        " (half of the memory available); scale the image down";
+  return false;
+}
+
 std::optional<Texture> read_texture_file(const std::string& path, std::string& why) {
+  try {
+    check_input_file(path, "texture");
+  } catch (const LoadError& e) {
+    why = e.what();
+    return std::nullopt;
+  }
   auto in = OIIO::ImageInput::open(path);
   if (!in) {
     why = OIIO::geterror();
@@ -31,6 +54,8 @@ std::optional<Texture> read_texture_file(const std::string& path, std::string& w
     return std::nullopt;
   }
   const int used = std::min(nch, 4);
+  // The header gives the size: refuse before decoding what would not fit.
+  if (!texture_fits_budget(spec.width, spec.height, used, why)) return std::nullopt;
   std::vector<uint8_t> px(size_t(spec.width) * size_t(spec.height) * size_t(used));
   if (!in->read_image(0, 0, 0, used, OIIO::TypeDesc::UINT8, px.data())) {
     why = in->geterror();

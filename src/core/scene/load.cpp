@@ -8,6 +8,7 @@
 
 #include "scene/procedural.h"
 #include "util/error.h"
+#include "util/input_file.h"
 #include "util/paths.h"
 
 namespace kdgrid {
@@ -63,6 +64,7 @@ Scene load_scene(const std::string& given) {
                            "$KDGRID_SCENES or ../shared/scenes)");
   if (fs::is_directory(path, ec))
     throw LoadError(path + ": is a directory; give a scene file (.gltf .glb .ply .obj)");
+  check_input_file(path);  // a FIFO or device blocks or never ends; a huge file cannot fit
   std::string ext = fs::path(path).extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
   Scene s;

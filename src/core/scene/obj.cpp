@@ -4,15 +4,21 @@
 
 #include <algorithm>
 #include <array>
+#include <charconv>
+#include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <map>
 #include <sstream>
+#include <string_view>
 #include <unordered_map>
 
 #include "scene/image_io.h"
 #include "scene/load.h"
 #include "util/error.h"
+#include "util/input_file.h"
+#include "util/text.h"
 
 namespace kdgrid {
 
@@ -57,6 +63,120 @@ Material convert_material(const tinyobj::material_t& m) {
   return out;
 }
 
+/// Reads the .mtl files an OBJ names (mtllib) through read_input_file, so that a FIFO or a
+/// device given as a material library is refused instead of blocking or growing memory; a
+/// library that cannot be read is a warning, as a missing one is.
+class CheckedMaterialReader : public tinyobj::MaterialReader {
+ public:
+  explicit CheckedMaterialReader(std::string base_dir) : base_dir_(std::move(base_dir)) {}
+  bool operator()(const std::string& name, std::vector<tinyobj::material_t>* materials,
+                  std::map<std::string, int>* names, std::string* warn,
+                  std::string* err) override {
+    const std::string path =
+        base_dir_.empty() ? name : (std::filesystem::path(base_dir_) / name).string();
+    std::string text;
+    try {
+      text = read_input_file(path, "material library");
+    } catch (const LoadError& e) {
+      if (warn) *warn += std::string(e.what()) + "; materials left grey\n";
+      return false;
+    }
+    std::istringstream in(text);
+    tinyobj::LoadMtl(names, materials, &in, warn, err);
+    return true;
+  }
+
+ private:
+  std::string base_dir_;
+};
+
+/// Checks what tinyobjloader reads leniently, with the line number: every number of a v, vt
+/// or vn line must be finite (it reads "nan" and "abc" as 0), every face index an integer
+/// that is not 0 and fits an int (it wraps 99999999999999999999), and a negative (relative)
+/// index must count back to an existing element (-1 is the last one defined above the line).
+void validate_obj_text(std::string_view text, const std::string& path) {
+  struct Kind {
+    const char* name;
+    const char* plural;
+    size_t defined = 0;     // elements defined so far
+    int64_t max_index = 0;  // largest positive index used, checked at the end
+    size_t max_line = 0;
+  };
+  Kind kinds[3] = {{"vertex", "vertices"},
+                   {"texture coordinate", "texture coordinates"},
+                   {"normal", "normals"}};
+  size_t line_no = 0, pos = 0;
+  auto fail = [&](const std::string& problem) {
+    throw LoadError(path + ": line " + std::to_string(line_no) + ": " + problem);
+  };
+  while (pos < text.size()) {
+    // Lines end in LF, CRLF or a lone CR, as tinyobjloader reads them.
+    size_t end = pos;
+    while (end < text.size() && text[end] != '\n' && text[end] != '\r') ++end;
+    const std::string_view line = text.substr(pos, end - pos);
+    pos = end + (end + 1 < text.size() && text[end] == '\r' && text[end + 1] == '\n' ? 2 : 1);
+    ++line_no;
+    const auto w = split_words(line);
+    if (w.empty()) continue;
+    const int vk = w[0] == "v" ? 0 : w[0] == "vt" ? 1 : w[0] == "vn" ? 2 : -1;
+    if (vk >= 0) {
+      const size_t need = vk == 1 ? 1 : 3;
+      if (w.size() < need + 1) {
+        std::string msg = kinds[vk].name;  // built stepwise: GCC 12 warns falsely on "'" + ...
+        msg += " line '" + printable(line, 80);
+        msg += "' has " + std::to_string(w.size() - 1) + " numbers; it needs " +
+               std::to_string(need);
+        fail(msg);
+      }
+      for (size_t i = 1; i < w.size(); ++i) {
+        std::string_view t = w[i];
+        if (!t.empty() && t[0] == '+') t.remove_prefix(1);
+        double v = 0;
+        const auto [ptr, ec] = std::from_chars(t.data(), t.data() + t.size(), v);
+        if (ec != std::errc() || ptr != t.data() + t.size() || !std::isfinite(v))
+          fail(std::string(kinds[vk].name) + " '" + printable(line, 80) + "': '" +
+               printable(w[i]) + "' is not a finite number; fix or remove the line");
+      }
+      ++kinds[vk].defined;
+    } else if (w[0] == "f") {
+      for (size_t i = 1; i < w.size(); ++i) {
+        std::string_view corner = w[i];
+        for (int k = 0; k < 3 && !corner.empty(); ++k) {
+          const size_t slash = corner.find('/');
+          const std::string_view part = corner.substr(0, slash);
+          corner = slash == std::string_view::npos ? std::string_view() : corner.substr(slash + 1);
+          if (part.empty()) continue;  // "1//3": no texture coordinate
+          int64_t idx = 0;
+          const auto [ptr, ec] = std::from_chars(part.data(), part.data() + part.size(), idx);
+          if (ec != std::errc() || ptr != part.data() + part.size() || idx > INT32_MAX ||
+              idx < -int64_t(INT32_MAX))
+            fail(std::string("face ") + kinds[k].name + " index '" + printable(part) +
+                 "' is not a whole number between -2147483647 and 2147483647");
+          if (idx == 0)
+            fail(std::string("face ") + kinds[k].name +
+                 " index 0: OBJ indices count from 1 (or back from -1, the last one defined)");
+          Kind& kd = kinds[k];
+          if (idx < 0 && uint64_t(-idx) > kd.defined)
+            fail(std::string("face ") + kinds[k].name + " index " + std::to_string(idx) +
+                 " counts back past the first " + kd.name + ": only " +
+                 std::to_string(kd.defined) + " are defined above this line (-1 is the last)");
+          if (idx > kd.max_index) {
+            kd.max_index = idx;
+            kd.max_line = line_no;
+          }
+        }
+      }
+    }
+  }
+  for (const Kind& kd : kinds)
+    if (uint64_t(kd.max_index) > kd.defined) {
+      line_no = kd.max_line;
+      fail(std::string("face references ") + kd.name + " " + std::to_string(kd.max_index) +
+           " but the file has " + std::to_string(kd.defined) + " " + kd.plural +
+           " (OBJ indices count from 1)");
+    }
+}
+
 }  // namespace
 
 Scene load_obj(const std::string& path) {
@@ -66,8 +186,11 @@ Scene load_obj(const std::string& path) {
   std::vector<tinyobj::material_t> mats;
   std::string warn, err;
   const std::string base_dir = fs::path(path).parent_path().string();
-  const bool ok = tinyobj::LoadObj(&attrib, &shapes, &mats, &warn, &err, path.c_str(),
-                                   base_dir.empty() ? nullptr : base_dir.c_str(),
+  const std::string text = read_input_file(path);
+  validate_obj_text(text, path);
+  std::istringstream in(text);
+  CheckedMaterialReader materials(base_dir);
+  const bool ok = tinyobj::LoadObj(&attrib, &shapes, &mats, &warn, &err, &in, &materials,
                                    /*triangulate=*/false, /*default_vcols_fallback=*/false);
   if (!ok) {
     std::string e = err.empty() ? warn : err;

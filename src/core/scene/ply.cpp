@@ -8,11 +8,11 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <cctype>
 #include <charconv>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <fstream>
 #include <limits>
 #include <memory>
 #include <string>
@@ -21,6 +21,8 @@
 
 #include "scene/load.h"
 #include "util/error.h"
+#include "util/input_file.h"
+#include "util/text.h"
 
 namespace kdgrid {
 
@@ -81,18 +83,6 @@ bool is_integer(Type t) {
   return t != Type::Float32 && t != Type::Float64;
 }
 
-std::vector<std::string_view> split_words(std::string_view line) {
-  std::vector<std::string_view> words;
-  size_t i = 0;
-  while (i < line.size()) {
-    while (i < line.size() && (line[i] == ' ' || line[i] == '\t' || line[i] == '\r')) ++i;
-    const size_t start = i;
-    while (i < line.size() && line[i] != ' ' && line[i] != '\t' && line[i] != '\r') ++i;
-    if (i > start) words.push_back(line.substr(start, i - start));
-  }
-  return words;
-}
-
 /// Reads a vertex index or list count as an integer and a coordinate as a float, from either
 /// encoding. `where()` describes the current place for error messages.
 class Reader {
@@ -109,7 +99,7 @@ class Reader {
   [[noreturn]] void fail(const std::string& problem) const {
     std::string msg = name_ + ": ";
     if (elem_)
-      msg += elem_->name + " " + std::to_string(index_) + " of " + std::to_string(elem_->count);
+      msg += printable(elem_->name) + " " + std::to_string(index_) + " of " + std::to_string(elem_->count);
     if (fmt_ == Format::Ascii)
       msg += std::string(elem_ ? " (" : "(") + "line " + std::to_string(line_) + ")";
     throw LoadError(msg + ": " + problem);
@@ -138,7 +128,7 @@ class Reader {
         if (ec2 == std::errc() && p2 == tok.data() + tok.size() && d == double(int64_t(d)) &&
             std::abs(d) < 9.0e15)
           return int64_t(d);
-        fail("malformed integer '" + std::string(tok.substr(0, 40)) + "'");
+        fail("malformed integer '" + printable(tok) + "'");
       }
       return v;
     }
@@ -181,7 +171,7 @@ class Reader {
       double v = 0;
       auto [ptr, ec] = std::from_chars(b, tok.data() + tok.size(), v);
       if (ec != std::errc() || ptr != tok.data() + tok.size())
-        fail("malformed number '" + std::string(tok.substr(0, 40)) + "'");
+        fail("malformed number '" + printable(tok) + "'");
       return v;
     }
     if (is_integer(t)) return double(read_int(t));
@@ -222,7 +212,8 @@ class Reader {
 
   std::string_view token() {
     while (p_ < end_ && (*p_ == ' ' || *p_ == '\t' || *p_ == '\r' || *p_ == '\n')) {
-      if (*p_ == '\n') ++line_;
+      // Lines end in LF, CRLF or a lone CR (old Mac files).
+      if (*p_ == '\n' || (*p_ == '\r' && (p_ + 1 == end_ || p_[1] != '\n'))) ++line_;
       ++p_;
     }
     const char* start = p_;
@@ -268,9 +259,13 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
   // --- Header: text lines up to "end_header". ---
   const char* p = data;
   size_t line_no = 0;
+  // Header lines end in LF (CRLF too: the CR is dropped) or, in files from old Mac tools, in
+  // a lone CR; which one is decided by the end of the first line, 'ply', and kept for the
+  // header, so that binary data after "end_header\r" is never taken for a line end.
+  const bool cr_only = size > 4 && std::memcmp(data, "ply\r", 4) == 0 && data[4] != '\n';
   auto next_line = [&](std::string_view& line) -> bool {
     if (p >= end) return false;
-    const char* nl = static_cast<const char*>(std::memchr(p, '\n', size_t(end - p)));
+    const char* nl = static_cast<const char*>(std::memchr(p, cr_only ? '\r' : '\n', size_t(end - p)));
     const char* stop = nl ? nl : end;
     line = std::string_view(p, size_t(stop - p));
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
@@ -306,7 +301,7 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
       else if (w[1] == "binary_big_endian")
         fmt = Format::BinaryBE;
       else
-        throw header_error("unknown format '" + std::string(w[1]) +
+        throw header_error("unknown format '" + printable(w[1]) +
                            "'; expected ascii, binary_little_endian or binary_big_endian");
       have_format = true;
     } else if (w[0] == "element") {
@@ -315,7 +310,7 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
       e.name = std::string(w[1]);
       auto [ptr, ec] = std::from_chars(w[2].data(), w[2].data() + w[2].size(), e.count);
       if (ec != std::errc() || ptr != w[2].data() + w[2].size())
-        throw header_error("element '" + e.name + "' has malformed count '" + std::string(w[2]) +
+        throw header_error("element '" + printable(e.name) + "' has malformed count '" + printable(w[2]) +
                            "'");
       elements.push_back(std::move(e));
     } else if (w[0] == "property") {
@@ -323,22 +318,27 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
       Property prop;
       if (w.size() >= 5 && w[1] == "list") {
         if (!parse_type(w[2], prop.count_type) || !parse_type(w[3], prop.type))
-          throw header_error("unknown type in '" + std::string(line) + "'");
+          throw header_error("unknown type in '" + printable(line, 80) + "'");
         if (!is_integer(prop.count_type))
-          throw header_error("list count type must be an integer type in '" + std::string(line) +
+          throw header_error("list count type must be an integer type in '" + printable(line, 80) +
                              "'");
         prop.is_list = true;
         prop.name = std::string(w[4]);
       } else if (w.size() >= 3 && w[1] != "list") {
         if (!parse_type(w[1], prop.type))
-          throw header_error("unknown property type '" + std::string(w[1]) + "'");
+          throw header_error("unknown property type '" + printable(w[1]) + "'");
         prop.name = std::string(w[2]);
       } else {
-        throw header_error("malformed property line '" + std::string(line) + "'");
+        throw header_error("malformed property line '" + printable(line, 80) + "'");
       }
       elements.back().props.push_back(std::move(prop));
     } else {
-      throw header_error("unknown keyword '" + std::string(w[0].substr(0, 40)) + "'");
+      // A number where a keyword belongs is the data: 'end_header' is missing.
+      if (std::isdigit(static_cast<unsigned char>(w[0][0])) || w[0][0] == '-' || w[0][0] == '.')
+        throw header_error("'" + printable(line) +
+                           "' looks like data, but no 'end_header' line came before it; add "
+                           "'end_header' after the last 'property' line");
+      throw header_error("unknown keyword '" + printable(w[0]) + "'");
     }
   }
   if (!have_end)
@@ -466,18 +466,8 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
 }
 
 Scene load_ply(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw LoadError(path + ": cannot open the file; check that it exists and is readable");
-  in.seekg(0, std::ios::end);
-  const std::streamoff len = in.tellg();
-  if (len < 0) throw LoadError(path + ": cannot determine the file size");
-  in.seekg(0, std::ios::beg);
-  // Uninitialised buffer: zero-filling 33 MB first would only cost time.
-  const size_t size = static_cast<size_t>(len);
-  std::unique_ptr<char[]> buf(new char[std::max<size_t>(size, 1)]);
-  if (size > 0 && !in.read(buf.get(), len))
-    throw LoadError(path + ": read error after " + std::to_string(in.gcount()) + " bytes");
-  return parse_ply(buf.get(), size, path);
+  const std::string data = read_input_file(path);
+  return parse_ply(data.data(), data.size(), path);
 }
 
 }  // namespace kdgrid
