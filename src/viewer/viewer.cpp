@@ -18,6 +18,7 @@
 #include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
 
+#include "accel/hybrid.h"
 #include "scene/load.h"
 #include "util/error.h"
 #include "viewer/gl_util.h"
@@ -121,8 +122,10 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
     config_dir_ = config_dir();
     settings_ = load_settings(config_dir_);
   }
+  // The cell size: the command line's for its scene, else the one remembered for this scene
+  // (scene units) or for every scene (auto or a multiple of auto); resolved in start_load.
   std::string cs = opts_.accel.cell_size;
-  if (!opts_.cell_size_given && !settings_.cell_size.empty()) cs = settings_.cell_size;
+  if (!opts_.cell_size_given) cs = remembered_cell_choice(settings_, opts_.scene).text();
   const auto names = accelerator_names();
   const auto valid = [&](const std::string& n) {
     return std::find(names.begin(), names.end(), n) != names.end();
@@ -136,11 +139,12 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
   }
   params_ = opts_.accel.resolve();
   try {
-    params_.cell_size = cli::parse_cell_size(cs);
+    cell_choice_ = CellChoice::parse(cs, "--cell-size");
     cell_size_text_ = cs;
   } catch (const ParamError&) {
-    params_.cell_size = 0;  // a bad remembered value falls back to auto
+    cell_choice_ = {};  // a bad remembered value falls back to auto
   }
+  params_.cell_size = cell_choice_.kind == CellChoice::Kind::Units ? float(cell_choice_.value) : 0.0f;
   if (opts_.heatmap == "steps") mode_ = RenderMode::HeatSteps;
   if (opts_.heatmap == "tests") mode_ = RenderMode::HeatTests;
   for (const auto& o : opts_.overlays) {
@@ -268,7 +272,7 @@ void Viewer::shutdown() {
     settings_.window_width = ww;
     settings_.window_height = wh;
     settings_.accel = accel_name_;
-    settings_.cell_size = params_.cell_size > 0 ? fmt_float(params_.cell_size) : "auto";
+    if (world_) remember_cell_choice(settings_, world_->scene->source, cell_choice_);
     save_settings(config_dir_, settings_);
   }
   ImGui_ImplOpenGL3_Shutdown();
@@ -313,20 +317,29 @@ void Viewer::start_load(const std::string& path) {
   task_error_.clear();
   const std::string name = accel_name_;
   const BuildParams params = params_;
+  // The new scene's own cell size: the command line's for its scene, else the remembered one;
+  // a size in scene units never carries over from another scene.
+  const bool own = path == opts_.scene && opts_.cell_size_given;
+  CellChoice choice = remembered_cell_choice(settings_, path);
+  if (own) choice = cell_choice_.kind == CellChoice::Kind::Multiple ? cell_choice_ : CellChoice::parse(opts_.accel.cell_size, "--cell-size");
+  loading_choice_ = choice;
   Task t;
   t.what = "loading " + std::filesystem::path(path).filename().string();
   t.kind = "load";
   t.new_scene = true;
   t.started = Clock::now();
-  t.result = std::async(std::launch::async, [path, name, params] {
+  t.result = std::async(std::launch::async, [path, name, params, choice] {
     const WakeUiOnExit wake;
     auto scene = std::make_shared<Scene>(load_scene(path));
     auto w = std::make_shared<World>();
     w->scene = scene;
     w->name = name;
     w->params = params;
+    w->params.cell_size = choice.resolve(choice.kind == CellChoice::Kind::Multiple
+                                             ? Hybrid::estimate(scene->mesh, params).auto_cell
+                                             : 0.0);
     const auto t0 = Clock::now();
-    w->accel = build_accelerator(name, scene->mesh, params);
+    w->accel = build_accelerator(name, scene->mesh, w->params);
     w->build_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
     return w;
   });
@@ -409,6 +422,24 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
     const std::string title =
         "kdgrid-viewer - " + std::filesystem::path(w->scene->source).filename().string();
     glfwSetWindowTitle(window_, title.c_str());
+  }
+  if (new_scene) {
+    cell_choice_ = loading_choice_;
+    BuildParams a = w->params;
+    a.cell_size = 0.0f;
+    auto_cell_ = Hybrid::estimate(w->scene->mesh, a).auto_cell;
+    cell_refusal_.clear();
+  }
+  // The choice follows what was built (a scripted rebuild, a build from the panel), and the
+  // slider shows the built size, the auto rule's included.
+  const float cs = w->params.cell_size;
+  if (w->name == "hybrid") {
+    if (cs <= 0.0f)
+      cell_choice_ = {};
+    else if (cell_choice_.kind != CellChoice::Kind::Multiple || std::fabs(cell_choice_.resolve(auto_cell_) - cs) > 1e-6f * cs)
+      cell_choice_ = {CellChoice::Kind::Units, double(cs)};
+    if (const auto* h = dynamic_cast<const Hybrid*>(w->accel.get())) cell_size_slider_ = float(h->cell_size());
+    cell_estimated_for_ = -1;
   }
   accel_name_ = w->name;
   params_ = w->params;
@@ -746,6 +777,14 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
     st["triangles"] = world_->scene->mesh.num_triangles();
     st["accel"] = world_->name;
     st["cell_size"] = world_->params.cell_size;
+    if (const auto* h = dynamic_cast<const Hybrid*>(world_->accel.get())) {
+      st["built_cell_size"] = h->cell_size();
+      st["auto_cell_size"] = auto_cell_;
+      st["cell_size_shown"] = cell_size_slider_;
+      st["cell_choice"] = cell_choice_.text();
+    }
+    st["cell_estimate"] = cell_estimate_;
+    st["cell_refusal"] = cell_refusal_;
   } else {
     st["scene"] = nullptr;
   }
@@ -803,7 +842,9 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   j["builds"] = builds;
 
   std::ofstream out(path);
-  out << j.dump(1) << "\n";
+  // Error texts can quote a file's bytes (a PLY with garbage after its header): invalid UTF-8
+  // is replaced (U+FFFD) instead of throwing out of dump() and leaving the file empty.
+  out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
   if (!out)
     std::fprintf(stderr, "kdgrid-viewer: could not write --stats-json %s\n", path.c_str());
   else
@@ -812,6 +853,76 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
 }
 
 // ---- panels ----------------------------------------------------------------------------------
+
+void Viewer::request_cell_choice(const CellChoice& c) {
+  if (!world_) return;
+  const BuildParams p = params_with_cell_size("hybrid", c.resolve(auto_cell_));
+  try {
+    const HybridEstimate e = Hybrid::estimate(world_->scene->mesh, p);
+    cell_estimate_ = e.describe();
+    cell_estimated_for_ = float(e.cell);
+    if (!e.fits) {
+      cell_refusal_ = e.refusal();
+      cell_suggested_ = e.suggested_cell;
+      return;
+    }
+  } catch (const ParamError& err) {
+    cell_refusal_ = err.what();
+    cell_suggested_ = 0;
+    return;
+  }
+  cell_refusal_.clear();
+  cell_choice_ = c;
+  start_build("hybrid", p);
+}
+
+void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
+  // The hybrid's cell size, in scene units and as a multiple of the auto size; the slider and
+  // the boxes show the built size until edited. Every request is estimated first (cells,
+  // bytes, build time) and refused with a size that fits when it does not.
+  const float r = scene_radius();
+  bool auto_cs = cell_choice_.kind == CellChoice::Kind::Auto;
+  if (ImGui::Checkbox("auto cell size", &auto_cs))
+    request_cell_choice(auto_cs ? CellChoice{} : CellChoice{CellChoice::Kind::Units, double(cell_size_slider_)});
+  const float lo = std::min(r * 1e-3f, cell_size_slider_), hi = std::max(r * 2.0f, cell_size_slider_);
+  ImGui::SliderFloat("cell", &cell_size_slider_, lo, hi, "%.4g", ImGuiSliderFlags_Logarithmic);
+  if (ImGui::IsItemDeactivatedAfterEdit()) request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  ImGui::InputFloat("units", &cell_size_slider_, 0, 0, "%.6g");
+  if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0)
+    request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  if (auto_cell_ > 0) {
+    float mult = float(cell_size_slider_ / auto_cell_);
+    ImGui::InputFloat("x auto", &mult, 0, 0, "%.4g");
+    if (ImGui::IsItemDeactivatedAfterEdit() && mult > 0) {
+      cell_size_slider_ = float(mult * auto_cell_);
+      request_cell_choice({CellChoice::Kind::Multiple, double(mult)});
+    }
+  }
+  // The estimate of the size on the slider, updated while it moves (O(triangles)).
+  if (cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 && world_) {
+    try {
+      cell_estimate_ =
+          Hybrid::estimate(world_->scene->mesh, params_with_cell_size("hybrid", cell_size_slider_)).describe();
+    } catch (const ParamError& e) {
+      cell_estimate_ = e.what();
+    }
+    cell_estimated_for_ = cell_size_slider_;
+  }
+  ImGui::PushTextWrapPos(0.0f);
+  ImGui::TextDisabled("estimate: %s", cell_estimate_.c_str());
+  if (!cell_refusal_.empty()) {
+    ImGui::TextColored(ImVec4(1.0f, 0.45f, 0.35f, 1.0f), "refused: %s", cell_refusal_.c_str());
+    if (cell_suggested_ > 0) {
+      char label[64];
+      std::snprintf(label, sizeof label, "use %.2g", cell_suggested_);
+      if (ImGui::Button(label)) {
+        cell_size_slider_ = float(cell_suggested_);
+        request_cell_choice({CellChoice::Kind::Units, cell_suggested_});
+      }
+    }
+  }
+  ImGui::PopTextWrapPos();
+}
 
 void Viewer::draw_panels() {
   ImGui::SetNextWindowPos(ImVec2(8 * ui_scale_, 8 * ui_scale_), ImGuiCond_FirstUseEver);
@@ -877,6 +988,8 @@ void Viewer::draw_panels() {
       ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
                          ImGuiSliderFlags_Logarithmic);
       rebuild = ImGui::IsItemDeactivatedAfterEdit();
+    } else if (accel_name_ == "hybrid") {
+      draw_cell_size_controls(p, rebuild);
     } else if (accel_name_ != "brute" && accel_name_ != "embree") {
       if (cell_size_slider_ <= 0) cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
       bool auto_cs = params_.cell_size <= 0 && accel_name_ != "grid";
@@ -1051,6 +1164,14 @@ void Viewer::draw_heat_legend() {
   ImGui::Begin("legend", nullptr,
                ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings |
                    ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
+  if (world_ && !world_->accel->has_counters()) {
+    // Embree counts nothing: a ramp with a 0..1 scale would read as "no work at all".
+    ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f), "%s keeps no traversal counters: no %s heat map",
+                       world_->name.c_str(), image_.mode == RenderMode::HeatSteps ? "step" : "test");
+    ImGui::TextDisabled("choose a kdgrid structure to see its work per pixel");
+    ImGui::End();
+    return;
+  }
   ImGui::Text("%s per pixel (%s scale)", image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
               to_string(settings_.heat_scale));
   const ImVec2 p = ImGui::GetCursorScreenPos();

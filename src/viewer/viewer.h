@@ -84,6 +84,10 @@ class Viewer {
   void poll_tasks();
   void install_world(std::shared_ptr<const World> w, bool new_scene);
   BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
+  /// Estimates the hybrid at `c` (HybridEstimate) and rebuilds when it fits; otherwise keeps
+  /// the structure and shows the refusal with the size that fits.
+  void request_cell_choice(const CellChoice& c);
+  void draw_cell_size_controls(BuildParams& p, bool& rebuild);
 
   // ---- per frame
   void note_input();
@@ -113,7 +117,14 @@ class Viewer {
   std::string accel_name_;
   BuildParams params_;
   std::string cell_size_text_ = "auto";
-  float cell_size_slider_ = 0;
+  float cell_size_slider_ = 0;      ///< the built cell size, or the one being dragged
+  CellChoice cell_choice_;          ///< the current scene's choice (remembered at exit)
+  CellChoice loading_choice_;       ///< the choice the scene being loaded is built with
+  double auto_cell_ = 0;            ///< the auto rule's size for the current scene (hybrid)
+  std::string cell_estimate_;       ///< the estimate of the last requested or dragged size
+  std::string cell_refusal_;        ///< why the last requested size was refused ("" if not)
+  double cell_suggested_ = 0;       ///< the size the refusal suggests
+  float cell_estimated_for_ = -1;   ///< the slider value cell_estimate_ describes
   std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
   CameraControl cam_;
   RenderMode mode_ = RenderMode::Shaded;
