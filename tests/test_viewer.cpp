@@ -797,6 +797,33 @@ TEST(Viewer, StatsJsonStaysValidWhenAnErrorQuotesInvalidUtf8) {
   EXPECT_NE(error.find("\xef\xbf\xbd"), std::string::npos) << "the quoted bytes, replaced by U+FFFD: " << error;
 }
 
+TEST(Viewer, SplitOverlayAtItsDefaultDepthsLeavesTheModelVisible) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  const std::string common = "'" + bunny + "' --accel hybrid --width 480 --height 360 --frames 3 --min-samples 1 "
+                             "--max-samples 1 --hide-ui --threads 2 --timeout 120 ";
+  const RunResult plain = run_viewer(dir, common + "--screenshot plain.png");
+  ASSERT_EQ(plain.code, 0) << plain.output;
+  const RunResult splits = run_viewer(dir, common + "--overlay splits --screenshot splits.png");
+  ASSERT_EQ(splits.code, 0) << splits.output;
+  const ImageRGB a = read_image(dir + "/plain.png"), b = read_image(dir + "/splits.png");
+  ASSERT_EQ(a.width, b.width);
+  // Of the model's pixels (lit in the plain shot), most are still the model's under the
+  // default split depths (0-6); with all 64 levels almost none were.
+  int model = 0, kept = 0;
+  for (int y = 0; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x) {
+      const size_t i = (size_t(y) * size_t(a.width) + size_t(x)) * 3;
+      if (a.rgb[i] + a.rgb[i + 1] + a.rgb[i + 2] < 0.15f) continue;
+      ++model;
+      kept += changed_pixels_near(a, b, x, y, 0) == 0;
+    }
+  ASSERT_GT(model, 1000) << "no model in the plain shot";
+  EXPECT_GT(kept, model * 6 / 10) << kept << " of " << model << " model pixels unchanged by the split overlay";
+  EXPECT_LT(kept, model) << "the overlay drew nothing over the model";
+}
+
 }  // namespace
 }  // namespace kdgrid::test
 

@@ -1090,12 +1090,20 @@ void Viewer::draw_panels() {
     if (show_splits_) {
       ImGui::SliderInt2("split depths", split_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      char l0[32], l2[32];
+      std::snprintf(l0, sizeof l0, "depth %d", split_depth_[0]);
+      std::snprintf(l2, sizeof l2, "%d", split_depth_[1]);
+      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
     }
     dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
     dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
     if (show_boxes_) {
       ImGui::SliderInt2("box depths", box_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      char l0[32], l2[32];
+      std::snprintf(l0, sizeof l0, "depth %d", box_depth_[0]);
+      std::snprintf(l2, sizeof l2, "%d", box_depth_[1]);
+      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
     }
     ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
     if (dirty) overlay_dirty_ = true;
@@ -1174,8 +1182,22 @@ void Viewer::draw_heat_legend() {
   }
   ImGui::Text("%s per pixel (%s scale)", image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
               to_string(settings_.heat_scale));
+  // The value at the middle of the bar differs between linear and log scales.
+  const float mid = settings_.heat_scale == HeatScale::Log
+                        ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
+                        : 0.5f * (heat_range_.lo + heat_range_.hi);
+  char l0[32], l1[32], l2[32];
+  std::snprintf(l0, sizeof l0, "%.4g", heat_range_.lo);
+  std::snprintf(l1, sizeof l1, "%.4g", mid);
+  std::snprintf(l2, sizeof l2, "%.4g", heat_range_.hi);
+  draw_ramp_bar(240 * s, l0, l1, l2);
+  ImGui::End();
+}
+
+void Viewer::draw_ramp_bar(float w, const char* lo, const char* mid, const char* hi) {
+  const float s = ui_scale_;
   const ImVec2 p = ImGui::GetCursorScreenPos();
-  const float w = 240 * s, h = 14 * s;
+  const float h = 14 * s;
   ImDrawList* dl = ImGui::GetWindowDrawList();
   constexpr int kSegs = 32;
   for (int i = 0; i < kSegs; ++i) {
@@ -1185,16 +1207,12 @@ void Viewer::draw_heat_legend() {
                                 cb, ca);
   }
   ImGui::Dummy(ImVec2(w, h));
-  // The value at the middle of the bar differs between linear and log scales.
-  const float mid = settings_.heat_scale == HeatScale::Log
-                        ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
-                        : 0.5f * (heat_range_.lo + heat_range_.hi);
-  ImGui::Text("%.4g", heat_range_.lo);
-  ImGui::SameLine(w * 0.5f - 10 * s);
-  ImGui::Text("%.4g", mid);
-  ImGui::SameLine(w - 30 * s);
-  ImGui::Text("%.4g", heat_range_.hi);
-  ImGui::End();
+  const float x0 = ImGui::GetCursorPosX();
+  ImGui::TextUnformatted(lo);
+  ImGui::SameLine(x0 + 0.5f * (w - ImGui::CalcTextSize(mid).x));
+  ImGui::TextUnformatted(mid);
+  ImGui::SameLine(x0 + w - ImGui::CalcTextSize(hi).x);
+  ImGui::TextUnformatted(hi);
 }
 
 void Viewer::draw_scene() {

@@ -97,6 +97,8 @@ class Viewer {
   void receive_image();
   void draw_panels();
   void draw_heat_legend();
+  /// A colour ramp bar (the heat map's and the overlays' ramp) with three labels under it.
+  void draw_ramp_bar(float width, const char* lo, const char* mid, const char* hi);
   void draw_scene();
   void rebuild_structure_overlay();
   void do_pick(int px, int py);
@@ -197,7 +199,9 @@ class Viewer {
 
   // Overlays.
   bool show_splits_ = false, show_cells_ = false, show_boxes_ = false;
-  int split_depth_[2] = {0, 64}, box_depth_[2] = {0, 64};
+  /// Depth ranges drawn. Splits default to the shallow levels (0-6): all 64 levels of the
+  /// bunny's hybrid are 37k boxes over the model.
+  int split_depth_[2] = {0, 6}, box_depth_[2] = {0, 64};
   bool overlay_dirty_ = true;
   size_t overlay_items_ = 0;
   LineRenderer structure_lines_, trace_lines_;
