@@ -746,21 +746,32 @@ TEST(Viewer, CellSizeInSceneUnitsIsRememberedPerSceneOnly) {
   EXPECT_NEAR(d.stats["state"]["cell_size_shown"].get<double>(), 0.004, 1e-7);
 }
 
+/// Two scripted screenshots of the bunny (UI hidden, one sample, two threads) that differ by
+/// `a` and `b`, written as a.png and b.png in `dir`; asserts that both runs succeed.
+void two_bunny_shots(const std::string& dir, const std::string& bunny, const std::string& size, const std::string& a,
+                     const std::string& b, ImageRGB& img_a, ImageRGB& img_b) {
+  const std::string common = "'" + bunny + "' --width " + size + " --frames 3 --min-samples 1 --max-samples 1 "
+                             "--hide-ui --threads 2 --timeout 120 ";
+  const RunResult ra = run_viewer(dir, common + a + " --screenshot a.png");
+  ASSERT_EQ(ra.code, 0) << ra.output;
+  const RunResult rb = run_viewer(dir, common + b + " --screenshot b.png");
+  ASSERT_EQ(rb.code, 0) << rb.output;
+  img_a = read_image(dir + "/a.png");
+  img_b = read_image(dir + "/b.png");
+  ASSERT_EQ(img_a.width, img_b.width);
+}
+
 TEST(Viewer, CellLargerThanTheSceneRendersAsTheKdTreeDoes) {
   KDGRID_REQUIRE_XVFB();
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
-  const std::string common = "'" + bunny + "' --width 320 --height 240 --frames 3 --min-samples 1 --max-samples 1 "
-                             "--hide-ui --threads 2 --timeout 120 ";
-  const RunResult one = run_viewer(dir, common + "--accel hybrid --cell-size 1e9 --screenshot one.png --stats-json one.json");
-  ASSERT_EQ(one.code, 0) << one.output;
-  const RunResult kd = run_viewer(dir, common + "--accel kdtree --screenshot kd.png");
-  ASSERT_EQ(kd.code, 0) << kd.output;
+  ImageRGB a, b;
+  two_bunny_shots(dir, bunny, "320 --height 240", "--accel hybrid --cell-size 1e9 --stats-json one.json",
+                  "--accel kdtree", a, b);
+  if (HasFatalFailure()) return;
   const auto st = read_json(dir + "/one.json");
   ASSERT_TRUE(st.is_object());
   EXPECT_LT(st["state"]["built_cell_size"].get<double>(), 1.0) << "one cell of the scene's size";
-  const ImageRGB a = read_image(dir + "/one.png"), b = read_image(dir + "/kd.png");
-  ASSERT_EQ(a.width, b.width);
   EXPECT_GT(luminance_variance(a), 1e-4) << "the bunny is drawn";
   EXPECT_EQ(changed_pixels_near(a, b, a.width / 2, a.height / 2, std::max(a.width, a.height)), 0)
       << "the one-cell hybrid's image differs from the kd-tree's";
@@ -801,14 +812,9 @@ TEST(Viewer, SplitOverlayAtItsDefaultDepthsLeavesTheModelVisible) {
   KDGRID_REQUIRE_XVFB();
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
-  const std::string common = "'" + bunny + "' --accel hybrid --width 480 --height 360 --frames 3 --min-samples 1 "
-                             "--max-samples 1 --hide-ui --threads 2 --timeout 120 ";
-  const RunResult plain = run_viewer(dir, common + "--screenshot plain.png");
-  ASSERT_EQ(plain.code, 0) << plain.output;
-  const RunResult splits = run_viewer(dir, common + "--overlay splits --screenshot splits.png");
-  ASSERT_EQ(splits.code, 0) << splits.output;
-  const ImageRGB a = read_image(dir + "/plain.png"), b = read_image(dir + "/splits.png");
-  ASSERT_EQ(a.width, b.width);
+  ImageRGB a, b;
+  two_bunny_shots(dir, bunny, "480 --height 360", "--accel hybrid", "--accel hybrid --overlay splits", a, b);
+  if (HasFatalFailure()) return;
   // Of the model's pixels (lit in the plain shot), most are still the model's under the
   // default split depths (0-6); with all 64 levels almost none were.
   int model = 0, kept = 0;
