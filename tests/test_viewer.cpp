@@ -830,6 +830,21 @@ TEST(Viewer, SplitOverlayAtItsDefaultDepthsLeavesTheModelVisible) {
   EXPECT_LT(kept, model) << "the overlay drew nothing over the model";
 }
 
+TEST(Viewer, InputF1ShowsTheKeyListAndHHidesThePanels) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--screenshot keys.png", "cornell.gltf",
+                          "mv 500 400; key F1");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_EQ(d.stats["state"]["keys_shown"], true);
+  EXPECT_EQ(d.stats["state"]["ui_hidden"], false);
+  EXPECT_FALSE(d.stats["display"]["panel"].is_null());
+  d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven, "cornell.gltf", "mv 500 400; key h");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_EQ(d.stats["state"]["ui_hidden"], true);
+  EXPECT_TRUE(d.stats["display"]["panel"].is_null()) << d.stats["display"].dump();
+}
+
 }  // namespace
 }  // namespace kdgrid::test
 

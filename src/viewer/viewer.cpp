@@ -488,6 +488,12 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
     case GLFW_KEY_P:
       save_screenshot(default_output_name("kdgrid-screenshot", "png"));
       break;
+    case GLFW_KEY_H:
+      opts_.hide_ui = !opts_.hide_ui;  // the picture alone, as a screenshot with --hide-ui
+      break;
+    case GLFW_KEY_F1:
+      show_keys_ = !show_keys_;
+      break;
     default:
       break;
   }
@@ -789,6 +795,8 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
     st["scene"] = nullptr;
   }
   st["camera"] = camera_json(cam_.camera());
+  st["ui_hidden"] = opts_.hide_ui;
+  st["keys_shown"] = show_keys_;
   st["start_camera"] = camera_json(start_camera_);
   st["camera_mode"] = cam_.mode() == CameraMode::Fly ? "fly" : "orbit";
   st["speed_scale"] = cam_.speed_scale();
@@ -922,6 +930,43 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
     }
   }
   ImGui::PopTextWrapPos();
+}
+
+void Viewer::draw_key_list() {
+  if (!show_keys_) return;
+  const ImGuiIO& io = ImGui::GetIO();
+  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x * 0.5f, io.DisplaySize.y * 0.5f), ImGuiCond_Appearing,
+                          ImVec2(0.5f, 0.5f));
+  if (!ImGui::Begin("keys (F1)", &show_keys_, ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings)) {
+    ImGui::End();
+    return;
+  }
+  static const char* const kKeys[][2] = {
+      {"left drag", "orbit about the target"},
+      {"right drag", "look around from the eye"},
+      {"wheel", "dolly towards / away from the target"},
+      {"W A S D Q E", "fly forward, left, back, right, down, up (Shift: 4x)"},
+      {"Tab", "switch orbit / fly camera"},
+      {"+ / -", "faster / slower camera"},
+      {"Home", "frame the scene"},
+      {"click", "pick the pixel: its ray's traversal, step by step"},
+      {"C", "print the camera as command-line flags"},
+      {"P or F12", "save a screenshot"},
+      {"H", "hide / show the panels"},
+      {"F1", "this list"},
+      {"Ctrl+Q", "quit"},
+  };
+  if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingFixedFit | ImGuiTableFlags_RowBg)) {
+    for (const auto& k : kKeys) {
+      ImGui::TableNextRow();
+      ImGui::TableNextColumn();
+      ImGui::TextUnformatted(k[0]);
+      ImGui::TableNextColumn();
+      ImGui::TextUnformatted(k[1]);
+    }
+    ImGui::EndTable();
+  }
+  ImGui::End();
 }
 
 void Viewer::draw_panels() {
@@ -1335,9 +1380,10 @@ int Viewer::run() {
     ImGui_ImplOpenGL3_NewFrame();
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
-    if (!opts_.hide_ui)
+    if (!opts_.hide_ui) {
       draw_panels();
-    else
+      draw_key_list();
+    } else
       std::fill(std::begin(panel_rect_), std::end(panel_rect_), 0.0f);
     ImGui::Render();
     draw_scene();

@@ -97,6 +97,8 @@ class Viewer {
   void receive_image();
   void draw_panels();
   void draw_heat_legend();
+  /// The key list (F1): every key and mouse action of the viewer.
+  void draw_key_list();
   /// A colour ramp bar (the heat map's and the overlays' ramp) with three labels under it.
   void draw_ramp_bar(float width, const char* lo, const char* mid, const char* hi);
   void draw_scene();
@@ -232,6 +234,7 @@ class Viewer {
   bool drop_started_ = false;
   std::string end_reason_;      // why the run ended, for --stats-json
   Camera start_camera_;         // the camera when the current scene was installed
+  bool show_keys_ = false;  ///< the key list (F1) is open
   std::string message_;   // last status line (screenshot written, camera printed, ...)
 };
 
