@@ -3,7 +3,10 @@
 // a teapot-in-a-stadium scene, counters and traces, and parameter validation.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cstdio>
+#include <cstdlib>
 #include <cmath>
 #include <random>
 #include <string>
@@ -11,6 +14,8 @@
 
 #include "accel/brute.h"
 #include "accel/hybrid.h"
+#include "scene/load.h"
+#include "test_util.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -1083,6 +1088,119 @@ TEST(Hybrid, BuildIsDeterministic) {
 TEST(Hybrid, RegisteredInFactory) {
   auto acc = make_accelerator("hybrid");
   EXPECT_EQ(acc->name(), "hybrid");
+}
+
+// ---- cell-size estimate, refusal and one cell ---------------------------------------------
+
+TEST(HybridEstimate, MatchesTheBuildAtAutoAndFinerSizes) {
+  const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 6);  // 32768 triangles, edges ~0.02-0.03
+  Hybrid a;
+  const BuildStats sa = a.build(m, params_with(0.0f, false));
+  const HybridEstimate ea = Hybrid::estimate(m, params_with(0.0f, false));
+  EXPECT_EQ(ea.cell, a.cell_size());
+  EXPECT_EQ(ea.auto_cell, a.cell_size());
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(ea.dims[k], double(a.dims()[k]));
+  EXPECT_TRUE(ea.fits);
+  EXPECT_EQ(ea.rule, extra_value(sa, "auto rule"));
+  // At the auto size and 4 and 8 times finer the structure's bytes are those of the build
+  // within a factor of 3 (the matrix dominates at the finer sizes), and the peak is above them.
+  for (double f : {1.0, 4.0, 8.0}) {
+    const float c = float(a.cell_size() / f);
+    Hybrid h;
+    const BuildStats st = h.build(m, params_with(c, false));
+    const HybridEstimate e = Hybrid::estimate(m, params_with(c, false));
+    EXPECT_TRUE(e.fits) << f;
+    EXPECT_GT(e.structure_bytes, double(st.bytes) / 3.0) << "cells " << f << "x finer than auto: " << e.describe();
+    EXPECT_LT(e.structure_bytes, double(st.bytes) * 3.0) << "cells " << f << "x finer than auto: " << e.describe();
+    EXPECT_GE(e.bytes, e.structure_bytes);
+  }
+}
+
+/// The size suggested by an explicit size's refusal; 0 if the build was not refused.
+double refused_and_suggested(const Mesh& m, float cell, std::string* msg) {
+  Hybrid h;
+  try {
+    h.build(m, params_with(cell, false));
+  } catch (const ParamError& e) {
+    *msg = e.what();
+    const std::string tag = "at least ";
+    const size_t at = msg->find(tag);
+    return at == std::string::npos ? -1.0 : std::atof(msg->c_str() + at + tag.size());
+  }
+  return 0.0;
+}
+
+TEST(HybridEstimate, TinyCellIsRefusedUpFrontWithASizeThatBuildsQuickly) {
+  const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 6);
+  for (float tiny : {1e-9f, 1e-6f, 1e-4f}) {
+    std::string msg;
+    const auto t0 = std::chrono::steady_clock::now();
+    const double suggested = refused_and_suggested(m, tiny, &msg);
+    const double refuse_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    ASSERT_GT(suggested, 0.0) << tiny << ": " << msg;
+    EXPECT_LT(refuse_s, 2.0) << "the refusal is an estimate, not a build";
+    EXPECT_NE(msg.find("cells"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("GiB"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("budget"), std::string::npos) << msg;
+    // The suggestion fits its own estimate, and builds within a bound (on a loaded 2-core
+    // machine; the limit it was chosen for is 10 estimated seconds).
+    EXPECT_TRUE(Hybrid::estimate(m, params_with(float(suggested), false)).fits) << suggested;
+    Hybrid h;
+    const auto t1 = std::chrono::steady_clock::now();
+    ASSERT_NO_THROW(h.build(m, params_with(float(suggested), false))) << suggested;
+    const double build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+    EXPECT_LT(build_s, 60.0) << "suggested cell size " << suggested;
+    const auto rays = random_rays(m, 2000, 41);
+    EXPECT_EQ(compare(h, m, rays, brute_reference(m, rays), "suggested size"), 0);
+  }
+}
+
+TEST(HybridEstimate, BunnySuggestedSizeBuildsWithinABound) {
+  KDGRID_REQUIRE_SCENE(path, "bunny/bun_zipper.ply");
+  const Mesh m = load_scene(path).mesh;
+  std::string msg;
+  const double suggested = refused_and_suggested(m, 1e-8f, &msg);
+  ASSERT_GT(suggested, 0.0) << msg;
+  Hybrid h;
+  const auto t0 = std::chrono::steady_clock::now();
+  const BuildStats st = h.build(m, params_with(float(suggested), false));
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_LT(s, 90.0) << msg;
+  const HybridEstimate e = Hybrid::estimate(m, params_with(float(suggested), false));
+  EXPECT_LT(double(st.bytes), e.bytes * 3.0) << e.describe();
+  std::printf("bunny: %s\nsuggested %g built in %.1f s, %.0f MiB (estimate: %s)\n", msg.c_str(), suggested, s,
+              double(st.bytes) / 1048576.0, e.describe().c_str());
+}
+
+TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
+  const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 6);
+  Hybrid one;
+  const BuildStats st = one.build(m, params_with(1e9f, false));
+  EXPECT_EQ(one.dims()[0] * one.dims()[1] * one.dims()[2], 1);
+  EXPECT_LE(one.cell_size(), 2.0 + 1e-6) << "one cell of the scene's extent, not 1e9";
+  EXPECT_NE(extra_value(st, "auto rule").find("larger than the scene"), std::string::npos);
+  const auto rays = random_rays(m, 4000, 9);
+  EXPECT_EQ(compare(one, m, rays, brute_reference(m, rays), "one cell"), 0);
+  // Tests per ray as the auto grid's (the subtree of the one leaf splits as the kd-tree does).
+  // A triangle is tested twice only when the ray's 32-entry direct-mapped mailbox lost it to
+  // another triangle in between: at most 1% of the rays (12 of these 4000; with the
+  // 6-level subtree of a huge cell, every ray retested hundreds).
+  Hybrid grid;
+  grid.build(m, params_with(0.0f, false));
+  double tests_one = 0, tests_grid = 0;
+  int twice = 0;
+  for (const Ray& r : rays) {
+    const Trace t = one.trace(r);
+    tests_one += double(t.counters.tri_tests);
+    std::vector<uint32_t> tested = t.tested;
+    std::sort(tested.begin(), tested.end());
+    twice += std::adjacent_find(tested.begin(), tested.end()) != tested.end();
+    tests_grid += double(grid.trace(r).counters.tri_tests);
+  }
+  EXPECT_LE(twice, int(rays.size()) / 100) << "rays that tested a triangle twice";
+  EXPECT_LT(tests_one, 2.0 * tests_grid + double(rays.size())) << "one cell " << tests_one / double(rays.size())
+                                                                << " tests per ray, auto grid "
+                                                                << tests_grid / double(rays.size());
 }
 
 }  // namespace

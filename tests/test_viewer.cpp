@@ -882,6 +882,152 @@ TEST(Viewer, CtrlQDuringTheFirstBuildExitsWithinASecond) {
   EXPECT_LT(ms, 1000) << "Ctrl+Q took " << ms << " ms to end the viewer during a build\n" << r.output;
 }
 
+// ---- cell sizes: remembered per scene, built size shown, estimate and refusal --------------
+
+/// An interactive run (it reads and writes the remembered settings) of the bunny with the hybrid
+/// and `settings` as viewer.json; returns its statistics.
+Driven run_with_settings(const std::string& dir, const std::string& scene, const nlohmann::json& settings) {
+  fs::create_directories(dir + "/kdgrid");
+  std::ofstream(dir + "/kdgrid/viewer.json") << settings.dump(2);
+  return drive_viewer(dir, "'" + scene + "' --accel hybrid --width 640 --height 480 --threads 2 --max-samples 1",
+                      fs::path(scene).filename().string(), "sleep 1");
+}
+
+TEST(Viewer, CellSizeInSceneUnitsIsRememberedPerSceneOnly) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_XDOTOOL();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  const std::string dragon = shared_scene("dragon/dragon_vrip.ply").empty() ? "/elsewhere/dragon_vrip.ply"
+                                                                             : shared_scene("dragon/dragon_vrip.ply");
+  // 0.0008 remembered for the dragon, and as a bare number (an older file): the bunny builds
+  // its own auto size (0.00178), and the dragon's size stays remembered for the dragon.
+  Driven d = run_with_settings(dir, bunny, {{"accel", "hybrid"}, {"cell_size", "0.0008"},
+                                            {"cell_size_by_scene", {{dragon, "0.0008"}}}});
+  ASSERT_DRIVEN_OK(d);
+  const auto& st = d.stats["state"];
+  ASSERT_TRUE(st.contains("built_cell_size")) << st.dump();
+  EXPECT_EQ(st["cell_choice"], "auto");
+  EXPECT_NEAR(st["built_cell_size"].get<double>(), st["auto_cell_size"].get<double>(), 1e-9);
+  EXPECT_GT(st["built_cell_size"].get<double>(), 0.0015);
+  // The slider shows the built size, not 5% of the scene's radius.
+  EXPECT_NEAR(st["cell_size_shown"].get<double>(), st["built_cell_size"].get<double>(), 1e-6);
+  auto saved = read_json(dir + "/kdgrid/viewer.json");
+  ASSERT_TRUE(saved.is_object());
+  EXPECT_EQ(saved["cell_size"], "auto");
+  EXPECT_EQ(saved["cell_size_by_scene"][dragon], "0.0008");
+  const double auto_cell = st["auto_cell_size"].get<double>();
+  // A multiple of auto applies to any scene.
+  d = run_with_settings(dir, bunny, {{"cell_size", "2x"}});
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_EQ(d.stats["state"]["cell_choice"], "2x");
+  EXPECT_NEAR(d.stats["state"]["built_cell_size"].get<double>(), 2.0 * auto_cell, 1e-6);
+  // A size in scene units remembered for this scene is this scene's.
+  d = run_with_settings(dir, bunny, {{"cell_size_by_scene", {{fs::canonical(bunny).string(), "0.004"}}}});
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_NEAR(d.stats["state"]["built_cell_size"].get<double>(), 0.004, 1e-7);
+  EXPECT_NEAR(d.stats["state"]["cell_size_shown"].get<double>(), 0.004, 1e-7);
+}
+
+/// Two scripted screenshots of the bunny (UI hidden, one sample, two threads) that differ by
+/// `a` and `b`, written as a.png and b.png in `dir`; asserts that both runs succeed.
+void two_bunny_shots(const std::string& dir, const std::string& bunny, const std::string& size, const std::string& a,
+                     const std::string& b, ImageRGB& img_a, ImageRGB& img_b) {
+  const std::string common = "'" + bunny + "' --width " + size + " --frames 3 --min-samples 1 --max-samples 1 "
+                             "--hide-ui --threads 2 --timeout 120 ";
+  const RunResult ra = run_viewer(dir, common + a + " --screenshot a.png");
+  ASSERT_EQ(ra.code, 0) << ra.output;
+  const RunResult rb = run_viewer(dir, common + b + " --screenshot b.png");
+  ASSERT_EQ(rb.code, 0) << rb.output;
+  img_a = read_image(dir + "/a.png");
+  img_b = read_image(dir + "/b.png");
+  ASSERT_EQ(img_a.width, img_b.width);
+}
+
+TEST(Viewer, CellLargerThanTheSceneRendersAsTheKdTreeDoes) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  ImageRGB a, b;
+  two_bunny_shots(dir, bunny, "320 --height 240", "--accel hybrid --cell-size 1e9 --stats-json one.json",
+                  "--accel kdtree", a, b);
+  if (HasFatalFailure()) return;
+  const auto st = read_json(dir + "/one.json");
+  ASSERT_TRUE(st.is_object());
+  EXPECT_LT(st["state"]["built_cell_size"].get<double>(), 1.0) << "one cell of the scene's size";
+  EXPECT_GT(luminance_variance(a), 1e-4) << "the bunny is drawn";
+  EXPECT_EQ(changed_pixels_near(a, b, a.width / 2, a.height / 2, std::max(a.width, a.height)), 0)
+      << "the one-cell hybrid's image differs from the kd-tree's";
+}
+
+TEST(Viewer, TooSmallCellSizeIsRefusedWithASizeThatBuilds) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  // The build is refused at once (no 300 s build), with the estimate and a size that fits.
+  const RunResult r = run_viewer(dir, "'" + bunny + "' --accel hybrid --cell-size 1e-8 --width 320 --height 240 "
+                                      "--frames 3 --threads 2 --timeout 60 --screenshot e.png");
+  EXPECT_NE(r.output.find("use a cell size of at least"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("cells"), std::string::npos) << r.output;
+}
+
+TEST(Viewer, StatsJsonStaysValidWhenAnErrorQuotesInvalidUtf8) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  const std::string bad = dir + "/garbage.ply";
+  // A PLY header, then bytes that are not UTF-8 where the error message quotes the body.
+  std::ofstream(bad, std::ios::binary) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                                          "property float y\nproperty float z\nelement face 1\n"
+                                          "property list uchar int vertex_indices\nend_header\n"
+                                       << "\xff\xfe\xc3\x28 \xa0\xa1\n";
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 320 --height 240 --frames 3 "
+                                      "--max-samples 1 --drop '" + bad + "' --stats-json stats.json");
+  EXPECT_EQ(r.code, 1) << r.output;
+  const auto stats = read_json(dir + "/stats.json");
+  ASSERT_TRUE(stats.is_object()) << "stats.json is not valid JSON: " << r.output;
+  const std::string error = stats["state"]["error"].get<std::string>();
+  EXPECT_NE(error.find("garbage.ply"), std::string::npos);
+  EXPECT_NE(error.find("\xef\xbf\xbd"), std::string::npos) << "the quoted bytes, replaced by U+FFFD: " << error;
+}
+
+TEST(Viewer, SplitOverlayAtItsDefaultDepthsLeavesTheModelVisible) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  ImageRGB a, b;
+  two_bunny_shots(dir, bunny, "480 --height 360", "--accel hybrid", "--accel hybrid --overlay splits", a, b);
+  if (HasFatalFailure()) return;
+  // Of the model's pixels (lit in the plain shot), most are still the model's under the
+  // default split depths (0-6); with all 64 levels almost none were.
+  int model = 0, kept = 0;
+  for (int y = 0; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x) {
+      const size_t i = (size_t(y) * size_t(a.width) + size_t(x)) * 3;
+      if (a.rgb[i] + a.rgb[i + 1] + a.rgb[i + 2] < 0.15f) continue;
+      ++model;
+      kept += changed_pixels_near(a, b, x, y, 0) == 0;
+    }
+  ASSERT_GT(model, 1000) << "no model in the plain shot";
+  EXPECT_GT(kept, model * 6 / 10) << kept << " of " << model << " model pixels unchanged by the split overlay";
+  EXPECT_LT(kept, model) << "the overlay drew nothing over the model";
+}
+
+TEST(Viewer, InputF1ShowsTheKeyListAndHHidesThePanels) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--screenshot keys.png", "cornell.gltf",
+                          "mv 500 400; key F1");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_EQ(d.stats["state"]["keys_shown"], true);
+  EXPECT_EQ(d.stats["state"]["ui_hidden"], false);
+  EXPECT_FALSE(d.stats["display"]["panel"].is_null());
+  d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven, "cornell.gltf", "mv 500 400; key h");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_EQ(d.stats["state"]["ui_hidden"], true);
+  EXPECT_TRUE(d.stats["display"]["panel"].is_null()) << d.stats["display"].dump();
+}
+
 }  // namespace
 }  // namespace kdgrid::test
 

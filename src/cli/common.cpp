@@ -51,6 +51,11 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "the kd-tree is (default 4); 0 = the paper's plain leaves")
       ->group(g)
       ->capture_default_str();
+  cmd->add_option("--hybrid-max-build-seconds", params.hybrid_max_build_seconds,
+                  "Hybrid: refuse an explicit --cell-size whose estimated extra build time exceeds "
+                  "this (seconds), naming a size that fits; 0 = no limit")
+      ->group(g)
+      ->capture_default_str();
   cmd->add_flag("--hybrid-no-expand{false}", params.hybrid_expand_empty,
                 "Hybrid: step over the kd leaf boxes of the paper, without widening empty "
                 "leaves over the empty cells around them")
@@ -100,6 +105,8 @@ BuildParams AccelOptions::resolve() const {
   if (!(p.irregular_top_density > 0.0f) || !(p.irregular_sub_density > 0.0f))
     throw ParamError("--irr-top-density and --irr-sub-density must be positive");
   if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
+  if (!(p.hybrid_max_build_seconds >= 0.0))
+    throw ParamError("--hybrid-max-build-seconds must be >= 0 (0 = no limit), e.g. 10");
   if (!(p.brute_work_limit >= 0.0))
     throw ParamError("--brute-work-limit must be >= 0 (0 = no limit), e.g. 5e9");
   // MiB to bytes must not wrap: 2^44 MiB is 2^64 bytes.

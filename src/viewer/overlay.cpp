@@ -89,10 +89,12 @@ bool project_to_pixel(const CameraFrame& f, const Vec3& p, float& px, float& py)
 size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out) {
   int max_depth = 1;
   a.for_each_split([&](const SplitPlane& s) { max_depth = std::max(max_depth, s.depth); });
+  // Colours span the depths shown (the legend's ramp from lo to hi), not the whole tree.
+  const float top = float(std::max(lo + 1, std::min(hi, max_depth)));
   size_t n = 0;
   a.for_each_split([&](const SplitPlane& s) {
     if (s.depth < lo || s.depth > hi || out.segments() >= kMaxOverlaySegments) return;
-    out.split(s.axis, s.position, s.node_box, ramp(float(s.depth) / float(max_depth), 0.8f));
+    out.split(s.axis, s.position, s.node_box, ramp((float(s.depth) - float(lo)) / (top - float(lo)), 0.8f));
     ++n;
   });
   return n;
@@ -117,10 +119,11 @@ size_t build_cell_overlay(const Accelerator& a, LineBatch& out) {
 size_t build_box_overlay(const Accelerator& a, int lo, int hi, LineBatch& out) {
   int max_depth = 1;
   a.for_each_box([&](const StructureBox& b) { max_depth = std::max(max_depth, b.depth); });
+  const float top = float(std::max(lo + 1, std::min(hi, max_depth)));
   size_t n = 0;
   a.for_each_box([&](const StructureBox& b) {
     if (b.depth < lo || b.depth > hi || out.segments() >= kMaxOverlaySegments) return;
-    out.box(b.box, ramp(float(b.depth) / float(max_depth), 0.7f));
+    out.box(b.box, ramp((float(b.depth) - float(lo)) / (top - float(lo)), 0.7f));
     ++n;
   });
   return n;

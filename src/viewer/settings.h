@@ -2,6 +2,7 @@
 // imgui.ini (window layout, written by ImGui) and viewer.json (these settings).
 #pragma once
 
+#include <map>
 #include <string>
 
 namespace kdgrid::viewer {
@@ -10,7 +11,13 @@ enum class HeatScale { Auto, Fixed, Log };
 
 struct Settings {
   std::string accel;             ///< last structure; empty = the command line's default
+  /// The hybrid's cell size for any scene: "auto" or a multiple of the auto size ("0.5x").
+  /// A size in scene units is remembered per scene only (cell_size_by_scene): one scene's
+  /// 0.0008 is a 43526x20701x19501 grid on another. A bare number here (an older file) is
+  /// ignored with a warning.
   std::string cell_size = "auto";
+  /// Sizes in scene units by the scene file's absolute path.
+  std::map<std::string, std::string> cell_size_by_scene;
   int window_width = 1280, window_height = 800;
   HeatScale heat_scale = HeatScale::Auto;
   float heat_fixed_min = 0.0f, heat_fixed_max = 100.0f;
@@ -27,5 +34,24 @@ Settings load_settings(const std::string& dir);
 void save_settings(const std::string& dir, const Settings& s);
 
 const char* to_string(HeatScale s);
+
+/// A cell-size choice: the auto rule, a multiple of it, or a size in scene units.
+struct CellChoice {
+  enum class Kind { Auto, Multiple, Units } kind = Kind::Auto;
+  double value = 0;  ///< the multiple, or the size in scene units
+  /// "auto", "0.5x" (a multiple of auto) or "0.004" (scene units); throws ParamError naming
+  /// `what` otherwise.
+  static CellChoice parse(const std::string& s, const std::string& what);
+  std::string text() const;  ///< the form parse() reads
+  /// The cell size for a scene whose auto size is `auto_cell` (0 = the auto rule itself).
+  float resolve(double auto_cell) const;
+};
+
+/// The remembered choice for the scene at `path` (absolute or relative): its own size in
+/// scene units if one is remembered, else the global auto or multiple.
+CellChoice remembered_cell_choice(const Settings& s, const std::string& path);
+/// Remembers `c` for the scene at `path`: a size in scene units under that scene only; auto
+/// or a multiple globally (and the scene's own size forgotten).
+void remember_cell_choice(Settings& s, const std::string& path, const CellChoice& c);
 
 }  // namespace kdgrid::viewer

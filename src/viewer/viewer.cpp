@@ -18,6 +18,7 @@
 #include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
 
+#include "accel/hybrid.h"
 #include "scene/load.h"
 #include "util/error.h"
 #include "viewer/gl_util.h"
@@ -147,8 +148,10 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
     config_dir_ = config_dir();
     settings_ = load_settings(config_dir_);
   }
+  // The cell size: the command line's for its scene, else the one remembered for this scene
+  // (scene units) or for every scene (auto or a multiple of auto); resolved in start_load.
   std::string cs = opts_.accel.cell_size;
-  if (!opts_.cell_size_given && !settings_.cell_size.empty()) cs = settings_.cell_size;
+  if (!opts_.cell_size_given) cs = remembered_cell_choice(settings_, opts_.scene).text();
   const auto names = accelerator_names();
   const auto valid = [&](const std::string& n) {
     return std::find(names.begin(), names.end(), n) != names.end();
@@ -162,11 +165,12 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
   }
   params_ = opts_.accel.resolve();
   try {
-    params_.cell_size = cli::parse_cell_size(cs);
+    cell_choice_ = CellChoice::parse(cs, "--cell-size");
     cell_size_text_ = cs;
   } catch (const ParamError&) {
-    params_.cell_size = 0;  // a bad remembered value falls back to auto
+    cell_choice_ = {};  // a bad remembered value falls back to auto
   }
+  params_.cell_size = cell_choice_.kind == CellChoice::Kind::Units ? float(cell_choice_.value) : 0.0f;
   if (opts_.heatmap == "steps") mode_ = RenderMode::HeatSteps;
   if (opts_.heatmap == "tests") mode_ = RenderMode::HeatTests;
   for (const auto& o : opts_.overlays) {
@@ -295,7 +299,7 @@ void Viewer::shutdown() {
     settings_.window_width = ww;
     settings_.window_height = wh;
     settings_.accel = accel_name_;
-    settings_.cell_size = params_.cell_size > 0 ? fmt_float(params_.cell_size) : "auto";
+    if (world_) remember_cell_choice(settings_, world_->scene->source, cell_choice_);
     save_settings(config_dir_, settings_);
   }
   ImGui_ImplOpenGL3_Shutdown();
@@ -340,15 +344,26 @@ void Viewer::start_load(const std::string& path) {
   task_error_.clear();
   const std::string name = accel_name_;
   const BuildParams params = params_;
+  // The new scene's own cell size: the command line's for its scene, else the remembered one;
+  // a size in scene units never carries over from another scene.
+  const bool own = path == opts_.scene && opts_.cell_size_given;
+  CellChoice choice = remembered_cell_choice(settings_, path);
+  if (own) choice = cell_choice_.kind == CellChoice::Kind::Multiple ? cell_choice_ : CellChoice::parse(opts_.accel.cell_size, "--cell-size");
+  loading_choice_ = choice;
   Task t;
   t.what = "loading " + std::filesystem::path(path).filename().string();
   t.kind = "load";
   t.new_scene = true;
   t.started = Clock::now();
   t.cancel = std::make_shared<CancelToken>();
-  t.result = std::async(std::launch::async, [path, name, params, cancel = t.cancel] {
+  t.result = std::async(std::launch::async, [path, name, params, choice, cancel = t.cancel] {
     const WakeUiOnExit wake;
-    return build_world(std::make_shared<Scene>(load_scene(path)), name, params, *cancel);
+    auto scene = std::make_shared<Scene>(load_scene(path));
+    BuildParams p = params;
+    p.cell_size = choice.resolve(choice.kind == CellChoice::Kind::Multiple
+                                     ? Hybrid::estimate(scene->mesh, params).auto_cell
+                                     : 0.0);
+    return build_world(std::move(scene), name, p, *cancel);
   });
   task_ = std::move(t);
 }
@@ -443,6 +458,24 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
         "kdgrid-viewer - " + std::filesystem::path(w->scene->source).filename().string();
     glfwSetWindowTitle(window_, title.c_str());
   }
+  if (new_scene) {
+    cell_choice_ = loading_choice_;
+    BuildParams a = w->params;
+    a.cell_size = 0.0f;
+    auto_cell_ = Hybrid::estimate(w->scene->mesh, a).auto_cell;
+    cell_refusal_.clear();
+  }
+  // The choice follows what was built (a scripted rebuild, a build from the panel), and the
+  // slider shows the built size, the auto rule's included.
+  const float cs = w->params.cell_size;
+  if (w->name == "hybrid") {
+    if (cs <= 0.0f)
+      cell_choice_ = {};
+    else if (cell_choice_.kind != CellChoice::Kind::Multiple || std::fabs(cell_choice_.resolve(auto_cell_) - cs) > 1e-6f * cs)
+      cell_choice_ = {CellChoice::Kind::Units, double(cs)};
+    if (const auto* h = dynamic_cast<const Hybrid*>(w->accel.get())) cell_size_slider_ = float(h->cell_size());
+    cell_estimated_for_ = -1;
+  }
   accel_name_ = w->name;
   params_ = w->params;
   built_[w->name] = w;
@@ -495,6 +528,12 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
     case GLFW_KEY_F12:
     case GLFW_KEY_P:
       save_screenshot(default_output_name("kdgrid-screenshot", "png"));
+      break;
+    case GLFW_KEY_H:
+      opts_.hide_ui = !opts_.hide_ui;  // the picture alone, as a screenshot with --hide-ui
+      break;
+    case GLFW_KEY_F1:
+      show_keys_ = !show_keys_;
       break;
     default:
       break;
@@ -815,10 +854,20 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
     st["triangles"] = world_->scene->mesh.num_triangles();
     st["accel"] = world_->name;
     st["cell_size"] = world_->params.cell_size;
+    if (const auto* h = dynamic_cast<const Hybrid*>(world_->accel.get())) {
+      st["built_cell_size"] = h->cell_size();
+      st["auto_cell_size"] = auto_cell_;
+      st["cell_size_shown"] = cell_size_slider_;
+      st["cell_choice"] = cell_choice_.text();
+    }
+    st["cell_estimate"] = cell_estimate_;
+    st["cell_refusal"] = cell_refusal_;
   } else {
     st["scene"] = nullptr;
   }
   st["camera"] = camera_json(cam_.camera());
+  st["ui_hidden"] = opts_.hide_ui;
+  st["keys_shown"] = show_keys_;
   st["start_camera"] = camera_json(start_camera_);
   st["camera_mode"] = cam_.mode() == CameraMode::Fly ? "fly" : "orbit";
   st["speed_scale"] = cam_.speed_scale();
@@ -876,7 +925,9 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   j["builds"] = builds;
 
   std::ofstream out(path);
-  out << j.dump(1) << "\n";
+  // Error texts can quote a file's bytes (a PLY with garbage after its header): invalid UTF-8
+  // is replaced (U+FFFD) instead of throwing out of dump() and leaving the file empty.
+  out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
   if (!out)
     std::fprintf(stderr, "kdgrid-viewer: could not write --stats-json %s\n", path.c_str());
   else
@@ -885,6 +936,113 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
 }
 
 // ---- panels ----------------------------------------------------------------------------------
+
+void Viewer::request_cell_choice(const CellChoice& c) {
+  if (!world_) return;
+  const BuildParams p = params_with_cell_size("hybrid", c.resolve(auto_cell_));
+  try {
+    const HybridEstimate e = Hybrid::estimate(world_->scene->mesh, p);
+    cell_estimate_ = e.describe();
+    cell_estimated_for_ = float(e.cell);
+    if (!e.fits) {
+      cell_refusal_ = e.refusal();
+      cell_suggested_ = e.suggested_cell;
+      return;
+    }
+  } catch (const ParamError& err) {
+    cell_refusal_ = err.what();
+    cell_suggested_ = 0;
+    return;
+  }
+  cell_refusal_.clear();
+  cell_choice_ = c;
+  start_build("hybrid", p);
+}
+
+void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
+  // The hybrid's cell size, in scene units and as a multiple of the auto size; the slider and
+  // the boxes show the built size until edited. Every request is estimated first (cells,
+  // bytes, build time) and refused with a size that fits when it does not.
+  const float r = scene_radius();
+  bool auto_cs = cell_choice_.kind == CellChoice::Kind::Auto;
+  if (ImGui::Checkbox("auto cell size", &auto_cs))
+    request_cell_choice(auto_cs ? CellChoice{} : CellChoice{CellChoice::Kind::Units, double(cell_size_slider_)});
+  const float lo = std::min(r * 1e-3f, cell_size_slider_), hi = std::max(r * 2.0f, cell_size_slider_);
+  ImGui::SliderFloat("cell", &cell_size_slider_, lo, hi, "%.4g", ImGuiSliderFlags_Logarithmic);
+  if (ImGui::IsItemDeactivatedAfterEdit()) request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  ImGui::InputFloat("units", &cell_size_slider_, 0, 0, "%.6g");
+  if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0)
+    request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  if (auto_cell_ > 0) {
+    float mult = float(cell_size_slider_ / auto_cell_);
+    ImGui::InputFloat("x auto", &mult, 0, 0, "%.4g");
+    if (ImGui::IsItemDeactivatedAfterEdit() && mult > 0) {
+      cell_size_slider_ = float(mult * auto_cell_);
+      request_cell_choice({CellChoice::Kind::Multiple, double(mult)});
+    }
+  }
+  // The estimate of the size on the slider, updated while it moves (O(triangles)).
+  if (cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 && world_) {
+    try {
+      cell_estimate_ =
+          Hybrid::estimate(world_->scene->mesh, params_with_cell_size("hybrid", cell_size_slider_)).describe();
+    } catch (const ParamError& e) {
+      cell_estimate_ = e.what();
+    }
+    cell_estimated_for_ = cell_size_slider_;
+  }
+  ImGui::PushTextWrapPos(0.0f);
+  ImGui::TextDisabled("estimate: %s", cell_estimate_.c_str());
+  if (!cell_refusal_.empty()) {
+    ImGui::TextColored(ImVec4(1.0f, 0.45f, 0.35f, 1.0f), "refused: %s", cell_refusal_.c_str());
+    if (cell_suggested_ > 0) {
+      char label[64];
+      std::snprintf(label, sizeof label, "use %.2g", cell_suggested_);
+      if (ImGui::Button(label)) {
+        cell_size_slider_ = float(cell_suggested_);
+        request_cell_choice({CellChoice::Kind::Units, cell_suggested_});
+      }
+    }
+  }
+  ImGui::PopTextWrapPos();
+}
+
+void Viewer::draw_key_list() {
+  if (!show_keys_) return;
+  const ImGuiIO& io = ImGui::GetIO();
+  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x * 0.5f, io.DisplaySize.y * 0.5f), ImGuiCond_Appearing,
+                          ImVec2(0.5f, 0.5f));
+  if (!ImGui::Begin("keys (F1)", &show_keys_, ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings)) {
+    ImGui::End();
+    return;
+  }
+  static const char* const kKeys[][2] = {
+      {"left drag", "orbit about the target"},
+      {"right drag", "look around from the eye"},
+      {"wheel", "dolly towards / away from the target"},
+      {"W A S D Q E", "fly forward, left, back, right, down, up (Shift: 4x)"},
+      {"Tab", "switch orbit / fly camera"},
+      {"+ / -", "faster / slower camera"},
+      {"Home", "frame the scene"},
+      {"click", "pick the pixel: its ray's traversal, step by step"},
+      {"C", "print the camera as command-line flags"},
+      {"P or F12", "save a screenshot"},
+      {"H", "hide / show the panels"},
+      {"F1", "this list"},
+      {"Ctrl+Q", "quit"},
+  };
+  if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingFixedFit | ImGuiTableFlags_RowBg)) {
+    for (const auto& k : kKeys) {
+      ImGui::TableNextRow();
+      ImGui::TableNextColumn();
+      ImGui::TextUnformatted(k[0]);
+      ImGui::TableNextColumn();
+      ImGui::TextUnformatted(k[1]);
+    }
+    ImGui::EndTable();
+  }
+  ImGui::End();
+}
 
 void Viewer::draw_panels() {
   ImGui::SetNextWindowPos(ImVec2(8 * ui_scale_, 8 * ui_scale_), ImGuiCond_FirstUseEver);
@@ -955,6 +1113,8 @@ void Viewer::draw_panels() {
       ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
                          ImGuiSliderFlags_Logarithmic);
       rebuild = ImGui::IsItemDeactivatedAfterEdit();
+    } else if (accel_name_ == "hybrid") {
+      draw_cell_size_controls(p, rebuild);
     } else if (accel_name_ != "brute" && accel_name_ != "embree") {
       if (cell_size_slider_ <= 0) cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
       bool auto_cs = params_.cell_size <= 0 && accel_name_ != "grid";
@@ -1061,12 +1221,20 @@ void Viewer::draw_panels() {
     if (show_splits_) {
       ImGui::SliderInt2("split depths", split_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      char l0[32], l2[32];
+      std::snprintf(l0, sizeof l0, "depth %d", split_depth_[0]);
+      std::snprintf(l2, sizeof l2, "%d", split_depth_[1]);
+      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
     }
     dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
     dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
     if (show_boxes_) {
       ImGui::SliderInt2("box depths", box_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      char l0[32], l2[32];
+      std::snprintf(l0, sizeof l0, "depth %d", box_depth_[0]);
+      std::snprintf(l2, sizeof l2, "%d", box_depth_[1]);
+      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
     }
     ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
     if (dirty) overlay_dirty_ = true;
@@ -1135,10 +1303,32 @@ void Viewer::draw_heat_legend() {
   ImGui::Begin("legend", nullptr,
                ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings |
                    ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
+  if (world_ && !world_->accel->has_counters()) {
+    // Embree counts nothing: a ramp with a 0..1 scale would read as "no work at all".
+    ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f), "%s keeps no traversal counters: no %s heat map",
+                       world_->name.c_str(), image_.mode == RenderMode::HeatSteps ? "step" : "test");
+    ImGui::TextDisabled("choose a kdgrid structure to see its work per pixel");
+    ImGui::End();
+    return;
+  }
   ImGui::Text("%s per pixel (%s scale)", image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
               to_string(settings_.heat_scale));
+  // The value at the middle of the bar differs between linear and log scales.
+  const float mid = settings_.heat_scale == HeatScale::Log
+                        ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
+                        : 0.5f * (heat_range_.lo + heat_range_.hi);
+  char l0[32], l1[32], l2[32];
+  std::snprintf(l0, sizeof l0, "%.4g", heat_range_.lo);
+  std::snprintf(l1, sizeof l1, "%.4g", mid);
+  std::snprintf(l2, sizeof l2, "%.4g", heat_range_.hi);
+  draw_ramp_bar(240 * s, l0, l1, l2);
+  ImGui::End();
+}
+
+void Viewer::draw_ramp_bar(float w, const char* lo, const char* mid, const char* hi) {
+  const float s = ui_scale_;
   const ImVec2 p = ImGui::GetCursorScreenPos();
-  const float w = 240 * s, h = 14 * s;
+  const float h = 14 * s;
   ImDrawList* dl = ImGui::GetWindowDrawList();
   constexpr int kSegs = 32;
   for (int i = 0; i < kSegs; ++i) {
@@ -1148,16 +1338,12 @@ void Viewer::draw_heat_legend() {
                                 cb, ca);
   }
   ImGui::Dummy(ImVec2(w, h));
-  // The value at the middle of the bar differs between linear and log scales.
-  const float mid = settings_.heat_scale == HeatScale::Log
-                        ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
-                        : 0.5f * (heat_range_.lo + heat_range_.hi);
-  ImGui::Text("%.4g", heat_range_.lo);
-  ImGui::SameLine(w * 0.5f - 10 * s);
-  ImGui::Text("%.4g", mid);
-  ImGui::SameLine(w - 30 * s);
-  ImGui::Text("%.4g", heat_range_.hi);
-  ImGui::End();
+  const float x0 = ImGui::GetCursorPosX();
+  ImGui::TextUnformatted(lo);
+  ImGui::SameLine(x0 + 0.5f * (w - ImGui::CalcTextSize(mid).x));
+  ImGui::TextUnformatted(mid);
+  ImGui::SameLine(x0 + w - ImGui::CalcTextSize(hi).x);
+  ImGui::TextUnformatted(hi);
 }
 
 void Viewer::draw_scene() {
@@ -1282,9 +1468,10 @@ int Viewer::run() {
     ImGui_ImplOpenGL3_NewFrame();
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
-    if (!opts_.hide_ui)
+    if (!opts_.hide_ui) {
       draw_panels();
-    else
+      draw_key_list();
+    } else
       std::fill(std::begin(panel_rect_), std::end(panel_rect_), 0.0f);
     ImGui::Render();
     draw_scene();

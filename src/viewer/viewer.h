@@ -86,6 +86,10 @@ class Viewer {
   void poll_tasks();
   void install_world(std::shared_ptr<const World> w, bool new_scene);
   BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
+  /// Estimates the hybrid at `c` (HybridEstimate) and rebuilds when it fits; otherwise keeps
+  /// the structure and shows the refusal with the size that fits.
+  void request_cell_choice(const CellChoice& c);
+  void draw_cell_size_controls(BuildParams& p, bool& rebuild);
 
   // ---- per frame
   void note_input();
@@ -95,6 +99,10 @@ class Viewer {
   void receive_image();
   void draw_panels();
   void draw_heat_legend();
+  /// The key list (F1): every key and mouse action of the viewer.
+  void draw_key_list();
+  /// A colour ramp bar (the heat map's and the overlays' ramp) with three labels under it.
+  void draw_ramp_bar(float width, const char* lo, const char* mid, const char* hi);
   void draw_scene();
   void rebuild_structure_overlay();
   void do_pick(int px, int py);
@@ -115,7 +123,14 @@ class Viewer {
   std::string accel_name_;
   BuildParams params_;
   std::string cell_size_text_ = "auto";
-  float cell_size_slider_ = 0;
+  float cell_size_slider_ = 0;      ///< the built cell size, or the one being dragged
+  CellChoice cell_choice_;          ///< the current scene's choice (remembered at exit)
+  CellChoice loading_choice_;       ///< the choice the scene being loaded is built with
+  double auto_cell_ = 0;            ///< the auto rule's size for the current scene (hybrid)
+  std::string cell_estimate_;       ///< the estimate of the last requested or dragged size
+  std::string cell_refusal_;        ///< why the last requested size was refused ("" if not)
+  double cell_suggested_ = 0;       ///< the size the refusal suggests
+  float cell_estimated_for_ = -1;   ///< the slider value cell_estimate_ describes
   std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
   CameraControl cam_;
   RenderMode mode_ = RenderMode::Shaded;
@@ -212,7 +227,9 @@ class Viewer {
 
   // Overlays.
   bool show_splits_ = false, show_cells_ = false, show_boxes_ = false;
-  int split_depth_[2] = {0, 64}, box_depth_[2] = {0, 64};
+  /// Depth ranges drawn. Splits default to the shallow levels (0-6): all 64 levels of the
+  /// bunny's hybrid are 37k boxes over the model.
+  int split_depth_[2] = {0, 6}, box_depth_[2] = {0, 64};
   bool overlay_dirty_ = true;
   size_t overlay_items_ = 0;
   LineRenderer structure_lines_, trace_lines_;
@@ -243,6 +260,7 @@ class Viewer {
   bool drop_started_ = false;
   std::string end_reason_;      // why the run ended, for --stats-json
   Camera start_camera_;         // the camera when the current scene was installed
+  bool show_keys_ = false;  ///< the key list (F1) is open
   std::string message_;   // last status line (screenshot written, camera printed, ...)
 };
 

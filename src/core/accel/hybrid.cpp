@@ -62,7 +62,8 @@ class TreeBuilder {
  public:
   TreeBuilder(const Mesh& mesh, const double origin[3], double cell, const int32_t dims[3],
               const BuildParams& p)
-      : mesh_(mesh), inv_cell_(1.0 / cell), cell_(cell), kd_(mesh, p, Hybrid::kSubMaxDepth), cancel_(p.cancel) {
+      : mesh_(mesh), inv_cell_(1.0 / cell), cell_(cell), kd_(mesh, p, Hybrid::kSubMaxDepth),
+        kd_deep_(mesh, p, KdTree::kMaxDepth), cancel_(p.cancel) {
     for (int a = 0; a < 3; ++a) {
       origin_[a] = origin[a];
       dims_[a] = dims[a];
@@ -199,7 +200,11 @@ class TreeBuilder {
     }
     Box3 bounds;
     std::vector<KdNode> nodes;
-    kd_.build(node.prims, box, nodes, node.sub_refs, bounds);
+    // A leaf far larger than the auto grid's (a coarse explicit cell, one cell for the whole
+    // scene) gets the kd-tree's whole depth rule: 6 levels would leave thousands of triangles
+    // per subtree leaf.
+    const KdSubtreeBuilder& kd = node.prims.size() > Hybrid::kSubDeepMin ? kd_deep_ : kd_;
+    kd.build(node.prims, box, nodes, node.sub_refs, bounds);
     const float f[8] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, -kInf,
                         bounds.hi.x, bounds.hi.y, bounds.hi.z, kInf};
     static_assert(sizeof f == Hybrid::kSubBoxNodes * sizeof(KdNode));
@@ -323,8 +328,8 @@ class TreeBuilder {
   const Mesh& mesh_;
   double origin_[3];
   double inv_cell_, cell_;
-  KdSubtreeBuilder kd_;
-  const CancelToken* cancel_;  // polled once per node
+  KdSubtreeBuilder kd_, kd_deep_;  ///< leaf subtrees of kSubMaxDepth levels, and above kSubDeepMin
+  const CancelToken* cancel_;       ///< polled once per node
   int32_t dims_[3];
   double kt_, ki_, bonus_;
   uint32_t subtree_min_ = 0;
@@ -340,7 +345,254 @@ void dims_for(const double ext[3], double cell, double out[3]) {
   for (int a = 0; a < 3; ++a) out[a] = std::max(1.0, std::ceil(ext[a] / cell));
 }
 
+/// The scene box's low corner and extent, over the triangles' vertices (a point at 0 without
+/// triangles).
+void scene_box(const Mesh& mesh, double origin[3], double ext[3]) {
+  Box3 sb;
+  for (const auto& t : mesh.triangles)
+    for (uint32_t v : t) sb.grow(mesh.positions[v]);
+  if (mesh.num_triangles() == 0) sb = Box3(Vec3(0.0f), Vec3(0.0f));
+  for (int a = 0; a < 3; ++a) {
+    origin[a] = double(sb.lo[a]);
+    ext[a] = double(sb.hi[a]) - double(sb.lo[a]);
+  }
+}
+
+/// The auto rule of hybrid.h ("Auto cell size"); `rule` describes each step taken.
+double auto_cell(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
+                 std::string& rule) {
+  const size_t ntri = mesh.num_triangles();
+  const double max_ext = std::max({ext[0], ext[1], ext[2]});
+  double c = 0.0;
+  if (ntri > 0) {
+    std::vector<float> e(ntri);
+    for (size_t i = 0; i < ntri; ++i) e[i] = max_component(mesh.triangle_bounds(i).extent());
+    const double p = double(params.cell_percentile) / 100.0;
+    const size_t k = size_t(std::clamp(std::ceil(p * double(ntri)) - 1.0, 0.0, double(ntri - 1)));
+    std::nth_element(e.begin(), e.begin() + ptrdiff_t(k), e.end());
+    c = double(e[k]);
+  }
+  rule = fmt("p%g", params.cell_percentile);
+  rule += " of triangle extents = " + fmt("%.6g", c);
+  // Density floor: scenes mixing huge and tiny triangles (Sponza) would otherwise get a
+  // handful of cells holding hundreds of triangles each.
+  double vol = 1.0;
+  int flat_axes = 0;
+  for (int a = 0; a < 3; ++a) {
+    if (ext[a] > 0.0)
+      vol *= ext[a];
+    else
+      ++flat_axes;
+  }
+  if (ntri > 0 && flat_axes < 3) {
+    const double cd =
+        std::pow(vol / (kHybridAutoCellsPerTriangle * double(ntri)), 1.0 / double(3 - flat_axes));
+    if (cd < c || !(c > 0.0)) {
+      c = cd;
+      rule += "; lowered to " + fmt("%.6g", c) + " for >= " + fmt("%g", kHybridAutoCellsPerTriangle) +
+              " cells per triangle";
+    }
+  }
+  if (!(c > 0.0)) {
+    c = 1.0;
+    rule += "; degenerate scene, using 1";
+  }
+  const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
+  if (c < axis_floor) {
+    c = axis_floor;
+    rule += "; raised to " + fmt("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
+            " cells per axis";
+  }
+  // Plain leaves (no subtrees) need cells about a triangle wide: only the binning and the
+  // matrix bound them.
+  double limit = params.hybrid_subtree_min > 0 ? kHybridAutoMaxCells : kHybridAutoMaxCellsPlain;
+  if (params.hybrid_dense_matrix) limit = std::min(limit, double(budget) / 4.0);
+  bool raised = false;
+  for (int it = 0; it < 200; ++it) {
+    double d[3];
+    dims_for(ext, c, d);
+    const double cells = d[0] * d[1] * d[2];
+    if (cells <= limit) break;
+    c *= std::max(1.0001, std::cbrt(cells / limit));
+    raised = true;
+  }
+  if (raised) rule += "; raised to " + fmt("%.6g", c) + " for <= " + fmt("%.0f", limit) + " cells";
+  return c;
+}
+
+/// The cell size a build uses: params.cell_size, or the auto rule.
+double resolve_cell(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
+                    std::string& rule) {
+  if (params.cell_size > 0.0f) {
+    rule = "explicit";
+    // A cell larger than the scene is one cell of the scene's size: the same single cell,
+    // but a grid box reaching far beyond the scene would widen the walk's rounding bound
+    // (KdRay::err grows with the box's coordinates) until every ray crossed every node of the
+    // cell's subtree (a cell of 1e9 on the bunny: 108,828 triangle tests for one ray).
+    const double max_ext = std::max({ext[0], ext[1], ext[2]});
+    if (double(params.cell_size) > max_ext && max_ext > 0.0) {
+      rule += fmt(" %g", params.cell_size);
+      rule += ", larger than the scene: one cell of its extent ";
+      rule += fmt("%.6g", max_ext);
+      return max_ext;
+    }
+    return double(params.cell_size);
+  }
+  return auto_cell(mesh, params, ext, budget, rule);
+}
+
 }  // namespace
+
+// ---- estimate ---------------------------------------------------------------------------
+
+namespace {
+
+/// The estimate's figures at cell size `c` (HybridEstimate's fields but the cell choice);
+/// `cell_seconds` is the part of the time that the cell size adds (the matrix, the binning),
+/// which the time limit bounds: the triangles' part is the same at any size.
+struct EstimateAt {
+  double dims[3], cells, bytes, structure_bytes, seconds, cell_seconds;
+  bool fits;
+};
+
+EstimateAt estimate_at(double c, const double ext[3], double ntri, double area, const BuildParams& p,
+                       uint64_t budget, int threads) {
+  EstimateAt e{};
+  dims_for(ext, c, e.dims);
+  e.cells = e.dims[0] * e.dims[1] * e.dims[2];
+  const double axis_sum = e.dims[0] + e.dims[1] + e.dims[2];
+  double matrix = 0, matrix_ops = 0;
+  if (p.hybrid_dense_matrix) {
+    matrix = e.cells * 4.0;
+    matrix_ops = e.cells;
+  } else {
+    // Bricks refine where leaves meet, along the surface: about kHybridBricksPerArea per
+    // (4 cells)^2 of triangle area, and never more than the grid's 4^3-cell blocks (and their
+    // parents, 1/63 more).
+    const double bricks = std::min(kHybridBricksPerArea * area / (16.0 * c * c), e.cells / 64.0 * 64.0 / 63.0);
+    double top = 1;
+    for (int level = 1;; ++level) {
+      top = 1;
+      for (int a = 0; a < 3; ++a) top *= std::ceil(e.dims[a] / std::pow(4.0, level));
+      if (top <= double(Hybrid::kMaxTopEntries)) break;
+    }
+    matrix = bricks * Hybrid::kBrickEntries * 4.0 + top * 4.0;
+    matrix_ops = bricks * (kHybridSecondsPerBrick / kHybridSecondsPerBinOp);
+  }
+  // Binning: every node clears and sums 2 arrays of its width per axis. Widths halve about
+  // every three levels, so the sum over the tree's ~n leaves is ~2.7 n^(2/3) times the root's.
+  const double bins = 2.0 * axis_sum * 2.7 * std::pow(std::max(1.0, ntri), 2.0 / 3.0);
+  const double sat = (e.dims[0] + 1) * (e.dims[1] + 1) * (e.dims[2] + 1);
+  const double expand = p.hybrid_expand_empty && sat <= double(Hybrid::kMaxExpandEntries) ? sat * 4.0 : 0.0;
+  e.structure_bytes = matrix + ntri * kHybridBytesPerTriangle;
+  e.bytes = e.structure_bytes + 8.0 * axis_sum * threads + expand;
+  e.cell_seconds = (matrix_ops + bins) * kHybridSecondsPerBinOp / threads;
+  e.seconds = e.cell_seconds + ntri * kHybridSecondsPerTriangle / threads;
+  const double max_axis = std::max({e.dims[0], e.dims[1], e.dims[2]});
+  e.fits = e.bytes <= double(budget) && max_axis <= double(kHybridMaxAxisCells) &&
+           (p.hybrid_max_build_seconds <= 0 || e.cell_seconds <= p.hybrid_max_build_seconds);
+  return e;
+}
+
+/// x rounded up to two significant digits (a size a person can type that is >= x).
+double round_up_2(double x) {
+  if (!(x > 0.0) || !std::isfinite(x)) return x;
+  const double scale = std::pow(10.0, std::floor(std::log10(x)) - 1.0);
+  double r = std::ceil(x / scale * (1.0 - 1e-12)) * scale;
+  if (r < x) r = std::nextafter(x, INFINITY);
+  return r;
+}
+
+std::string seconds_str(double s) {
+  if (s < 1.0) return "under a second";
+  if (s < 120.0) return fmt("about %.0f s", s);
+  if (s < 7200.0) return fmt("about %.0f min", s / 60.0);
+  return fmt("about %.3g hours", s / 3600.0);
+}
+
+}  // namespace
+
+std::string HybridEstimate::refusal() const {
+  const HybridEstimate& e = *this;
+  std::string why;
+  if (e.bytes > double(e.budget)) why = "above the memory budget of " + format_bytes_iec(double(e.budget));
+  const double max_axis = std::max({e.dims[0], e.dims[1], e.dims[2]});
+  if (max_axis > double(kHybridMaxAxisCells))
+    why += std::string(why.empty() ? "" : ", and ") + "more than " + std::to_string(kHybridMaxAxisCells) +
+           " cells per axis";
+  if (why.empty())
+    why = "longer than the limit of " + fmt("%g", e.seconds_limit) +
+          " s (--hybrid-max-build-seconds; the memory budget is " + format_bytes_iec(double(e.budget)) + ")";
+  std::string fix;
+  if (e.suggested_cell > 0.0) {
+    fix = "use a cell size of at least " + fmt("%.2g", e.suggested_cell) + " (" + fmt("%.3g", e.suggested_cell / e.auto_cell) +
+          "x auto)";
+  } else {
+    fix = "even one cell does not fit: raise --memory-budget-mb";
+  }
+  return "hybrid: cell size " + fmt("%g", e.cell) + " gives " + e.describe() + ", " + why + ": " + fix +
+         ", or 'auto' (" + fmt("%.4g", e.auto_cell) + ")";
+}
+
+std::string HybridEstimate::describe() const {
+  char grid[96];
+  std::snprintf(grid, sizeof grid, "a %.0fx%.0fx%.0f grid (%.3g cells)", dims[0], dims[1], dims[2], cells);
+  return std::string(grid) + ", about " + format_bytes_iec(bytes) + " and " + seconds_str(seconds) + " to build";
+}
+
+HybridEstimate Hybrid::estimate(const Mesh& mesh, const BuildParams& params) {
+  if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
+    throw ParamError("hybrid: cell_size " + fmt("%g", params.cell_size) + " is not a finite number");
+  HybridEstimate e;
+  e.budget = effective_memory_budget(params);
+  e.seconds_limit = params.hybrid_max_build_seconds;
+  const int threads = effective_threads(params.threads);
+  double origin[3], ext[3];
+  scene_box(mesh, origin, ext);
+  std::string auto_rule;
+  e.auto_cell = auto_cell(mesh, params, ext, e.budget, auto_rule);
+  e.cell = resolve_cell(mesh, params, ext, e.budget, e.rule);
+  const double ntri = double(mesh.num_triangles());
+  // The area along which the matrix refines: a triangle far larger than most (a stadium's
+  // wall, Sponza's floor) has few, large leaves beside it, which node entries cover without
+  // bricks, so each triangle counts at most as one whose extent is the cell_percentile-th
+  // percentile of the triangles' (the auto rule's first step).
+  double area = 0.0;
+  if (mesh.num_triangles() > 0) {
+    const size_t n = mesh.num_triangles();
+    std::vector<float> ex(n);
+    for (size_t i = 0; i < n; ++i) ex[i] = max_component(mesh.triangle_bounds(i).extent());
+    const double q = double(params.cell_percentile) / 100.0;
+    const size_t k = size_t(std::clamp(std::ceil(q * double(n)) - 1.0, 0.0, double(n - 1)));
+    std::nth_element(ex.begin(), ex.begin() + ptrdiff_t(k), ex.end());
+    const double cap = double(ex[k]) * double(ex[k]);
+    for (size_t i = 0; i < n; ++i) {
+      const auto c = mesh.corners(i);
+      const Vec3 nv = cross(c[1] - c[0], c[2] - c[0]);
+      area += std::min(cap, 0.5 * std::sqrt(double(nv.x) * nv.x + double(nv.y) * nv.y + double(nv.z) * nv.z));
+    }
+  }
+  const EstimateAt at = estimate_at(e.cell, ext, ntri, area, params, e.budget, threads);
+  for (int a = 0; a < 3; ++a) e.dims[a] = at.dims[a];
+  e.cells = at.cells;
+  e.bytes = at.bytes;
+  e.structure_bytes = at.structure_bytes;
+  e.seconds = at.seconds;
+  e.fits = at.fits;
+  if (!e.fits) {
+    // The estimate shrinks as the cell grows: bisect (in log) between this size and one cell.
+    const double one = std::max({ext[0], ext[1], ext[2], e.cell}) * 1.001;
+    if (estimate_at(one, ext, ntri, area, params, e.budget, threads).fits) {
+      double lo = std::log(e.cell), hi = std::log(one);
+      for (int i = 0; i < 60; ++i) {
+        const double mid = 0.5 * (lo + hi);
+        (estimate_at(std::exp(mid), ext, ntri, area, params, e.budget, threads).fits ? hi : lo) = mid;
+      }
+      e.suggested_cell = round_up_2(std::exp(hi));
+    }
+  }
+  return e;
+}
 
 // ---- build ------------------------------------------------------------------------------
 
@@ -413,78 +665,16 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t budget = effective_memory_budget(params);
   const int threads = effective_threads(params.threads);
 
-  // Scene box over the triangles' vertices.
-  Box3 sb;
-  for (const auto& t : mesh.triangles)
-    for (uint32_t v : t) sb.grow(mesh.positions[v]);
-  if (ntri == 0) sb = Box3(Vec3(0.0f), Vec3(0.0f));
   double ext[3];
-  for (int a = 0; a < 3; ++a) {
-    origin_[a] = double(sb.lo[a]);
-    ext[a] = double(sb.hi[a]) - double(sb.lo[a]);
-  }
-  const double max_ext = std::max({ext[0], ext[1], ext[2]});
+  scene_box(mesh, origin_, ext);
 
   // ---- cell size ----
   std::string rule;
-  double cell = double(params.cell_size);
-  if (cell <= 0.0) {
-    double c = 0.0;
-    if (ntri > 0) {
-      std::vector<float> e(ntri);
-      for (size_t i = 0; i < ntri; ++i) e[i] = max_component(mesh.triangle_bounds(i).extent());
-      const double p = double(params.cell_percentile) / 100.0;
-      const size_t k = size_t(std::clamp(std::ceil(p * double(ntri)) - 1.0, 0.0, double(ntri - 1)));
-      std::nth_element(e.begin(), e.begin() + ptrdiff_t(k), e.end());
-      c = double(e[k]);
-    }
-    rule = "p" + fmt("%g", params.cell_percentile) + " of triangle extents = " + fmt("%.6g", c);
-    // Density floor: scenes mixing huge and tiny triangles (Sponza) would otherwise get a
-    // handful of cells holding hundreds of triangles each.
-    double vol = 1.0;
-    int flat_axes = 0;
-    for (int a = 0; a < 3; ++a) {
-      if (ext[a] > 0.0)
-        vol *= ext[a];
-      else
-        ++flat_axes;
-    }
-    if (ntri > 0 && flat_axes < 3) {
-      const double cd =
-          std::pow(vol / (kHybridAutoCellsPerTriangle * double(ntri)), 1.0 / double(3 - flat_axes));
-      if (cd < c || !(c > 0.0)) {
-        c = cd;
-        rule += "; lowered to " + fmt("%.6g", c) + " for >= " + fmt("%g", kHybridAutoCellsPerTriangle) +
-                " cells per triangle";
-      }
-    }
-    if (!(c > 0.0)) {
-      c = 1.0;
-      rule += "; degenerate scene, using 1";
-    }
-    const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
-    if (c < axis_floor) {
-      c = axis_floor;
-      rule += "; raised to " + fmt("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
-              " cells per axis";
-    }
-    // Plain leaves (no subtrees) need cells about a triangle wide: only the binning and the
-    // matrix bound them.
-    double limit = params.hybrid_subtree_min > 0 ? kHybridAutoMaxCells : kHybridAutoMaxCellsPlain;
-    if (dense_) limit = std::min(limit, double(budget) / 4.0);
-    bool raised = false;
-    for (int it = 0; it < 200; ++it) {
-      double d[3];
-      dims_for(ext, c, d);
-      const double cells = d[0] * d[1] * d[2];
-      if (cells <= limit) break;
-      c *= std::max(1.0001, std::cbrt(cells / limit));
-      raised = true;
-    }
-    if (raised) rule += "; raised to " + fmt("%.6g", c) + " for <= " + fmt("%.0f", limit) + " cells";
-    cell = c;
-  } else {
-    rule = "explicit";
+  const double cell = resolve_cell(mesh, params, ext, budget, rule);
+  if (params.cell_size > 0.0f) {
+    // An explicit size: refused before anything is allocated when its estimate does not fit.
+    const HybridEstimate est = Hybrid::estimate(mesh, params);
+    if (!est.fits) throw ParamError(est.refusal());
   }
   cell_ = cell;
   inv_cell_ = 1.0 / cell;
@@ -610,7 +800,11 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.leaves = leaves_.size();
   for (const Leaf& l : leaves_) stats_.empty_leaves += l.count == 0;
   uint64_t subtree_leaves = 0;
-  for (const Leaf& l : leaves_) subtree_leaves += (l.count & kSubtreeFlag) != 0;
+  uint32_t largest_leaf = 0;
+  for (const Leaf& l : leaves_) {
+    subtree_leaves += (l.count & kSubtreeFlag) != 0;
+    largest_leaf = std::max(largest_leaf, l.count & ~kSubtreeFlag);
+  }
   stats_.references = refs_.size();
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
@@ -641,7 +835,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                                         ? std::string("off (plain leaves)")
                                         : std::to_string(subtree_leaves) + " leaves with more than " +
                                               std::to_string(params.hybrid_subtree_min) + " triangles, " +
-                                              std::to_string(sub_nodes_.size()) + " nodes"},
+                                              std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
+                                              std::to_string(largest_leaf) + " triangles"},
                   {"empty-leaf boxes", expand_text},
                   {"build phases", "tree " + fmt("%.3f", t_tree) + " s, matrix " + fmt("%.3f", t_matrix) +
                                        " s, empty-leaf boxes " + fmt("%.3f", t_expand) + " s"}};

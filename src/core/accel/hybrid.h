@@ -51,6 +51,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include "accel/accelerator.h"
@@ -75,8 +76,56 @@ constexpr double kHybridAutoMaxCellsPlain = double(uint64_t(1) << 24);
 /// at most 12 brick levels).
 constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
 
+/// What a hybrid build at given parameters would make, from the mesh alone (O(triangles), no
+/// allocation beyond one float per triangle): Hybrid::estimate. The viewer shows it before a
+/// build; Hybrid::build refuses parameters whose estimate does not fit, with the estimate and
+/// suggested_cell in the message.
+struct HybridEstimate {
+  double cell = 0;       ///< the cell size the build would use (the auto rule resolved)
+  double auto_cell = 0;  ///< the auto rule's size for this mesh and these parameters
+  std::string rule;      ///< how the cell size was chosen (BuildStats::extra "auto rule")
+  double dims[3] = {1, 1, 1};
+  double cells = 1;
+  /// Peak bytes of the build, estimated: the cell matrix (dense: 4 bytes a cell; bricked:
+  /// 256-byte bricks along the surface, about kHybridBricksPerArea x area / (4 cells)^2, the
+  /// figure measured on the bunny at 1-18x finer cells than auto), the per-cell binning
+  /// arrays, the empty-leaf table, and the tree (kHybridBytesPerTriangle a triangle).
+  double bytes = 0;
+  /// The built structure's bytes (BuildStats::bytes), estimated: bytes less what the build
+  /// frees before it returns (the binning arrays, the empty-leaf table).
+  double structure_bytes = 0;
+  /// Build time in seconds on BuildParams::threads threads at the rates kHybridSecondsPer*
+  /// (measured on a shared 2-core machine): an order of magnitude, for the refusal and the
+  /// viewer.
+  double seconds = 0;
+  uint64_t budget = 0;         ///< the memory budget it was checked against
+  double seconds_limit = 0;    ///< BuildParams::hybrid_max_build_seconds (0 = none)
+  bool fits = true;            ///< bytes within the budget and seconds within the limit
+  /// When !fits: the smallest cell size (two significant digits, rounded up) whose estimate
+  /// fits; 0 when even one cell does not.
+  double suggested_cell = 0;
+  /// "a 88x87x68 grid (5.21e+05 cells), about 15 MiB and under a second to build".
+  std::string describe() const;
+  /// Why the size does not fit, with the estimate and the fix (the build's ParamError text).
+  std::string refusal() const;
+};
+
+/// Estimate model constants (see HybridEstimate), measured with `kdgrid render --threads 1
+/// --stats-json` ("build phases") on the 2-core AMD EPYC this project is developed on while other
+/// builds shared it, so on the slow side: the bunny's matrix took 10-11 us a brick at 3.4x and
+/// 6.7x finer cells than auto (174K and 716K bricks, 4.4 and 4.5 bricks per (4-cell)^2 of
+/// area); the tree took 16 (Sponza) and 26 (the dragon) us a triangle at the auto size, and
+/// 220-580 bytes a triangle (the bunny, auto to 18x finer).
+constexpr double kHybridBricksPerArea = 4.5;       ///< bricks per (4-cell)^2 of triangle area
+constexpr double kHybridBytesPerTriangle = 600;    ///< tree, leaves, subtrees, references
+constexpr double kHybridSecondsPerBrick = 10e-6;   ///< matrix construction, one thread
+constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
+constexpr double kHybridSecondsPerBinOp = 1e-9;    ///< one per-cell binning entry
+
 class Hybrid final : public AcceleratorBase<Hybrid> {
  public:
+  /// See HybridEstimate. Throws ParamError for invalid parameters, as build() does.
+  static HybridEstimate estimate(const Mesh& mesh, const BuildParams& params);
   /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.
   /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
   /// box widened over empty cells (see "Widened empty leaves").
@@ -100,6 +149,12 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Leaf subtrees are at most this many levels deep (64 leaves): deeper ones test fewer
   /// triangles but build longer and take more memory for no speed (docs/HYBRID.md, "Leaf subtrees").
   static constexpr int kSubMaxDepth = 6;
+  /// A leaf with more references than this gets the kd-tree's whole depth rule (8 + 1.3
+  /// log2 n) instead of kSubMaxDepth levels: 64 leaves of 16 triangles or more would be
+  /// tested in bulk. Only a grid much coarser than the auto rule's makes such leaves (the auto
+  /// grid's largest leaves hold 22, 310 and 187 references on the bunny, the dragon and Sponza); with
+  /// one cell the whole scene is one leaf, whose subtree is then the kd-tree itself.
+  static constexpr uint32_t kSubDeepMin = 1024;
   /// Tree node kept for split walks and the matrix construction; leaves point into leaves_.
   struct Node {
     int32_t split;      ///< interior: the split boundary (cell index); leaf: leaf id

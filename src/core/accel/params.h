@@ -61,6 +61,14 @@ struct BuildParams {
   /// Use the dense cell matrix of the paper (memory ~ scene volume in cells) instead of
   /// the default bricked storage (memory ~ occupied content).
   bool hybrid_dense_matrix = false;
+  /// An explicit cell size whose estimated extra build time (HybridEstimate: the cell
+  /// matrix's bricks along the surface and the per-cell binning, beyond the triangles' own
+  /// share) exceeds this many seconds is refused before the build starts, with the estimate
+  /// and the smallest cell size that fits: cells a thousand times finer than the triangles
+  /// otherwise build for hours. 10 s is 10-50x the auto size's build on the suite's scenes at
+  /// two threads; 0 = no limit (the memory budget still applies). The auto size is never
+  /// refused by it.
+  double hybrid_max_build_seconds = 10.0;
   /// Hybrid traversal/intersection costs for its SAH; defaults match the kd-tree's.
   float hybrid_traversal_cost = 1.0f;
   float hybrid_intersection_cost = 1.5f;
