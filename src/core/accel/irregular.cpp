@@ -128,7 +128,7 @@ struct IrregularGrid::Builder {
                        " triangles), above the memory budget of " +
                        format_bytes_iec(double(budget)) +
                        "; lower --irr-sub-density or --irr-top-density, or raise "
-                       "--memory-budget-mb (0 = half of physical memory) if the machine has "
+                       "--memory-budget-mb (0 = half of the memory available) if the machine has "
                        "the memory");
   }
 
@@ -358,7 +358,7 @@ struct IrregularGrid::Builder {
                        format_bytes(need) + ") over " + std::to_string(valid.size()) +
                        " triangles, beyond the memory budget of " + format_bytes(double(budget)) +
                        ": lower --irr-sub-density (default 2.4), or raise --memory-budget-mb (0 "
-                       "= half of physical memory) if the machine has the memory");
+                       "= half of the memory available) if the machine has the memory");
     g.shift_ = shift;
     for (int a = 0; a < 3; ++a) {
       g.res_[a] = r[a] << shift;
