@@ -22,6 +22,7 @@
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "scene/procedural.h"
+#include "cli_util.h"
 #include "test_util.h"
 #include "util/error.h"
 
@@ -30,26 +31,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-/// A fresh temporary directory per test, removed at the end.
-class TempDir {
- public:
-  TempDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() / ("kdgrid_test_" + std::string(info->test_suite_name()) +
-                                         "_" + info->name() + "_" + std::to_string(::getpid()));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string file(const std::string& name) const { return (path_ / name).string(); }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
+using test::TempDir;
 
 Scene cornell_scene(int level = 2) {
   ProceduralParams p;
@@ -540,27 +522,9 @@ TEST(RenderRegression, CornellMatchesReference) {
 
 // ---- the `kdgrid render` command ---------------------------------------------------------
 
-struct CliResult {
-  int code = -1;
-  std::string output;  // stdout and stderr together
-};
-
-CliResult run_cli(const std::string& args) {
-  const std::string cmd = std::string(KDGRID_CLI_PATH) + " " + args + " 2>&1";
-  CliResult r;
-  FILE* pipe = ::popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  char buf[4096];
-  size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, pipe)) > 0) r.output.append(buf, n);
-  const int status = ::pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
-
-bool contains(const std::string& s, const std::string& what) {
-  return s.find(what) != std::string::npos;
-}
+using test::CliResult;
+using test::contains;
+using test::run_cli;
 
 TEST(RenderCli, ReportsBadArgumentsBeforeRendering) {
   TempDir dir;

@@ -77,7 +77,10 @@ void run_render(const RenderArgs& a) {
   if (a.spp < 1)
     throw ParamError("--spp " + std::to_string(a.spp) + ": samples per pixel must be >= 1");
   if (a.threads < 0) throw ParamError("--threads must be >= 0 (0 = all cores)");
-  if (a.max_depth < 0) throw ParamError("--max-depth must be >= 0");
+  if (a.max_depth < 0 || a.max_depth > kMaxRenderDepth)
+    throw ParamError("--max-depth " + std::to_string(a.max_depth) + " must be between 0 and " +
+                     std::to_string(kMaxRenderDepth) +
+                     " bounces (docs/LIMITS.md: deeper Whitted paths fade below 1e-4)");
   RenderSettings settings;
   parse_resolution(a.res, settings.width, settings.height);
   const std::string scene_path = resolve_scene_path(a.scene);
@@ -235,7 +238,8 @@ void add_render_command(CLI::App& app) {
   cmd->add_option("--res", a->res, "Resolution W or WxH")->capture_default_str();
   cmd->add_option("--threads", a->threads, "Worker threads (0 = all cores)")->capture_default_str();
   cmd->add_option("--max-depth", a->max_depth,
-                  "Reflection/refraction bounces after the primary hit")
+                  "Reflection/refraction bounces after the primary hit, 0 to " +
+                      std::to_string(kMaxRenderDepth))
       ->capture_default_str();
   cmd->add_option("--seed", a->seed, "Sample pattern seed")->capture_default_str();
   cmd->add_option("--heatmap", a->heatmap,

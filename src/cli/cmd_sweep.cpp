@@ -72,7 +72,7 @@ void add_sweep_command(CLI::App& app) {
     o.spp_reference = a->spp_reference;
     if (!a->res.empty()) parse_resolution(a->res, o.width, o.height);
     o.params = a->knobs.resolve();
-    if (!a->camera.eye.empty() || !a->camera.target.empty() || a->camera.fov != 0.0f) {
+    if (a->camera.any()) {
       if (a->camera.eye.empty() || a->camera.target.empty())
         throw ParamError("sweep camera: give both --eye and --target (and optionally --fov)");
       o.camera = a->camera.apply(Camera{});

@@ -122,16 +122,18 @@ void CameraOptions::add_to(CLI::App* cmd) {
   const std::string g = "Camera (default: the scene's, else the canonical camera)";
   cmd->add_option("--eye", eye, "Camera position x,y,z")->group(g);
   cmd->add_option("--target", target, "Point looked at x,y,z")->group(g);
-  cmd->add_option("--fov", fov, "Vertical field of view in degrees")->group(g);
+  fov_option_ = cmd->add_option("--fov", fov, "Vertical field of view in degrees, in (0, 180)")
+                    ->group(g);
 }
 
 Camera CameraOptions::apply(const Camera& base) const {
   Camera c = base;
   if (!eye.empty()) c.eye = parse_vec3(eye, "--eye");
   if (!target.empty()) c.target = parse_vec3(target, "--target");
-  if (fov != 0.0f) {
+  if (fov_given()) {
     if (!(fov > 0.0f && fov < 180.0f))
-      throw ParamError("--fov " + std::to_string(fov) + " must be between 0 and 180 degrees");
+      throw ParamError("--fov " + std::to_string(fov) +
+                       " must be between 0 and 180 degrees (exclusive), e.g. --fov 45");
     c.fov_deg = fov;
   }
   if (!eye.empty() || !target.empty()) c.name = "command line";
@@ -145,6 +147,7 @@ Camera CameraOptions::apply(const Camera& base) const {
                      "from the scene's camera, or the scene has zero size: all its vertices at "
                      "one point); give both --eye X,Y,Z and --target X,Y,Z");
   }
+  check_camera(c, any() ? "--eye/--target/--fov" : "the scene's camera");
   return c;
 }
 

@@ -33,10 +33,18 @@ struct AccelOptions {
 /// --eye x,y,z --target x,y,z --fov DEG overriding the scene's camera.
 struct CameraOptions {
   std::string eye, target;
-  float fov = 0.0f;
+  float fov = 0.0f;  ///< degrees; used only when --fov was given (fov_given())
   void add_to(CLI::App* cmd);
-  /// The scene's camera with the given flags applied. Throws ParamError on malformed values.
+  /// True if --fov was on the command line (any value, 0 included, which apply() refuses).
+  bool fov_given() const { return fov_option_ && fov_option_->count() > 0; }
+  /// True if any of --eye, --target, --fov was given.
+  bool any() const { return !eye.empty() || !target.empty() || fov_given(); }
+  /// The scene's camera with the given flags applied. Throws ParamError on malformed values
+  /// and on a camera check_camera refuses (coordinates out of range, fov outside (0, 180)).
   Camera apply(const Camera& base) const;
+
+ private:
+  CLI::Option* fov_option_ = nullptr;
 };
 
 /// Splits a comma-separated list ("kdtree,hybrid"), dropping empty items.

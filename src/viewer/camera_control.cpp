@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdio>
 
+#include "render/camera.h"
+
 namespace kdgrid::viewer {
 
 namespace {
@@ -18,7 +20,7 @@ Vec3 rotate(const Vec3& v, const Vec3& k, float a) {
 /// degenerates: pitch is clamped to +-89 degrees.
 Vec3 rotate_pitch_clamped(const Vec3& dir, const Vec3& up, float pitch) {
   const Vec3 d = normalize(dir);
-  const Vec3 right = normalize(cross(d, up));
+  const Vec3 right = camera_right(d, up);
   const float cur = std::asin(std::clamp(dot(d, up), -1.0f, 1.0f));
   const float lim = 89.0f * 3.14159265f / 180.0f;
   const float next = std::clamp(cur + pitch, -lim, lim);
@@ -50,7 +52,7 @@ void CameraControl::scale_speed(float factor) {
 void CameraControl::move(float right, float up, float forward, float seconds) {
   const float dist = speed() * seconds;
   const Vec3 fwd = normalize(cam_.target - cam_.eye);
-  const Vec3 r = normalize(cross(fwd, cam_.up));
+  const Vec3 r = camera_right(fwd, cam_.up);
   if (mode_ == CameraMode::Fly) {
     const Vec3 delta = (r * right + cam_.up * up + fwd * forward) * dist;
     cam_.eye += delta;

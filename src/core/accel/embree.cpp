@@ -8,6 +8,7 @@
 
 #include "accel/guards.h"
 #include "util/cancel.h"
+#include "accel/triangle.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -133,6 +134,7 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
       params, "Embree's memory grows with the triangle count: split the scene");
   release();
   stats_ = {};
+  mesh_ = &mesh;
 
   const std::string config =
       params.threads > 0 ? "threads=" + std::to_string(params.threads) : std::string();
@@ -222,7 +224,22 @@ bool EmbreeAccel::intersect(const Ray& ray, Hit& hit) const {
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(state_->scene, &ctx, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
-  hit = {rh.ray.tfar + shift, rh.hit.primID, rh.hit.u, rh.hit.v};
+  Hit h{rh.ray.tfar + shift, rh.hit.primID, rh.hit.u, rh.hit.v};
+  if (!std::isfinite(h.t) || !std::isfinite(h.u) || !std::isfinite(h.v)) {
+    // Embree's float test overflows from coordinates of about 1e13 on and reports the hit at
+    // infinity: t and the barycentrics come from the hit triangle in double instead.
+    const auto c = mesh_->corners(rh.hit.primID);
+    double t = 0, u = 0, v = 0;
+    if (!intersect_triangle_double(ray, c[0], c[1], c[2], ray.tmin, ray.tmax, t, u, v)) {
+      // Embree saw the hit on an edge the double test puts outside: the plane's distance.
+      const Vec3d o(ray.org), d(ray.dir), v0(c[0]);
+      const Vec3d n = cross(Vec3d(c[1]) - v0, Vec3d(c[2]) - v0);
+      t = dot(n, v0 - o) / dot(n, d);
+    }
+    h = {float(t), rh.hit.primID, float(u), float(v)};
+    if (!(h.t >= ray.tmin && h.t < ray.tmax)) return false;
+  }
+  hit = h;
   return true;
 }
 

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "scene/scene.h"
 #include "util/cancel.h"
 #include "util/error.h"
 
@@ -91,6 +92,8 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
 
   // Box, padded on degenerate axes so that every cell has a positive size.
   box_ = mesh.bounds();
+  // Near float's limit the extent overflows to inf and the cell count wraps to 0.
+  check_scene_range(box_, "grid");
   if (n_tris == 0 || box_.empty()) box_ = Box3(Vec3(0.0f), Vec3(1.0f));
   const float max_ext = max_component(box_.extent());
   const float max_abs = std::max(max_component(abs(box_.lo)), max_component(abs(box_.hi)));

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "scene/scene.h"
 #include "util/cancel.h"
 #include "util/error.h"
 
@@ -692,6 +693,7 @@ struct IrregularGrid::Builder {
 BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   const auto t_start = std::chrono::steady_clock::now();
   const float top = params.irregular_top_density, sub = params.irregular_sub_density;
+  check_scene_range(mesh.bounds(), "irregular");
   if (!(std::isfinite(top) && top > 0.0f))
     throw ParamError("irregular_top_density = " + std::to_string(top) +
                      ": must be a positive number of top-level cells per triangle (default 0.12)");

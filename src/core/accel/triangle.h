@@ -66,12 +66,28 @@ struct WatertightTest {
     const float az = d.sz * Az, bz = d.sz * Bz, cz = d.sz * Cz;
     const float T = U * az + V * bz + W * cz;
     const float inv_det = 1.0f / det;
-    const float t = T * inv_det;
-    if (!(t >= tmin && t < tmax)) return false;  // also rejects NaN
+    float t = T * inv_det;
+    if (!(t >= tmin && t < tmax)) {  // also rejects NaN
+      // T is of the order of the cube of the coordinates about the origin and overflows from
+      // about 7e12 on (U, V, W, their squares, do not below kMaxRayCoordinate); t is then
+      // inf or NaN. Only then is t recomputed in double, so finite results are unchanged.
+      if (std::isfinite(T)) return false;
+      t = depth_in_double(d, U, V, W, det, Az, Bz, Cz);
+      if (!(t >= tmin && t < tmax)) return false;
+    }
     t_out = t;
     u_out = V * inv_det;
     v_out = W * inv_det;
     return true;
+  }
+
+  /// t = (U sz Az + V sz Bz + W sz Cz) / det in double, for when the float sum overflowed.
+  [[gnu::noinline, gnu::cold]] static float depth_in_double(const RayData& d, float U, float V,
+                                                            float W, float det, float Az, float Bz,
+                                                            float Cz) {
+    const double sz = d.sz;
+    return float((double(U) * (sz * Az) + double(V) * (sz * Bz) + double(W) * (sz * Cz)) /
+                 double(det));
   }
 };
 

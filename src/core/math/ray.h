@@ -1,6 +1,7 @@
 // Rays and hits, exactly the quantities of the .rays/.hits files (docs/RAYSETS.md).
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 
 #include "math/vec.h"
@@ -30,11 +31,32 @@ struct Hit {
   bool valid() const { return prim != kInvalidPrim; }
 };
 
-/// True if the ray's numbers are usable (finite origin, finite non-zero direction, tmin <=
-/// tmax, tmin not NaN). Accelerators return a miss for invalid rays instead of traversing.
+/// Largest magnitude of any coordinate of a ray's origin, of its start point org + tmin * dir
+/// (when tmin < 0) and of its direction that every structure accepts. It is Embree's limit
+/// (FLT_LARGE = 1.844e18 in its ray validation; Embree asserts and aborts beyond it), applied
+/// to all structures so that they agree: a ray outside it is invalid, a miss everywhere.
+/// docs/LIMITS.md.
+constexpr float kMaxRayCoordinate = 1.844e18f;
+
+/// Largest magnitude of a scene's vertex coordinates (Scene::finalize refuses more). The
+/// canonical camera and light lie within 6 times the largest coordinate of the scene, so
+/// they and every ray the renderer traces stay inside kMaxRayCoordinate. docs/LIMITS.md.
+constexpr float kMaxSceneCoordinate = 1e17f;
+
+/// True if every coordinate of v lies in [-limit, limit] (false for NaN and infinities).
+inline bool within(const Vec3& v, float limit) {
+  return std::fabs(v.x) <= limit && std::fabs(v.y) <= limit && std::fabs(v.z) <= limit;
+}
+
+/// True if the ray's numbers are usable: origin, direction and, for a negative tmin, the
+/// start point org + tmin * dir within kMaxRayCoordinate (hence finite), a non-zero
+/// direction, tmin <= tmax, tmin not NaN. Accelerators return a miss for invalid rays instead
+/// of traversing.
 inline bool ray_is_valid(const Ray& r) {
-  return is_finite(r.org) && is_finite(r.dir) && (r.dir.x != 0 || r.dir.y != 0 || r.dir.z != 0) &&
-         r.tmin == r.tmin && r.tmax == r.tmax && r.tmin <= r.tmax && r.tmin < kInf;
+  return within(r.org, kMaxRayCoordinate) && within(r.dir, kMaxRayCoordinate) &&
+         (r.dir.x != 0 || r.dir.y != 0 || r.dir.z != 0) && r.tmin == r.tmin && r.tmax == r.tmax &&
+         r.tmin <= r.tmax && r.tmin < kInf &&
+         (r.tmin >= 0.0f || within(r.at(r.tmin), kMaxRayCoordinate));
 }
 
 }  // namespace kdgrid

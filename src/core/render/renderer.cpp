@@ -21,8 +21,9 @@ constexpr float kPi = 3.14159265358979f;
 // rather than pure black (useful when inspecting geometry). Units: radiance, same as lights.
 constexpr float kAmbient = 0.03f;
 
-// Secondary rays whose contribution weight is below this are not traced: they could change
-// a pixel by less than 1e-4 of the light they carry.
+// Secondary rays whose path weight (the product of the reflection/transmission weights from
+// the camera down to them) is below this are not traced: they could change a pixel by less
+// than 1e-4 of the light they carry. Being a product, it also bounds the ray tree of glass.
 constexpr float kMinWeight = 1e-4f;
 
 // Highlight exponent bounds: below 1 the lobe is flat; above 1e4 it is smaller than a pixel.
@@ -95,8 +96,9 @@ void Renderer::set_settings(const RenderSettings& s) {
                      " is invalid: width and height must be >= 1");
   if (s.tile_size < 1)
     throw ParamError("tile size " + std::to_string(s.tile_size) + " must be >= 1 pixel");
-  if (s.max_depth < 0)
-    throw ParamError("max depth " + std::to_string(s.max_depth) + " must be >= 0");
+  if (s.max_depth < 0 || s.max_depth > kMaxRenderDepth)
+    throw ParamError("max depth " + std::to_string(s.max_depth) + " must be between 0 and " +
+                     std::to_string(kMaxRenderDepth) + " (docs/LIMITS.md)");
   settings_ = s;
   reset();
 }
@@ -182,6 +184,12 @@ void Renderer::resolve(std::vector<float>& rgb) const {
 }
 
 Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) const {
+  uint32_t budget = kMaxSecondaryRaysPerSample;
+  return shade(ray, depth, Vec3(1.0f), budget, counters);
+}
+
+Vec3 Renderer::shade(const Ray& ray, int depth, const Vec3& path_weight, uint32_t& budget,
+                     RenderCounters& counters) const {
   Hit hit;
   if (!accel_->intersect(ray, hit)) return scene_->background;
 
@@ -274,17 +282,20 @@ Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) con
   }
 
   if (depth >= settings_.max_depth) return result;
+  // Traces one secondary ray of weight `w` if its path still matters and the budget allows.
+  auto secondary = [&](const Vec3& w, const Ray& next, uint64_t& kind) {
+    const Vec3 pw = path_weight * w;
+    if (!(max_component(pw) > kMinWeight) || budget == 0) return;
+    --budget;
+    ++kind;
+    result += w * shade(next, depth + 1, pw, budget, counters);
+  };
 
   // Mirror reflection, only for materials that reflect (and only when the scene has one).
   if (need_reflection_ && m.reflects()) {
-    const Vec3 weight = m.reflectance();
-    if (max_component(weight) > kMinWeight) {
-      Vec3 r = reflect(d, n);
-      if (dot(r, ng) <= 0.0f) r = reflect(d, ng);  // shading normal bent it below the surface
-      ++counters.reflection;
-      result +=
-          weight * radiance(Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, depth + 1, counters);
-    }
+    Vec3 r = reflect(d, n);
+    if (dot(r, ng) <= 0.0f) r = reflect(d, ng);  // shading normal bent it below the surface
+    secondary(m.reflectance(), Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, counters.reflection);
   }
 
   // Refraction with Fresnel (Schlick) and total internal reflection.
@@ -302,20 +313,13 @@ Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) con
       reflect_weight = Vec3(transmission * fresnel);
       const Vec3 t = normalize(d * eta + n * (eta * cos_i - cos_t));
       const Vec3 tweight = albedo * (transmission * (1.0f - fresnel));
-      if (dot(t, ng) < 0.0f && max_component(tweight) > kMinWeight) {
-        ++counters.refraction;
-        result +=
-            tweight * radiance(Ray{offset_ray_origin(p, -ng), 0.0f, t, kInf}, depth + 1, counters);
-      }
+      if (dot(t, ng) < 0.0f)
+        secondary(tweight, Ray{offset_ray_origin(p, -ng), 0.0f, t, kInf}, counters.refraction);
     }
     // Fresnel reflection of transparent surfaces (all of it under total internal reflection).
-    if (max_component(reflect_weight) > kMinWeight) {
-      Vec3 r = reflect(d, n);
-      if (dot(r, ng) <= 0.0f) r = reflect(d, ng);
-      ++counters.reflection;
-      result += reflect_weight *
-                radiance(Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, depth + 1, counters);
-    }
+    Vec3 r = reflect(d, n);
+    if (dot(r, ng) <= 0.0f) r = reflect(d, ng);
+    secondary(reflect_weight, Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, counters.reflection);
   }
   return result;
 }

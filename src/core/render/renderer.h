@@ -21,10 +21,24 @@ enum class RenderMode {
   HeatTests,   ///< per-pixel triangle tests of the primary ray
 };
 
+/// Highest RenderSettings::max_depth (`--max-depth`) accepted. Shading recurses once per
+/// bounce, so the limit bounds the stack (a few hundred bytes a level, well inside a worker
+/// thread's stack); a Whitted path that has not faded below 1e-4 after 256 perfect
+/// reflections is a hall of mirrors no image needs deeper. docs/LIMITS.md.
+constexpr int kMaxRenderDepth = 256;
+
+/// Most reflection and refraction rays traced for one camera sample (its whole ray tree,
+/// shadow rays not counted). Glass splits every path in two at each bounce, so a deep
+/// --max-depth would otherwise trace up to 2^depth rays per sample; past the budget further
+/// branches are not traced (their light is lost). Normal scenes stay far below it: a path
+/// is also dropped once its weight (the product of the weights along it) is below 1e-4.
+/// docs/LIMITS.md.
+constexpr uint32_t kMaxSecondaryRaysPerSample = 1024;
+
 struct RenderSettings {
   int width = 640;            ///< pixels, >= 1
   int height = 480;           ///< pixels, >= 1
-  int max_depth = 5;          ///< reflection/refraction bounces after the primary hit
+  int max_depth = 5;          ///< reflection/refraction bounces after the primary hit, 0..kMaxRenderDepth
   uint64_t seed = 1;          ///< sample pattern seed
   int tile_size = 16;         ///< pixels per tile edge (the unit of work of a thread)
   bool shadows = true;        ///< trace shadow rays to lights
@@ -67,9 +81,15 @@ class Renderer {
   void resolve(std::vector<float>& rgb) const;
 
   /// Radiance along one ray (used by render_pass; public for tests and the viewer's pick).
+  /// Traces at most kMaxSecondaryRaysPerSample reflection/refraction rays below it.
   Vec3 radiance(const Ray& ray, int depth, RenderCounters& counters) const;
 
  private:
+  /// radiance() for a ray whose contribution to the pixel is `path_weight` times its
+  /// radiance; `budget` is the number of secondary rays the sample may still trace.
+  Vec3 shade(const Ray& ray, int depth, const Vec3& path_weight, uint32_t& budget,
+             RenderCounters& counters) const;
+
   const Scene* scene_;
   const Accelerator* accel_;
   RenderSettings settings_;

@@ -1,7 +1,9 @@
 #include "scene/scene.h"
 
 #include <cmath>
+#include <cstdio>
 
+#include "math/ray.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -39,6 +41,17 @@ Vec3 Material::reflectance() const {
   return r;
 }
 
+void check_scene_range(const Box3& b, const std::string& who) {
+  if (b.empty() || (within(b.lo, kMaxSceneCoordinate) && within(b.hi, kMaxSceneCoordinate)))
+    return;
+  char buf[200];
+  std::snprintf(buf, sizeof buf, "the scene's bounds (%g, %g, %g) to (%g, %g, %g) reach beyond the "
+                "supported range +-%g of scene coordinates", double(b.lo.x), double(b.lo.y),
+                double(b.lo.z), double(b.hi.x), double(b.hi.y), double(b.hi.z),
+                double(kMaxSceneCoordinate));
+  throw ParamError(who + ": " + buf + " (docs/LIMITS.md); scale the scene down or translate it");
+}
+
 Camera canonical_camera(const Box3& b, float fov_deg) {
   const Vec3 c = b.center();
   const float r = length(b.hi - b.lo) * 0.5f;
@@ -62,6 +75,18 @@ Vec3 canonical_light_position(const Box3& b) {
 
 void Scene::finalize() {
   mesh.validate(source);
+  // Beyond this range the canonical camera and light, and the squared distances shading
+  // takes, leave float range (a black image); refuse instead, naming the first such vertex.
+  for (size_t i = 0; i < mesh.positions.size(); ++i) {
+    const Vec3& p = mesh.positions[i];
+    if (within(p, kMaxSceneCoordinate)) continue;
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "vertex %zu at (%g, %g, %g) is outside the supported range "
+                  "+-%g of scene coordinates", i, double(p.x), double(p.y), double(p.z),
+                  double(kMaxSceneCoordinate));
+    throw LoadError(source + ": " + buf +
+                    " (docs/LIMITS.md); scale the scene down or translate it near the origin");
+  }
   if (materials.empty()) {
     Material grey;
     grey.name = "default grey diffuse";

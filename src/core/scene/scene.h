@@ -82,6 +82,11 @@ struct Scene {
   bool has_refractive_material() const;
 };
 
+/// Throws ParamError naming `who` (a structure) if `bounds` reaches beyond
+/// kMaxSceneCoordinate (math/ray.h): past it, extents and cell counts computed in float
+/// overflow. Scene::finalize refuses such scenes first; this guards direct builds.
+void check_scene_range(const Box3& bounds, const std::string& who);
+
 /// The canonical primary camera of docs/RAYSETS.md for a box [lo, hi].
 Camera canonical_camera(const Box3& bounds, float fov_deg = 45.0f);
 /// The benchmark point light position c + (0, 2r, 0) + 0.5 r d (docs/RAYSETS.md, shadow set).
