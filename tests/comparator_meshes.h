@@ -1,5 +1,5 @@
 // Procedural meshes, seeded rays and the brute-force agreement check shared by the tests of
-// the comparator structures (test_grid.cpp, test_kdtree.cpp, test_embree.cpp).
+// the structures (test_structures.cpp, test_grid.cpp, test_kdtree.cpp, test_embree.cpp).
 #pragma once
 
 #include <gtest/gtest.h>
@@ -210,6 +210,22 @@ inline std::vector<NamedMesh> test_meshes() {
   return v;
 }
 
+
+/// Rays with +0 and -0 direction components from origins inside, outside and on the box of
+/// the unit sphere: the zero components give +inf / -inf reciprocals in every traversal.
+inline std::vector<Ray> signed_zero_rays() {
+  std::vector<Ray> rays;
+  const float zs[2] = {0.0f, -0.0f};
+  for (float z0 : zs)
+    for (float z1 : zs)
+      for (float o : {-3.0f, -1.0f, 0.0f, 0.25f, 1.0f, 3.0f}) {
+        rays.push_back({Vec3(o, 0.1f, 0.2f), 0.0f, Vec3(1.0f, z0, z1), kInf});
+        rays.push_back({Vec3(0.1f, o, 0.2f), 0.0f, Vec3(z0, -1.0f, z1), kInf});
+        rays.push_back({Vec3(0.3f, 0.2f, o), 0.0f, Vec3(z0, z1, 1.0f), kInf});
+        rays.push_back({Vec3(o, 1.0f, 0.0f), 0.0f, Vec3(z0, z1, -1.0f), kInf});
+      }
+  return rays;
+}
 
 /// Builds `acc` and brute force with the Möller-Trumbore test over a seeded soup and counts
 /// rays on which they differ (hit/miss or t): the fast triangle test must be wired through

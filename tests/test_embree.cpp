@@ -171,10 +171,5 @@ TEST(Embree, ReportsMemoryAndRebuilds) {
       true);
 }
 
-TEST(Embree, RegisteredInFactory) {
-  auto a = make_accelerator("embree");
-  EXPECT_EQ(a->name(), "embree");
-}
-
 }  // namespace
 }  // namespace kdgrid

@@ -685,14 +685,5 @@ TEST(Irregular, CountedAndTracedAgreeWithFast) {
   EXPECT_EQ(g.step_bound_hits(), 0u);
 }
 
-TEST(Irregular, RegisteredInFactory) {
-  auto a = make_accelerator("irregular");
-  EXPECT_EQ(a->name(), "irregular");
-  const Mesh m = sphere(2);
-  a->build(m, BuildParams());
-  Hit h;
-  EXPECT_TRUE(a->intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
-}
-
 }  // namespace
 }  // namespace kdgrid

@@ -1,5 +1,5 @@
-// SAH kd-tree: agreement with brute force on procedural meshes and on extreme rays lying in
-// split planes, counted/traced traversal, node layout and build statistics.
+// SAH kd-tree: agreement with brute force on extreme rays lying in split planes, node layout
+// and build statistics. The checks shared by every structure are in test_structures.cpp.
 #include <gtest/gtest.h>
 
 #include <chrono>
@@ -29,24 +29,6 @@ std::vector<std::pair<int, float>> split_planes(const KdTree& kd, size_t max_pla
     planes.push_back({a, kd.bounds().hi[a]});
   }
   return planes;
-}
-
-TEST(KdTree, AgreesWithBruteForceOnProceduralMeshes) {
-  for (const auto& [name, mesh] : test::test_meshes()) {
-    SCOPED_TRACE(name);
-    KdTree kd;
-    const BuildStats st = kd.build(mesh, BuildParams{});
-    EXPECT_GT(st.nodes, 1u);
-    const auto rays = test::random_rays(mesh, 17, 20000);
-    int hits = 0;
-    EXPECT_EQ(count_disagreements(mesh, kd, rays, 5, &hits), 0);
-    EXPECT_GT(hits, 2000);
-  }
-}
-
-TEST(KdTree, MollerVariantAgreesWithBruteForceMoller) {
-  KdTree kd;
-  EXPECT_EQ(test::moller_mismatches(kd), 0);
 }
 
 // Rays lying exactly in split planes (with +0 and -0 components), axis-parallel rays,
@@ -114,29 +96,13 @@ TEST(KdTree, RayInPlaneOfCoplanarTriangles) {
   EXPECT_EQ(count_disagreements(m, kd, rays), 0);
 }
 
-TEST(KdTree, SignedZeroDirections) {
-  const Mesh mesh = test::sphere(16, 32);
-  KdTree kd;
-  kd.build(mesh, BuildParams{});
-  std::vector<Ray> rays;
-  const float zs[2] = {0.0f, -0.0f};
-  for (float z0 : zs)
-    for (float z1 : zs)
-      for (float o : {-3.0f, -1.0f, 0.0f, 0.25f, 1.0f, 3.0f}) {
-        rays.push_back({Vec3(o, 0.1f, 0.2f), 0.0f, Vec3(1.0f, z0, z1), kInf});
-        rays.push_back({Vec3(0.1f, o, 0.2f), 0.0f, Vec3(z0, -1.0f, z1), kInf});
-        rays.push_back({Vec3(0.3f, 0.2f, o), 0.0f, Vec3(z0, z1, 1.0f), kInf});
-        rays.push_back({Vec3(o, 1.0f, 0.0f), 0.0f, Vec3(z0, z1, -1.0f), kInf});
-      }
-  EXPECT_EQ(count_disagreements(mesh, kd, rays), 0);
-}
-
-TEST(KdTree, CountedAndTracedTraversalMatchFastPath) {
+// Counted and traced traversal against the fast path on these rays:
+// TracedStructures.CountedAndTracedTraversalMatchFastPath.
+TEST(KdTree, TraceStartsAtTheRoot) {
   const Mesh mesh = test::random_soup(11, 3000);
   KdTree kd;
   kd.build(mesh, BuildParams{});
   const auto rays = test::random_rays(mesh, 3, 5000);
-  EXPECT_EQ(test::check_counted_and_trace(kd, rays), 0);
   // Interior and leaf steps are both reported, leaves deeper than the root.
   const Trace t = kd.trace(rays[0]);
   ASSERT_FALSE(t.steps.empty());
@@ -382,11 +348,6 @@ TEST(KdTree, LaneClipsContainScalarClipWithSubnormalDirections) {
   }
   EXPECT_GT(hits, 1000);
   EXPECT_GT(nan_axes, 5000);
-}
-
-TEST(KdTree, RegisteredInFactory) {
-  auto a = make_accelerator("kdtree");
-  EXPECT_EQ(a->name(), "kdtree");
 }
 
 }  // namespace
