@@ -772,7 +772,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
              refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
-    build_matrix(left);
+    build_matrix(left, params.cancel);
     check_cancel(params.cancel);
     const uint64_t matrix = (bricks_.size() + top_.size() + matrix_.size()) * sizeof(uint32_t);
     const auto t2 = std::chrono::steady_clock::now();
@@ -788,7 +788,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       kd_boxes_[i].lo[3] = std::numeric_limits<int32_t>::min();
       kd_boxes_[i].hi[3] = std::numeric_limits<int32_t>::max();
     }
-    expand_text = params.hybrid_expand_empty ? expand_empty_leaves(left > matrix ? left - matrix : 0)
+    expand_text = params.hybrid_expand_empty ? expand_empty_leaves(left > matrix ? left - matrix : 0, params.cancel)
                                              : std::string("off (the paper's kd leaf boxes)");
     t_expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();
     t_tree = std::chrono::duration<double>(t1 - t0).count();
@@ -844,7 +844,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   return stats_;
 }
 
-std::string Hybrid::expand_empty_leaves(uint64_t budget) {
+std::string Hybrid::expand_empty_leaves(uint64_t budget, const CancelToken* cancel) {
   const int64_t nx = dims_[0], ny = dims_[1], nz = dims_[2];
   const uint64_t entries = uint64_t(nx + 1) * uint64_t(ny + 1) * uint64_t(nz + 1);
   if (entries > kMaxExpandEntries || entries * sizeof(uint32_t) > budget)
@@ -865,6 +865,7 @@ std::string Hybrid::expand_empty_leaves(uint64_t budget) {
         for (int32_t x = int32_t(l.lo[0]); x < int32_t(l.hi[0]); ++x) at(x + 1, y + 1, z + 1) = 1;
   });
   tbb::parallel_for(int64_t(1), nz + 1, [&](int64_t z) {
+    check_cancel(cancel);  // one slice of the table
     for (int64_t y = 1; y <= ny; ++y)
       for (int64_t x = 1; x <= nx; ++x) at(x, y, z) += at(x - 1, y, z);
     for (int64_t y = 1; y <= ny; ++y)
@@ -884,6 +885,7 @@ std::string Hybrid::expand_empty_leaves(uint64_t budget) {
   // per face. Leaves with triangles keep their kd boxes. Read-only table: deterministic.
   std::atomic<uint64_t> widened{0}, cells_before{0}, cells_after{0};
   tbb::parallel_for(tbb::blocked_range<size_t>(0, leaves_.size()), [&](const tbb::blocked_range<size_t>& r) {
+    check_cancel(cancel);
     uint64_t w = 0, before = 0, after = 0;
     for (size_t i = r.begin(); i != r.end(); ++i) {
       Leaf& l = leaves_[i];
@@ -1088,7 +1090,7 @@ int Hybrid::count_region_leaves(uint32_t node, const int32_t r0[3], const int32_
   return std::min(count, limit);
 }
 
-void Hybrid::build_matrix(uint64_t budget) {
+void Hybrid::build_matrix(uint64_t budget, const CancelToken* cancel) {
   if (dense_) {
     const uint64_t nx = uint64_t(dims_[0]), ny = uint64_t(dims_[1]), nz = uint64_t(dims_[2]);
     matrix_.assign(nx * ny * nz, 0);
@@ -1111,6 +1113,7 @@ void Hybrid::build_matrix(uint64_t budget) {
   std::vector<std::vector<uint32_t>> parts(ntop);
   const int top_level = top_shift_ / kBrickLog;
   tbb::parallel_for(uint64_t(0), ntop, [&](uint64_t i) {
+    check_cancel(cancel);  // one top entry's bricks: a small part of the matrix
     const int32_t tx = int32_t(i % uint64_t(top_dims_[0]));
     const int32_t ty = int32_t((i / uint64_t(top_dims_[0])) % uint64_t(top_dims_[1]));
     const int32_t tz = int32_t(i / (uint64_t(top_dims_[0]) * uint64_t(top_dims_[1])));

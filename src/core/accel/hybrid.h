@@ -57,6 +57,7 @@
 #include "accel/accelerator.h"
 #include "accel/kd_kernel.h"
 #include "math/simd.h"
+#include "util/cancel.h"
 
 namespace kdgrid {
 
@@ -402,10 +403,10 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   [[gnu::noinline]] StepResult walk_step(WalkState<Tri>& w, S& s) const;
 
   void build_tree(const Mesh& mesh, const BuildParams& params);
-  void build_matrix(uint64_t budget);
+  void build_matrix(uint64_t budget, const CancelToken* cancel);
   /// Widens every empty leaf's box over the empty cells around it (see "Widened empty
   /// leaves" above); returns the BuildStats text. Skipped when its table exceeds `budget` bytes.
-  std::string expand_empty_leaves(uint64_t budget);
+  std::string expand_empty_leaves(uint64_t budget, const CancelToken* cancel);
   struct BrickBudget {
     std::atomic<uint64_t> bytes{0};
     uint64_t limit = ~uint64_t(0);
