@@ -165,6 +165,18 @@ TEST(BenchSuite, BadEntriesKeepTheirErrorAndTheOthers) {
   EXPECT_TRUE(s.scenes[4].error.empty());
 }
 
+TEST(BenchSuite, CameraOutsideTheRayRangeIsRefused) {
+  // Past +-1.844e18 every ray is invalid: the scene would trace as all misses.
+  const Suite s = parse_suite(R"({"scenes": [
+      {"name": "far", "file": "a.ply", "camera": {"eye": [0, 0, 1e19], "target": [0, 0, 0]}},
+      {"name": "same", "file": "a.ply", "camera": {"eye": [1, 1, 1], "target": [1, 1, 1]}}]})",
+                              "/d", "suite.json");
+  ASSERT_EQ(s.scenes.size(), 2u);
+  EXPECT_NE(s.scenes[0].error.find("outside the supported coordinate range"), std::string::npos)
+      << s.scenes[0].error;
+  EXPECT_NE(s.scenes[1].error.find("same point"), std::string::npos) << s.scenes[1].error;
+}
+
 TEST(BenchSuite, MalformedFileNamesTheFile) {
   TempDir dir("malformed");
   write_file(dir / "bad.json", "{\"scenes\": [ {\"name\": \"x\", ");

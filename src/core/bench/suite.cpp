@@ -7,6 +7,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "render/camera.h"
 #include "util/error.h"
 #include "util/paths.h"
 
@@ -69,7 +70,15 @@ SuiteScene parse_entry(const json& e, size_t index, const fs::path& base, const 
       if (err.empty() && !(cam.fov_deg > 0.0f && cam.fov_deg < 180.0f))
         err = "camera \"fov\" must be between 0 and 180 degrees";
     }
-    if (err.empty() && cam.eye == cam.target) err = "camera eye and target are the same point";
+    if (err.empty()) {
+      // The range, view direction and fov rules of every other camera (docs/LIMITS.md): an eye
+      // past the ray range would give every structure only misses, a black image.
+      try {
+        check_camera(cam, "camera");
+      } catch (const ParamError& bad) {
+        err = bad.what();
+      }
+    }
     if (!err.empty()) {
       s.error = at + err;
       return s;
