@@ -1138,13 +1138,16 @@ void Viewer::draw_panels() {
     if (rebuild) start_build(accel_name_, p);
 
     const BuildStats& st = world_->accel->stats();
-    if (ImGui::BeginTable("stats", 2, ImGuiTableFlags_SizingStretchProp)) {
+    if (ImGui::BeginTable("stats", 2)) {
+      // Labels keep their whole width; long values (the hybrid's build notes) wrap instead.
+      ImGui::TableSetupColumn("name", ImGuiTableColumnFlags_WidthFixed);
+      ImGui::TableSetupColumn("value", ImGuiTableColumnFlags_WidthStretch);
       const auto row = [](const char* k, const std::string& v) {
         ImGui::TableNextRow();
         ImGui::TableNextColumn();
         ImGui::TextUnformatted(k);
         ImGui::TableNextColumn();
-        ImGui::TextUnformatted(v.c_str());
+        ImGui::TextWrapped("%s", v.c_str());
       };
       char buf[64];
       std::snprintf(buf, sizeof buf, "%.3f s", st.seconds > 0 ? st.seconds : world_->build_seconds);
