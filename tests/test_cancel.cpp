@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
+#include <random>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -13,6 +15,7 @@
 #include "accel/accelerator.h"
 #include "scene/procedural.h"
 #include "util/cancel.h"
+#include "util/cancellable_sort.h"
 #include "test_util.h"
 
 namespace kdgrid::test {
@@ -121,6 +124,41 @@ TEST(Cancel, TokenSetMidBuildFromAnotherThreadStopsEveryBuilderPromptly) {
       }
     }
   }
+}
+
+TEST(Cancel, SortOfEveryEventSortsLikeStdSortAndStopsSoonAfterACancel) {
+  // The builders' first sort of all events: blocks sorted in parallel, then merged in passes.
+  std::mt19937 rng(3);
+  std::vector<uint32_t> v(1'000'003);
+  for (auto& x : v) x = rng() % 500'000;  // with repeats
+  std::vector<uint32_t> want = v;
+  std::sort(want.begin(), want.end());
+  std::atomic<uint64_t> compares{0};
+  auto counting_less = [&](uint32_t a, uint32_t b) {
+    compares.fetch_add(1, std::memory_order_relaxed);
+    return a < b;
+  };
+  std::vector<uint32_t> got = v;
+  cancellable_sort(got.begin(), got.end(), counting_less, nullptr, 10'000);  // 101 blocks
+  ASSERT_EQ(got, want);
+  const uint64_t full = compares.load();
+
+  // A token set partway: the sort throws, having done a small part of the rest of the work.
+  CancelToken token;
+  compares = 0;
+  std::atomic<uint64_t> at_cancel{0};
+  auto cancelling_less = [&](uint32_t a, uint32_t b) {
+    if (compares.fetch_add(1, std::memory_order_relaxed) == full / 3) {
+      at_cancel = compares.load();
+      token.cancel();
+    }
+    return a < b;
+  };
+  got = v;
+  EXPECT_THROW(cancellable_sort(got.begin(), got.end(), cancelling_less, &token, 10'000), BuildCancelled);
+  const uint64_t after = compares.load() - at_cancel.load();
+  // At most one block sort per thread or one merge of two runs (up to all elements) runs on.
+  EXPECT_LT(after, full / 4) << "comparisons after the cancel: " << after << " of " << full;
 }
 
 TEST(Cancel, CtrlCInTheCliStopsABuildWithAClearMessageAndExitCode130) {

@@ -2,7 +2,6 @@
 
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_invoke.h>
-#include <tbb/parallel_sort.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
@@ -13,6 +12,7 @@
 
 #include "accel/guards.h"
 #include "util/cancel.h"
+#include "util/cancellable_sort.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -416,7 +416,7 @@ void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box
     bounds.grow(cb.hi);
   }
   bounds = bounds.intersect(box);
-  std::sort(events.begin(), events.end(), event_less);
+  cancellable_sort(events.begin(), events.end(), event_less, impl_->params.cancel);
   // The kd-tree's depth rule (8 + 1.3 log2 n, pbrt) for the subtree's triangles, at most
   // max_depth_.
   const int depth = std::min(max_depth_, int(std::lround(8.0 + 1.3 * std::log2(double(std::max<size_t>(1, prims.size()))))));
@@ -501,8 +501,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
       if (i % 65536 == 0) check_cancel(params.cancel);
       add_events(events, uint32_t(i), mesh.triangle_bounds(i));
     }
-    tbb::parallel_sort(events.begin(), events.end(), event_less);
-    check_cancel(params.cancel);
+    cancellable_sort(events.begin(), events.end(), event_less, params.cancel);
     builder.build(events, uint32_t(n), bounds_, 0, tree);
   });
   auto throw_over_budget = [&](uint64_t nodes) {
