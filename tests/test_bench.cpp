@@ -24,6 +24,7 @@
 #include "bench/suite.h"
 #include "bench/sweep.h"
 #include "scene/procedural.h"
+#include "temp_dir.h"
 #include "test_util.h"
 #include "util/error.h"
 
@@ -31,26 +32,10 @@ namespace kdgrid {
 namespace {
 
 namespace fs = std::filesystem;
+using test::TempDir;
 using nlohmann::json;
 
 /// A fresh directory under the system temp dir, removed at the end of the test.
-class TempDir {
- public:
-  explicit TempDir(const std::string& tag) {
-    path_ = fs::temp_directory_path() / ("kdgrid_bench_" + tag + "_" + std::to_string(::getpid()));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  fs::path operator/(const std::string& rel) const { return path_ / rel; }
-  const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
 
 void write_file(const fs::path& p, const std::string& text) {
   std::ofstream f(p, std::ios::binary);

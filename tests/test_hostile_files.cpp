@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "scene/load.h"
+#include "temp_dir.h"
 #include "test_util.h"
 #include "util/atomic_file.h"
 #include "util/error.h"
@@ -33,40 +34,8 @@ namespace kdgrid {
 namespace {
 
 namespace fs = std::filesystem;
+using test::TempDir;
 
-class TempDir {
- public:
-  TempDir() {
-    static std::atomic<int> counter{0};
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("kdgrid_hostile_" + std::to_string(::getpid()) + "_" +
-                                        std::to_string(counter++) + "_" +
-                                        (info ? info->name() : "x"));
-    fs::create_directories(dir_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-  std::string write(const std::string& name, const std::string& bytes) const {
-    const fs::path p = dir_ / name;
-    std::ofstream out(p, std::ios::binary);
-    out.write(bytes.data(), std::streamsize(bytes.size()));
-    return p.string();
-  }
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
-  const fs::path& dir() const { return dir_; }
-  /// Names in the folder starting with '.' (the writers' hidden temporaries).
-  std::vector<std::string> hidden() const {
-    std::vector<std::string> out;
-    for (const auto& e : fs::directory_iterator(dir_))
-      if (e.path().filename().string()[0] == '.') out.push_back(e.path().filename().string());
-    return out;
-  }
-
- private:
-  fs::path dir_;
-};
 
 std::string read_all(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -107,7 +76,7 @@ std::string without_address_limit(std::string prefix) {
 
 /// Runs the CLI through bash, after `prefix` (e.g. "ulimit -f 4;") in the same shell.
 CliResult run_cli(const std::string& args, const TempDir& tmp, const std::string& prefix = "") {
-  const std::string out = tmp.path("stdout.txt"), err = tmp.path("stderr.txt");
+  const std::string out = tmp.file("stdout.txt"), err = tmp.file("stderr.txt");
   const std::string script = without_address_limit(prefix) + " \"" + std::string(KDGRID_CLI_PATH) + "\" " + args +
                              " >\"" + out + "\" 2>\"" + err + "\"";
   std::string quoted;
@@ -134,7 +103,7 @@ const std::string kFullDisk = "trap \"\" XFSZ; ulimit -f 4;";
 
 TEST(HostileFiles, FullDiskKeepsTheOldPngAndFails) {
   TempDir tmp;
-  const std::string png = tmp.path("keep.png");
+  const std::string png = tmp.file("keep.png");
   ASSERT_EQ(run_cli("render gen:sphere -o \"" + png + "\" --res 32 --spp 1", tmp).exit_code, 0);
   const std::string before = read_all(png);
   ASSERT_GT(before.size(), 0u);
@@ -150,7 +119,7 @@ TEST(HostileFiles, FullDiskKeepsTheOldPngAndFails) {
 TEST(HostileFiles, FullDiskKeepsTheOldSceneForEveryGenFormat) {
   TempDir tmp;
   for (const std::string ext : {".gltf", ".glb", ".ply", ".obj"}) {
-    const std::string out = tmp.path("keep" + ext);
+    const std::string out = tmp.file("keep" + ext);
     ASSERT_EQ(run_cli("gen soup --triangles 10 -o \"" + out + "\"", tmp).exit_code, 0) << ext;
     const std::string before = read_all(out);
     const CliResult r = run_cli("gen soup --triangles 20000 -o \"" + out + "\"", tmp, kFullDisk);
@@ -160,7 +129,7 @@ TEST(HostileFiles, FullDiskKeepsTheOldSceneForEveryGenFormat) {
     EXPECT_TRUE(tmp.hidden().empty()) << ext;
   }
   // And a .glb written without a limit is a binary glTF that loads.
-  const std::string glb = tmp.path("ok.glb");
+  const std::string glb = tmp.file("ok.glb");
   ASSERT_EQ(run_cli("gen soup --triangles 10 -o \"" + glb + "\"", tmp).exit_code, 0);
   EXPECT_EQ(read_all(glb).substr(0, 4), "glTF");
   EXPECT_EQ(load_scene(glb).mesh.num_triangles(), 10u);
@@ -168,7 +137,7 @@ TEST(HostileFiles, FullDiskKeepsTheOldSceneForEveryGenFormat) {
 
 TEST(HostileFiles, FullDiskKeepsOldRaysAndHits) {
   TempDir tmp;
-  const std::string rays = tmp.path("keep.rays"), hits = tmp.path("keep.hits");
+  const std::string rays = tmp.file("keep.rays"), hits = tmp.file("keep.hits");
   ASSERT_EQ(run_cli("rays gen:sphere --res 8 -o \"" + rays + "\"", tmp).exit_code, 0);
   ASSERT_EQ(run_cli("trace gen:sphere --repeat 1 --rays \"" + rays + "\" --hits \"" + hits + "\"",
                     tmp)
@@ -178,7 +147,7 @@ TEST(HostileFiles, FullDiskKeepsOldRaysAndHits) {
   CliResult r = run_cli("rays gen:sphere --res 64 -o \"" + rays + "\"", tmp, kFullDisk);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_EQ(read_all(rays), rays_before);
-  const std::string big = tmp.path("big.rays");
+  const std::string big = tmp.file("big.rays");
   ASSERT_EQ(run_cli("rays gen:sphere --res 64 -o \"" + big + "\"", tmp).exit_code, 0);
   r = run_cli("trace gen:sphere --repeat 1 --rays \"" + big + "\" --hits \"" + hits + "\"", tmp,
               kFullDisk);
@@ -189,7 +158,7 @@ TEST(HostileFiles, FullDiskKeepsOldRaysAndHits) {
 
 TEST(HostileFiles, AtomicFileLeavesNothingWhenKilledBySignal) {
   TempDir tmp;
-  const std::string target = tmp.path("sig.bin");
+  const std::string target = tmp.file("sig.bin");
   for (int sig : {SIGINT, SIGTERM}) {
     const pid_t pid = ::fork();
     ASSERT_GE(pid, 0);
@@ -219,7 +188,7 @@ TEST(HostileFiles, AtomicFileReplacesWholeOrNotAtAll) {
   EXPECT_TRUE(tmp.hidden().empty());
   write_file_atomically(p, "new");
   EXPECT_EQ(read_all(p), "new");
-  EXPECT_THROW(write_file_atomically(tmp.path("no/such/dir/x.txt"), "x"), Error);
+  EXPECT_THROW(write_file_atomically(tmp.file("no/such/dir/x.txt"), "x"), Error);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -227,13 +196,13 @@ TEST(HostileFiles, AtomicFileReplacesWholeOrNotAtAll) {
 
 TEST(HostileFiles, OutputThatIsAnInputIsRefused) {
   TempDir tmp;
-  const std::string rays = tmp.path("same.rays");
+  const std::string rays = tmp.file("same.rays");
   ASSERT_EQ(run_cli("rays gen:sphere --res 8 -o \"" + rays + "\"", tmp).exit_code, 0);
   const std::string before = read_all(rays);
   // The same file under the right extension (a link) is caught by equivalence...
-  fs::create_symlink(rays, tmp.path("alias.hits"));
+  fs::create_symlink(rays, tmp.file("alias.hits"));
   CliResult r = run_cli("trace gen:sphere --repeat 1 --rays \"" + rays + "\" --hits \"" +
-                            tmp.path("alias.hits") + "\"",
+                            tmp.file("alias.hits") + "\"",
                         tmp);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_CONTAINS(r.err, "same file as the input");
@@ -243,16 +212,16 @@ TEST(HostileFiles, OutputThatIsAnInputIsRefused) {
   EXPECT_CONTAINS(r.err, "does not match what is written");
   EXPECT_EQ(read_all(rays), before);
 
-  const std::string ply = tmp.path("scene.ply");
+  const std::string ply = tmp.file("scene.ply");
   ASSERT_EQ(run_cli("gen sphere --level 1 -o \"" + ply + "\"", tmp).exit_code, 0);
   const std::string scene_before = read_all(ply);
   r = run_cli("rays \"" + ply + "\" --res 8 -o \"" + ply + "\"", tmp);
   EXPECT_NE(r.exit_code, 0);
-  fs::create_symlink(ply, tmp.path("scene.rays"));
-  r = run_cli("rays \"" + ply + "\" --res 8 -o \"" + tmp.path("scene.rays") + "\"", tmp);
+  fs::create_symlink(ply, tmp.file("scene.rays"));
+  r = run_cli("rays \"" + ply + "\" --res 8 -o \"" + tmp.file("scene.rays") + "\"", tmp);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_CONTAINS(r.err, "same file as the input");
-  r = run_cli("render \"" + ply + "\" --res 8 --spp 1 -o \"" + tmp.path("x.png") +
+  r = run_cli("render \"" + ply + "\" --res 8 --spp 1 -o \"" + tmp.file("x.png") +
                   "\" --stats-json \"" + ply + "\"",
               tmp);
   EXPECT_NE(r.exit_code, 0);
@@ -261,27 +230,27 @@ TEST(HostileFiles, OutputThatIsAnInputIsRefused) {
 
 TEST(HostileFiles, OutputDirectoryIsRefusedBeforeRendering) {
   TempDir tmp;
-  fs::create_directories(tmp.path("out.png"));
+  fs::create_directories(tmp.file("out.png"));
   // brute force at this size would take minutes: the refusal must come first.
   const CliResult r = run_cli("render gen:sphere --accel brute --brute-work-limit 0 --res 4096 "
-                              "--spp 1 -o \"" + tmp.path("out.png") + "\"",
+                              "--spp 1 -o \"" + tmp.file("out.png") + "\"",
                               tmp, "ulimit -t 20;");
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_CONTAINS(r.err, "is a directory");
-  const CliResult g = run_cli("gen sphere -o \"" + tmp.path("out.png") + "\"", tmp);
+  const CliResult g = run_cli("gen sphere -o \"" + tmp.file("out.png") + "\"", tmp);
   EXPECT_NE(g.exit_code, 0);
   EXPECT_CONTAINS(g.err, "is a directory");
 }
 
 TEST(HostileFiles, SweepAndBenchOutputsAreCheckedBeforeRunning) {
   TempDir tmp;
-  fs::create_directories(tmp.path("s.csv"));
-  CliResult r = run_cli("sweep spp --spp-max 64 --res 64 -q -o \"" + tmp.path("s") + "\"", tmp,
+  fs::create_directories(tmp.file("s.csv"));
+  CliResult r = run_cli("sweep spp --spp-max 64 --res 64 -q -o \"" + tmp.file("s") + "\"", tmp,
                         "ulimit -t 20;");
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_CONTAINS(r.err, "is a directory");
-  fs::create_directories(tmp.path("b.json"));
-  r = run_cli("bench gen:sphere --accel bvh -q --json \"" + tmp.path("b.json") + "\"", tmp,
+  fs::create_directories(tmp.file("b.json"));
+  r = run_cli("bench gen:sphere --accel bvh -q --json \"" + tmp.file("b.json") + "\"", tmp,
               "ulimit -t 20;");
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_CONTAINS(r.err, "is a directory");
@@ -289,13 +258,13 @@ TEST(HostileFiles, SweepAndBenchOutputsAreCheckedBeforeRunning) {
 
 TEST(HostileFiles, BadRaysPathIsReportedBeforeTheBuild) {
   TempDir tmp;
-  fs::create_directories(tmp.path("dir.rays"));
-  CliResult r = run_cli("trace gen:sphere --rays \"" + tmp.path("dir.rays") + "\"", tmp);
+  fs::create_directories(tmp.file("dir.rays"));
+  CliResult r = run_cli("trace gen:sphere --rays \"" + tmp.file("dir.rays") + "\"", tmp);
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_CONTAINS(r.err, "is a directory");
   EXPECT_EQ(r.err.find("bad_alloc"), std::string::npos);
   // A missing file with a scene that takes long to build: refused before the build.
-  r = run_cli("trace gen:landscape:4000000 --accel hybrid --rays \"" + tmp.path("none.rays") + "\"",
+  r = run_cli("trace gen:landscape:4000000 --accel hybrid --rays \"" + tmp.file("none.rays") + "\"",
               tmp, "ulimit -t 3;");
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_CONTAINS(r.err, "none.rays");
@@ -317,7 +286,7 @@ TEST(HostileFiles, CheckRefusesNegativeThreadsAndAcneRays) {
 TEST(HostileFiles, MemoryBudgetThatWouldOverflowIsRefused) {
   TempDir tmp;
   const CliResult r =
-      run_cli("render gen:sphere --res 8 --spp 1 -o \"" + tmp.path("x.png") +
+      run_cli("render gen:sphere --res 8 --spp 1 -o \"" + tmp.file("x.png") +
                   "\" --memory-budget-mb 17592186044417",
               tmp);
   EXPECT_EQ(r.exit_code, 1);
@@ -330,7 +299,7 @@ TEST(HostileFiles, BuildRunningOutOfMemorySaysSoWithTheBudget) {
   // A budget far above what ulimit -v leaves: the estimate passes, the allocations fail (on
   // the machine this was written on, 600 MB leave the hybrid build of 500000 triangles short).
   const CliResult r = run_cli("render gen:landscape:500000 --accel hybrid --memory-budget-mb "
-                              "100000 --res 8 --spp 1 -o \"" + tmp.path("m.png") + "\"",
+                              "100000 --res 8 --spp 1 -o \"" + tmp.file("m.png") + "\"",
                               tmp, "ulimit -v 600000;");
   EXPECT_EQ(r.err.find("internal error"), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find("bad_alloc"), std::string::npos) << r.err;
@@ -367,7 +336,7 @@ TEST(HostileFiles, ZeroSizeSceneDoesNotBlameFlagsThatWereNotGiven) {
       "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
       "1 1 1\n1 1 1\n1 1 1\n3 0 1 2\n");
   const CliResult r =
-      run_cli("render \"" + ply + "\" --res 8 --spp 1 -o \"" + tmp.path("p.png") + "\"", tmp);
+      run_cli("render \"" + ply + "\" --res 8 --spp 1 -o \"" + tmp.file("p.png") + "\"", tmp);
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_EQ(r.err.find("--eye and --target are the same point"), std::string::npos) << r.err;
   EXPECT_CONTAINS(r.err, "zero size");
@@ -392,16 +361,16 @@ std::string load_error(const std::function<void()>& f) {
 
 TEST(HostileFiles, FifoAndDevicesAreRefusedAsScenes) {
   TempDir tmp;
-  const std::string fifo = tmp.path("fifo.ply");
+  const std::string fifo = tmp.file("fifo.ply");
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
   // Run through the CLI with a CPU/time bound: before the check the FIFO blocked forever.
   CliResult r = run_cli("info \"" + fifo + "\"", tmp, "ulimit -t 10;");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_CONTAINS(r.err, "is not a regular file");
-  fs::create_symlink("/dev/zero", tmp.path("zero.obj"));
-  EXPECT_CONTAINS(load_error([&] { load_scene(tmp.path("zero.obj")); }), "not a regular file");
-  fs::create_symlink("/dev/zero", tmp.path("zero.rays"));
-  r = run_cli("trace gen:sphere --rays \"" + tmp.path("zero.rays") + "\"", tmp, "ulimit -t 10;");
+  fs::create_symlink("/dev/zero", tmp.file("zero.obj"));
+  EXPECT_CONTAINS(load_error([&] { load_scene(tmp.file("zero.obj")); }), "not a regular file");
+  fs::create_symlink("/dev/zero", tmp.file("zero.rays"));
+  r = run_cli("trace gen:sphere --rays \"" + tmp.file("zero.rays") + "\"", tmp, "ulimit -t 10;");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_CONTAINS(r.err, "not a regular file");
   EXPECT_CONTAINS(load_error([] { check_input_file("/etc/hostname", "", 1); }),
@@ -410,8 +379,8 @@ TEST(HostileFiles, FifoAndDevicesAreRefusedAsScenes) {
 
 TEST(HostileFiles, ObjMaterialLibraryAndTextureOnDevicesAreWarnings) {
   TempDir tmp;
-  fs::create_symlink("/dev/zero", tmp.path("zero.mtl"));
-  fs::create_symlink("/dev/zero", tmp.path("zero.png"));
+  fs::create_symlink("/dev/zero", tmp.file("zero.mtl"));
+  fs::create_symlink("/dev/zero", tmp.file("zero.png"));
   tmp.write("t.mtl", "newmtl a\nKd 1 1 1\nmap_Kd zero.png\n");
   const std::string tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
   const std::string a = tmp.write("a.obj", "mtllib zero.mtl\n" + tri + "f 1 2 3\n");
@@ -539,7 +508,7 @@ std::string triangle_bin() {
 
 TEST(HostileFiles, GltfUriOutsideTheSceneFolderIsNotRead) {
   TempDir tmp;
-  fs::create_directories(tmp.path("scene"));
+  fs::create_directories(tmp.file("scene"));
   tmp.write("outside.bin", triangle_bin());
   tmp.write("scene/tri.bin", triangle_bin());
   const std::string ok = tmp.write("scene/ok.gltf", gltf_text(R"([{"mesh":0}])"));

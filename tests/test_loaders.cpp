@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "scene/load.h"
+#include "temp_dir.h"
 #include "test_util.h"
 #include "util/error.h"
 
@@ -29,33 +30,9 @@ namespace kdgrid {
 namespace {
 
 namespace fs = std::filesystem;
+using test::TempDir;
 
 /// A fresh directory under the system temp dir, removed when the test ends.
-class TempDir {
- public:
-  TempDir() {
-    static std::atomic<int> counter{0};
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ =
-        fs::temp_directory_path() / ("kdgrid_loaders_" + std::to_string(::getpid()) + "_" +
-                                     std::to_string(counter++) + "_" + (info ? info->name() : "x"));
-    fs::create_directories(dir_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-  std::string write(const std::string& name, const std::string& bytes) const {
-    const fs::path p = dir_ / name;
-    std::ofstream out(p, std::ios::binary);
-    out.write(bytes.data(), std::streamsize(bytes.size()));
-    return p.string();
-  }
-  std::string path(const std::string& name) const { return (dir_ / name).string(); }
-
- private:
-  fs::path dir_;
-};
 
 /// Runs `f`, which must throw LoadError; returns its message (empty + failure otherwise).
 std::string load_error(const std::function<void()>& f) {
@@ -288,7 +265,7 @@ std::string ply_error(const std::string& text, const std::string& name = "bad.pl
 
 TEST(PlyErrors, MissingFile) {
   TempDir tmp;
-  const std::string p = tmp.path("nowhere.ply");
+  const std::string p = tmp.file("nowhere.ply");
   const std::string msg = load_error([&] { load_scene(p); });
   EXPECT_CONTAINS(msg, "nowhere.ply");
   EXPECT_CONTAINS(msg, "no such file");
@@ -986,7 +963,7 @@ std::string read_all(const std::string& path) {
 }
 
 CliResult run_cli(const std::string& args, const TempDir& tmp) {
-  const std::string out = tmp.path("stdout.txt"), err = tmp.path("stderr.txt");
+  const std::string out = tmp.file("stdout.txt"), err = tmp.file("stderr.txt");
   const std::string cmd =
       std::string("\"") + KDGRID_CLI_PATH + "\" " + args + " >\"" + out + "\" 2>\"" + err + "\"";
   const int status = std::system(cmd.c_str());
@@ -999,7 +976,7 @@ CliResult run_cli(const std::string& args, const TempDir& tmp) {
 
 TEST(CliInfo, MissingFileFailsNamingIt) {
   TempDir tmp;
-  const CliResult r = run_cli("info \"" + tmp.path("no_such_scene.ply") + "\"", tmp);
+  const CliResult r = run_cli("info \"" + tmp.file("no_such_scene.ply") + "\"", tmp);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_CONTAINS(r.err, "no_such_scene.ply");
 }
