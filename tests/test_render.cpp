@@ -18,7 +18,7 @@
 
 #include "accel/accelerator.h"
 #include "accel/triangle.h"
-#include "render/image_io.h"
+#include "image/image_io.h"
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "scene/procedural.h"

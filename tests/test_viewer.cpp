@@ -17,7 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
-#include "render/image_io.h"
+#include "image/image_io.h"
 #include "scene/load.h"
 #include "test_util.h"
 

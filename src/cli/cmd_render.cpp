@@ -17,7 +17,7 @@
 #include "bench/bench.h"
 #include "cli/commands.h"
 #include "cli/common.h"
-#include "render/image_io.h"
+#include "image/image_io.h"
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "util/atomic_file.h"

@@ -7,7 +7,7 @@
 
 #include <OpenImageIO/imageio.h>
 
-#include "render/image_io.h"
+#include "image/image_io.h"
 #include "viewer/overlay.h"
 
 namespace kdgrid::viewer {

@@ -12,7 +12,7 @@
 #include <memory>
 
 #include "accel/accelerator.h"
-#include "render/image_io.h"
+#include "image/image_io.h"
 #include "util/error.h"
 #include "util/paths.h"
 #include "viewer/viewer.h"

@@ -16,7 +16,7 @@
 #include <map>
 
 #include "accel/guards.h"
-#include "scene/image_io.h"
+#include "image/image_io.h"
 #include "scene/load.h"
 #include "util/error.h"
 #include "util/input_file.h"

@@ -14,7 +14,7 @@
 #include <string_view>
 #include <unordered_map>
 
-#include "scene/image_io.h"
+#include "image/image_io.h"
 #include "scene/load.h"
 #include "util/error.h"
 #include "util/input_file.h"

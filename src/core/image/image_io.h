@@ -1,10 +1,15 @@
-// Image files: PNG (tone-mapped 8-bit sRGB) for looking at, EXR (linear float) for comparing.
-// OpenImageIO does the encoding; it stays a private dependency of kdgrid_core.
+// Image files through OpenImageIO (a private dependency of kdgrid_core): rendered images out
+// as PNG (tone-mapped 8-bit sRGB) for looking at and EXR (linear float) for comparing, images
+// back in for comparisons, and texture files in for the OBJ and glTF loaders.
 #pragma once
 
+#include <cstdint>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
+
+#include "scene/scene.h"
 
 namespace kdgrid {
 
@@ -35,5 +40,22 @@ ImageRGB read_image(const std::string& path);
 /// Root-mean-square difference over all channels of two images of the same size.
 /// Throws ParamError if the sizes differ.
 double rmse(const ImageRGB& a, const ImageRGB& b);
+
+// ---- textures -------------------------------------------------------------------------
+
+
+/// Reads an image file (PNG, JPEG, TGA, EXR, ... whatever OpenImageIO reads) as an RGB8
+/// texture. 8-bit images are taken as sRGB, float images as linear. Returns nullopt and sets
+/// `why` when the file cannot be read, so callers can warn and go on untextured: also when it
+/// is not a regular file (util/input_file.h) or its header gives a size whose decoding would
+/// exceed the memory budget (checked before any pixel is read).
+std::optional<Texture> read_texture_file(const std::string& path, std::string& why);
+
+/// True when a `width` x `height` image of `channels` 8-bit channels can be decoded within
+/// the default memory budget (util/memory.h); else false with `why` naming the sizes.
+bool texture_fits_budget(int width, int height, int channels, std::string& why);
+
+/// Converts interleaved 8-bit pixels with `channels` channels (1-4) to RGB8.
+std::vector<uint8_t> to_rgb8(const uint8_t* pixels, size_t count, int channels);
 
 }  // namespace kdgrid
