@@ -16,7 +16,7 @@
 #include "accel/accelerator.h"
 #include "bench/bench.h"
 #include "bench/raysets.h"
-#include "render/image_io.h"
+#include "image/image_io.h"
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "scene/procedural.h"
