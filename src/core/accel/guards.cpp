@@ -14,19 +14,6 @@ double total_bytes(const std::vector<MemoryPart>& parts) {
   return sum;
 }
 
-std::string format_bytes_iec(double b) {
-  char buf[64];
-  if (b >= double(uint64_t(1) << 30))
-    std::snprintf(buf, sizeof buf, "%.3g GiB", b / double(uint64_t(1) << 30));
-  else if (b >= double(1 << 20))
-    std::snprintf(buf, sizeof buf, "%.3g MiB", b / double(1 << 20));
-  else if (b >= 1024.0)
-    std::snprintf(buf, sizeof buf, "%.3g KiB", b / 1024.0);
-  else
-    std::snprintf(buf, sizeof buf, "%.0f bytes", b);
-  return buf;
-}
-
 uint64_t check_memory_budget(const std::string& structure, size_t triangles,
                              const std::vector<MemoryPart>& parts, const BuildParams& params,
                              const std::string& fix) {

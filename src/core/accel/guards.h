@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "accel/params.h"
+#include "util/format.h"
 
 namespace kdgrid {
 
@@ -45,8 +46,5 @@ void check_brute_force_work(const std::string& accel, uint64_t primary_rays, siz
 /// std::bad_alloc.
 [[noreturn]] void throw_build_out_of_memory(const std::string& structure, size_t triangles,
                                             const BuildParams& params);
-
-/// "12.3 MiB", "1.50 GiB", "512 bytes".
-std::string format_bytes_iec(double bytes);
 
 }  // namespace kdgrid

@@ -25,6 +25,7 @@
 #include "bench/raysets.h"
 #include "scene/load.h"
 #include "util/error.h"
+#include "util/format.h"
 
 namespace kdgrid {
 
@@ -39,12 +40,6 @@ constexpr size_t kChunk = 1024;
 
 double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
-}
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
 }
 
 std::string now_iso8601() {
@@ -162,8 +157,8 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
         f.build_seconds > 0 ? double(mesh.num_triangles()) / f.build_seconds * 1e-6 : 0;
     f.bytes = f.stats.bytes;
     f.bytes_per_triangle = double(f.bytes) / double(std::max<size_t>(1, mesh.num_triangles()));
-    say("  " + name + ": built in " + fmt("%.3f", f.build_seconds) + " s, " +
-        fmt("%.1f", f.bytes_per_triangle) + " bytes/triangle");
+    say("  " + name + ": built in " + format_double("%.3f", f.build_seconds) + " s, " +
+        format_double("%.1f", f.bytes_per_triangle) + " bytes/triangle");
     if (hits_out) hits_out->assign(sr.names.size(), {});
     for (size_t s = 0; s < sr.names.size(); ++s) {
       const auto& rays = sr.rays[s];
@@ -214,12 +209,12 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
         sf.ratio_to_reference = 1.0;  // this is the reference
         sf.reference_mrays = sf.mrays_median;
       }
-      std::string line = "    " + sf.set + ": " + fmt("%.3g", sf.mrays_median) + " Mrays/s";
-      if (ref && ref->ok) line += " (x" + fmt("%.2f", sf.ratio_to_reference) + " reference)";
+      std::string line = "    " + sf.set + ": " + format_double("%.3g", sf.mrays_median) + " Mrays/s";
+      if (ref && ref->ok) line += " (x" + format_double("%.2f", sf.ratio_to_reference) + " reference)";
       if (sf.counted)
-        line += ", " + fmt("%.1f", sf.steps_per_ray) + " steps, " + fmt("%.1f", sf.tests_per_ray) +
+        line += ", " + format_double("%.1f", sf.steps_per_ray) + " steps, " + format_double("%.1f", sf.tests_per_ray) +
                 " tests per ray";
-      if (sf.agreement >= 0) line += ", agreement " + fmt("%.6f", sf.agreement);
+      if (sf.agreement >= 0) line += ", agreement " + format_double("%.6f", sf.agreement);
       say(line);
       if (hits_out) (*hits_out)[s] = std::move(hits);
       f.sets.push_back(std::move(sf));
@@ -476,7 +471,7 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
       const Mesh& mesh = scene.mesh;
       sf.triangles = mesh.num_triangles();
       say(tag + ": " + std::to_string(sf.triangles) + " triangles, loaded in " +
-          fmt("%.2f", sf.load_seconds) + " s");
+          format_double("%.2f", sf.load_seconds) + " s");
       const Camera cam = entry.camera ? *entry.camera : canonical_camera(mesh.bounds());
 
       // The reference is built first: it makes the primary hits the secondary sets start
@@ -630,7 +625,7 @@ std::string bench_to_json(const BenchReport& r) {
 namespace {
 
 std::string mib(uint64_t b) {
-  return fmt("%.1f", double(b) / (1024.0 * 1024.0));
+  return format_double("%.1f", double(b) / (1024.0 * 1024.0));
 }
 
 const SetFigures* find_set(const StructureFigures& a, const std::string& set) {
@@ -646,7 +641,7 @@ std::string bench_to_markdown(const BenchReport& r) {
   md << "Machine: " << r.machine << ", " << r.threads << " thread(s) of " << r.hardware_threads
      << "; " << r.width << "x" << r.height << " primary rays; median of " << r.reps
      << " repetitions" << (r.clock == "cpu" ? " timed by the tracing threads' CPU clocks" : "")
-     << "; " << r.date << "; whole run " << fmt("%.0f", r.seconds) << " s.\n\n";
+     << "; " << r.date << "; whole run " << format_double("%.0f", r.seconds) << " s.\n\n";
 
   // Headline: ratio to the reference on each set, one row per scene x structure.
   md << "### Throughput relative to the reference (higher is better)\n\n";
@@ -670,8 +665,8 @@ std::string bench_to_markdown(const BenchReport& r) {
           md << " - | - |";
           continue;
         }
-        md << " " << fmt("%.3g", x->mrays_median) << " (" << fmt("%.3g", x->mrays_min) << "-"
-           << fmt("%.3g", x->mrays_max) << ") | " << fmt("%.2f", x->ratio_to_reference) << " |";
+        md << " " << format_double("%.3g", x->mrays_median) << " (" << format_double("%.3g", x->mrays_min) << "-"
+           << format_double("%.3g", x->mrays_max) << ") | " << format_double("%.2f", x->ratio_to_reference) << " |";
       }
       md << "\n";
     }
@@ -686,11 +681,11 @@ std::string bench_to_markdown(const BenchReport& r) {
       for (const auto& x : a.sets) {
         md << "| " << s.name << " | " << a.accel << " | " << x.set << " | " << x.rays << " | ";
         if (x.counted)
-          md << fmt("%.1f", x.steps_per_ray) << " | " << fmt("%.1f", x.leaves_per_ray) << " | "
-             << fmt("%.1f", x.tests_per_ray) << " | ";
+          md << format_double("%.1f", x.steps_per_ray) << " | " << format_double("%.1f", x.leaves_per_ray) << " | "
+             << format_double("%.1f", x.tests_per_ray) << " | ";
         else
           md << "n/a | n/a | n/a | ";
-        md << (x.agreement >= 0 ? fmt("%.6f", x.agreement) : std::string("reference")) << " |\n";
+        md << (x.agreement >= 0 ? format_double("%.6f", x.agreement) : std::string("reference")) << " |\n";
       }
     }
   }
@@ -709,9 +704,9 @@ std::string bench_to_markdown(const BenchReport& r) {
       for (const auto& [k, v] : a.stats.bytes_by_part)
         parts += (parts.empty() ? "" : ", ") + k + " " + mib(v);
       md << "| " << s.name << " | " << s.triangles << " | " << a.accel << " | "
-         << (a.error.empty() ? fmt("%.3f", a.build_seconds) : std::string("failed")) << " | "
-         << fmt("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
-         << fmt("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " ("
+         << (a.error.empty() ? format_double("%.3f", a.build_seconds) : std::string("failed")) << " | "
+         << format_double("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
+         << format_double("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " ("
          << mib(a.peak_rss_bytes > a.rss_before_bytes ? a.peak_rss_bytes - a.rss_before_bytes : 0)
          << ") | " << parts << " |\n";
     }

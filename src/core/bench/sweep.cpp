@@ -21,6 +21,7 @@
 #include "scene/load.h"
 #include "scene/procedural.h"
 #include "util/error.h"
+#include "util/format.h"
 #include "util/paths.h"
 
 namespace kdgrid {
@@ -29,12 +30,6 @@ namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
 namespace {
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
 
 bool registered(const std::string& n) {
   const auto names = accelerator_names();
@@ -149,8 +144,8 @@ Setup load_setup(const SweepOptions& o, SweepTable& t) {
     BuildParams p = o.params;
     const Measured e = measure_primary("embree", mesh, p, s.rays, o.reps, nullptr, &s.embree);
     if (e.error.empty()) {
-      t.notes.emplace_back("embree_mrays", fmt("%.4g", e.mrays));
-      if (o.progress) o.progress("  embree baseline: " + fmt("%.3g", e.mrays) + " Mrays/s");
+      t.notes.emplace_back("embree_mrays", format_double("%.4g", e.mrays));
+      if (o.progress) o.progress("  embree baseline: " + format_double("%.3g", e.mrays) + " Mrays/s");
     }
   }
   return s;
@@ -162,9 +157,9 @@ void say_row(const SweepOptions& o, const std::string& label, const Measured& m)
     o.progress("  " + label + ": " + m.error);
     return;
   }
-  o.progress("  " + label + ": build " + fmt("%.3f", m.build_seconds) + " s, " +
-             fmt("%.1f", double(m.stats.bytes) / 1048576.0) + " MiB, " + fmt("%.3g", m.mrays) +
-             " Mrays/s, " + fmt("%.1f", m.steps) + " steps, " + fmt("%.1f", m.tests) +
+  o.progress("  " + label + ": build " + format_double("%.3f", m.build_seconds) + " s, " +
+             format_double("%.1f", double(m.stats.bytes) / 1048576.0) + " MiB, " + format_double("%.3g", m.mrays) +
+             " Mrays/s, " + format_double("%.1f", m.steps) + " steps, " + format_double("%.1f", m.tests) +
              " tests per ray");
 }
 
@@ -197,7 +192,7 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
   for (double mult : o.values) {
     BuildParams q = o.params;
     q.cell_size = float(mult * auto_cell);
-    add(fmt("%gx", mult), mult, measure_primary("hybrid", mesh, q, s.rays, o.reps, s.embree.get()));
+    add(format_double("%gx", mult), mult, measure_primary("hybrid", mesh, q, s.rays, o.reps, s.embree.get()));
   }
 }
 
@@ -210,12 +205,12 @@ void sweep_param(const SweepOptions& o, SweepTable& t, const std::string& accel,
     set(q, v);
     const Measured m = measure_primary(accel, mesh, q, s.rays, o.reps, s.embree.get());
     auto cells =
-        std::vector<std::pair<std::string, SweepValue>>{{"label", fmt("%g", v)}, {column, v}};
+        std::vector<std::pair<std::string, SweepValue>>{{"label", format_double("%g", v)}, {column, v}};
     for (auto& c : measured_cells(m, mesh.num_triangles())) cells.push_back(c);
     for (const auto& [k, x] : m.stats.extra)
       if (k == "resolution" || k == "grid") cells.emplace_back(k, x);
     t.add_row(cells);
-    say_row(o, column + " " + fmt("%g", v), m);
+    say_row(o, column + " " + format_double("%g", v), m);
   }
 }
 
@@ -377,10 +372,10 @@ void sweep_spp(const SweepOptions& o, SweepTable& t) {
                        "root-mean-square difference from the reference over all channels "
                        "of linear RGB; rmse_display clamps both images to [0, 1] first");
   t.notes.emplace_back("reference", std::to_string(o.spp_reference) + " spp, seed 1000003, " +
-                                        fmt("%.2f", ref.seconds()) + " s");
+                                        format_double("%.2f", ref.seconds()) + " s");
   if (o.progress)
     o.progress("  reference: " + std::to_string(o.spp_reference) + " spp in " +
-               fmt("%.1f", ref.seconds()) + " s");
+               format_double("%.1f", ref.seconds()) + " s");
 
   rs.seed = 1;
   Renderer r(scene, *acc, rs);
@@ -404,8 +399,8 @@ void sweep_spp(const SweepOptions& o, SweepTable& t) {
                    {"rays", rays},
                    {"mrays", r.seconds() > 0 ? rays * 1e-6 / r.seconds() : 0.0}});
         if (o.progress)
-          o.progress("  " + std::to_string(spp) + " spp: " + fmt("%.2f", r.seconds()) +
-                     " s, rmse " + fmt("%.5f", e) + ", display rmse " + fmt("%.5f", e_display));
+          o.progress("  " + std::to_string(spp) + " spp: " + format_double("%.2f", r.seconds()) +
+                     " s, rmse " + format_double("%.5f", e) + ", display rmse " + format_double("%.5f", e_display));
       }
       ++next;
     }
@@ -474,7 +469,7 @@ SweepTable run_sweep(const SweepOptions& in) {
   }
   for (double v : o.values)
     if (!(v > 0) || !std::isfinite(v))
-      throw ParamError("sweep value " + fmt("%g", v) + " must be a positive finite number");
+      throw ParamError("sweep value " + format_double("%g", v) + " must be a positive finite number");
   if (o.kind == "spp" && o.spp_reference < 1) throw ParamError("--spp-reference must be >= 1");
   for (const auto& a : o.accels) make_accelerator(a);
   const int threads = effective_threads(o.threads);
@@ -524,7 +519,7 @@ std::string sweep_to_csv(const SweepTable& t) {
       if (i) out << ",";
       if (i >= r.size()) continue;
       if (const auto* d = std::get_if<double>(&r[i]))
-        out << fmt("%.9g", *d);
+        out << format_double("%.9g", *d);
       else if (const auto* s = std::get_if<std::string>(&r[i]))
         out << quote(*s);
     }
