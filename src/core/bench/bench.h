@@ -17,6 +17,7 @@
 
 #include "accel/accelerator.h"
 #include "accel/params.h"
+#include "bench/probes.h"
 #include "bench/suite.h"
 
 namespace kdgrid {
@@ -132,38 +133,6 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& options);
 std::string bench_to_json(const BenchReport& report);
 /// The report as Markdown tables (throughput and ratios, per-ray counts, build and memory).
 std::string bench_to_markdown(const BenchReport& report);
-
-// ---- helpers, public for the sweeps and the tests ----------------------------------------
-
-/// Median of the values (mean of the middle two for an even count); 0 for none.
-double median(std::vector<double> v);
-/// Process peak resident set size in bytes, getrusage(RUSAGE_SELF).ru_maxrss.
-uint64_t process_peak_rss_bytes();
-/// Returns freed heap pages to the kernel (glibc malloc_trim), then resets the kernel's
-/// peak-RSS mark (VmHWM) to the current RSS; false if the reset is not possible.
-bool reset_peak_rss();
-/// VmHWM from /proc/self/status in bytes (peak since the last reset), else ru_maxrss.
-uint64_t peak_rss_since_reset();
-/// VmRSS from /proc/self/status in bytes (0 if unavailable).
-uint64_t current_rss_bytes();
-/// CPU model name ("AMD EPYC ...") from /proc/cpuinfo, or "unknown".
-std::string cpu_model_name();
-
-/// Times `rays` through `accel` (intersect or occluded) with tbb::parallel_for over chunks;
-/// returns seconds. Hits (or occluded flags as t = 0 / inf) are written to `out` if given.
-/// cpu_clock: instead of wall time, the tracing threads' summed CPU time divided by the
-/// thread count, i.e. the wall time an otherwise idle machine would show. Time slices lost
-/// to other processes on a shared machine do not count (their cache pollution still does).
-double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit,
-                  std::vector<Hit>* out, bool cpu_clock = false);
-/// One counted pass; returns the summed counters.
-RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit);
-
-/// Agreement of `hits` with `ref` on `rays` (rule of SetFigures::agreement); returns the
-/// fraction and sets `disagreements`. For any-hit sets only validity is compared.
-double hit_agreement(const Mesh& mesh, const std::vector<Ray>& rays, const std::vector<Hit>& hits,
-                     const std::vector<Hit>& ref, bool any_hit, double tie_tolerance,
-                     uint64_t* disagreements = nullptr);
 
 /// Default structure list: accelerator_names() without brute.
 std::vector<std::string> default_bench_accels();

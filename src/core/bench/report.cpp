@@ -1,0 +1,217 @@
+// The benchmark's reports: JSON (every figure) and Markdown (the tables of docs/RESULTS.md).
+#include <cstdio>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "bench/bench.h"
+#include "util/format.h"
+
+namespace kdgrid {
+
+std::string bench_to_json(const BenchReport& r) {
+  using nlohmann::json;
+  json j;
+  j["meta"] = {{"suite", r.suite},
+               {"date", r.date},
+               {"machine", r.machine},
+               {"hardware_threads", r.hardware_threads},
+               {"threads", r.threads},
+               {"reps", r.reps},
+               {"clock", r.clock},
+               {"width", r.width},
+               {"height", r.height},
+               {"sets", r.sets},
+               {"seconds", r.seconds},
+               {"bytes_note",
+                "bytes = BuildStats::bytes: the structure only, excluding the mesh (positions "
+                "and indices) that every structure shares; bytes_by_part breaks it down"},
+               {"peak_rss_note",
+                "peak_rss_bytes: VmHWM reset (after malloc_trim) before the build, so it covers "
+                "this structure's build and traces plus what was already resident "
+                "(rss_before_bytes: mesh, ray sets, reference hits); rss_growth_bytes = the "
+                "difference, what building and tracing this structure added at its peak; "
+                "process_peak_rss_bytes: getrusage ru_maxrss, the process's lifetime peak"}};
+  j["scenes"] = json::array();
+  j["builds"] = json::array();
+  j["results"] = json::array();
+  j["errors"] = json::array();
+  for (const auto& s : r.scenes) {
+    json js = {{"scene", s.name},      {"file", s.file},           {"triangles", s.triangles},
+               {"camera", s.camera},   {"reference", s.reference}, {"load_seconds", s.load_seconds},
+               {"ok", s.error.empty()}};
+    for (const auto& [n, c] : s.set_sizes) js["rays"][n] = c;
+    for (const auto& [n, src] : s.set_sources) js["ray_sources"][n] = src;
+    if (!s.error.empty()) {
+      js["error"] = s.error;
+      j["errors"].push_back({{"scene", s.name}, {"error", s.error}});
+    }
+    j["scenes"].push_back(js);
+    for (const auto& a : s.structures) {
+      json b = {{"scene", s.name},
+                {"accel", a.accel},
+                {"triangles", s.triangles},
+                {"ok", a.error.empty()},
+                {"build_seconds", a.build_seconds},
+                {"build_mtris_per_s", a.build_mtris_per_s},
+                {"bytes", a.bytes},
+                {"bytes_per_triangle", a.bytes_per_triangle},
+                {"peak_rss_bytes", a.peak_rss_bytes},
+                {"rss_before_bytes", a.rss_before_bytes},
+                {"rss_growth_bytes",
+                 a.peak_rss_bytes > a.rss_before_bytes ? a.peak_rss_bytes - a.rss_before_bytes : 0},
+                {"process_peak_rss_bytes", a.process_peak_rss_bytes},
+                {"nodes", a.stats.nodes},
+                {"leaves", a.stats.leaves},
+                {"empty_leaves", a.stats.empty_leaves},
+                {"references", a.stats.references},
+                {"max_depth", a.stats.max_depth},
+                {"sah_evaluations", a.stats.sah_evaluations},
+                {"builder_seconds", a.stats.seconds}};
+      b["bytes_by_part"] = json::object();
+      for (const auto& [k, v] : a.stats.bytes_by_part) b["bytes_by_part"][k] = v;
+      b["extra"] = json::object();
+      for (const auto& [k, v] : a.stats.extra) b["extra"][k] = v;
+      if (!a.error.empty()) {
+        b["error"] = a.error;
+        j["errors"].push_back({{"scene", s.name}, {"accel", a.accel}, {"error", a.error}});
+      }
+      j["builds"].push_back(b);
+      for (const auto& x : a.sets) {
+        json e = {{"scene", s.name},
+                  {"accel", a.accel},
+                  {"set", x.set},
+                  {"reference", s.reference},
+                  {"rays", x.rays},
+                  {"hits", x.hits},
+                  {"threads", r.threads},
+                  {"reps", x.mrays_reps.size()},
+                  {"mrays", x.mrays_median},
+                  {"mrays_min", x.mrays_min},
+                  {"mrays_max", x.mrays_max},
+                  {"mrays_reps", x.mrays_reps},
+                  {"ratio_to_reference", x.ratio_to_reference},
+                  {"reference_mrays", x.reference_mrays},
+                  {"ratio_method", x.paired ? "median of per-repetition ratios, reference "
+                                              "timed just before each repetition"
+                                            : "median / reference's median"},
+                  {"counted", x.counted},
+                  {"steps_per_ray", x.steps_per_ray},
+                  {"leaves_per_ray", x.leaves_per_ray},
+                  {"tests_per_ray", x.tests_per_ray},
+                  {"lookups_per_ray", x.lookups_per_ray},
+                  {"mailbox_skips_per_ray", x.mailbox_skips_per_ray},
+                  {"agreement", x.agreement >= 0 ? json(x.agreement) : json(nullptr)},
+                  {"disagreements", x.disagreements}};
+        j["results"].push_back(e);
+      }
+    }
+  }
+  return j.dump(2) + "\n";
+}
+
+namespace {
+
+std::string mib(uint64_t b) {
+  return format_double("%.1f", double(b) / (1024.0 * 1024.0));
+}
+
+const SetFigures* find_set(const StructureFigures& a, const std::string& set) {
+  for (const auto& x : a.sets)
+    if (x.set == set) return &x;
+  return nullptr;
+}
+
+}  // namespace
+
+std::string bench_to_markdown(const BenchReport& r) {
+  std::ostringstream md;
+  md << "Machine: " << r.machine << ", " << r.threads << " thread(s) of " << r.hardware_threads
+     << "; " << r.width << "x" << r.height << " primary rays; median of " << r.reps
+     << " repetitions" << (r.clock == "cpu" ? " timed by the tracing threads' CPU clocks" : "")
+     << "; " << r.date << "; whole run " << format_double("%.0f", r.seconds) << " s.\n\n";
+
+  // Headline: ratio to the reference on each set, one row per scene x structure.
+  md << "### Throughput relative to the reference (higher is better)\n\n";
+  md << "| scene | structure |";
+  for (const auto& s : r.sets) md << " " << s << " Mrays/s | " << s << " ratio |";
+  md << "\n|---|---|";
+  for (size_t i = 0; i < r.sets.size(); ++i) md << "---:|---:|";
+  md << "\n";
+  for (const auto& s : r.scenes) {
+    if (!s.error.empty()) {
+      md << "| " << s.name << " | **failed** |";
+      for (size_t i = 0; i < r.sets.size(); ++i) md << " | |";
+      md << "\n";
+      continue;
+    }
+    for (const auto& a : s.structures) {
+      md << "| " << s.name << " | " << a.accel << (a.accel == s.reference ? " (ref)" : "") << " |";
+      for (const auto& set : r.sets) {
+        const SetFigures* x = find_set(a, set);
+        if (!x) {
+          md << " - | - |";
+          continue;
+        }
+        md << " " << format_double("%.3g", x->mrays_median) << " (" << format_double("%.3g", x->mrays_min) << "-"
+           << format_double("%.3g", x->mrays_max) << ") | " << format_double("%.2f", x->ratio_to_reference) << " |";
+      }
+      md << "\n";
+    }
+  }
+
+  md << "\n### Per ray: traversal steps, leaves visited, triangle tests; agreement with the "
+        "reference\n\n";
+  md << "| scene | structure | set | rays | steps | leaves | tests | agreement |\n";
+  md << "|---|---|---|---:|---:|---:|---:|---:|\n";
+  for (const auto& s : r.scenes) {
+    for (const auto& a : s.structures) {
+      for (const auto& x : a.sets) {
+        md << "| " << s.name << " | " << a.accel << " | " << x.set << " | " << x.rays << " | ";
+        if (x.counted)
+          md << format_double("%.1f", x.steps_per_ray) << " | " << format_double("%.1f", x.leaves_per_ray) << " | "
+             << format_double("%.1f", x.tests_per_ray) << " | ";
+        else
+          md << "n/a | n/a | n/a | ";
+        md << (x.agreement >= 0 ? format_double("%.6f", x.agreement) : std::string("reference")) << " |\n";
+      }
+    }
+  }
+
+  md << "\n### Build and memory\n\n";
+  md << "Bytes are the structure's own (BuildStats::bytes), excluding the shared mesh. Peak "
+        "RSS is the process's resident high-water mark while that structure was built and "
+        "traced (it includes the mesh and the ray sets); growth is that peak minus the "
+        "resident memory just before the build.\n\n";
+  md << "| scene | triangles | structure | build s | build Mtris/s | MiB | bytes/triangle | "
+        "peak RSS MiB (growth) | parts |\n";
+  md << "|---|---:|---|---:|---:|---:|---:|---:|---|\n";
+  for (const auto& s : r.scenes) {
+    for (const auto& a : s.structures) {
+      std::string parts;
+      for (const auto& [k, v] : a.stats.bytes_by_part)
+        parts += (parts.empty() ? "" : ", ") + k + " " + mib(v);
+      md << "| " << s.name << " | " << s.triangles << " | " << a.accel << " | "
+         << (a.error.empty() ? format_double("%.3f", a.build_seconds) : std::string("failed")) << " | "
+         << format_double("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
+         << format_double("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " ("
+         << mib(a.peak_rss_bytes > a.rss_before_bytes ? a.peak_rss_bytes - a.rss_before_bytes : 0)
+         << ") | " << parts << " |\n";
+    }
+  }
+
+  bool errors = false;
+  for (const auto& s : r.scenes) {
+    if (!s.error.empty() || std::any_of(s.structures.begin(), s.structures.end(),
+                                        [](const auto& a) { return !a.error.empty(); })) {
+      if (!errors) md << "\n### Errors\n\n";
+      errors = true;
+      if (!s.error.empty()) md << "- " << s.name << ": " << s.error << "\n";
+      for (const auto& a : s.structures)
+        if (!a.error.empty()) md << "- " << s.name << ": " << a.error << "\n";
+    }
+  }
+  return md.str();
+}
+
+}  // namespace kdgrid
