@@ -89,15 +89,6 @@ const char* mode_name(RenderMode m) {
   return "shaded";
 }
 
-const char* kind_name(StepKind k) {
-  switch (k) {
-    case StepKind::Inner: return "inner";
-    case StepKind::Leaf: return "leaf";
-    case StepKind::Cell: return "cell";
-  }
-  return "?";
-}
-
 /// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
 /// it ends; it polls the task's future at once instead of at its next timeout.
 struct WakeUiOnExit {
@@ -178,6 +169,7 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
     if (o == "cells") show_cells_ = true;
     if (o == "boxes") show_boxes_ = true;
   }
+  splits_of_pick_ = opts_.splits_of_pick;
 }
 
 Viewer::~Viewer() { shutdown(); }
@@ -227,7 +219,6 @@ void Viewer::init_gl() {
   GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE));
   GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE));
   structure_lines_.init();
-  trace_lines_.init();
 
   // Our callbacks first; ImGui's backend then chains to them, so ImGui sees input first and
   // we gate on WantCaptureMouse / WantCaptureKeyboard (docs/DESIGN.md, "The viewer").
@@ -306,7 +297,6 @@ void Viewer::shutdown() {
   ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
   structure_lines_.destroy();
-  trace_lines_.destroy();
   if (tex_) glDeleteTextures(1, &tex_);
   if (empty_vao_) glDeleteVertexArrays(1, &empty_vao_);
   if (image_program_) glDeleteProgram(image_program_);
@@ -451,7 +441,6 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
     cam_.reset(c, w->scene->mesh.bounds());
     start_camera_ = cam_.camera();
     pick_.reset();
-    trace_lines_.upload(LineBatch{});
     // The title names the scene; input tests wait for it (xdotool search --sync --name)
     // before they send events, as the camera is reset here.
     const std::string title =
@@ -481,7 +470,7 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
   built_[w->name] = w;
   world_ = std::move(w);
   overlay_dirty_ = true;
-  if (pick_) do_pick(pick_->x, pick_->y);  // retrace the picked pixel through the new structure
+  if (pick_) retrace_pick();  // the same ray through the new structure
 }
 
 // ---- input -----------------------------------------------------------------------------------
@@ -534,6 +523,9 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
       break;
     case GLFW_KEY_F1:
       show_keys_ = !show_keys_;
+      break;
+    case GLFW_KEY_F:
+      frame_pick();
       break;
     default:
       break;
@@ -752,7 +744,9 @@ void Viewer::rebuild_structure_overlay() {
   overlay_items_ = 0;
   if (world_) {
     const Accelerator& a = *world_->accel;
-    if (show_splits_) overlay_items_ += build_split_overlay(a, split_depth_[0], split_depth_[1], b);
+    if (show_splits_ && (!splits_of_pick_ || pick_))
+      overlay_items_ += build_split_overlay(a, split_depth_[0], split_depth_[1], b,
+                                            splits_of_pick_ ? &pick_->segment : nullptr);
     if (show_cells_) overlay_items_ += build_cell_overlay(a, b);
     if (show_boxes_) overlay_items_ += build_box_overlay(a, box_depth_[0], box_depth_[1], b);
   }
@@ -761,26 +755,38 @@ void Viewer::rebuild_structure_overlay() {
 
 void Viewer::do_pick(int px, int py) {
   if (!world_ || posted_w_ <= 0 || posted_h_ <= 0) return;
-  px = std::clamp(px, 0, posted_w_ - 1);
-  py = std::clamp(py, 0, posted_h_ - 1);
   Pick p;
-  p.x = px;
-  p.y = py;
-  const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
-  p.ray = f.ray(float(px) + 0.5f, float(py) + 0.5f);  // the pixel centre, as `trace --pixel`
-  p.trace = world_->accel->trace(p.ray);
-  p.command = "kdgrid trace " + shell_quote(world_->scene->source) + accel_flags(world_->name, world_->params) +
-              " --pixel " + std::to_string(px) + "," + std::to_string(py) + " --res " +
-              std::to_string(posted_w_) + "x" + std::to_string(posted_h_) + " " + cam_.cli_flags();
-  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", px, py,
-              p.trace.steps.size(), (unsigned long long)p.trace.counters.tri_tests,
-              p.trace.hit.valid() ? ("hit triangle " + std::to_string(p.trace.hit.prim)).c_str() : "miss",
-              p.command.c_str());
-  std::fflush(stdout);
-  LineBatch b;
-  build_trace_overlay(p.trace, p.ray, world_->scene->mesh, scene_radius(), b);
-  trace_lines_.upload(b);
+  p.x = std::clamp(px, 0, posted_w_ - 1);
+  p.y = std::clamp(py, 0, posted_h_ - 1);
+  p.w = posted_w_;
+  p.h = posted_h_;
+  p.camera = cam_.camera();
+  const CameraFrame f = CameraFrame::make(p.camera, p.w, p.h);
+  p.ray = f.ray(float(p.x) + 0.5f, float(p.y) + 0.5f);  // the pixel centre, as `trace --pixel`
+  p.serial = ++pick_serial_;
   pick_ = std::move(p);
+  retrace_pick();
+  const Trace& t = pick_->trace;
+  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", pick_->x, pick_->y,
+              t.steps.size(), (unsigned long long)t.counters.tri_tests,
+              t.hit.valid() ? ("hit triangle " + std::to_string(t.hit.prim)).c_str() : "miss",
+              pick_->command.c_str());
+  std::fflush(stdout);
+}
+
+void Viewer::retrace_pick() {
+  if (!pick_ || !world_) return;
+  Pick& p = *pick_;
+  p.trace = world_->accel->trace(p.ray);
+  p.segment = pick_segment(p.ray, p.trace, world_->scene->mesh.bounds());
+  p.widths_for_font = 0;  // the step table's text and widths follow the new trace
+  p.serial = ++pick_serial_;
+  CameraControl at_pick;
+  at_pick.set_camera(p.camera);
+  p.command = "kdgrid trace " + shell_quote(world_->scene->source) + accel_flags(world_->name, world_->params) +
+              " --pixel " + std::to_string(p.x) + "," + std::to_string(p.y) + " --res " + std::to_string(p.w) +
+              "x" + std::to_string(p.h) + " " + at_pick.cli_flags();
+  if (splits_of_pick_) overlay_dirty_ = true;
 }
 
 // ---- output ----------------------------------------------------------------------------------
@@ -875,14 +881,24 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   st["camera_flags"] = cam_.cli_flags();
   if (pick_)
     st["pick"] = {{"x", pick_->x}, {"y", pick_->y}, {"steps", pick_->trace.steps.size()},
-                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}};
+                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}, {"framed", pick_->framed},
+                  {"segment", {pick_->segment.t0, pick_->segment.t1}}};
   else
     st["pick"] = nullptr;
+  st["overlay"] = {{"splits", show_splits_}, {"cells", show_cells_}, {"boxes", show_boxes_},
+                   {"splits_of_pick", splits_of_pick_}, {"split_depths", {split_depth_[0], split_depth_[1]}},
+                   {"items", overlay_items_}, {"lines", structure_lines_.vertex_count() / 2}};
   st["message"] = message_;
   st["error"] = task_error_;
   st["render_error"] = worker_ ? worker_->error() : std::string();
   st["samples"] = have_image_ ? image_.samples : 0;
   j["state"] = st;
+  // What the last frame's panels showed (empty with the panels hidden).
+  j["ui"] = {{"clipped", audit_.clipped},
+             {"legends", audit_.legends},
+             {"status_top", audit_.status_top},
+             {"below_status_y", audit_.below_status_y},
+             {"table_cells", audit_.table_cells}};
 
   j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
                  {"swap_ms", frame_swap_ms_}};
@@ -1025,6 +1041,7 @@ void Viewer::draw_key_list() {
       {"+ / -", "faster / slower camera"},
       {"Home", "frame the scene"},
       {"click", "pick the pixel: its ray's traversal, step by step"},
+      {"F", "frame the pick: its leaves/cells and ray fill the view"},
       {"C", "print the camera as command-line flags"},
       {"P or F12", "save a screenshot"},
       {"H", "hide / show the panels"},
@@ -1222,12 +1239,15 @@ void Viewer::draw_panels() {
   if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) {
     bool dirty = ImGui::Checkbox("kd split planes", &show_splits_);
     if (show_splits_) {
+      dirty |= ImGui::Checkbox("splits of the picked ray", &splits_of_pick_);
+      if (splits_of_pick_ && !pick_) ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
       ImGui::SliderInt2("split depths", split_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
       char l0[32], l2[32];
       std::snprintf(l0, sizeof l0, "depth %d", split_depth_[0]);
       std::snprintf(l2, sizeof l2, "%d", split_depth_[1]);
       draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
+      audit_.legends.push_back(std::string("split depth: ") + l0 + " .. " + l2);
     }
     dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
     dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
@@ -1245,56 +1265,11 @@ void Viewer::draw_panels() {
                 structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
   }
 
-  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) {
-    if (!pick_) {
-      ImGui::TextDisabled("click (or Ctrl+click) a pixel to trace its ray");
-    } else {
-      const Trace& t = pick_->trace;
-      ImGui::Text("pixel %d,%d: %zu steps, %llu tests, %s", pick_->x, pick_->y, t.steps.size(),
-                  (unsigned long long)t.counters.tri_tests, t.hit.valid() ? "hit" : "miss");
-      if (t.hit.valid()) ImGui::Text("hit triangle %u at t = %.6g", t.hit.prim, t.hit.t);
-      ImGui::TextWrapped("%s", pick_->command.c_str());
-      if (ImGui::SmallButton("copy command")) glfwSetClipboardString(window_, pick_->command.c_str());
-      ImGui::SameLine();
-      if (ImGui::SmallButton("clear pick")) {
-        pick_.reset();
-        trace_lines_.upload(LineBatch{});
-      }
-      if (pick_ && ImGui::BeginTable("steps", 6,
-                                     ImGuiTableFlags_ScrollY | ImGuiTableFlags_RowBg | ImGuiTableFlags_Borders,
-                                     ImVec2(0, 200 * ui_scale_))) {
-        ImGui::TableSetupScrollFreeze(0, 1);
-        for (const char* h : {"#", "kind", "box", "t in", "t out", "tests"}) ImGui::TableSetupColumn(h);
-        ImGui::TableHeadersRow();
-        ImGuiListClipper clip;
-        clip.Begin(int(t.steps.size()));
-        while (clip.Step()) {
-          for (int i = clip.DisplayStart; i < clip.DisplayEnd; ++i) {
-            const TraceStep& s = t.steps[size_t(i)];
-            const Color c = ramp(t.steps.size() > 1 ? float(i) / float(t.steps.size() - 1) : 1.0f);
-            ImGui::TableNextRow();
-            ImGui::TableNextColumn();
-            ImGui::TextColored(ImVec4(c.r, c.g, c.b, 1), "%d", i);
-            ImGui::TableNextColumn();
-            ImGui::Text("%s d%d", kind_name(s.kind), s.depth);
-            ImGui::TableNextColumn();
-            ImGui::Text("(%.3g %.3g %.3g)-(%.3g %.3g %.3g)", s.box.lo.x, s.box.lo.y, s.box.lo.z, s.box.hi.x,
-                        s.box.hi.y, s.box.hi.z);
-            ImGui::TableNextColumn();
-            ImGui::Text("%.5g", s.t_in);
-            ImGui::TableNextColumn();
-            ImGui::Text("%.5g", s.t_out);
-            ImGui::TableNextColumn();
-            ImGui::Text("%u", s.num_tested);
-          }
-        }
-        ImGui::EndTable();
-      }
-    }
-  }
+  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
   if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
   ImGui::End();
 
+  draw_pick_steps();
   if (have_image_ && image_.mode != RenderMode::Shaded) draw_heat_legend();
 }
 
@@ -1374,7 +1349,6 @@ void Viewer::draw_scene() {
     GL_CHECK(glEnable(GL_BLEND));
     GL_CHECK(glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA));
     structure_lines_.draw(vp, overlay_alpha_);
-    trace_lines_.draw(vp, 1.0f);
     GL_CHECK(glDisable(GL_BLEND));
   }
 }
@@ -1452,6 +1426,7 @@ int Viewer::run() {
     if (opts_.scripted()) {
       if (!pick_done && world_ && posted_w_ > 0) {
         do_pick((*opts_.pick)[0], (*opts_.pick)[1]);
+        if (opts_.frame_pick) frame_pick();
         pick_done = true;
       }
       if (!opts_.rebuild_cell_size.empty() && !scripted_rebuild_started_ && have_image_ && !task_) {
@@ -1471,6 +1446,8 @@ int Viewer::run() {
     ImGui_ImplOpenGL3_NewFrame();
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
+    draw_pick_overlay();
+    audit_.clear();
     if (!opts_.hide_ui) {
       draw_panels();
       draw_key_list();
