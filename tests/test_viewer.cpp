@@ -1145,6 +1145,13 @@ int changed_outside(const ImageRGB& a, const ImageRGB& b, const nlohmann::json& 
   return n;
 }
 
+/// The labels and values --stats-json's ui.clipped lists as cut, one per line ("" if none).
+std::string clipped_list(const nlohmann::json& stats) {
+  std::string cut;
+  for (const auto& c : stats["ui"]["clipped"]) cut += "\n  " + c.get<std::string>();
+  return cut;
+}
+
 TEST(Viewer, SplitsOfThePickedRayDrawFarFewerPlanesWithAVisitOrderLegend) {
   KDGRID_REQUIRE_XVFB();
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
@@ -1194,9 +1201,74 @@ TEST(Viewer, PickStepTableShowsEveryValueWhole) {
   ASSERT_TRUE(st.is_object()) << r.output;
   EXPECT_GT(st["state"]["pick"]["steps"].get<int>(), 5);
   EXPECT_GE(st["ui"]["table_cells"].get<int>(), 6 * 5) << "the step table drew too few cells";
-  std::string cut;
-  for (const auto& c : st["ui"]["clipped"]) cut += "\n  " + c.get<std::string>();
+  const std::string cut = clipped_list(st);
   EXPECT_TRUE(cut.empty()) << "cut labels or values:" << cut;
+}
+
+// ---- the panel's layout -------------------------------------------------------------------------
+
+TEST(Viewer, PanelCoversAQuarterOfA1280x720WindowWithNoLabelCut) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // Every section open and populated: the hybrid's cell controls, a heat map, both overlays
+  // with their depth sliders and legends, a pick.
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel hybrid --width 1280 --height 720 --frames 3 "
+                                      "--min-samples 1 --max-samples 1 --threads 2 --heatmap steps --overlay splits "
+                                      "--overlay boxes --pick 640,360 --stats-json stats.json --screenshot shot.png");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  const auto& panel = st["display"]["panel"];
+  ASSERT_TRUE(panel.is_object());
+  const double area = panel["w"].get<double>() * panel["h"].get<double>();
+  EXPECT_LE(area, 1280.0 * 720.0 / 4.0) << panel.dump();
+  EXPECT_GE(panel["h"].get<double>(), 360.0) << "the panel uses the window's height";
+  const std::string cut = clipped_list(st);
+  EXPECT_TRUE(cut.empty()) << "cut labels:" << cut;
+}
+
+TEST(Viewer, StatusAreaKeepsTheWidgetsBelowItInPlace) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  const std::string bad = dir + "/bad.ply";
+  std::ofstream(bad) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\nnot a number\n";
+  // A rebuild (progress bar), then a dropped file that fails to load (an error message).
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 1280 --height 720 --frames 3 "
+                                      "--max-samples 1 --rebuild-cell-size 0.5 --drop '" + bad + "' "
+                                      "--stats-json stats.json --screenshot shot.png");
+  EXPECT_EQ(r.code, 1) << "the failed load is the scripted run's error\n" << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  const auto& by_state = st["ui"]["below_status_y_by_state"];
+  std::vector<double> ys;
+  for (const char* state : {"idle", "build", "error"}) {
+    ASSERT_TRUE(by_state.contains(state)) << "no frame drawn in state " << state << ": " << by_state.dump();
+    for (const auto& y : by_state[state]) ys.push_back(y.get<double>());
+  }
+  ASSERT_FALSE(ys.empty());
+  for (double y : ys) EXPECT_EQ(y, ys.front()) << "the widgets under the status area moved: " << by_state.dump();
+  // Without a pick, and with the error shown: no label cut either.
+  const std::string cut = clipped_list(st);
+  EXPECT_TRUE(cut.empty()) << "cut labels:" << cut;
+}
+
+TEST(Viewer, InputPanelIsResizableAndCollapsible) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const std::string args = "'" + kDefaultScene + "' --accel bvh --width 1280 --height 720 --threads 1 --max-samples 1 "
+                           "--hold 90";
+  // The panel starts at (8, 8), 320 x 704: drag its bottom-right grip 120 right and 100 up.
+  Driven d = drive_viewer(dir, args, "cornell.gltf", "drag 1 325 709 445 609");
+  ASSERT_DRIVEN_OK(d);
+  const auto& p = d.stats["display"]["panel"];
+  EXPECT_NEAR(p["w"].get<double>(), 440.0, 8.0) << p.dump();
+  EXPECT_NEAR(p["h"].get<double>(), 604.0, 8.0) << p.dump();
+  // The title bar's arrow collapses it to the title bar.
+  d = drive_viewer(dir, args, "cornell.gltf", "click 18 17");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_LT(d.stats["display"]["panel"]["h"].get<double>(), 40.0) << d.stats["display"]["panel"].dump();
 }
 
 }  // namespace

@@ -221,6 +221,13 @@ void draw_trace(ImDrawList* dl, const CameraFrame& f, float dw, float dh, const 
   if (e.z >= pr.near_z) dl->AddCircle(pr.to_window(e), 6.0f * s, cyan, 16, 2.0f * s);
 }
 
+void same_line_if_fits(const char* next_label) {
+  const ImGuiStyle& style = ImGui::GetStyle();
+  const float w = ImGui::CalcTextSize(next_label, nullptr, true).x + style.FramePadding.x * 2;
+  const float right = ImGui::GetWindowPos().x + ImGui::GetWindowContentRegionMax().x;
+  if (ImGui::GetItemRectMax().x + style.ItemSpacing.x + w <= right) ImGui::SameLine();
+}
+
 void UiAudit::item(const char* label) {
   const float right = ImGui::GetWindowPos().x + ImGui::GetWindowContentRegionMax().x;
   const float have = right - ImGui::GetItemRectMin().x, need = ImGui::GetItemRectSize().x;
@@ -275,7 +282,9 @@ void Viewer::draw_pick_overlay() {
 
 void Viewer::draw_pick_panel() {
   if (!pick_) {
+    ImGui::PushTextWrapPos(0.0f);
     ImGui::TextDisabled("click (or Ctrl+click) a pixel to trace its ray");
+    ImGui::PopTextWrapPos();
     audit_.item("click (or Ctrl+click) a pixel to trace its ray");
     return;
   }
@@ -286,9 +295,11 @@ void Viewer::draw_pick_panel() {
   if (t.hit.valid()) ImGui::TextWrapped("hit triangle %u at t = %.6g", t.hit.prim, t.hit.t);
   ImGui::TextWrapped("%s", p.command.c_str());
   if (ImGui::SmallButton("copy command")) ImGui::SetClipboardText(p.command.c_str());
-  ImGui::SameLine();
+  audit_.item("copy command");
+  same_line_if_fits("frame pick (F)");
   if (ImGui::SmallButton("frame pick (F)")) frame_pick();
-  ImGui::SameLine();
+  audit_.item("frame pick (F)");
+  same_line_if_fits("clear pick");
   if (ImGui::SmallButton("clear pick")) {
     pick_.reset();
     if (splits_of_pick_) overlay_dirty_ = true;
@@ -349,7 +360,9 @@ void Viewer::draw_pick_steps() {
   const ImGuiIO& io = ImGui::GetIO();
   const float m = 8 * ui_scale_, left = panel_rect_[0] + panel_rect_[2] + m;
   ImGui::SetNextWindowPos(ImVec2(left, io.DisplaySize.y - m), ImGuiCond_FirstUseEver, ImVec2(0, 1));
-  ImGui::SetNextWindowSize(ImVec2(std::max(160 * ui_scale_, std::min(720 * ui_scale_, io.DisplaySize.x - left - m)),
+  // Up to 720 wide, leaving the heat map's legend (bottom right, about 260 wide) uncovered.
+  const float room = io.DisplaySize.x - left - m - (mode_ != RenderMode::Shaded ? 270 * ui_scale_ : 0.0f);
+  ImGui::SetNextWindowSize(ImVec2(std::max(160 * ui_scale_, std::min(720 * ui_scale_, room)),
                                   std::min(220 * ui_scale_, io.DisplaySize.y * 0.4f)),
                            ImGuiCond_FirstUseEver);
   char title[64];

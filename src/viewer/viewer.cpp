@@ -898,7 +898,8 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
              {"legends", audit_.legends},
              {"status_top", audit_.status_top},
              {"below_status_y", audit_.below_status_y},
-             {"table_cells", audit_.table_cells}};
+             {"table_cells", audit_.table_cells},
+             {"below_status_y_by_state", below_status_y_by_state_}};
 
   j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
                  {"swap_ms", frame_swap_ms_}};
@@ -981,17 +982,21 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
   // bytes, build time) and refused with a size that fits when it does not.
   const float r = scene_radius();
   bool auto_cs = cell_choice_.kind == CellChoice::Kind::Auto;
+  const auto chk = [this](const char* label) { audit_.item(label); };
   if (ImGui::Checkbox("auto cell size", &auto_cs))
     request_cell_choice(auto_cs ? CellChoice{} : CellChoice{CellChoice::Kind::Units, double(cell_size_slider_)});
   const float lo = std::min(r * 1e-3f, cell_size_slider_), hi = std::max(r * 2.0f, cell_size_slider_);
   ImGui::SliderFloat("cell", &cell_size_slider_, lo, hi, "%.4g", ImGuiSliderFlags_Logarithmic);
   if (ImGui::IsItemDeactivatedAfterEdit()) request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  chk("cell");
   ImGui::InputFloat("units", &cell_size_slider_, 0, 0, "%.6g");
+  chk("units");
   if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0)
     request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
   if (auto_cell_ > 0) {
     float mult = float(cell_size_slider_ / auto_cell_);
     ImGui::InputFloat("x auto", &mult, 0, 0, "%.4g");
+    chk("x auto");
     if (ImGui::IsItemDeactivatedAfterEdit() && mult > 0) {
       cell_size_slider_ = float(mult * auto_cell_);
       request_cell_choice({CellChoice::Kind::Multiple, double(mult)});
@@ -1062,46 +1067,79 @@ void Viewer::draw_key_list() {
 }
 
 void Viewer::draw_panels() {
-  ImGui::SetNextWindowPos(ImVec2(8 * ui_scale_, 8 * ui_scale_), ImGuiCond_FirstUseEver);
-  ImGui::SetNextWindowSize(ImVec2(330 * ui_scale_, 0), ImGuiCond_FirstUseEver);
+  // The panel starts kPanelWidth wide and, with the window's height, at most a quarter of its
+  // area; it is resizable and collapsible (the title bar's triangle), and an interactive run
+  // remembers its place and size in imgui.ini.
+  const ImGuiIO& io = ImGui::GetIO();
+  const ImGuiStyle& style = ImGui::GetStyle();
+  const float margin = 8 * ui_scale_;
+  const float pw = std::min(kPanelWidth * ui_scale_, io.DisplaySize.x * 0.5f);
+  const float ph = std::max(std::min(io.DisplaySize.y - 2 * margin, io.DisplaySize.x * io.DisplaySize.y * 0.25f / pw),
+                            ImGui::GetFrameHeight() * 4);
+  ImGui::SetNextWindowPos(ImVec2(margin, margin), ImGuiCond_FirstUseEver);
+  ImGui::SetNextWindowSize(ImVec2(pw, ph), ImGuiCond_FirstUseEver);
   ImGui::Begin("kdgrid");
   const ImVec2 panel_pos = ImGui::GetWindowPos(), panel_size = ImGui::GetWindowSize();
   panel_rect_[0] = panel_pos.x;
   panel_rect_[1] = panel_pos.y;
   panel_rect_[2] = panel_size.x;
   panel_rect_[3] = panel_size.y;
+  // Widgets leave room on their right for the widest label, so no label is cut.
+  float label_w = 0;
+  for (const char* l : {"structure", "max leaf size", "test/step cost", "cell", "units", "x auto", "cell size",
+                        "max samples", "resolution", "Mrays/s", "frame work", "split depths", "box depths",
+                        "opacity", "min", "max"})
+    label_w = std::max(label_w, ImGui::CalcTextSize(l).x);
+  ImGui::PushItemWidth(-(label_w + style.ItemInnerSpacing.x + 1));
+  const auto chk = [this](const char* label) { audit_.item(label); };
 
+  // The status area: a fixed height for the build's progress and the errors, scrolling when
+  // they need more, so that nothing under it moves when a build starts or ends or an error
+  // appears.
+  audit_.status_top = ImGui::GetCursorPosY();
+  ImGui::BeginChild("status", ImVec2(0, ImGui::GetFrameHeightWithSpacing() * kStatusLines), false);
+  const std::string render_error = worker_ ? worker_->error() : std::string();
   if (task_) {
     const double secs = std::chrono::duration<double>(Clock::now() - task_->started).count();
     ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
-    ImGui::SameLine();
+    chk(task_->what.c_str());
+    same_line_if_fits(task_->cancel->cancelled() ? "cancelling" : "cancel (Esc)");
     if (task_->cancel->cancelled())
       ImGui::TextDisabled("cancelling");
     else if (ImGui::SmallButton("cancel (Esc)"))
       cancel_task();
+    chk("cancel (Esc)");
     // Builds report no progress, so show motion rather than a fraction.
     ImGui::ProgressBar(float(std::fmod(secs, 1.0)), ImVec2(-1, 0), "");
+  } else if (task_error_.empty() && render_error.empty()) {
+    ImGui::TextDisabled("%s", world_ ? ("showing " + world_->name).c_str() : "no scene");
   }
+  ImGui::PushTextWrapPos(0.0f);
   if (!task_error_.empty()) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.4f, 0.4f, 1));
-    ImGui::TextWrapped("%s", task_error_.c_str());
+    ImGui::TextUnformatted(task_error_.c_str());
     ImGui::PopStyleColor();
     if (ImGui::SmallButton("dismiss")) task_error_.clear();
   }
-  if (worker_) {
-    const std::string e = worker_->error();
-    if (!e.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", e.c_str());
-  }
+  if (!render_error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", render_error.c_str());
+  ImGui::PopTextWrapPos();
+  ImGui::EndChild();
+  ImGui::Separator();
+  audit_.below_status_y = ImGui::GetCursorPosY();
+  auto& ys = below_status_y_by_state_[task_ ? "build" : (!task_error_.empty() ? "error" : "idle")];
+  if (std::find(ys.begin(), ys.end(), audit_.below_status_y) == ys.end()) ys.push_back(audit_.below_status_y);
 
   if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
     const Scene& s = *world_->scene;
     ImGui::TextWrapped("%s", s.source.c_str());
-    ImGui::Text("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
-    ImGui::Text("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
-                s.textures.size());
+    ImGui::TextWrapped("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
+    ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
+                       s.textures.size());
     const Box3 b = s.mesh.bounds();
-    ImGui::Text("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+    ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+    ImGui::PushTextWrapPos(0.0f);
     ImGui::TextDisabled("drop a .gltf/.glb/.ply/.obj file to load it");
+    ImGui::PopTextWrapPos();
   }
 
   if (ImGui::CollapsingHeader("Structure", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
@@ -1119,6 +1157,7 @@ void Viewer::draw_panels() {
       }
       ImGui::EndCombo();
     }
+    chk("structure");
     // The main build knob of the selected structure; any change rebuilds off the UI thread.
     bool rebuild = false;
     BuildParams p = params_;
@@ -1126,10 +1165,12 @@ void Viewer::draw_panels() {
     if (accel_name_ == "bvh") {
       ImGui::SliderInt("max leaf size", &p.bvh_max_leaf, 1, 32);
       rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      chk("max leaf size");
     } else if (accel_name_ == "kdtree") {
       ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
                          ImGuiSliderFlags_Logarithmic);
       rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      chk("test/step cost");
     } else if (accel_name_ == "hybrid") {
       draw_cell_size_controls(p, rebuild);
     } else if (accel_name_ != "brute" && accel_name_ != "embree") {
@@ -1141,6 +1182,7 @@ void Viewer::draw_panels() {
       }
       ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
                          ImGuiSliderFlags_Logarithmic);
+      audit_.item("cell size");
       if (ImGui::IsItemDeactivatedAfterEdit()) {
         p = params_with_cell_size(accel_name_, cell_size_slider_);
         rebuild = true;
@@ -1150,7 +1192,11 @@ void Viewer::draw_panels() {
         p = params_with_cell_size(accel_name_, cell_size_slider_);
         rebuild = true;
       }
-      if (accel_name_ == "grid") ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
+      if (accel_name_ == "grid") {
+        ImGui::PushTextWrapPos(0.0f);
+        ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
+        ImGui::PopTextWrapPos();
+      }
     }
     if (rebuild) start_build(accel_name_, p);
 
@@ -1187,31 +1233,38 @@ void Viewer::draw_panels() {
     ImGui::SameLine();
     ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
     mode_ = RenderMode(m);
-    ImGui::Text("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
-                last_mrays_);
+    chk("tri tests");
+    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
+                       last_mrays_);
     ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d", ImGuiSliderFlags_Logarithmic);
+    chk("max samples");
     if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
       opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
     }
+    chk("resolution");
     // Both plots run from 0 to their history's maximum, which the overlay names (with the
     // latest value), so that their height reads as a fraction of a stated value.
-    const auto plot = [](const char* name, const std::deque<float>& hist, const char* unit) {
+    const auto plot = [&chk](const char* name, const std::deque<float>& hist, const char* unit) {
       std::vector<float> v(hist.begin(), hist.end());
       const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
       char overlay[64];
       std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(), unit, hi);
       ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f, ImVec2(0, 40));
+      chk(name);
     };
     plot("Mrays/s", mrays_hist_, "");
     // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
     plot("frame work", frame_ms_hist_, " ms");
-    ImGui::Text("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
-                cam_.speed_scale());
+    ImGui::TextWrapped("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
+                       cam_.speed_scale());
     if (ImGui::Button("print camera (C)")) print_camera();
-    ImGui::SameLine();
+    chk("print camera (C)");
+    same_line_if_fits("frame scene (Home)");
     if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
-    ImGui::SameLine();
+    chk("frame scene (Home)");
+    same_line_if_fits("screenshot (P)");
     if (ImGui::Button("screenshot (P)")) save_screenshot(default_output_name("kdgrid-screenshot", "png"));
+    chk("screenshot (P)");
   }
 
   if (mode_ != RenderMode::Shaded && ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
@@ -1221,6 +1274,7 @@ void Viewer::draw_panels() {
     changed |= ImGui::RadioButton("fixed", &s, int(HeatScale::Fixed));
     ImGui::SameLine();
     changed |= ImGui::RadioButton("log", &s, int(HeatScale::Log));
+    chk("log");
     settings_.heat_scale = HeatScale(s);
     if (settings_.heat_scale == HeatScale::Fixed) {
       changed |= ImGui::InputFloat("min", &settings_.heat_fixed_min);
@@ -1240,9 +1294,15 @@ void Viewer::draw_panels() {
     bool dirty = ImGui::Checkbox("kd split planes", &show_splits_);
     if (show_splits_) {
       dirty |= ImGui::Checkbox("splits of the picked ray", &splits_of_pick_);
-      if (splits_of_pick_ && !pick_) ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
+      chk("splits of the picked ray");
+      if (splits_of_pick_ && !pick_) {
+        ImGui::PushTextWrapPos(0.0f);
+        ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
+        ImGui::PopTextWrapPos();
+      }
       ImGui::SliderInt2("split depths", split_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      chk("split depths");
       char l0[32], l2[32];
       std::snprintf(l0, sizeof l0, "depth %d", split_depth_[0]);
       std::snprintf(l2, sizeof l2, "%d", split_depth_[1]);
@@ -1254,19 +1314,22 @@ void Viewer::draw_panels() {
     if (show_boxes_) {
       ImGui::SliderInt2("box depths", box_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      chk("box depths");
       char l0[32], l2[32];
       std::snprintf(l0, sizeof l0, "depth %d", box_depth_[0]);
       std::snprintf(l2, sizeof l2, "%d", box_depth_[1]);
       draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
     }
     ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
+    chk("opacity");
     if (dirty) overlay_dirty_ = true;
-    ImGui::Text("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
-                structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
+    ImGui::TextWrapped("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
+                       structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
   }
 
   if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
   if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
+  ImGui::PopItemWidth();
   ImGui::End();
 
   draw_pick_steps();

@@ -273,6 +273,15 @@ class Viewer {
   /// Space left around the framed pick, as a fraction of the view's half-extent.
   static constexpr float kPickFrameMargin = 0.1f;
   UiAudit audit_;                     ///< what the last frame's panels showed (--stats-json)
+  /// The panel's y of the first widget under the status area in every frame, by what the
+  /// status area showed ("idle", "build", "error"): one value each when nothing jumps.
+  std::map<std::string, std::vector<float>> below_status_y_by_state_;
+  /// The panel's default width in screen units (times the UI scale): at the full height of a
+  /// 1280x720 window it covers under a quarter of it.
+  static constexpr float kPanelWidth = 320.0f;
+  /// Height of the status area in widget rows: the build line, its progress bar and a line of
+  /// error; longer errors scroll inside it.
+  static constexpr float kStatusLines = 3.0f;
 
   // Mouse state. The cursor position is the last one GLFW reported through its callback (not a
   // live query), so a press, motion and release queued within one frame replay in order.
