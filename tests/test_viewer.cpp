@@ -1271,6 +1271,32 @@ TEST(Viewer, InputPanelIsResizableAndCollapsible) {
   EXPECT_LT(d.stats["display"]["panel"]["h"].get<double>(), 40.0) << d.stats["display"]["panel"].dump();
 }
 
+// ---- a start-up scene that fails to load ----------------------------------------------------------
+
+/// Occurrences of `what` in `text`.
+int count_of(const std::string& text, const std::string& what) {
+  int n = 0;
+  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + what.size())) ++n;
+  return n;
+}
+
+TEST(Viewer, MissingSceneKeepsTheWindowWithTheErrorShownAndPrintedOnce) {
+  KDGRID_REQUIRE_XVFB();
+  const std::string dir = scratch_dir();
+  const RunResult r = run_viewer(dir, "'" + dir + "/missing.ply' --accel bvh --width 640 --height 480 --frames 20 "
+                                      "--stats-json stats.json --screenshot shot.png");
+  EXPECT_EQ(r.code, 1) << "the exit code says the load failed\n" << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  EXPECT_EQ(st["end"], "start-up scene failed");
+  // The window stayed for the frames asked for, showing the error.
+  EXPECT_GE(st["frames"]["count"].get<int>(), 20) << r.output;
+  const std::string error = st["state"]["error"].get<std::string>();
+  ASSERT_NE(error.find("missing.ply"), std::string::npos) << error;
+  EXPECT_EQ(count_of(r.output, error), 1) << "the error is printed once:\n" << r.output;
+  EXPECT_GT(error_red_pixels(read_image(dir + "/shot.png")), 50) << "no error text on screen";
+}
+
 }  // namespace
 }  // namespace kdgrid::test
 

@@ -342,6 +342,7 @@ void Viewer::start_load(const std::string& path) {
   loading_choice_ = choice;
   Task t;
   t.what = "loading " + std::filesystem::path(path).filename().string();
+  t.path = path;
   t.kind = "load";
   t.new_scene = true;
   t.started = Clock::now();
@@ -419,6 +420,13 @@ void Viewer::poll_tasks() {
     task_error_ = e.what();
     rec.error = e.what();
     std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(), e.what());
+    if (new_scene && !world_) {
+      // The window stays with the error in its panel; its title names the file, as a loaded
+      // scene's does.
+      const std::string title =
+          "kdgrid-viewer - " + std::filesystem::path(task_->path).filename().string() + " (failed to load)";
+      glfwSetWindowTitle(window_, title.c_str());
+    }
   }
   builds_.push_back(std::move(rec));
   task_.reset();
@@ -1129,6 +1137,11 @@ void Viewer::draw_panels() {
   auto& ys = below_status_y_by_state_[task_ ? "build" : (!task_error_.empty() ? "error" : "idle")];
   if (std::find(ys.begin(), ys.end(), audit_.below_status_y) == ys.end()) ys.push_back(audit_.below_status_y);
 
+  if (!world_ && !task_) {
+    ImGui::PushTextWrapPos(0.0f);
+    ImGui::TextDisabled("no scene loaded: drop a .gltf/.glb/.ply/.obj file to load one");
+    ImGui::PopTextWrapPos();
+  }
   if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
     const Scene& s = *world_->scene;
     ImGui::TextWrapped("%s", s.source.c_str());
@@ -1471,14 +1484,13 @@ int Viewer::run() {
     if (closing && end_reason_.empty()) end_reason_ = "window closed";
     if (closing) cancel_task();  // whatever closed the window: a running build stops
 
-    const bool had_world = world_ != nullptr;
     poll_tasks();
-    if (!world_ && !task_ && !had_world && closing) break;  // closed during the first build
-    if (!world_ && !task_ && !had_world) {
-      // The start-up scene failed to load: nothing to show; say why and stop.
-      std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
-      exit_code = 1;
-      end_reason_ = "start-up scene failed";
+    // No scene loaded (the start-up scene failed, poll_tasks said why on stderr): the window
+    // stays, its panel shows the error and another file can be dropped. The run's exit code
+    // says the load failed.
+    const bool no_scene = !world_ && !task_;
+    if (no_scene && closing && opts_.hold <= 0) {  // closed during the first build, or after it failed
+      if (!task_error_.empty()) exit_code = 1;
       break;
     }
     handle_continuous_input(dt);
@@ -1532,6 +1544,13 @@ int Viewer::run() {
       const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
                             image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
       const bool script_done = opts_.hold > 0 ? closing : frame_count_ >= opts_.frames;
+      if (script_done && no_scene) {
+        // The error is on screen (and was printed once when the load failed).
+        end_reason_ = "start-up scene failed";
+        exit_code = 1;
+        if (!opts_.screenshot.empty()) save_screenshot(opts_.screenshot);
+        break;
+      }
       if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
           !recolor_) {
         if (end_reason_.empty()) end_reason_ = "frames done";

@@ -156,6 +156,7 @@ class Viewer {
   struct Task {
     std::future<std::shared_ptr<World>> result;
     std::string what;      // shown next to the spinner
+    std::string path;      // the scene file a load reads
     std::string kind;      // "load", "rebuild" or "build", for the statistics
     bool new_scene = false;
     std::chrono::steady_clock::time_point started;
