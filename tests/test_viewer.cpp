@@ -1297,6 +1297,43 @@ TEST(Viewer, MissingSceneKeepsTheWindowWithTheErrorShownAndPrintedOnce) {
   EXPECT_GT(error_red_pixels(read_image(dir + "/shot.png")), 50) << "no error text on screen";
 }
 
+// ---- brute force's work limit ------------------------------------------------------------------
+
+/// Pixels of the refusal's orange (1, 0.6, 0.1), which read_image returns linear (0.6 in sRGB
+/// is 0.32, 0.1 is 0.01).
+int refusal_orange_pixels(const ImageRGB& img) {
+  int n = 0;
+  for (size_t i = 0; i + 2 < img.rgb.size(); i += 3)
+    if (img.rgb[i] > 0.8f && img.rgb[i + 1] > 0.2f && img.rgb[i + 1] < 0.45f && img.rgb[i + 2] < 0.06f) ++n;
+  return n;
+}
+
+TEST(Viewer, BruteForceStopsAtItsWorkLimitAndSaysSoOnScreen) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // 320 x 240 pixels x 2572 triangles = 1.98e8 tests per pass, above a limit of 1e6.
+  const std::string base = "'" + kDefaultScene + "' --accel brute --width 320 --height 240 --frames 3 --min-samples 1 "
+                           "--max-samples 1 --threads 2 --hide-ui --timeout 120 ";
+  const RunResult r = run_viewer(dir, base + "--brute-work-limit 1e6 --stats-json stats.json --screenshot stopped.png");
+  EXPECT_EQ(r.code, 1) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  EXPECT_EQ(st["end"], "brute-force work limit");
+  const std::string refusal = st["state"]["render_refusal"].get<std::string>();
+  EXPECT_NE(refusal.find("--brute-work-limit"), std::string::npos) << refusal;
+  EXPECT_EQ(count_of(r.output, refusal), 1) << "printed once:\n" << r.output;
+  EXPECT_TRUE(st["passes"].empty()) << "brute force rendered past its limit";
+  const ImageRGB stopped = read_image(dir + "/stopped.png");
+  EXPECT_GT(refusal_orange_pixels(stopped), 100) << "no message on screen";
+  // Without a limit (0) the same run renders the scene, with no message.
+  const RunResult ok = run_viewer(dir, base + "--brute-work-limit 0 --screenshot ok.png");
+  ASSERT_EQ(ok.code, 0) << ok.output;
+  const ImageRGB rendered = read_image(dir + "/ok.png");
+  EXPECT_EQ(refusal_orange_pixels(rendered), 0);
+  EXPECT_GT(luminance_variance(rendered), 1e-3);
+}
+
 }  // namespace
 }  // namespace kdgrid::test
 

@@ -18,6 +18,7 @@
 #include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
 
+#include "accel/guards.h"
 #include "accel/hybrid.h"
 #include "scene/load.h"
 #include "util/error.h"
@@ -29,6 +30,9 @@ namespace kdgrid::viewer {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+/// Colour of the brute-force refusal: orange, apart from the errors' red.
+const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
 
 Viewer* self(GLFWwindow* w) { return static_cast<Viewer*>(glfwGetWindowUserPointer(w)); }
 
@@ -643,6 +647,21 @@ void Viewer::sync_render_job() {
   int fw, fh;
   glfwGetFramebufferSize(window_, &fw, &fh);
   if (fw <= 0 || fh <= 0) return;  // minimised
+  // Brute force stops at its work limit (--brute-work-limit), as `kdgrid render` does for one
+  // pass: here a full-resolution pass. Nothing is rendered then, and the picture says so
+  // instead of showing the last image of another structure or size.
+  std::string refusal;
+  try {
+    check_brute_force_work(world_->name,
+                           uint64_t(std::max(1L, std::lround(fw * opts_.resolution_scale))) *
+                               uint64_t(std::max(1L, std::lround(fh * opts_.resolution_scale))),
+                           world_->scene->mesh.num_triangles(), world_->params);
+  } catch (const ParamError& e) {
+    refusal = e.what();
+  }
+  if (refusal != brute_refusal_ && !refusal.empty()) std::fprintf(stderr, "kdgrid-viewer: %s\n", refusal.c_str());
+  brute_refusal_ = refusal;
+  if (!brute_refusal_.empty()) return;
   const Camera& c = cam_.camera();
   // While the camera moves, render a coarse preview so that passes finish between moves; the
   // full resolution follows once it has been still for a moment.
@@ -899,6 +918,7 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   st["message"] = message_;
   st["error"] = task_error_;
   st["render_error"] = worker_ ? worker_->error() : std::string();
+  st["render_refusal"] = brute_refusal_;
   st["samples"] = have_image_ ? image_.samples : 0;
   j["state"] = st;
   // What the last frame's panels showed (empty with the panels hidden).
@@ -1119,7 +1139,7 @@ void Viewer::draw_panels() {
     chk("cancel (Esc)");
     // Builds report no progress, so show motion rather than a fraction.
     ImGui::ProgressBar(float(std::fmod(secs, 1.0)), ImVec2(-1, 0), "");
-  } else if (task_error_.empty() && render_error.empty()) {
+  } else if (task_error_.empty() && render_error.empty() && brute_refusal_.empty()) {
     ImGui::TextDisabled("%s", world_ ? ("showing " + world_->name).c_str() : "no scene");
   }
   ImGui::PushTextWrapPos(0.0f);
@@ -1130,6 +1150,7 @@ void Viewer::draw_panels() {
     if (ImGui::SmallButton("dismiss")) task_error_.clear();
   }
   if (!render_error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", render_error.c_str());
+  if (!brute_refusal_.empty()) ImGui::TextColored(kRefusalColor, "not rendered: %s", brute_refusal_.c_str());
   ImGui::PopTextWrapPos();
   ImGui::EndChild();
   ImGui::Separator();
@@ -1407,7 +1428,7 @@ void Viewer::draw_scene() {
   GL_CHECK(glClearColor(0.08f, 0.08f, 0.1f, 1.0f));
   GL_CHECK(glClear(GL_COLOR_BUFFER_BIT));
   GL_CHECK(glDisable(GL_DEPTH_TEST));
-  if (have_image_) {
+  if (have_image_ && brute_refusal_.empty()) {
     GL_CHECK(glUseProgram(image_program_));
     GL_CHECK(glActiveTexture(GL_TEXTURE0));
     GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
@@ -1522,6 +1543,16 @@ int Viewer::run() {
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
     draw_pick_overlay();
+    if (!brute_refusal_.empty()) {
+      // Over the empty picture, panels or not: why there is no image.
+      const ImGuiIO& io = ImGui::GetIO();
+      const std::string text = "brute force stopped at its work limit: " + brute_refusal_;
+      const float wrap = std::min(io.DisplaySize.x * 0.6f, 640 * ui_scale_);
+      const ImVec2 size = ImGui::CalcTextSize(text.c_str(), nullptr, false, wrap);
+      ImGui::GetBackgroundDrawList()->AddText(
+          nullptr, 0.0f, ImVec2(std::max(0.0f, (io.DisplaySize.x - size.x) * 0.5f), std::max(0.0f, (io.DisplaySize.y - size.y) * 0.5f)),
+          ImGui::GetColorU32(kRefusalColor), text.c_str(), nullptr, wrap);
+    }
     audit_.clear();
     if (!opts_.hide_ui) {
       draw_panels();
@@ -1544,6 +1575,13 @@ int Viewer::run() {
       const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
                             image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
       const bool script_done = opts_.hold > 0 ? closing : frame_count_ >= opts_.frames;
+      if (script_done && world_ && !task_ && !brute_refusal_.empty()) {
+        // Brute force stopped at its work limit: the message is on screen (and was printed).
+        end_reason_ = "brute-force work limit";
+        exit_code = 1;
+        if (!opts_.screenshot.empty()) save_screenshot(opts_.screenshot);
+        break;
+      }
       if (script_done && no_scene) {
         // The error is on screen (and was printed once when the load failed).
         end_reason_ = "start-up scene failed";

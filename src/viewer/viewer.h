@@ -166,6 +166,8 @@ class Viewer {
   std::optional<Task> task_;
   std::optional<std::pair<std::string, BuildParams>> pending_build_;
   std::string task_error_;
+  /// Why brute force renders nothing (its work limit, --brute-work-limit); "" when it renders.
+  std::string brute_refusal_;
   bool scripted_rebuild_started_ = false, scripted_rebuild_done_ = false;
 
   // Render job tracking.
