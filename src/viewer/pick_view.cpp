@@ -37,6 +37,7 @@ RaySegment pick_segment(const Ray& ray, const Trace& t, const Box3& bounds) {
   s.t0 = in_bounds ? te : std::max(ray.tmin, 0.0f);
   if (t.hit.valid()) {
     s.t1 = t.hit.t;
+    s.t0 = std::min(s.t0, s.t1);  // a hit on the scene's boundary, rounded just outside it
   } else if (!t.steps.empty()) {
     float last = s.t0;
     for (const TraceStep& st : t.steps)
@@ -45,7 +46,6 @@ RaySegment pick_segment(const Ray& ray, const Trace& t, const Box3& bounds) {
   } else {
     s.t1 = in_bounds ? tx : s.t0 - 1.0f;
   }
-  s.t0 = std::min(s.t0, s.t1 >= s.t0 ? s.t0 : s.t1);
   return s;
 }
 
@@ -161,9 +161,9 @@ ImU32 to_u32(const Color& c) { return ImGui::ColorConvertFloat4ToU32(ImVec4(c.r,
 }  // namespace
 
 void draw_trace(ImDrawList* dl, const CameraFrame& f, float dw, float dh, const Trace& t, const RaySegment& seg,
-                const Mesh& mesh, float s) {
+                const Mesh& mesh, float s, float miss_length) {
   const float ray_t0 = std::max(seg.ray.tmin, 0.0f);
-  const float ray_t1 = seg.t1 >= seg.t0 ? seg.t1 : ray_t0 + 1.0f;
+  const float ray_t1 = seg.t1 >= seg.t0 ? seg.t1 : ray_t0 + miss_length / std::max(length(seg.ray.dir), 1e-30f);
   // The near plane: a small fraction of the distance to the segment's far end, so that a
   // camera close to the boxes (a framed pick) clips only what lies behind it.
   const float far_z = std::fabs(dot(seg.ray.at(ray_t1) - f.eye, f.fwd));
@@ -277,7 +277,7 @@ void Viewer::draw_pick_overlay() {
   // The live camera (not the displayed image's) so the overlay follows the mouse at once.
   const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
   draw_trace(ImGui::GetBackgroundDrawList(), f, io.DisplaySize.x, io.DisplaySize.y, pick_->trace, pick_->segment,
-             world_->scene->mesh, ui_scale_);
+             world_->scene->mesh, ui_scale_, scene_radius() * 4.0f);
 }
 
 void Viewer::draw_pick_panel() {

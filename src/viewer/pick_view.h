@@ -41,9 +41,9 @@ Camera fit_points(const Camera& cam, const std::vector<Vec3>& pts, int w, int h,
 /// cells filled faintly, inner nodes thinner), the tested triangles (yellow), the hit triangle
 /// (white), the ray (cyan) and a ring around the hit point. `f` is the live camera's frame
 /// over the image, which covers `display_w` x `display_h` window units; `ui_scale` scales the
-/// line widths like the panels.
+/// line widths like the panels. A ray that misses the scene is drawn `miss_length` long.
 void draw_trace(ImDrawList* dl, const CameraFrame& f, float display_w, float display_h, const Trace& t,
-                const RaySegment& seg, const Mesh& mesh, float ui_scale);
+                const RaySegment& seg, const Mesh& mesh, float ui_scale, float miss_length);
 
 /// Puts the next button on the current line when it fits there, else leaves it for the next
 /// line, so that a row of buttons wraps instead of being cut at the window's edge.

@@ -790,7 +790,6 @@ void Viewer::do_pick(int px, int py) {
   p.camera = cam_.camera();
   const CameraFrame f = CameraFrame::make(p.camera, p.w, p.h);
   p.ray = f.ray(float(p.x) + 0.5f, float(p.y) + 0.5f);  // the pixel centre, as `trace --pixel`
-  p.serial = ++pick_serial_;
   pick_ = std::move(p);
   retrace_pick();
   const Trace& t = pick_->trace;
