@@ -1030,6 +1030,310 @@ TEST(Viewer, InputF1ShowsTheKeyListAndHHidesThePanels) {
   EXPECT_TRUE(d.stats["display"]["panel"].is_null()) << d.stats["display"].dump();
 }
 
+// ---- the picked ray: frame pick, splits of the pick, step table ------------------------------
+
+/// The fraction of the image whose colour differs between a and b (see changed_pixels_near).
+double changed_fraction(const ImageRGB& a, const ImageRGB& b) {
+  return double(changed_pixels_near(a, b, a.width / 2, a.height / 2, std::max(a.width, a.height))) /
+         (double(a.width) * double(a.height));
+}
+
+/// The fraction of the image covered by areas that differ between a and b: differing pixels
+/// whose whole 5x5 neighbourhood differs too, so that lines up to 4 pixels wide (box edges,
+/// the ray) do not count and filled regions (the visited leaves' faces) do.
+double changed_area_fraction(const ImageRGB& a, const ImageRGB& b) {
+  std::vector<uint8_t> diff(size_t(a.width) * size_t(a.height));
+  for (int y = 0; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x) diff[size_t(y) * size_t(a.width) + size_t(x)] = changed_pixels_near(a, b, x, y, 0) > 0;
+  size_t n = 0;
+  for (int y = 2; y + 2 < a.height; ++y)
+    for (int x = 2; x + 2 < a.width; ++x) {
+      bool all = true;
+      for (int dy = -2; dy <= 2 && all; ++dy)
+        for (int dx = -2; dx <= 2 && all; ++dx) all = diff[size_t(y + dy) * size_t(a.width) + size_t(x + dx)] != 0;
+      n += all;
+    }
+  return double(n) / (double(a.width) * double(a.height));
+}
+
+/// How much of the image the pick's overlay covers, with and without --frame-pick: each
+/// picked screenshot is compared with one of the same camera without the pick (the framed
+/// camera comes back through --stats-json as command-line flags), so only the overlay differs.
+struct PickCoverage {
+  double framed = 0, unframed = 0;            // changed pixels, lines included
+  double framed_area = 0, unframed_area = 0;  // changed areas (changed_area_fraction)
+  nlohmann::json framed_stats;
+};
+
+PickCoverage pick_coverage(const std::string& dir, const std::string& scene, const std::string& accel,
+                           const std::string& pick) {
+  PickCoverage c;
+  const std::string base = "'" + scene + "' --accel " + accel +
+                           " --width 640 --height 360 --frames 3 --min-samples 1 --max-samples 1 --hide-ui "
+                           "--threads 2 --timeout 120 ";
+  const RunResult framed =
+      run_viewer(dir, base + "--pick " + pick + " --frame-pick --stats-json framed.json --screenshot framed.png");
+  EXPECT_EQ(framed.code, 0) << framed.output;
+  c.framed_stats = read_json(dir + "/framed.json");
+  if (!c.framed_stats.is_object()) {
+    ADD_FAILURE() << "no framed.json\n" << framed.output;
+    return c;
+  }
+  const std::string flags = c.framed_stats["state"]["camera_flags"].get<std::string>();
+  const RunResult same_view = run_viewer(dir, base + flags + " --screenshot framed-nopick.png");
+  EXPECT_EQ(same_view.code, 0) << same_view.output;
+  const RunResult picked = run_viewer(dir, base + "--pick " + pick + " --screenshot picked.png");
+  EXPECT_EQ(picked.code, 0) << picked.output;
+  const RunResult plain = run_viewer(dir, base + "--screenshot plain.png");
+  EXPECT_EQ(plain.code, 0) << plain.output;
+  const ImageRGB fa = read_image(dir + "/framed.png"), fb = read_image(dir + "/framed-nopick.png");
+  const ImageRGB ua = read_image(dir + "/picked.png"), ub = read_image(dir + "/plain.png");
+  c.framed = changed_fraction(fa, fb);
+  c.unframed = changed_fraction(ua, ub);
+  c.framed_area = changed_area_fraction(fa, fb);
+  c.unframed_area = changed_area_fraction(ua, ub);
+  std::printf("pick overlay: framed %.4f of the image (areas %.4f), unframed %.4f (areas %.4f)\n", c.framed,
+              c.framed_area, c.unframed, c.unframed_area);
+  return c;
+}
+
+TEST(Viewer, FramePickFillsTheViewWithTheBunnysVisitedLeaves) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  const PickCoverage c = pick_coverage(dir, bunny, "bvh", "320,180");
+  if (HasFailure()) return;
+  const auto& pick = c.framed_stats["state"]["pick"];
+  EXPECT_EQ(pick["hit"], true) << "the pick must hit the bunny";
+  EXPECT_EQ(pick["framed"], true);
+  // Framed, the visited leaves (filled in visit order) cover a clear part of the picture; at
+  // the scene's own camera they are specks, and the overlay there is mostly the inner nodes'
+  // thin frames.
+  EXPECT_GE(c.framed_area, 0.10) << "framed leaves cover " << c.framed_area << " of the image";
+  EXPECT_LT(c.unframed_area, 0.01) << "unframed leaves cover " << c.unframed_area << " of the image";
+  EXPECT_GT(c.framed, 2 * c.unframed) << "framed " << c.framed << ", unframed " << c.unframed;
+  // The camera kept its view direction.
+  const Camera a = json_camera(c.framed_stats["state"]["start_camera"]), b = json_camera(c.framed_stats["state"]["camera"]);
+  EXPECT_GT(dot(normalize(a.target - a.eye), normalize(b.target - b.eye)), 0.9999f);
+  EXPECT_LT(length(b.target - b.eye), 0.5f * length(a.target - a.eye)) << "the camera did not move closer";
+}
+
+TEST(Viewer, FramePickFillsTheViewOnTheDefaultScene) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // A pixel on the glass sphere, whose BVH leaves are small.
+  const PickCoverage c = pick_coverage(dir, kDefaultScene, "bvh", "380,270");
+  if (HasFailure()) return;
+  EXPECT_EQ(c.framed_stats["state"]["pick"]["framed"], true);
+  EXPECT_EQ(c.framed_stats["state"]["pick"]["hit"], true);
+  EXPECT_GE(c.framed_area, 0.10) << "framed leaves cover " << c.framed_area << " of the image";
+  EXPECT_GT(c.framed_area, 5 * c.unframed_area) << "framed " << c.framed_area << ", unframed " << c.unframed_area;
+}
+
+/// Pixels that differ between a and b outside the rectangle `panel` ({x, y, w, h} of
+/// --stats-json's display.panel; null = none).
+int changed_outside(const ImageRGB& a, const ImageRGB& b, const nlohmann::json& panel) {
+  int n = 0;
+  for (int y = 0; y < a.height; ++y)
+    for (int x = 0; x < a.width; ++x) {
+      if (panel.is_object() && x >= panel["x"].get<float>() - 1 && x <= panel["x"].get<float>() + panel["w"].get<float>() + 1 &&
+          y >= panel["y"].get<float>() - 1 && y <= panel["y"].get<float>() + panel["h"].get<float>() + 1)
+        continue;
+      n += changed_pixels_near(a, b, x, y, 0);
+    }
+  return n;
+}
+
+/// The labels and values --stats-json's ui.clipped lists as cut, one per line ("" if none).
+std::string clipped_list(const nlohmann::json& stats) {
+  std::string cut;
+  for (const auto& c : stats["ui"]["clipped"]) cut += "\n  " + c.get<std::string>();
+  return cut;
+}
+
+TEST(Viewer, SplitsOfThePickedRayDrawFarFewerPlanesWithAVisitOrderLegend) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  const std::string base = "'" + bunny + "' --accel kdtree --width 640 --height 360 --frames 3 --min-samples 1 "
+                           "--max-samples 1 --threads 2 --timeout 120 --pick 320,180 ";
+  const RunResult a = run_viewer(dir, base + "--hide-ui --screenshot a.png");
+  ASSERT_EQ(a.code, 0) << a.output;
+  const RunResult all = run_viewer(dir, base + "--hide-ui --overlay splits --stats-json all.json --screenshot all.png");
+  ASSERT_EQ(all.code, 0) << all.output;
+  const RunResult mine = run_viewer(dir, base + "--hide-ui --overlay splits --splits-of-pick --stats-json pick.json "
+                                                "--screenshot pick.png");
+  ASSERT_EQ(mine.code, 0) << mine.output;
+  // Again with the panels, for the legends.
+  const RunResult ui = run_viewer(dir, base + "--overlay splits --splits-of-pick --stats-json ui.json");
+  ASSERT_EQ(ui.code, 0) << ui.output;
+  const auto sa = read_json(dir + "/all.json"), sp = read_json(dir + "/pick.json"), su = read_json(dir + "/ui.json");
+  ASSERT_TRUE(sa.is_object() && sp.is_object() && su.is_object());
+  const ImageRGB img_a = read_image(dir + "/a.png");
+  const int n_all = changed_outside(img_a, read_image(dir + "/all.png"), nullptr);
+  const int n_pick = changed_outside(img_a, read_image(dir + "/pick.png"), nullptr);
+  const size_t planes_all = sa["state"]["overlay"]["items"], planes_pick = sp["state"]["overlay"]["items"];
+  EXPECT_EQ(sp["state"]["overlay"]["splits_of_pick"], true);
+  EXPECT_GE(planes_pick, 1u) << "the picked ray crosses no split plane at depths 0-6";
+  EXPECT_LT(planes_pick * 8, planes_all) << planes_pick << " of " << planes_all << " planes";
+  EXPECT_GT(n_pick, 0) << "the crossed planes drew nothing";
+  EXPECT_LT(n_pick * 4, n_all) << n_pick << " pixels for the crossed planes, " << n_all << " for all";
+  // The visit order's legend: first and last step numbers of the picked ray.
+  const size_t steps = sp["state"]["pick"]["steps"];
+  const std::string want = "visit order: step 0 .. " + std::to_string(steps - 1);
+  bool found = false;
+  for (const auto& l : su["ui"]["legends"]) found |= l.get<std::string>() == want;
+  EXPECT_TRUE(found) << "no '" << want << "' in " << su["ui"]["legends"].dump();
+  EXPECT_TRUE(sp["ui"]["legends"].empty()) << "legends recorded with the panels hidden";
+}
+
+TEST(Viewer, PickStepTableShowsEveryValueWhole) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  // The kd-tree's trace has dozens of steps with long coordinates in every column.
+  const RunResult r = run_viewer(dir, "'" + bunny + "' --accel kdtree --width 960 --height 540 --frames 3 "
+                                      "--min-samples 1 --max-samples 1 --threads 2 --timeout 120 --pick 480,270 "
+                                      "--stats-json stats.json --screenshot shot.png");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  EXPECT_GT(st["state"]["pick"]["steps"].get<int>(), 5);
+  EXPECT_GE(st["ui"]["table_cells"].get<int>(), 6 * 5) << "the step table drew too few cells";
+  const std::string cut = clipped_list(st);
+  EXPECT_TRUE(cut.empty()) << "cut labels or values:" << cut;
+}
+
+// ---- the panel's layout -------------------------------------------------------------------------
+
+TEST(Viewer, PanelCoversAQuarterOfA1280x720WindowWithNoLabelCut) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // Every section open and populated: the hybrid's cell controls, a heat map, both overlays
+  // with their depth sliders and legends, a pick.
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel hybrid --width 1280 --height 720 --frames 3 "
+                                      "--min-samples 1 --max-samples 1 --threads 2 --heatmap steps --overlay splits "
+                                      "--overlay boxes --pick 640,360 --stats-json stats.json --screenshot shot.png");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  const auto& panel = st["display"]["panel"];
+  ASSERT_TRUE(panel.is_object());
+  const double area = panel["w"].get<double>() * panel["h"].get<double>();
+  EXPECT_LE(area, 1280.0 * 720.0 / 4.0) << panel.dump();
+  EXPECT_GE(panel["h"].get<double>(), 360.0) << "the panel uses the window's height";
+  const std::string cut = clipped_list(st);
+  EXPECT_TRUE(cut.empty()) << "cut labels:" << cut;
+}
+
+TEST(Viewer, StatusAreaKeepsTheWidgetsBelowItInPlace) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  const std::string bad = dir + "/bad.ply";
+  std::ofstream(bad) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\nnot a number\n";
+  // A rebuild (progress bar), then a dropped file that fails to load (an error message).
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 1280 --height 720 --frames 3 "
+                                      "--max-samples 1 --rebuild-cell-size 0.5 --drop '" + bad + "' "
+                                      "--stats-json stats.json --screenshot shot.png");
+  EXPECT_EQ(r.code, 1) << "the failed load is the scripted run's error\n" << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  const auto& by_state = st["ui"]["below_status_y_by_state"];
+  std::vector<double> ys;
+  for (const char* state : {"idle", "build", "error"}) {
+    ASSERT_TRUE(by_state.contains(state)) << "no frame drawn in state " << state << ": " << by_state.dump();
+    for (const auto& y : by_state[state]) ys.push_back(y.get<double>());
+  }
+  ASSERT_FALSE(ys.empty());
+  for (double y : ys) EXPECT_EQ(y, ys.front()) << "the widgets under the status area moved: " << by_state.dump();
+  // Without a pick, and with the error shown: no label cut either.
+  const std::string cut = clipped_list(st);
+  EXPECT_TRUE(cut.empty()) << "cut labels:" << cut;
+}
+
+TEST(Viewer, InputPanelIsResizableAndCollapsible) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const std::string args = "'" + kDefaultScene + "' --accel bvh --width 1280 --height 720 --threads 1 --max-samples 1 "
+                           "--hold 90";
+  // The panel starts at (8, 8), 320 x 704: drag its bottom-right grip 120 right and 100 up.
+  Driven d = drive_viewer(dir, args, "cornell.gltf", "drag 1 325 709 445 609");
+  ASSERT_DRIVEN_OK(d);
+  const auto& p = d.stats["display"]["panel"];
+  EXPECT_NEAR(p["w"].get<double>(), 440.0, 8.0) << p.dump();
+  EXPECT_NEAR(p["h"].get<double>(), 604.0, 8.0) << p.dump();
+  // The title bar's arrow collapses it to the title bar.
+  d = drive_viewer(dir, args, "cornell.gltf", "click 18 17");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_LT(d.stats["display"]["panel"]["h"].get<double>(), 40.0) << d.stats["display"]["panel"].dump();
+}
+
+// ---- a start-up scene that fails to load ----------------------------------------------------------
+
+/// Occurrences of `what` in `text`.
+int count_of(const std::string& text, const std::string& what) {
+  int n = 0;
+  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + what.size())) ++n;
+  return n;
+}
+
+TEST(Viewer, MissingSceneKeepsTheWindowWithTheErrorShownAndPrintedOnce) {
+  KDGRID_REQUIRE_XVFB();
+  const std::string dir = scratch_dir();
+  const RunResult r = run_viewer(dir, "'" + dir + "/missing.ply' --accel bvh --width 640 --height 480 --frames 20 "
+                                      "--stats-json stats.json --screenshot shot.png");
+  EXPECT_EQ(r.code, 1) << "the exit code says the load failed\n" << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  EXPECT_EQ(st["end"], "start-up scene failed");
+  // The window stayed for the frames asked for, showing the error.
+  EXPECT_GE(st["frames"]["count"].get<int>(), 20) << r.output;
+  const std::string error = st["state"]["error"].get<std::string>();
+  ASSERT_NE(error.find("missing.ply"), std::string::npos) << error;
+  EXPECT_EQ(count_of(r.output, error), 1) << "the error is printed once:\n" << r.output;
+  EXPECT_GT(error_red_pixels(read_image(dir + "/shot.png")), 50) << "no error text on screen";
+}
+
+// ---- brute force's work limit ------------------------------------------------------------------
+
+/// Pixels of the refusal's orange (1, 0.6, 0.1), which read_image returns linear (0.6 in sRGB
+/// is 0.32, 0.1 is 0.01).
+int refusal_orange_pixels(const ImageRGB& img) {
+  int n = 0;
+  for (size_t i = 0; i + 2 < img.rgb.size(); i += 3)
+    if (img.rgb[i] > 0.8f && img.rgb[i + 1] > 0.2f && img.rgb[i + 1] < 0.45f && img.rgb[i + 2] < 0.06f) ++n;
+  return n;
+}
+
+TEST(Viewer, BruteForceStopsAtItsWorkLimitAndSaysSoOnScreen) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // 320 x 240 pixels x 2572 triangles = 1.98e8 tests per pass, above a limit of 1e6.
+  const std::string base = "'" + kDefaultScene + "' --accel brute --width 320 --height 240 --frames 3 --min-samples 1 "
+                           "--max-samples 1 --threads 2 --hide-ui --timeout 120 ";
+  const RunResult r = run_viewer(dir, base + "--brute-work-limit 1e6 --stats-json stats.json --screenshot stopped.png");
+  EXPECT_EQ(r.code, 1) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  EXPECT_EQ(st["end"], "brute-force work limit");
+  const std::string refusal = st["state"]["render_refusal"].get<std::string>();
+  EXPECT_NE(refusal.find("--brute-work-limit"), std::string::npos) << refusal;
+  EXPECT_EQ(count_of(r.output, refusal), 1) << "printed once:\n" << r.output;
+  EXPECT_TRUE(st["passes"].empty()) << "brute force rendered past its limit";
+  const ImageRGB stopped = read_image(dir + "/stopped.png");
+  EXPECT_GT(refusal_orange_pixels(stopped), 100) << "no message on screen";
+  // Without a limit (0) the same run renders the scene, with no message.
+  const RunResult ok = run_viewer(dir, base + "--brute-work-limit 0 --screenshot ok.png");
+  ASSERT_EQ(ok.code, 0) << ok.output;
+  const ImageRGB rendered = read_image(dir + "/ok.png");
+  EXPECT_EQ(refusal_orange_pixels(rendered), 0);
+  EXPECT_GT(luminance_variance(rendered), 1e-3);
+}
+
 }  // namespace
 }  // namespace kdgrid::test
 

@@ -87,6 +87,12 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   std::string pick;
   app.add_option("--pick", pick, "Trace image pixel X,Y (0,0 = top left) and show its traversal")->group(gs);
+  app.add_flag("--frame-pick", o.frame_pick,
+               "Scripted: after --pick, frame its ray's traversal as the F key does")
+      ->group(gs);
+  app.add_flag("--splits-of-pick", o.splits_of_pick,
+               "Split overlay: only the planes the picked ray crossed (with --overlay splits)")
+      ->group(gs);
   app.add_option("--heatmap", o.heatmap, "Show per-pixel traversal steps or triangle tests")
       ->group(gs)
       ->check(CLI::IsMember({"steps", "tests"}));
@@ -139,6 +145,8 @@ int main(int argc, char** argv) {
         throw kdgrid::ParamError("--pick '" + pick + "' must be X,Y image pixel coordinates, e.g. 320,240");
       o.pick = std::array<int, 2>{x, y};
     }
+    if (o.frame_pick && !o.pick)
+      throw kdgrid::ParamError("--frame-pick frames the --pick X,Y ray: give --pick too");
     if (o.frames > 0 && o.hold > 0)
       throw kdgrid::ParamError("--frames and --hold both end a scripted run; give one of them");
     if (!o.screenshot.empty() && !o.scripted())

@@ -86,7 +86,24 @@ bool project_to_pixel(const CameraFrame& f, const Vec3& p, float& px, float& py)
   return true;
 }
 
-size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out) {
+bool crosses_split(const RaySegment& seg, const SplitPlane& s) {
+  const int ax = s.axis;
+  const float d = seg.ray.dir[ax];
+  if (d == 0.0f || !(seg.t1 >= seg.t0)) return false;  // parallel to the plane, or no segment
+  const float t = (s.position - seg.ray.org[ax]) / d;
+  if (!(t >= seg.t0 && t <= seg.t1)) return false;
+  const Vec3 p = seg.ray.at(t);
+  // The crossing lies on the node's face when the ray hits the plane at its edge; a relative
+  // tolerance keeps those.
+  for (int k = 1; k <= 2; ++k) {
+    const int a = (ax + k) % 3;
+    const float tol = 1e-5f * std::max(1.0f, std::fabs(s.node_box.hi[a] - s.node_box.lo[a]) + std::fabs(p[a]));
+    if (p[a] < s.node_box.lo[a] - tol || p[a] > s.node_box.hi[a] + tol) return false;
+  }
+  return true;
+}
+
+size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out, const RaySegment* crossed_by) {
   int max_depth = 1;
   a.for_each_split([&](const SplitPlane& s) { max_depth = std::max(max_depth, s.depth); });
   // Colours span the depths shown (the legend's ramp from lo to hi), not the whole tree.
@@ -94,6 +111,7 @@ size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out)
   size_t n = 0;
   a.for_each_split([&](const SplitPlane& s) {
     if (s.depth < lo || s.depth > hi || out.segments() >= kMaxOverlaySegments) return;
+    if (crossed_by && !crosses_split(*crossed_by, s)) return;
     out.split(s.axis, s.position, s.node_box, ramp((float(s.depth) - float(lo)) / (top - float(lo)), 0.8f));
     ++n;
   });
@@ -127,45 +145,6 @@ size_t build_box_overlay(const Accelerator& a, int lo, int hi, LineBatch& out) {
     ++n;
   });
   return n;
-}
-
-void build_trace_overlay(const Trace& t, const Ray& ray, const Mesh& mesh, float radius,
-                         LineBatch& out) {
-  const size_t n = t.steps.size();
-  for (size_t i = 0; i < n; ++i) {
-    const float f = n > 1 ? float(i) / float(n - 1) : 1.0f;
-    out.box(t.steps[i].box, ramp(f, 1.0f));
-  }
-  // Tested triangles; a brute-force trace tests every triangle, so cap what is drawn.
-  constexpr size_t kMaxTris = 20000;
-  const size_t nt = std::min(t.tested.size(), kMaxTris);
-  for (size_t i = 0; i < nt; ++i) {
-    const uint32_t prim = t.tested[i];
-    if (prim >= mesh.num_triangles() || prim == t.hit.prim) continue;
-    const auto c = mesh.corners(prim);
-    const Color yellow{1.0f, 0.95f, 0.1f, 0.9f};
-    out.line(c[0], c[1], yellow);
-    out.line(c[1], c[2], yellow);
-    out.line(c[2], c[0], yellow);
-  }
-  float far_t = ray.tmax;
-  if (t.hit.valid()) {
-    far_t = t.hit.t;
-    const auto c = mesh.corners(t.hit.prim);
-    const Color white{1, 1, 1, 1};
-    out.line(c[0], c[1], white);
-    out.line(c[1], c[2], white);
-    out.line(c[2], c[0], white);
-  } else if (!t.steps.empty()) {
-    far_t = t.steps.back().t_out;
-  }
-  if (!std::isfinite(far_t)) far_t = radius * 4.0f;
-  const Color cyan{0.0f, 1.0f, 1.0f, 1.0f};
-  const Vec3 end = ray.at(far_t);
-  out.line(ray.at(std::max(ray.tmin, 0.0f)), end, cyan);
-  // The hit marker's size follows its distance so it stays a few pixels wide on screen.
-  const float size = std::max(far_t * length(ray.dir) * 0.02f, radius * 1e-4f);
-  out.cross3(end, size, cyan);
 }
 
 void LineRenderer::init() {

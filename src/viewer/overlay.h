@@ -56,17 +56,24 @@ bool project_to_pixel(const CameraFrame& f, const Vec3& p, float& px, float& py)
 /// Limits that keep overlays of huge structures drawable; reported in the panel when hit.
 inline constexpr size_t kMaxOverlaySegments = 3'000'000;
 
-/// Split planes with depth in [depth_lo, depth_hi], coloured by depth. Returns planes seen.
-size_t build_split_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out);
+/// A stretch [t0, t1] of a ray: the part of a picked ray its traversal covered.
+struct RaySegment {
+  Ray ray;
+  float t0 = 0, t1 = -1;  ///< empty when t1 < t0
+};
+
+/// Whether `seg` passes through the split plane s inside its node's box (the ray goes from
+/// one child to the other there).
+bool crosses_split(const RaySegment& seg, const SplitPlane& s);
+
+/// Split planes with depth in [depth_lo, depth_hi], coloured by depth; with `crossed_by`, only
+/// those that segment crosses. Returns planes drawn.
+size_t build_split_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out,
+                           const RaySegment* crossed_by = nullptr);
 /// Leaf boxes / non-empty cells (StructureBox::leaf), coloured by triangle count.
 size_t build_cell_overlay(const Accelerator& a, LineBatch& out);
 /// All boxes (BVH nodes) with depth in [depth_lo, depth_hi], coloured by depth.
 size_t build_box_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out);
-/// A picked ray: every visited box in visit order (blue -> red), the tested triangles
-/// (yellow outlines, the hit triangle white), the ray and the hit point (cyan cross).
-void build_trace_overlay(const Trace& t, const Ray& ray, const Mesh& mesh, float scene_radius,
-                         LineBatch& out);
-
 /// GL side: one VBO of lines and the lines shader.
 class LineRenderer {
  public:

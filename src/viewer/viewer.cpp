@@ -18,6 +18,7 @@
 #include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
 
+#include "accel/guards.h"
 #include "accel/hybrid.h"
 #include "scene/load.h"
 #include "util/error.h"
@@ -29,6 +30,9 @@ namespace kdgrid::viewer {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+/// Colour of the brute-force refusal: orange, apart from the errors' red.
+const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
 
 Viewer* self(GLFWwindow* w) { return static_cast<Viewer*>(glfwGetWindowUserPointer(w)); }
 
@@ -87,15 +91,6 @@ const char* mode_name(RenderMode m) {
     case RenderMode::HeatTests: return "tests";
   }
   return "shaded";
-}
-
-const char* kind_name(StepKind k) {
-  switch (k) {
-    case StepKind::Inner: return "inner";
-    case StepKind::Leaf: return "leaf";
-    case StepKind::Cell: return "cell";
-  }
-  return "?";
 }
 
 /// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
@@ -178,6 +173,7 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
     if (o == "cells") show_cells_ = true;
     if (o == "boxes") show_boxes_ = true;
   }
+  splits_of_pick_ = opts_.splits_of_pick;
 }
 
 Viewer::~Viewer() { shutdown(); }
@@ -227,7 +223,6 @@ void Viewer::init_gl() {
   GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE));
   GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE));
   structure_lines_.init();
-  trace_lines_.init();
 
   // Our callbacks first; ImGui's backend then chains to them, so ImGui sees input first and
   // we gate on WantCaptureMouse / WantCaptureKeyboard (docs/DESIGN.md, "The viewer").
@@ -306,7 +301,6 @@ void Viewer::shutdown() {
   ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
   structure_lines_.destroy();
-  trace_lines_.destroy();
   if (tex_) glDeleteTextures(1, &tex_);
   if (empty_vao_) glDeleteVertexArrays(1, &empty_vao_);
   if (image_program_) glDeleteProgram(image_program_);
@@ -352,6 +346,7 @@ void Viewer::start_load(const std::string& path) {
   loading_choice_ = choice;
   Task t;
   t.what = "loading " + std::filesystem::path(path).filename().string();
+  t.path = path;
   t.kind = "load";
   t.new_scene = true;
   t.started = Clock::now();
@@ -429,6 +424,13 @@ void Viewer::poll_tasks() {
     task_error_ = e.what();
     rec.error = e.what();
     std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(), e.what());
+    if (new_scene && !world_) {
+      // The window stays with the error in its panel; its title names the file, as a loaded
+      // scene's does.
+      const std::string title =
+          "kdgrid-viewer - " + std::filesystem::path(task_->path).filename().string() + " (failed to load)";
+      glfwSetWindowTitle(window_, title.c_str());
+    }
   }
   builds_.push_back(std::move(rec));
   task_.reset();
@@ -451,7 +453,6 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
     cam_.reset(c, w->scene->mesh.bounds());
     start_camera_ = cam_.camera();
     pick_.reset();
-    trace_lines_.upload(LineBatch{});
     // The title names the scene; input tests wait for it (xdotool search --sync --name)
     // before they send events, as the camera is reset here.
     const std::string title =
@@ -481,7 +482,7 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
   built_[w->name] = w;
   world_ = std::move(w);
   overlay_dirty_ = true;
-  if (pick_) do_pick(pick_->x, pick_->y);  // retrace the picked pixel through the new structure
+  if (pick_) retrace_pick();  // the same ray through the new structure
 }
 
 // ---- input -----------------------------------------------------------------------------------
@@ -534,6 +535,9 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
       break;
     case GLFW_KEY_F1:
       show_keys_ = !show_keys_;
+      break;
+    case GLFW_KEY_F:
+      frame_pick();
       break;
     default:
       break;
@@ -643,6 +647,21 @@ void Viewer::sync_render_job() {
   int fw, fh;
   glfwGetFramebufferSize(window_, &fw, &fh);
   if (fw <= 0 || fh <= 0) return;  // minimised
+  // Brute force stops at its work limit (--brute-work-limit), as `kdgrid render` does for one
+  // pass: here a full-resolution pass. Nothing is rendered then, and the picture says so
+  // instead of showing the last image of another structure or size.
+  std::string refusal;
+  try {
+    check_brute_force_work(world_->name,
+                           uint64_t(std::max(1L, std::lround(fw * opts_.resolution_scale))) *
+                               uint64_t(std::max(1L, std::lround(fh * opts_.resolution_scale))),
+                           world_->scene->mesh.num_triangles(), world_->params);
+  } catch (const ParamError& e) {
+    refusal = e.what();
+  }
+  if (refusal != brute_refusal_ && !refusal.empty()) std::fprintf(stderr, "kdgrid-viewer: %s\n", refusal.c_str());
+  brute_refusal_ = refusal;
+  if (!brute_refusal_.empty()) return;
   const Camera& c = cam_.camera();
   // While the camera moves, render a coarse preview so that passes finish between moves; the
   // full resolution follows once it has been still for a moment.
@@ -752,7 +771,9 @@ void Viewer::rebuild_structure_overlay() {
   overlay_items_ = 0;
   if (world_) {
     const Accelerator& a = *world_->accel;
-    if (show_splits_) overlay_items_ += build_split_overlay(a, split_depth_[0], split_depth_[1], b);
+    if (show_splits_ && (!splits_of_pick_ || pick_))
+      overlay_items_ += build_split_overlay(a, split_depth_[0], split_depth_[1], b,
+                                            splits_of_pick_ ? &pick_->segment : nullptr);
     if (show_cells_) overlay_items_ += build_cell_overlay(a, b);
     if (show_boxes_) overlay_items_ += build_box_overlay(a, box_depth_[0], box_depth_[1], b);
   }
@@ -761,26 +782,37 @@ void Viewer::rebuild_structure_overlay() {
 
 void Viewer::do_pick(int px, int py) {
   if (!world_ || posted_w_ <= 0 || posted_h_ <= 0) return;
-  px = std::clamp(px, 0, posted_w_ - 1);
-  py = std::clamp(py, 0, posted_h_ - 1);
   Pick p;
-  p.x = px;
-  p.y = py;
-  const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
-  p.ray = f.ray(float(px) + 0.5f, float(py) + 0.5f);  // the pixel centre, as `trace --pixel`
-  p.trace = world_->accel->trace(p.ray);
-  p.command = "kdgrid trace " + shell_quote(world_->scene->source) + accel_flags(world_->name, world_->params) +
-              " --pixel " + std::to_string(px) + "," + std::to_string(py) + " --res " +
-              std::to_string(posted_w_) + "x" + std::to_string(posted_h_) + " " + cam_.cli_flags();
-  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", px, py,
-              p.trace.steps.size(), (unsigned long long)p.trace.counters.tri_tests,
-              p.trace.hit.valid() ? ("hit triangle " + std::to_string(p.trace.hit.prim)).c_str() : "miss",
-              p.command.c_str());
-  std::fflush(stdout);
-  LineBatch b;
-  build_trace_overlay(p.trace, p.ray, world_->scene->mesh, scene_radius(), b);
-  trace_lines_.upload(b);
+  p.x = std::clamp(px, 0, posted_w_ - 1);
+  p.y = std::clamp(py, 0, posted_h_ - 1);
+  p.w = posted_w_;
+  p.h = posted_h_;
+  p.camera = cam_.camera();
+  const CameraFrame f = CameraFrame::make(p.camera, p.w, p.h);
+  p.ray = f.ray(float(p.x) + 0.5f, float(p.y) + 0.5f);  // the pixel centre, as `trace --pixel`
   pick_ = std::move(p);
+  retrace_pick();
+  const Trace& t = pick_->trace;
+  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", pick_->x, pick_->y,
+              t.steps.size(), (unsigned long long)t.counters.tri_tests,
+              t.hit.valid() ? ("hit triangle " + std::to_string(t.hit.prim)).c_str() : "miss",
+              pick_->command.c_str());
+  std::fflush(stdout);
+}
+
+void Viewer::retrace_pick() {
+  if (!pick_ || !world_) return;
+  Pick& p = *pick_;
+  p.trace = world_->accel->trace(p.ray);
+  p.segment = pick_segment(p.ray, p.trace, world_->scene->mesh.bounds());
+  p.widths_for_font = 0;  // the step table's text and widths follow the new trace
+  p.serial = ++pick_serial_;
+  CameraControl at_pick;
+  at_pick.set_camera(p.camera);
+  p.command = "kdgrid trace " + shell_quote(world_->scene->source) + accel_flags(world_->name, world_->params) +
+              " --pixel " + std::to_string(p.x) + "," + std::to_string(p.y) + " --res " + std::to_string(p.w) +
+              "x" + std::to_string(p.h) + " " + at_pick.cli_flags();
+  if (splits_of_pick_) overlay_dirty_ = true;
 }
 
 // ---- output ----------------------------------------------------------------------------------
@@ -875,14 +907,26 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   st["camera_flags"] = cam_.cli_flags();
   if (pick_)
     st["pick"] = {{"x", pick_->x}, {"y", pick_->y}, {"steps", pick_->trace.steps.size()},
-                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}};
+                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}, {"framed", pick_->framed},
+                  {"segment", {pick_->segment.t0, pick_->segment.t1}}};
   else
     st["pick"] = nullptr;
+  st["overlay"] = {{"splits", show_splits_}, {"cells", show_cells_}, {"boxes", show_boxes_},
+                   {"splits_of_pick", splits_of_pick_}, {"split_depths", {split_depth_[0], split_depth_[1]}},
+                   {"items", overlay_items_}, {"lines", structure_lines_.vertex_count() / 2}};
   st["message"] = message_;
   st["error"] = task_error_;
   st["render_error"] = worker_ ? worker_->error() : std::string();
+  st["render_refusal"] = brute_refusal_;
   st["samples"] = have_image_ ? image_.samples : 0;
   j["state"] = st;
+  // What the last frame's panels showed (empty with the panels hidden).
+  j["ui"] = {{"clipped", audit_.clipped},
+             {"legends", audit_.legends},
+             {"status_top", audit_.status_top},
+             {"below_status_y", audit_.below_status_y},
+             {"table_cells", audit_.table_cells},
+             {"below_status_y_by_state", below_status_y_by_state_}};
 
   j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
                  {"swap_ms", frame_swap_ms_}};
@@ -965,17 +1009,21 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
   // bytes, build time) and refused with a size that fits when it does not.
   const float r = scene_radius();
   bool auto_cs = cell_choice_.kind == CellChoice::Kind::Auto;
+  const auto chk = [this](const char* label) { audit_.item(label); };
   if (ImGui::Checkbox("auto cell size", &auto_cs))
     request_cell_choice(auto_cs ? CellChoice{} : CellChoice{CellChoice::Kind::Units, double(cell_size_slider_)});
   const float lo = std::min(r * 1e-3f, cell_size_slider_), hi = std::max(r * 2.0f, cell_size_slider_);
   ImGui::SliderFloat("cell", &cell_size_slider_, lo, hi, "%.4g", ImGuiSliderFlags_Logarithmic);
   if (ImGui::IsItemDeactivatedAfterEdit()) request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  chk("cell");
   ImGui::InputFloat("units", &cell_size_slider_, 0, 0, "%.6g");
+  chk("units");
   if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0)
     request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
   if (auto_cell_ > 0) {
     float mult = float(cell_size_slider_ / auto_cell_);
     ImGui::InputFloat("x auto", &mult, 0, 0, "%.4g");
+    chk("x auto");
     if (ImGui::IsItemDeactivatedAfterEdit() && mult > 0) {
       cell_size_slider_ = float(mult * auto_cell_);
       request_cell_choice({CellChoice::Kind::Multiple, double(mult)});
@@ -1025,6 +1073,7 @@ void Viewer::draw_key_list() {
       {"+ / -", "faster / slower camera"},
       {"Home", "frame the scene"},
       {"click", "pick the pixel: its ray's traversal, step by step"},
+      {"F", "frame the pick: its leaves/cells and ray fill the view"},
       {"C", "print the camera as command-line flags"},
       {"P or F12", "save a screenshot"},
       {"H", "hide / show the panels"},
@@ -1045,46 +1094,85 @@ void Viewer::draw_key_list() {
 }
 
 void Viewer::draw_panels() {
-  ImGui::SetNextWindowPos(ImVec2(8 * ui_scale_, 8 * ui_scale_), ImGuiCond_FirstUseEver);
-  ImGui::SetNextWindowSize(ImVec2(330 * ui_scale_, 0), ImGuiCond_FirstUseEver);
+  // The panel starts kPanelWidth wide and, with the window's height, at most a quarter of its
+  // area; it is resizable and collapsible (the title bar's triangle), and an interactive run
+  // remembers its place and size in imgui.ini.
+  const ImGuiIO& io = ImGui::GetIO();
+  const ImGuiStyle& style = ImGui::GetStyle();
+  const float margin = 8 * ui_scale_;
+  const float pw = std::min(kPanelWidth * ui_scale_, io.DisplaySize.x * 0.5f);
+  const float ph = std::max(std::min(io.DisplaySize.y - 2 * margin, io.DisplaySize.x * io.DisplaySize.y * 0.25f / pw),
+                            ImGui::GetFrameHeight() * 4);
+  ImGui::SetNextWindowPos(ImVec2(margin, margin), ImGuiCond_FirstUseEver);
+  ImGui::SetNextWindowSize(ImVec2(pw, ph), ImGuiCond_FirstUseEver);
   ImGui::Begin("kdgrid");
   const ImVec2 panel_pos = ImGui::GetWindowPos(), panel_size = ImGui::GetWindowSize();
   panel_rect_[0] = panel_pos.x;
   panel_rect_[1] = panel_pos.y;
   panel_rect_[2] = panel_size.x;
   panel_rect_[3] = panel_size.y;
+  // Widgets leave room on their right for the widest label, so no label is cut.
+  float label_w = 0;
+  for (const char* l : {"structure", "max leaf size", "test/step cost", "cell", "units", "x auto", "cell size",
+                        "max samples", "resolution", "Mrays/s", "frame work", "split depths", "box depths",
+                        "opacity", "min", "max"})
+    label_w = std::max(label_w, ImGui::CalcTextSize(l).x);
+  ImGui::PushItemWidth(-(label_w + style.ItemInnerSpacing.x + 1));
+  const auto chk = [this](const char* label) { audit_.item(label); };
 
+  // The status area: a fixed height for the build's progress and the errors, scrolling when
+  // they need more, so that nothing under it moves when a build starts or ends or an error
+  // appears.
+  audit_.status_top = ImGui::GetCursorPosY();
+  ImGui::BeginChild("status", ImVec2(0, ImGui::GetFrameHeightWithSpacing() * kStatusLines), false);
+  const std::string render_error = worker_ ? worker_->error() : std::string();
   if (task_) {
     const double secs = std::chrono::duration<double>(Clock::now() - task_->started).count();
     ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
-    ImGui::SameLine();
+    chk(task_->what.c_str());
+    same_line_if_fits(task_->cancel->cancelled() ? "cancelling" : "cancel (Esc)");
     if (task_->cancel->cancelled())
       ImGui::TextDisabled("cancelling");
     else if (ImGui::SmallButton("cancel (Esc)"))
       cancel_task();
+    chk("cancel (Esc)");
     // Builds report no progress, so show motion rather than a fraction.
     ImGui::ProgressBar(float(std::fmod(secs, 1.0)), ImVec2(-1, 0), "");
+  } else if (task_error_.empty() && render_error.empty() && brute_refusal_.empty()) {
+    ImGui::TextDisabled("%s", world_ ? ("showing " + world_->name).c_str() : "no scene");
   }
+  ImGui::PushTextWrapPos(0.0f);
   if (!task_error_.empty()) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.4f, 0.4f, 1));
-    ImGui::TextWrapped("%s", task_error_.c_str());
+    ImGui::TextUnformatted(task_error_.c_str());
     ImGui::PopStyleColor();
     if (ImGui::SmallButton("dismiss")) task_error_.clear();
   }
-  if (worker_) {
-    const std::string e = worker_->error();
-    if (!e.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", e.c_str());
-  }
+  if (!render_error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", render_error.c_str());
+  if (!brute_refusal_.empty()) ImGui::TextColored(kRefusalColor, "not rendered: %s", brute_refusal_.c_str());
+  ImGui::PopTextWrapPos();
+  ImGui::EndChild();
+  ImGui::Separator();
+  audit_.below_status_y = ImGui::GetCursorPosY();
+  auto& ys = below_status_y_by_state_[task_ ? "build" : (!task_error_.empty() ? "error" : "idle")];
+  if (std::find(ys.begin(), ys.end(), audit_.below_status_y) == ys.end()) ys.push_back(audit_.below_status_y);
 
+  if (!world_ && !task_) {
+    ImGui::PushTextWrapPos(0.0f);
+    ImGui::TextDisabled("no scene loaded: drop a .gltf/.glb/.ply/.obj file to load one");
+    ImGui::PopTextWrapPos();
+  }
   if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
     const Scene& s = *world_->scene;
     ImGui::TextWrapped("%s", s.source.c_str());
-    ImGui::Text("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
-    ImGui::Text("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
-                s.textures.size());
+    ImGui::TextWrapped("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
+    ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
+                       s.textures.size());
     const Box3 b = s.mesh.bounds();
-    ImGui::Text("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+    ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+    ImGui::PushTextWrapPos(0.0f);
     ImGui::TextDisabled("drop a .gltf/.glb/.ply/.obj file to load it");
+    ImGui::PopTextWrapPos();
   }
 
   if (ImGui::CollapsingHeader("Structure", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
@@ -1102,6 +1190,7 @@ void Viewer::draw_panels() {
       }
       ImGui::EndCombo();
     }
+    chk("structure");
     // The main build knob of the selected structure; any change rebuilds off the UI thread.
     bool rebuild = false;
     BuildParams p = params_;
@@ -1109,10 +1198,12 @@ void Viewer::draw_panels() {
     if (accel_name_ == "bvh") {
       ImGui::SliderInt("max leaf size", &p.bvh_max_leaf, 1, 32);
       rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      chk("max leaf size");
     } else if (accel_name_ == "kdtree") {
       ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
                          ImGuiSliderFlags_Logarithmic);
       rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      chk("test/step cost");
     } else if (accel_name_ == "hybrid") {
       draw_cell_size_controls(p, rebuild);
     } else if (accel_name_ != "brute" && accel_name_ != "embree") {
@@ -1124,6 +1215,7 @@ void Viewer::draw_panels() {
       }
       ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
                          ImGuiSliderFlags_Logarithmic);
+      audit_.item("cell size");
       if (ImGui::IsItemDeactivatedAfterEdit()) {
         p = params_with_cell_size(accel_name_, cell_size_slider_);
         rebuild = true;
@@ -1133,7 +1225,11 @@ void Viewer::draw_panels() {
         p = params_with_cell_size(accel_name_, cell_size_slider_);
         rebuild = true;
       }
-      if (accel_name_ == "grid") ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
+      if (accel_name_ == "grid") {
+        ImGui::PushTextWrapPos(0.0f);
+        ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
+        ImGui::PopTextWrapPos();
+      }
     }
     if (rebuild) start_build(accel_name_, p);
 
@@ -1170,31 +1266,38 @@ void Viewer::draw_panels() {
     ImGui::SameLine();
     ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
     mode_ = RenderMode(m);
-    ImGui::Text("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
-                last_mrays_);
+    chk("tri tests");
+    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
+                       last_mrays_);
     ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d", ImGuiSliderFlags_Logarithmic);
+    chk("max samples");
     if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
       opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
     }
+    chk("resolution");
     // Both plots run from 0 to their history's maximum, which the overlay names (with the
     // latest value), so that their height reads as a fraction of a stated value.
-    const auto plot = [](const char* name, const std::deque<float>& hist, const char* unit) {
+    const auto plot = [&chk](const char* name, const std::deque<float>& hist, const char* unit) {
       std::vector<float> v(hist.begin(), hist.end());
       const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
       char overlay[64];
       std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(), unit, hi);
       ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f, ImVec2(0, 40));
+      chk(name);
     };
     plot("Mrays/s", mrays_hist_, "");
     // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
     plot("frame work", frame_ms_hist_, " ms");
-    ImGui::Text("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
-                cam_.speed_scale());
+    ImGui::TextWrapped("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
+                       cam_.speed_scale());
     if (ImGui::Button("print camera (C)")) print_camera();
-    ImGui::SameLine();
+    chk("print camera (C)");
+    same_line_if_fits("frame scene (Home)");
     if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
-    ImGui::SameLine();
+    chk("frame scene (Home)");
+    same_line_if_fits("screenshot (P)");
     if (ImGui::Button("screenshot (P)")) save_screenshot(default_output_name("kdgrid-screenshot", "png"));
+    chk("screenshot (P)");
   }
 
   if (mode_ != RenderMode::Shaded && ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
@@ -1204,6 +1307,7 @@ void Viewer::draw_panels() {
     changed |= ImGui::RadioButton("fixed", &s, int(HeatScale::Fixed));
     ImGui::SameLine();
     changed |= ImGui::RadioButton("log", &s, int(HeatScale::Log));
+    chk("log");
     settings_.heat_scale = HeatScale(s);
     if (settings_.heat_scale == HeatScale::Fixed) {
       changed |= ImGui::InputFloat("min", &settings_.heat_fixed_min);
@@ -1222,79 +1326,46 @@ void Viewer::draw_panels() {
   if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) {
     bool dirty = ImGui::Checkbox("kd split planes", &show_splits_);
     if (show_splits_) {
+      dirty |= ImGui::Checkbox("splits of the picked ray", &splits_of_pick_);
+      chk("splits of the picked ray");
+      if (splits_of_pick_ && !pick_) {
+        ImGui::PushTextWrapPos(0.0f);
+        ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
+        ImGui::PopTextWrapPos();
+      }
       ImGui::SliderInt2("split depths", split_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      chk("split depths");
       char l0[32], l2[32];
       std::snprintf(l0, sizeof l0, "depth %d", split_depth_[0]);
       std::snprintf(l2, sizeof l2, "%d", split_depth_[1]);
       draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
+      audit_.legends.push_back(std::string("split depth: ") + l0 + " .. " + l2);
     }
     dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
     dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
     if (show_boxes_) {
       ImGui::SliderInt2("box depths", box_depth_, 0, 64);
       dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      chk("box depths");
       char l0[32], l2[32];
       std::snprintf(l0, sizeof l0, "depth %d", box_depth_[0]);
       std::snprintf(l2, sizeof l2, "%d", box_depth_[1]);
       draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
     }
     ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
+    chk("opacity");
     if (dirty) overlay_dirty_ = true;
-    ImGui::Text("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
-                structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
+    ImGui::TextWrapped("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
+                       structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
   }
 
-  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) {
-    if (!pick_) {
-      ImGui::TextDisabled("click (or Ctrl+click) a pixel to trace its ray");
-    } else {
-      const Trace& t = pick_->trace;
-      ImGui::Text("pixel %d,%d: %zu steps, %llu tests, %s", pick_->x, pick_->y, t.steps.size(),
-                  (unsigned long long)t.counters.tri_tests, t.hit.valid() ? "hit" : "miss");
-      if (t.hit.valid()) ImGui::Text("hit triangle %u at t = %.6g", t.hit.prim, t.hit.t);
-      ImGui::TextWrapped("%s", pick_->command.c_str());
-      if (ImGui::SmallButton("copy command")) glfwSetClipboardString(window_, pick_->command.c_str());
-      ImGui::SameLine();
-      if (ImGui::SmallButton("clear pick")) {
-        pick_.reset();
-        trace_lines_.upload(LineBatch{});
-      }
-      if (pick_ && ImGui::BeginTable("steps", 6,
-                                     ImGuiTableFlags_ScrollY | ImGuiTableFlags_RowBg | ImGuiTableFlags_Borders,
-                                     ImVec2(0, 200 * ui_scale_))) {
-        ImGui::TableSetupScrollFreeze(0, 1);
-        for (const char* h : {"#", "kind", "box", "t in", "t out", "tests"}) ImGui::TableSetupColumn(h);
-        ImGui::TableHeadersRow();
-        ImGuiListClipper clip;
-        clip.Begin(int(t.steps.size()));
-        while (clip.Step()) {
-          for (int i = clip.DisplayStart; i < clip.DisplayEnd; ++i) {
-            const TraceStep& s = t.steps[size_t(i)];
-            const Color c = ramp(t.steps.size() > 1 ? float(i) / float(t.steps.size() - 1) : 1.0f);
-            ImGui::TableNextRow();
-            ImGui::TableNextColumn();
-            ImGui::TextColored(ImVec4(c.r, c.g, c.b, 1), "%d", i);
-            ImGui::TableNextColumn();
-            ImGui::Text("%s d%d", kind_name(s.kind), s.depth);
-            ImGui::TableNextColumn();
-            ImGui::Text("(%.3g %.3g %.3g)-(%.3g %.3g %.3g)", s.box.lo.x, s.box.lo.y, s.box.lo.z, s.box.hi.x,
-                        s.box.hi.y, s.box.hi.z);
-            ImGui::TableNextColumn();
-            ImGui::Text("%.5g", s.t_in);
-            ImGui::TableNextColumn();
-            ImGui::Text("%.5g", s.t_out);
-            ImGui::TableNextColumn();
-            ImGui::Text("%u", s.num_tested);
-          }
-        }
-        ImGui::EndTable();
-      }
-    }
-  }
+  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
   if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
+  ImGui::PopItemWidth();
   ImGui::End();
 
+  draw_pick_steps();
   if (have_image_ && image_.mode != RenderMode::Shaded) draw_heat_legend();
 }
 
@@ -1356,7 +1427,7 @@ void Viewer::draw_scene() {
   GL_CHECK(glClearColor(0.08f, 0.08f, 0.1f, 1.0f));
   GL_CHECK(glClear(GL_COLOR_BUFFER_BIT));
   GL_CHECK(glDisable(GL_DEPTH_TEST));
-  if (have_image_) {
+  if (have_image_ && brute_refusal_.empty()) {
     GL_CHECK(glUseProgram(image_program_));
     GL_CHECK(glActiveTexture(GL_TEXTURE0));
     GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
@@ -1374,7 +1445,6 @@ void Viewer::draw_scene() {
     GL_CHECK(glEnable(GL_BLEND));
     GL_CHECK(glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA));
     structure_lines_.draw(vp, overlay_alpha_);
-    trace_lines_.draw(vp, 1.0f);
     GL_CHECK(glDisable(GL_BLEND));
   }
 }
@@ -1434,14 +1504,13 @@ int Viewer::run() {
     if (closing && end_reason_.empty()) end_reason_ = "window closed";
     if (closing) cancel_task();  // whatever closed the window: a running build stops
 
-    const bool had_world = world_ != nullptr;
     poll_tasks();
-    if (!world_ && !task_ && !had_world && closing) break;  // closed during the first build
-    if (!world_ && !task_ && !had_world) {
-      // The start-up scene failed to load: nothing to show; say why and stop.
-      std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
-      exit_code = 1;
-      end_reason_ = "start-up scene failed";
+    // No scene loaded (the start-up scene failed, poll_tasks said why on stderr): the window
+    // stays, its panel shows the error and another file can be dropped. The run's exit code
+    // says the load failed.
+    const bool no_scene = !world_ && !task_;
+    if (no_scene && closing && opts_.hold <= 0) {  // closed during the first build, or after it failed
+      if (!task_error_.empty()) exit_code = 1;
       break;
     }
     handle_continuous_input(dt);
@@ -1452,6 +1521,7 @@ int Viewer::run() {
     if (opts_.scripted()) {
       if (!pick_done && world_ && posted_w_ > 0) {
         do_pick((*opts_.pick)[0], (*opts_.pick)[1]);
+        if (opts_.frame_pick) frame_pick();
         pick_done = true;
       }
       if (!opts_.rebuild_cell_size.empty() && !scripted_rebuild_started_ && have_image_ && !task_) {
@@ -1471,6 +1541,18 @@ int Viewer::run() {
     ImGui_ImplOpenGL3_NewFrame();
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
+    draw_pick_overlay();
+    if (!brute_refusal_.empty()) {
+      // Over the empty picture, panels or not: why there is no image.
+      const ImGuiIO& io = ImGui::GetIO();
+      const std::string text = "brute force stopped at its work limit: " + brute_refusal_;
+      const float wrap = std::min(io.DisplaySize.x * 0.6f, 640 * ui_scale_);
+      const ImVec2 size = ImGui::CalcTextSize(text.c_str(), nullptr, false, wrap);
+      ImGui::GetBackgroundDrawList()->AddText(
+          nullptr, 0.0f, ImVec2(std::max(0.0f, (io.DisplaySize.x - size.x) * 0.5f), std::max(0.0f, (io.DisplaySize.y - size.y) * 0.5f)),
+          ImGui::GetColorU32(kRefusalColor), text.c_str(), nullptr, wrap);
+    }
+    audit_.clear();
     if (!opts_.hide_ui) {
       draw_panels();
       draw_key_list();
@@ -1492,6 +1574,20 @@ int Viewer::run() {
       const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
                             image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
       const bool script_done = opts_.hold > 0 ? closing : frame_count_ >= opts_.frames;
+      if (script_done && world_ && !task_ && !brute_refusal_.empty()) {
+        // Brute force stopped at its work limit: the message is on screen (and was printed).
+        end_reason_ = "brute-force work limit";
+        exit_code = 1;
+        if (!opts_.screenshot.empty()) save_screenshot(opts_.screenshot);
+        break;
+      }
+      if (script_done && no_scene) {
+        // The error is on screen (and was printed once when the load failed).
+        end_reason_ = "start-up scene failed";
+        exit_code = 1;
+        if (!opts_.screenshot.empty()) save_screenshot(opts_.screenshot);
+        break;
+      }
       if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
           !recolor_) {
         if (end_reason_.empty()) end_reason_ = "frames done";

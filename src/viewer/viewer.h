@@ -18,6 +18,7 @@
 #include "viewer/camera_control.h"
 #include "viewer/image_view.h"
 #include "viewer/overlay.h"
+#include "viewer/pick_view.h"
 #include "viewer/render_worker.h"
 #include "viewer/settings.h"
 
@@ -41,6 +42,8 @@ struct ViewerOptions {
   int min_samples = 1;               ///< scripted: wait for this many samples per pixel
   double timeout = 300;              ///< scripted: give up (exit 4) after this many seconds
   std::optional<std::array<int, 2>> pick;
+  bool frame_pick = false;           ///< scripted: frame the --pick ray's traversal (key F)
+  bool splits_of_pick = false;       ///< split overlay: only the planes the picked ray crossed
   std::string heatmap;               ///< "", "steps" or "tests"
   std::vector<std::string> overlays; ///< "splits", "cells", "boxes"
   std::string rebuild_cell_size;     ///< scripted live rebuild after start-up
@@ -106,6 +109,18 @@ class Viewer {
   void draw_scene();
   void rebuild_structure_overlay();
   void do_pick(int px, int py);
+  /// Traces the pick's ray again (a new structure) and refreshes what is derived from it.
+  void retrace_pick();
+  // pick_view.cpp
+  /// Moves the camera so that the picked ray's leaves/cells and its segment in the scene fill
+  /// the view, keeping the view direction (key F, "frame pick").
+  void frame_pick();
+  /// The picked ray's traversal over the image (ImGui background list, thick lines).
+  void draw_pick_overlay();
+  /// The Pick section of the panel: summary, command, buttons, visit-order legend.
+  void draw_pick_panel();
+  /// The picked ray's steps, a table in a window of its own.
+  void draw_pick_steps();
   void save_screenshot(const std::string& path);
   void write_stats(const std::string& path, int exit_code) const;
   void print_camera();
@@ -141,6 +156,7 @@ class Viewer {
   struct Task {
     std::future<std::shared_ptr<World>> result;
     std::string what;      // shown next to the spinner
+    std::string path;      // the scene file a load reads
     std::string kind;      // "load", "rebuild" or "build", for the statistics
     bool new_scene = false;
     std::chrono::steady_clock::time_point started;
@@ -150,6 +166,8 @@ class Viewer {
   std::optional<Task> task_;
   std::optional<std::pair<std::string, BuildParams>> pending_build_;
   std::string task_error_;
+  /// Why brute force renders nothing (its work limit, --brute-work-limit); "" when it renders.
+  std::string brute_refusal_;
   bool scripted_rebuild_started_ = false, scripted_rebuild_done_ = false;
 
   // Render job tracking.
@@ -232,17 +250,41 @@ class Viewer {
   int split_depth_[2] = {0, 6}, box_depth_[2] = {0, 64};
   bool overlay_dirty_ = true;
   size_t overlay_items_ = 0;
-  LineRenderer structure_lines_, trace_lines_;
+  LineRenderer structure_lines_;
   float overlay_alpha_ = 1.0f;
+  /// The split overlay shows only the planes the picked ray crossed ("splits of the picked
+  /// ray"), within the depth range.
+  bool splits_of_pick_ = false;
 
   // Pick.
   struct Pick {
     int x = 0, y = 0;
+    int w = 0, h = 0;                 ///< the image the pixel belongs to
+    Camera camera;                    ///< the camera the pixel was picked with
     Ray ray;
     Trace trace;
+    RaySegment segment;               ///< the part of the ray the traversal covered
     std::string command;
+    bool framed = false;              ///< frame_pick() moved the camera onto it
+    uint64_t serial = 0;              ///< distinguishes picks (the step table's ID)
+    std::vector<std::array<std::string, 6>> rows;  ///< the step table's text, per step
+    float widths[6] = {};             ///< its columns' content widths
+    float widths_for_font = 0;        ///< the font size the widths were measured with
   };
   std::optional<Pick> pick_;
+  uint64_t pick_serial_ = 0;
+  /// Space left around the framed pick, as a fraction of the view's half-extent.
+  static constexpr float kPickFrameMargin = 0.1f;
+  UiAudit audit_;                     ///< what the last frame's panels showed (--stats-json)
+  /// The panel's y of the first widget under the status area in every frame, by what the
+  /// status area showed ("idle", "build", "error"): one value each when nothing jumps.
+  std::map<std::string, std::vector<float>> below_status_y_by_state_;
+  /// The panel's default width in screen units (times the UI scale): at the full height of a
+  /// 1280x720 window it covers under a quarter of it.
+  static constexpr float kPanelWidth = 320.0f;
+  /// Height of the status area in widget rows: the build line, its progress bar and a line of
+  /// error; longer errors scroll inside it.
+  static constexpr float kStatusLines = 3.0f;
 
   // Mouse state. The cursor position is the last one GLFW reported through its callback (not a
   // live query), so a press, motion and release queued within one frame replay in order.
