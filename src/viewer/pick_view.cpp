@@ -53,9 +53,15 @@ std::vector<Vec3> pick_frame_points(const Trace& t, const RaySegment& seg) {
   std::vector<Vec3> pts;
   const bool has_leaves = std::any_of(t.steps.begin(), t.steps.end(),
                                       [](const TraceStep& s) { return s.kind != StepKind::Inner; });
+  // Where the ray tested triangles is what a person debugs; the empty leaves it crossed on
+  // the way (a widened empty leaf can span half the scene) would shrink that to a few pixels.
+  const bool has_tests = std::any_of(t.steps.begin(), t.steps.end(), [](const TraceStep& s) {
+    return s.kind != StepKind::Inner && s.num_tested > 0;
+  });
   float first = seg.t1;  // where the ray enters its first framed box
   for (const TraceStep& s : t.steps) {
     if ((has_leaves && s.kind == StepKind::Inner) || s.box.empty()) continue;
+    if (has_tests && s.num_tested == 0) continue;
     for (int i = 0; i < 8; ++i)
       pts.push_back({(i & 1) ? s.box.hi.x : s.box.lo.x, (i & 2) ? s.box.hi.y : s.box.lo.y,
                      (i & 4) ? s.box.hi.z : s.box.lo.z});
