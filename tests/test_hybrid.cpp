@@ -1085,11 +1085,6 @@ TEST(Hybrid, BuildIsDeterministic) {
   }
 }
 
-TEST(Hybrid, RegisteredInFactory) {
-  auto acc = make_accelerator("hybrid");
-  EXPECT_EQ(acc->name(), "hybrid");
-}
-
 // ---- cell-size estimate, refusal and one cell ---------------------------------------------
 
 TEST(HybridEstimate, MatchesTheBuildAtAutoAndFinerSizes) {
