@@ -53,16 +53,7 @@ TEST(Grid, DdaStepBoundOnProceduralMeshes) {
 
 // Cell boundaries on the integer planes where the quads lie, at several scales and offsets.
 TEST(Grid, ExtremeRaysOnCellBoundaries) {
-  struct Case {
-    const char* name;
-    float scale;
-    Vec3 offset;
-  };
-  const Case cases[] = {{"unit", 1.0f, Vec3(0.0f)},
-                        {"scale 1e-6", 1e-6f, Vec3(0.0f)},
-                        {"scale 1e6", 1e6f, Vec3(0.0f)},
-                        {"translated 1e5", 1.0f, Vec3(1e5f, 1e5f, -1e5f)}};
-  for (const Case& c : cases) {
+  for (const test::ScaleCase& c : test::extreme_scale_cases()) {
     SCOPED_TRACE(c.name);
     const Mesh base = test::integer_quads(8);
     const Mesh mesh = test::transformed(base, c.scale, c.offset);

@@ -34,6 +34,7 @@ namespace kdgrid {
 namespace {
 
 namespace fs = std::filesystem;
+using test::load_error;
 using test::TempDir;
 
 
@@ -344,20 +345,6 @@ TEST(HostileFiles, ZeroSizeSceneDoesNotBlameFlagsThatWereNotGiven) {
 
 // ---------------------------------------------------------------------------------------
 // Inputs: regular files of bounded size
-
-/// Runs `f`, which must throw LoadError; returns its message.
-std::string load_error(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const LoadError& e) {
-    return e.what();
-  } catch (const std::exception& e) {
-    ADD_FAILURE() << "expected LoadError, got: " << e.what();
-    return "";
-  }
-  ADD_FAILURE() << "expected LoadError, but loading succeeded";
-  return "";
-}
 
 TEST(HostileFiles, FifoAndDevicesAreRefusedAsScenes) {
   TempDir tmp;

@@ -35,16 +35,7 @@ std::vector<std::pair<int, float>> split_planes(const KdTree& kd, size_t max_pla
 // origins on the planes and on the box, at several scales and offsets. The integer quads
 // make the SAH put many splits exactly on planes full of coplanar triangles.
 TEST(KdTree, ExtremeRaysInSplitPlanes) {
-  struct Case {
-    const char* name;
-    float scale;
-    Vec3 offset;
-  };
-  const Case cases[] = {{"unit", 1.0f, Vec3(0.0f)},
-                        {"scale 1e-6", 1e-6f, Vec3(0.0f)},
-                        {"scale 1e6", 1e6f, Vec3(0.0f)},
-                        {"translated 1e5", 1.0f, Vec3(1e5f, 1e5f, -1e5f)}};
-  for (const Case& c : cases) {
+  for (const test::ScaleCase& c : test::extreme_scale_cases()) {
     SCOPED_TRACE(c.name);
     const Mesh mesh = test::transformed(test::integer_quads(8), c.scale, c.offset);
     KdTree kd;

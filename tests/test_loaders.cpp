@@ -30,23 +30,8 @@ namespace kdgrid {
 namespace {
 
 namespace fs = std::filesystem;
+using test::load_error;
 using test::TempDir;
-
-/// A fresh directory under the system temp dir, removed when the test ends.
-
-/// Runs `f`, which must throw LoadError; returns its message (empty + failure otherwise).
-std::string load_error(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const LoadError& e) {
-    return e.what();
-  } catch (const std::exception& e) {
-    ADD_FAILURE() << "expected LoadError, got another exception: " << e.what();
-    return "";
-  }
-  ADD_FAILURE() << "expected LoadError, but loading succeeded";
-  return "";
-}
 
 #define EXPECT_CONTAINS(haystack, needle)                          \
   EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \

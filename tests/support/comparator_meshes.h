@@ -116,6 +116,21 @@ inline Mesh transformed(Mesh m, float scale, const Vec3& offset) {
 /// Seeded rays: a third aimed at points on random triangles (hits), a third between random
 /// points of the enlarged box, a third with a finite tmax (segments, for any-hit). Origins
 /// lie inside and outside the mesh box.
+/// A scale and offset that move a test mesh to where float precision is strained.
+struct ScaleCase {
+  const char* name;
+  float scale;
+  Vec3 offset;
+};
+
+/// The scales and offsets of the extreme-scale tests: unit, 1e-6, 1e6 and translated by 1e5.
+inline std::vector<ScaleCase> extreme_scale_cases() {
+  return {{"unit", 1.0f, Vec3(0.0f)},
+          {"scale 1e-6", 1e-6f, Vec3(0.0f)},
+          {"scale 1e6", 1e6f, Vec3(0.0f)},
+          {"translated 1e5", 1.0f, Vec3(1e5f, 1e5f, -1e5f)}};
+}
+
 inline std::vector<Ray> random_rays(const Mesh& m, uint32_t seed, int n) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u01(0.0f, 1.0f);

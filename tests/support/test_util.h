@@ -3,9 +3,12 @@
 
 #include <gtest/gtest.h>
 
+#include <exception>
 #include <filesystem>
+#include <functional>
 #include <string>
 
+#include "util/error.h"
 #include "util/paths.h"
 
 namespace kdgrid::test {
@@ -21,6 +24,20 @@ inline std::string shared_scene(const std::string& rel) {
 
 inline std::string source_path(const std::string& rel) {
   return (std::filesystem::path(KDGRID_SOURCE_DIR) / rel).string();
+}
+
+/// Runs `f`, which must throw LoadError; returns its message (empty, with a failure, otherwise).
+inline std::string load_error(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const LoadError& e) {
+    return e.what();
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "expected LoadError, got another exception: " << e.what();
+    return "";
+  }
+  ADD_FAILURE() << "expected LoadError, but loading succeeded";
+  return "";
 }
 
 }  // namespace kdgrid::test
