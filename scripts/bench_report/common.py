@@ -2,6 +2,8 @@
 plot links."""
 import json
 import os
+import re
+import string
 
 
 def load(path):
@@ -55,3 +57,73 @@ def rel_to_suite(path, suite):
     if not path or not first:
         return path or "-"
     return os.path.relpath(path, os.path.dirname(os.path.abspath(first)))
+
+
+# The prose of the page: templates/<section>.md, split into blocks by marker lines.
+TEMPLATES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "templates")
+BLOCK_MARK = re.compile(r"^<!-- block: ([A-Za-z0-9_-]+) -->$")
+_blocks = {}
+
+
+class TemplateError(Exception):
+    pass
+
+
+def blocks(section):
+    """The blocks of templates/<section>.md by name: a block is the lines after its marker line
+    up to the next marker (or the end of the file), blank lines included, less the newline that
+    ends its last line (that newline belongs to the marker), so a block ending in a placeholder
+    line adds nothing after what the code fills in. Text before the first marker is a comment
+    for the reader and is not used."""
+    if section not in _blocks:
+        path = os.path.join(TEMPLATES, section + ".md")
+        try:
+            with open(path) as f:
+                lines = f.read().splitlines(keepends=True)
+        except OSError as e:
+            raise TemplateError("cannot read the template %s (%s); it holds the prose of the %s "
+                                "section" % (path, e.strerror, section))
+        found, name = {}, None
+        for n, line in enumerate(lines, 1):
+            m = BLOCK_MARK.match(line.rstrip("\n"))
+            if m:
+                name = m.group(1)
+                if name in found:
+                    raise TemplateError("%s:%d: block '%s' is defined twice; rename one"
+                                        % (path, n, name))
+                found[name] = []
+            elif name is not None:
+                found[name].append(line)
+        texts = {}
+        for k, v in found.items():
+            text = "".join(v)
+            texts[k] = text[:-1] if text.endswith("\n") else text
+        _blocks[section] = (path, texts)
+    return _blocks[section]
+
+
+def prose(section, block, **fields):
+    """Block `block` of templates/<section>.md with its $placeholders filled from `fields`
+    (string.Template: $name or ${name}, $$ for a dollar sign). The placeholders must be exactly
+    the fields the code fills, so a misspelt one or a dropped figure is an error, not a page
+    with a hole in it."""
+    path, found = blocks(section)
+    if block not in found:
+        raise TemplateError("%s: no block '%s' (a line '<!-- block: %s -->'); the code needs it"
+                            % (path, block, block))
+    t = string.Template(found[block])
+    where = "%s, block '%s'" % (path, block)
+    if not t.is_valid():
+        raise TemplateError("%s: a '$' that starts no placeholder; write $$ for a dollar sign"
+                            % where)
+    used = set(t.get_identifiers())
+    unknown = sorted(used - set(fields))
+    unused = sorted(set(fields) - used)
+    if unknown or unused:
+        raise TemplateError("%s: %s%s; the code fills: %s" % (
+            where, "unknown placeholder(s) %s" % ", ".join("$" + x for x in unknown)
+            if unknown else "",
+            ("; " if unknown and unused else "") +
+            ("placeholder(s) %s missing" % ", ".join("$" + x for x in unused) if unused else ""),
+            ", ".join("$" + x for x in sorted(fields)) or "nothing"))
+    return t.substitute(fields)
