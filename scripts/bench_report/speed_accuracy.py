@@ -1,7 +1,7 @@
 """The Speed vs accuracy section: each option's speed beside the error rate it costs."""
 import os
 
-from .common import g, load, ordered_unique, table
+from .common import g, load, ordered_unique, prose, table
 
 
 def geomean(vals):
@@ -25,13 +25,6 @@ def speed_accuracy_section(results_dir):
     cell = load(os.path.join(results_dir, "sweep-cellsize.json"))
     if not (tri or chk):
         return ""
-    out = ["\n## Speed vs accuracy\n\n"]
-    out.append("Each option that trades speed for accuracy, with its speed beside the error rate "
-               "it costs: *leaks* are rays aimed at shared edges and vertices of closed meshes "
-               "that slip through (`sweep triangle`), *acne* is secondary rays that re-hit the "
-               "triangle they leave (`check --acne`). Speeds are the option's own measurement; "
-               "*vs default* is its speed divided by the default option's in the same run. The "
-               "sections below and [ACCURACY.md](ACCURACY.md) give the details.\n\n")
     rows = []
     if tri:
         thr = {(r["accel"], r["test"]): r for r in tri["rows"]
@@ -98,13 +91,9 @@ def speed_accuracy_section(results_dir):
                     g(hi["multiplier"])),
                 "%s to %s" % (g(lo["mrays"] / auto["mrays"]), g(hi["mrays"] / auto["mrays"])),
                 "not measured", "-"])
-    out.append(table(["option", "setting", "speed", "vs default", "accuracy figure", "rate"],
-                     rows, ["---", "---", "---", "---:", "---", "---"]))
     notes = []
     if cell:
-        notes.append("The cell-size sweep (below) records speed only: no leak or acne figure "
-                     "is taken per cell size; the hybrid is checked against brute force at its "
-                     "automatic cell size by the test suite and `kdgrid check`.")
+        notes.append(prose("speed_accuracy", "cellsize-note"))
     if chk and chk.get("check"):
         per = {}
         for r in chk["check"]:
@@ -113,12 +102,13 @@ def speed_accuracy_section(results_dir):
             n[1] += r["ambiguous"]
             n[2] += r["disagree"]
             n[3] += 1 if r.get("error") else 0
-        notes.append("Extreme-ray suite (`check`, %d scenes): unambiguous disagreements with "
-                     "the double-precision reference per structure: %s." % (
-                         len(ordered_unique(r["scene"] for r in chk["check"])),
-                         "; ".join("%s %d of %d rays (%d ambiguous)%s" % (
-                             a, v[2], v[0], v[1], ", %d errors" % v[3] if v[3] else "")
-                             for a, v in per.items())))
-    if notes:
-        out.append("\n" + "\n\n".join(notes) + "\n")
-    return "".join(out)
+        notes.append(prose(
+            "speed_accuracy", "check-note",
+            scenes=len(ordered_unique(r["scene"] for r in chk["check"])),
+            structures="; ".join("%s %d of %d rays (%d ambiguous)%s" % (
+                a, v[2], v[0], v[1], ", %d errors" % v[3] if v[3] else "")
+                for a, v in per.items())))
+    return prose("speed_accuracy", "section",
+                 table=table(["option", "setting", "speed", "vs default", "accuracy figure",
+                              "rate"], rows, ["---", "---", "---", "---:", "---", "---"]),
+                 notes="\n" + "\n\n".join(notes) + "\n" if notes else "")
