@@ -58,7 +58,7 @@ def bench_section(b, run, md_dir, img_dir):
             obs.append(prose("bench", "observation", set=st, ref=ref, best=best[0],
                              mean=g(best[1]), lo=g(best[2]), hi=g(best[3])))
     out.append(prose(
-        "bench", "throughput", ref=ref, reps=meta["reps"], threads=meta["threads"],
+        "bench", "throughput", ref=ref, reps="%d" % meta["reps"], threads="%d" % meta["threads"],
         tables="".join(tables),
         ratio_plot=img(md_dir, img_dir, "bench_ratio.png", "throughput ratio to " + ref),
         mrays_plot=img(md_dir, img_dir, "bench_mrays.png", "throughput in Mrays/s"),

@@ -48,7 +48,7 @@ def sweep_section(results_dir, md_dir, img_dir):
         m = sw["meta"]
         n = m.get("notes", {})
         fields = dict(scene=os.path.basename(m["scene"]), triangles=n.get("triangles", "?"),
-                      rays=n.get("rays", ""), reps=m["reps"], threads=m["threads"],
+                      rays=n.get("rays", ""), reps="%d" % m["reps"], threads="%d" % m["threads"],
                       embree=prose("sweeps", "embree", mrays=g(float(n["embree_mrays"])))
                       if "embree_mrays" in n else "",
                       table=sweep_table(sw, cols, heads),
@@ -100,7 +100,7 @@ def sweep_section(results_dir, md_dir, img_dir):
         n = m.get("notes", {})
         out.append(prose(
             "sweeps", "spp", reference=n.get("reference", "high-spp"),
-            scene=os.path.basename(m["scene"]), width=m["width"], height=m["height"],
+            scene=os.path.basename(m["scene"]), width="%d" % m["width"], height="%d" % m["height"],
             accel=n.get("accel", ""),
             table=sweep_table(sw, ["spp", "seconds", "rmse", "rmse_display", "mrays"],
                               ["spp", "seconds", "linear RMSE", "display RMSE", "Mrays/s"]),
