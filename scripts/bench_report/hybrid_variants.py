@@ -1,7 +1,7 @@
 """The hybrid's variants section, from hybrid-*.json (scripts/hybrid-variants.sh)."""
 import os
 
-from .common import g, load, table
+from .common import g, load, prose, table
 
 
 HYBRID_VARIANTS = [("default", "default: leaf subtrees, empty-leaf boxes"),
@@ -16,15 +16,9 @@ def hybrid_variants_section(results_dir):
     runs = [(name, what, load(os.path.join(results_dir, "hybrid-%s.json" % name)))
             for name, what in HYBRID_VARIANTS]
     runs = [r for r in runs if r[2]]
-    out = ["## The hybrid's variants\n\n"]
     if not runs:
-        return "".join(out) + "*Not measured: run `scripts/hybrid-variants.sh`.*\n\n"
+        return prose("hybrid_variants", "not-measured")
     meta = runs[0][2]["meta"]
-    out.append("From `scripts/hybrid-variants.sh`: primary rays (%dx%d) of the suite, %d thread(s), "
-               "median of %d passes timed by the tracing threads' CPU clocks (`--clock %s`), each "
-               "variant in its own run beside the kd-tree and Embree; hybrid / kd-tree is the ratio of "
-               "their two ratios to Embree (each paired with Embree pass by pass).\n\n"
-               % (meta["width"], meta["height"], meta["threads"], meta["reps"], meta.get("clock", "wall")))
     rows = []
     for name, what, b in runs:
         for sc in b["scenes"]:
@@ -42,8 +36,10 @@ def hybrid_variants_section(results_dir):
                          g(kds.get("ratio_to_reference")) if kds else "-", g(vs_kd),
                          g(hs.get("steps_per_ray")), g(hs.get("tests_per_ray")),
                          g(hb.get("bytes_per_triangle")), g(hb.get("build_seconds"))])
-    out.append(table(["variant", "scene", "hybrid / Embree", "kd-tree / Embree", "hybrid / kd-tree",
-                      "steps per ray", "tests per ray", "bytes per triangle", "build s"], rows,
-                     ["---", "---"] + ["---:"] * 7))
-    out.append("\n")
-    return "".join(out)
+    return prose("hybrid_variants", "section", width="%d" % meta["width"],
+                 height="%d" % meta["height"], threads="%d" % meta["threads"],
+                 reps="%d" % meta["reps"], clock=meta.get("clock", "wall"),
+                 table=table(["variant", "scene", "hybrid / Embree", "kd-tree / Embree",
+                              "hybrid / kd-tree", "steps per ray", "tests per ray",
+                              "bytes per triangle", "build s"], rows,
+                             ["---", "---"] + ["---:"] * 7))
