@@ -1,5 +1,5 @@
-"""Helpers every section uses: loading result files, formatting numbers, Markdown tables and
-plot links."""
+"""Helpers every section uses: loading result files, formatting numbers, Markdown tables, plot
+links, and prose() for the blocks of the templates in templates/ (see templates/README.md)."""
 import json
 import os
 import re
