@@ -63,11 +63,11 @@ def viewer_section(results_dir):
                      load_text(r)])
     if rows:
         fields["progressive"] = prose("viewer", "progressive", table=table(
-["scene", "triangles", "structure", "image", "threads", "passes",
-                          "pass ms", "Mrays/s", "rays per pass (primary / shadow / other)",
-                          "UI frames/s", "UI work ms (swap)", "UI busy", "colour + upload ms", "load"],
-                         rows, ["---", "---:", "---", "---", "---:", "---:", "---:", "---:", "---:",
-                                "---:", "---:", "---:", "---:", "---:"]))
+            ["scene", "triangles", "structure", "image", "threads", "passes", "pass ms",
+             "Mrays/s", "rays per pass (primary / shadow / other)", "UI frames/s",
+             "UI work ms (swap)", "UI busy", "colour + upload ms", "load"],
+            rows, ["---", "---:", "---", "---", "---:", "---:", "---:", "---:", "---:", "---:",
+                   "---:", "---:", "---:", "---:"]))
     rows = []
     for r in runs:
         st = r.get("stats")
