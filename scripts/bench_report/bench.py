@@ -1,0 +1,131 @@
+"""The suite's sections (bench.json): the suite, throughput, work per ray, agreement, build."""
+from .common import g, img, mib, ordered_unique, prose, rel_to_suite, table
+
+
+def bench_section(b, run, md_dir, img_dir):
+    meta = b["meta"]
+    results = b["results"]
+    builds = b["builds"]
+    scenes = ordered_unique(s["scene"] for s in b["scenes"])
+    ok_scenes = [s["scene"] for s in b["scenes"] if s.get("ok", True)]
+    accels = ordered_unique(x["accel"] for x in builds)
+    sets = meta["sets"]
+    res = {(r["scene"], r["accel"], r["set"]): r for r in results}
+    bld = {(x["scene"], x["accel"]): x for x in builds}
+    ref = ordered_unique(r["reference"] for r in results)
+    ref = ref[0] if ref else "embree"
+    out = []
+
+    rows = []
+    for s in b["scenes"]:
+        rows.append([s["scene"], "`%s`" % rel_to_suite(s.get("file", ""), meta["suite"]),
+                     s["triangles"], s.get("camera", ""),
+                     " / ".join(str(s.get("rays", {}).get(x, "-")) for x in sets),
+                     "ok" if s.get("ok", True) else "**failed**: " + s.get("error", "")])
+    out.append(prose("bench", "suite", ref=ref, scenes=table(
+        ["scene", "file", "triangles", "camera", "rays (%s)" % " / ".join(sets), "status"], rows,
+        ["---", "---", "---:", "---", "---:", "---"])))
+
+    tables = []
+    for st in sets:
+        rows = []
+        for a in accels:
+            row = [a + (" (reference)" if a == ref else "")]
+            for s in scenes:
+                r = res.get((s, a, st))
+                row.append("%s (%s)" % (g(r["ratio_to_reference"]), g(r["mrays"])) if r else "-")
+            rows.append(row)
+        tables.append(prose("bench", "throughput-set", set=st,
+                            table=table(["structure"] + scenes, rows)))
+
+    # Generated observations: best non-reference structure per set, averaged over scenes.
+    obs = []
+    for st in sets:
+        best = None
+        for a in accels:
+            if a == ref:
+                continue
+            vals = [res[(s, a, st)]["ratio_to_reference"] for s in ok_scenes if (s, a, st) in res]
+            if len(vals) != len(ok_scenes) or not vals:
+                continue
+            gm = 1.0
+            for v in vals:
+                gm *= max(v, 1e-12)
+            gm **= 1.0 / len(vals)
+            if best is None or gm > best[1]:
+                best = (a, gm, min(vals), max(vals))
+        if best:
+            obs.append(prose("bench", "observation", set=st, ref=ref, best=best[0],
+                             mean=g(best[1]), lo=g(best[2]), hi=g(best[3])))
+    out.append(prose(
+        "bench", "throughput", ref=ref, reps="%d" % meta["reps"], threads="%d" % meta["threads"],
+        tables="".join(tables),
+        ratio_plot=img(md_dir, img_dir, "bench_ratio.png", "throughput ratio to " + ref),
+        mrays_plot=img(md_dir, img_dir, "bench_mrays.png", "throughput in Mrays/s"),
+        observations="\n" + "\n".join(obs) + "\n" if obs else ""))
+
+    tables = []
+    for st in sets:
+        rows = []
+        for a in accels:
+            row = [a]
+            for s in scenes:
+                r = res.get((s, a, st))
+                row.append("%s / %s / %s" % (g(r["steps_per_ray"]), g(r["leaves_per_ray"]),
+                                            g(r["tests_per_ray"]))
+                           if r and r.get("counted") else "n/a")
+            rows.append(row)
+        tables.append(prose("bench", "work-set", set=st,
+                            table=table(["structure"] + scenes, rows)))
+    out.append(prose("bench", "work", tables="".join(tables),
+                     uncounted="Embree" if "embree" in accels else "Some structures",
+                     counts_plot=img(md_dir, img_dir, "bench_counts.png",
+                                     "steps and tests per ray")))
+
+    rows = []
+    for a in accels:
+        if a == ref:
+            continue
+        for st in sets:
+            row = [a, st]
+            for s in scenes:
+                r = res.get((s, a, st))
+                if not r or r.get("agreement") is None:
+                    row.append("-")
+                else:
+                    row.append("%.6f (%d)" % (r["agreement"], r["disagreements"]))
+            rows.append(row)
+    out.append(prose("bench", "agreement", ref=ref, table=table(
+        ["structure", "set"] + ["%s (rays differing)" % s for s in scenes], rows,
+        ["---", "---"] + ["---:"] * len(scenes))))
+
+    rows = []
+    for s in scenes:
+        for a in accels:
+            x = bld.get((s, a))
+            if not x:
+                continue
+            if not x.get("ok", True):
+                rows.append([s, a, "**failed**: " + x.get("error", "")] + [""] * 7)
+                continue
+            parts = ", ".join("%s %s" % (k, mib(v)) for k, v in x.get("bytes_by_part", {}).items())
+            rows.append([s, a, g(x["build_seconds"]), g(x["build_mtris_per_s"]), mib(x["bytes"]),
+                         g(x["bytes_per_triangle"]), mib(x["peak_rss_bytes"]),
+                         mib(x.get("rss_growth_bytes", 0)), mib(x["process_peak_rss_bytes"]),
+                         parts])
+    extras = [(s, a, bld[(s, a)].get("extra", {})) for s in scenes for a in accels
+              if (s, a) in bld and bld[(s, a)].get("extra")]
+    errors = "".join("- %s%s: %s\n" % (e.get("scene", ""), " / " + e["accel"] if "accel" in e
+                                        else "", e["error"]) for e in b.get("errors") or [])
+    out.append(prose(
+        "bench", "build",
+        table=table(["scene", "structure", "build s", "build Mtris/s", "MiB", "bytes/tri",
+                     "peak RSS MiB", "growth MiB", "process peak MiB", "parts (MiB)"], rows,
+                    ["---", "---"] + ["---:"] * 7 + ["---"]),
+        build_plot=img(md_dir, img_dir, "bench_build.png", "build time and memory"),
+        extras=prose("bench", "extras", table=table(
+            ["scene", "structure", "facts"],
+            [[s, a, "; ".join("%s: %s" % kv for kv in e.items())] for s, a, e in extras],
+            ["---", "---", "---"])) if extras else "",
+        errors=prose("bench", "errors", errors=errors) if errors else ""))
+    return "".join(out)

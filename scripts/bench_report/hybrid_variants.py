@@ -1,0 +1,45 @@
+"""The hybrid's variants section, from hybrid-*.json (scripts/hybrid-variants.sh)."""
+import os
+
+from .common import g, load, prose, table
+
+
+HYBRID_VARIANTS = [("default", "default: leaf subtrees, empty-leaf boxes"),
+                   ("plain", "plain leaves (`--hybrid-subtree 0`)"),
+                   ("paper", "the paper's: plain leaves, kd leaf boxes (`--hybrid-subtree 0 --hybrid-no-expand`)"),
+                   ("dense", "dense matrix (`--dense-matrix`)"),
+                   ("noguess", "no guessed next leaf (`--hybrid-no-guess`)")]
+
+
+def hybrid_variants_section(results_dir):
+    """The hybrid's variants against the kd-tree and Embree (scripts/hybrid-variants.sh)."""
+    runs = [(name, what, load(os.path.join(results_dir, "hybrid-%s.json" % name)))
+            for name, what in HYBRID_VARIANTS]
+    runs = [r for r in runs if r[2]]
+    if not runs:
+        return prose("hybrid_variants", "not-measured")
+    meta = runs[0][2]["meta"]
+    rows = []
+    for name, what, b in runs:
+        for sc in b["scenes"]:
+            res = {r["accel"]: r for r in b["results"] if r["scene"] == sc["scene"] and r["set"] == "primary"}
+            bld = {r["accel"]: r for r in b["builds"] if r["scene"] == sc["scene"]}
+            hs, kds = res.get("hybrid"), res.get("kdtree")
+            if not hs:
+                continue
+            # Through the two ratios to Embree, each paired with Embree rep by rep: the raw
+            # medians of Mrays/s were timed minutes apart and move with the machine's load.
+            vs_kd = (hs["ratio_to_reference"] / kds["ratio_to_reference"]
+                     if kds and hs.get("ratio_to_reference") and kds.get("ratio_to_reference") else None)
+            hb = bld.get("hybrid", {})
+            rows.append([what, sc["scene"], g(hs.get("ratio_to_reference")),
+                         g(kds.get("ratio_to_reference")) if kds else "-", g(vs_kd),
+                         g(hs.get("steps_per_ray")), g(hs.get("tests_per_ray")),
+                         g(hb.get("bytes_per_triangle")), g(hb.get("build_seconds"))])
+    return prose("hybrid_variants", "section", width="%d" % meta["width"],
+                 height="%d" % meta["height"], threads="%d" % meta["threads"],
+                 reps="%d" % meta["reps"], clock=meta.get("clock", "wall"),
+                 table=table(["variant", "scene", "hybrid / Embree", "kd-tree / Embree",
+                              "hybrid / kd-tree", "steps per ray", "tests per ray",
+                              "bytes per triangle", "build s"], rows,
+                             ["---", "---"] + ["---:"] * 7))

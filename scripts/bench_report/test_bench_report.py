@@ -1,0 +1,123 @@
+#!/usr/bin/python3
+"""Tests of scripts/bench-report (ctest runs them as Scripts.BenchReport):
+
+    /usr/bin/python3 scripts/bench_report/test_bench_report.py
+
+docs/RESULTS.md must be exactly what the committed docs/results and templates produce (after
+editing a template or the code, regenerate the page with the command in the failure), and a
+template that does not fit the code must stop the script with a message naming the file and
+block rather than write a page with a hole in it.
+"""
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import unittest
+
+SCRIPTS = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(SCRIPTS)
+sys.dont_write_bytecode = True
+sys.path.insert(0, SCRIPTS)
+
+from bench_report.page import build_page  # noqa: E402
+
+RESULTS = os.path.join(ROOT, "docs", "results")
+REGENERATE = ("/usr/bin/python3 scripts/bench-report docs/results --img-dir docs/img "
+              "--out docs/RESULTS.md")
+
+
+class Page(unittest.TestCase):
+    def test_committed_page_is_what_the_results_give(self):
+        with open(os.path.join(ROOT, "docs", "RESULTS.md")) as f:
+            committed = f.read()
+        page = build_page(RESULTS, os.path.join(ROOT, "docs"), os.path.join(ROOT, "docs", "img"),
+                          ROOT)
+        self.assertTrue(page == committed, "docs/RESULTS.md differs from what docs/results and "
+                        "the templates give; regenerate it: " + REGENERATE)
+
+    def test_absent_files_give_not_measured_sections(self):
+        with tempfile.TemporaryDirectory() as tmp:
+            res = os.path.join(tmp, "results")
+            shutil.copytree(RESULTS, res)
+            for name in ("viewer.json", "big-scene.json") + tuple(
+                    x for x in os.listdir(res) if x.startswith("hybrid-")):
+                os.remove(os.path.join(res, name))
+            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+        self.assertIn("\n## Viewer\n\n*Not measured: there is no viewer.json in %s." % res, page)
+        self.assertIn("## The hybrid's variants\n\n*Not measured: run "
+                      "`scripts/hybrid-variants.sh`.*\n\n", page)
+        self.assertNotIn("-triangle scene (`", page)
+        self.assertTrue(page.endswith("(VmHWM/VmRSS) and `getrusage`.\n"))
+
+
+class Templates(unittest.TestCase):
+    """Each test breaks one template in a copy of templates/ and runs the real entry point."""
+
+    def run_with(self, edit):
+        with tempfile.TemporaryDirectory() as tmp:
+            pkg = os.path.join(tmp, "scripts", "bench_report")
+            shutil.copytree(os.path.join(SCRIPTS, "bench_report"), pkg)
+            shutil.copy(os.path.join(SCRIPTS, "bench-report"), os.path.join(tmp, "scripts"))
+            edit(os.path.join(pkg, "templates"))
+            out = os.path.join(tmp, "RESULTS.md")
+            p = subprocess.run([sys.executable, os.path.join(tmp, "scripts", "bench-report"),
+                                RESULTS, "--out", out], capture_output=True, text=True)
+            return p.returncode, p.stderr, os.path.exists(out)
+
+    @staticmethod
+    def replace(path, old, new):
+        with open(path) as f:
+            text = f.read()
+        assert old in text, (path, old)
+        with open(path, "w") as f:
+            f.write(text.replace(old, new, 1))
+
+    def expect_error(self, edit, *words):
+        rc, err, written = self.run_with(edit)
+        self.assertEqual(rc, 1, err)
+        self.assertFalse(written)
+        for w in words:
+            self.assertIn(w, err)
+
+    def test_unchanged_copy_writes_the_page(self):
+        rc, err, written = self.run_with(lambda t: None)
+        self.assertEqual((rc, written), (0, True), err)
+
+    def test_misspelt_placeholder(self):
+        self.expect_error(lambda t: self.replace(os.path.join(t, "bench.md"), "found with $ref",
+                                                 "found with $reff"),
+                          "bench.md, block 'suite'", "unknown placeholder(s) $reff",
+                          "placeholder(s) $ref missing")
+
+    def test_dropped_placeholder_even_when_empty(self):
+        # $errors is empty for docs/results: dropping it must still be caught.
+        self.expect_error(lambda t: self.replace(os.path.join(t, "bench.md"),
+                                                 "$build_plot$extras$errors",
+                                                 "$build_plot$extras"),
+                          "bench.md, block 'build'", "placeholder(s) $errors missing")
+
+    def test_missing_block(self):
+        self.expect_error(lambda t: self.replace(os.path.join(t, "viewer.md"),
+                                                 "<!-- block: progressive -->",
+                                                 "<!-- block: progress -->"),
+                          "viewer.md: no block 'progressive'")
+
+    def test_block_defined_twice(self):
+        self.expect_error(lambda t: self.replace(os.path.join(t, "sweeps.md"),
+                                                 "<!-- block: lambda -->",
+                                                 "<!-- block: cellsize -->"),
+                          "sweeps.md:", "block 'cellsize' is defined twice")
+
+    def test_lone_dollar(self):
+        self.expect_error(lambda t: self.replace(os.path.join(t, "howto.md"), "$$KDGRID_SCENES",
+                                                 "$ KDGRID_SCENES"),
+                          "howto.md, block 'howto'", "write $$ for a dollar sign")
+
+    def test_missing_template_file(self):
+        self.expect_error(lambda t: os.remove(os.path.join(t, "big_scene.md")),
+                          "cannot read the template", "big_scene.md")
+
+
+if __name__ == "__main__":
+    unittest.main()
