@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "accel/brute.h"
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 #include "scene/load.h"
 #include "test_util.h"
 #include "util/error.h"

@@ -15,7 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 #include "bench/rayfile.h"
 #include "cli/commands.h"
 #include "cli/common.h"

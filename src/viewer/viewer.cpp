@@ -18,7 +18,7 @@
 #include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
 
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 #include "scene/load.h"
 #include "util/error.h"
 #include "viewer/gl_util.h"

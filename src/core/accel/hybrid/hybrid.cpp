@@ -1,4 +1,4 @@
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
