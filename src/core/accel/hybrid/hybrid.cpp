@@ -642,7 +642,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   mesh_ = &mesh;
   test_ = params.triangle_test;
   dense_ = params.hybrid_dense_matrix;
-  guess_ = params.hybrid_guess;
+  next_leaf_cache_ = params.hybrid_guess;
   nodes_.clear();
   leaves_.clear();
   kd_boxes_.clear();
@@ -777,9 +777,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     const uint64_t matrix = (bricks_.size() + top_.size() + matrix_.size()) * sizeof(uint32_t);
     const auto t2 = std::chrono::steady_clock::now();
     // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
-    // inside one names its leaf (the check of a guessed next leaf, see hybrid.h, "Next-leaf cache";
-    // not kept without guesses).
-    if (guess_) kd_boxes_.resize(leaves_.size());
+    // inside one names its leaf (the next-leaf cache's check, walk.h; not kept without the cache).
+    if (next_leaf_cache_) kd_boxes_.resize(leaves_.size());
     for (size_t i = 0; i < kd_boxes_.size(); ++i) {
       for (int a = 0; a < 3; ++a) {
         kd_boxes_[i].lo[a] = int32_t(leaves_[i].lo[a]);
