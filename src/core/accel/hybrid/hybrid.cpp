@@ -14,16 +14,14 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "accel/hybrid/build.h"
 #include "accel/kdtree.h"
 #include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
 
-namespace {
-
-/// Nodes with more references than this build their children as parallel tasks.
-constexpr size_t kParallelThreshold = 2048;
+namespace hybrid {
 
 std::string fmt(const char* f, double v) {
   char buf[64];
@@ -36,6 +34,16 @@ std::string bytes_str(double b) {
   if (b >= double(1 << 20)) return fmt("%.3g MiB", b / double(1 << 20));
   return fmt("%.0f bytes", b);
 }
+
+}  // namespace hybrid
+
+using hybrid::bytes_str;
+using hybrid::fmt;
+
+namespace {
+
+/// Nodes with more references than this build their children as parallel tasks.
+constexpr size_t kParallelThreshold = 2048;
 
 /// A triangle reference during the build: its inclusive integer cell range in the node.
 struct Ref {
@@ -474,9 +482,9 @@ EstimateAt estimate_at(double c, const double ext[3], double ntri, double area, 
     for (int level = 1;; ++level) {
       top = 1;
       for (int a = 0; a < 3; ++a) top *= std::ceil(e.dims[a] / std::pow(4.0, level));
-      if (top <= double(Hybrid::kMaxTopEntries)) break;
+      if (top <= double(hybrid::BrickedCellMap::kMaxTopEntries)) break;
     }
-    matrix = bricks * Hybrid::kBrickEntries * 4.0 + top * 4.0;
+    matrix = bricks * hybrid::BrickedCellMap::kBrickEntries * 4.0 + top * 4.0;
     matrix_ops = bricks * (kHybridSecondsPerBrick / kHybridSecondsPerBinOp);
   }
   // Binning: every node clears and sums 2 arrays of its width per axis. Widths halve about
@@ -641,7 +649,6 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   }
   mesh_ = &mesh;
   test_ = params.triangle_test;
-  dense_ = params.hybrid_dense_matrix;
   next_leaf_cache_ = params.hybrid_guess;
   nodes_.clear();
   leaves_.clear();
@@ -651,9 +658,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   sub_nodes_.clear();
   tris_.clear();
   prim_of_.clear();
-  matrix_.clear();
-  bricks_.clear();
-  top_.clear();
+  map_.reset(params.hybrid_dense_matrix);
   step_errors_.store(0);
   {
     static std::atomic<uint64_t> builds{0};
@@ -686,7 +691,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const double max_axis = std::max({d[0], d[1], d[2]});
   auto dims_text = [&] { return fmt("%.0f", d[0]) + "x" + fmt("%.0f", d[1]) + "x" + fmt("%.0f", d[2]); };
   const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 4 * sizeof(uint32_t));
-  if (dense_) {
+  if (map_.dense()) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
       const double fit = cell * std::max(std::cbrt(need / double(budget)), max_axis / double(kHybridMaxAxisCells)) * 1.05;
@@ -730,18 +735,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
   origin4_ = Double4{origin_[0], origin_[1], origin_[2], 0.0};
   top4_ = Double4{double(dims_[0] - 1), double(dims_[1] - 1), double(dims_[2] - 1), 0.0};
-  // Top array over blocks of 4^k cells: the smallest k >= 1 giving at most kMaxTopEntries.
-  int top_level = 1;
-  auto top_count = [&](int k) {
-    double c = 1;
-    for (int a = 0; a < 3; ++a) c *= std::ceil(d[a] / double(int64_t(1) << (kBrickLog * k)));
-    return c;
-  };
-  while (top_count(top_level) > double(kMaxTopEntries)) ++top_level;
-  top_shift_ = kBrickLog * top_level;
-  for (int a = 0; a < 3; ++a) top_dims_[a] = int32_t((int64_t(dims_[a]) + (int64_t(1) << top_shift_) - 1) >> top_shift_);
-  top_stride_[0] = uint64_t(top_dims_[0]);
-  top_stride_[1] = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]);
+  map_.set_grid(dims_);
 
   double t_tree = 0, t_matrix = 0, t_expand = 0;
   std::string expand_text;
@@ -772,9 +766,9 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
              refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
-    build_matrix(left, params.cancel);
+    map_.build(dims_, nodes_, leaves_, left, params.cancel);
     check_cancel(params.cancel);
-    const uint64_t matrix = (bricks_.size() + top_.size() + matrix_.size()) * sizeof(uint32_t);
+    const uint64_t matrix = map_.entries() * sizeof(uint32_t);
     const auto t2 = std::chrono::steady_clock::now();
     // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
     // inside one names its leaf (the next-leaf cache's check, walk.h; not kept without the cache).
@@ -811,7 +805,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(CellBox);
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
   const uint64_t b_tris = tris_.size() * (sizeof(TriVerts) + sizeof(uint32_t));
-  const uint64_t b_matrix = (dense_ ? matrix_.size() : bricks_.size() + top_.size()) * sizeof(uint32_t);
+  const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);
   stats_.bytes = b_tree + b_leaves + b_kd_boxes + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
@@ -819,17 +813,13 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                           {"leaf subtrees", b_sub},
                           {"references", b_refs},
                           {"triangles (corners + ids)", b_tris},
-                          {dense_ ? "matrix (dense)" : "matrix (bricked)", b_matrix},
+                          {map_.dense() ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
   stats_.extra = {{"cell_size", fmt("%.6g", cell_)},
                   {"auto rule", rule},
                   {"grid", std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" +
                                std::to_string(dims_[2])},
-                  {"matrix", dense_ ? "dense"
-                                    : "bricked 4x4x4: top " + std::to_string(top_dims_[0]) + "x" +
-                                          std::to_string(top_dims_[1]) + "x" + std::to_string(top_dims_[2]) +
-                                          " blocks of " + std::to_string(1 << top_shift_) + "^3 cells, " +
-                                          std::to_string(bricks_.size() / kBrickEntries) + " bricks"},
+                  {"matrix", map_.dense() ? "dense" : map_.bricked().describe()},
                   {"leaf subtrees", params.hybrid_subtree_min == 0
                                         ? std::string("off (plain leaves)")
                                         : std::to_string(subtree_leaves) + " leaves with more than " +
@@ -1027,127 +1017,9 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
   stats_.max_depth = max_depth;
 }
 
-// ---- matrix -----------------------------------------------------------------------------
-
-uint32_t Hybrid::build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
-                                   std::vector<uint32_t>* out, BrickBudget& budget) const {
-  static_assert(kMaxNodeEntryLeaves >= 2 && kMaxNodeEntryDepth >= 1);
-  const int64_t side = int64_t(1) << (kBrickLog * level);
-  const int32_t r0[3] = {x0, y0, z0};
-  int32_t r1[3];
-  for (int a = 0; a < 3; ++a) {
-    if (r0[a] >= dims_[a]) return kLeafTag;  // padding beyond the grid: never looked up
-    r1[a] = int32_t(std::min<int64_t>(int64_t(r0[a]) + side, dims_[a]));
-  }
-  while (nodes_[node].axis != 3) {
-    const Node& nd = nodes_[node];
-    if (r1[nd.axis] <= nd.split)
-      node = node + 1;
-    else if (r0[nd.axis] >= nd.split)
-      node = nd.right;
-    else
-      break;
-  }
-  if (nodes_[node].axis == 3) return kLeafTag | uint32_t(nodes_[node].split);
-  // Crossed by a few splits only, in a region coarser than one brick of cells: keep the node,
-  // resolved by a short descent at lookup. Regions of 4^3 cells always refine, so lookups
-  // near the geometry end in a leaf entry.
-  if (level > 1 && count_region_leaves(node, r0, r1, kMaxNodeEntryLeaves + 1, 0) <= kMaxNodeEntryLeaves)
-    return kNodeTag | node;
-  // Crossed by many: refine into a brick (level >= 1 here, a single cell is never split).
-  const uint64_t bytes = budget.bytes.fetch_add(kBrickEntries * sizeof(uint32_t)) + kBrickEntries * sizeof(uint32_t);
-  if (out && bytes > budget.limit)
-    throw ParamError("hybrid: the bricked cell matrix of the " + std::to_string(dims_[0]) + "x" +
-                     std::to_string(dims_[1]) + "x" + std::to_string(dims_[2]) +
-                     " grid exceeds the memory budget of " + bytes_str(double(budget.limit)) +
-                     ": use a larger cell size or 'auto'");
-  const int32_t sub = int32_t(side >> kBrickLog);
-  uint64_t b = 0;
-  if (out) {
-    b = out->size() / kBrickEntries;
-    out->resize(out->size() + kBrickEntries);
-  }
-  for (int k = 0; k < kBrickSide; ++k)
-    for (int j = 0; j < kBrickSide; ++j)
-      for (int i = 0; i < kBrickSide; ++i) {
-        const uint32_t e = build_brick_entry(x0 + i * sub, y0 + j * sub, z0 + k * sub, level - 1, node, out, budget);
-        if (out) (*out)[b * kBrickEntries + uint64_t(i + kBrickSide * (j + kBrickSide * k))] = e;
-      }
-  return uint32_t(b);
-}
-
-/// Leaves of the subtree at `node` that intersect the region [r0, r1), counting up to `limit`;
-/// a path longer than kMaxNodeEntryDepth counts as `limit` (too deep for a node entry).
-int Hybrid::count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit,
-                                int depth) const {
-  if (depth > kMaxNodeEntryDepth) return limit;
-  const Node& n = nodes_[node];
-  if (n.axis == 3) return 1;
-  int count = 0;
-  if (r0[n.axis] < n.split) count += count_region_leaves(node + 1, r0, r1, limit, depth + 1);
-  if (count < limit && r1[n.axis] > n.split) count += count_region_leaves(n.right, r0, r1, limit - count, depth + 1);
-  return std::min(count, limit);
-}
-
-void Hybrid::build_matrix(uint64_t budget, const CancelToken* cancel) {
-  if (dense_) {
-    const uint64_t nx = uint64_t(dims_[0]), ny = uint64_t(dims_[1]), nz = uint64_t(dims_[2]);
-    matrix_.assign(nx * ny * nz, 0);
-    tbb::parallel_for(size_t(0), leaves_.size(), [&](size_t li) {
-      const Leaf& l = leaves_[li];
-      for (int32_t z = int32_t(l.lo[2]); z < int32_t(l.hi[2]); ++z)
-        for (int32_t y = int32_t(l.lo[1]); y < int32_t(l.hi[1]); ++y) {
-          uint32_t* row = matrix_.data() + (uint64_t(y) + ny * uint64_t(z)) * nx;
-          std::fill(row + int32_t(l.lo[0]), row + int32_t(l.hi[0]), uint32_t(li));
-        }
-    });
-    return;
-  }
-  // Each top entry's bricks are built independently (in parallel) into their own arrays,
-  // then concatenated in top-entry order with brick indices relocated: deterministic.
-  const uint64_t ntop = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]) * uint64_t(top_dims_[2]);
-  top_.assign(ntop, kLeafTag);
-  BrickBudget bb;
-  bb.limit = budget > ntop * 4 ? budget - ntop * 4 : 0;
-  std::vector<std::vector<uint32_t>> parts(ntop);
-  const int top_level = top_shift_ / kBrickLog;
-  tbb::parallel_for(uint64_t(0), ntop, [&](uint64_t i) {
-    check_cancel(cancel);  // one top entry's bricks: a small part of the matrix
-    const int32_t tx = int32_t(i % uint64_t(top_dims_[0]));
-    const int32_t ty = int32_t((i / uint64_t(top_dims_[0])) % uint64_t(top_dims_[1]));
-    const int32_t tz = int32_t(i / (uint64_t(top_dims_[0]) * uint64_t(top_dims_[1])));
-    top_[i] = build_brick_entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_level, 0, &parts[i], bb);
-  });
-  uint64_t total = 0;
-  std::vector<uint64_t> first(ntop);
-  for (uint64_t i = 0; i < ntop; ++i) {
-    first[i] = total / kBrickEntries;
-    total += parts[i].size();
-  }
-  if (total / kBrickEntries >= kNodeTag)
-    throw ParamError("hybrid: the bricked cell matrix needs more than 2^30 bricks: use a larger cell size");
-  bricks_.resize(total);
-  tbb::parallel_for(uint64_t(0), ntop, [&](uint64_t i) {
-    const uint32_t off = uint32_t(first[i]);
-    uint32_t* dst = bricks_.data() + uint64_t(off) * kBrickEntries;
-    for (uint32_t e : parts[i]) *dst++ = (e & kTagMask) ? e : e + off;
-    if (!(top_[i] & kTagMask)) top_[i] += off;
-    std::vector<uint32_t>().swap(parts[i]);
-  });
-}
-
 uint64_t Hybrid::matrix_bytes(bool dense) const {
-  if (dense) return uint64_t(dims_[0]) * uint64_t(dims_[1]) * uint64_t(dims_[2]) * 4;
-  if (nodes_.empty()) return 0;
-  const uint64_t ntop = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]) * uint64_t(top_dims_[2]);
-  BrickBudget bb;
-  for (uint64_t i = 0; i < ntop; ++i) {
-    const int32_t tx = int32_t(i % uint64_t(top_dims_[0]));
-    const int32_t ty = int32_t((i / uint64_t(top_dims_[0])) % uint64_t(top_dims_[1]));
-    const int32_t tz = int32_t(i / (uint64_t(top_dims_[0]) * uint64_t(top_dims_[1])));
-    build_brick_entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_shift_ / kBrickLog, 0, nullptr, bb);
-  }
-  return bb.bytes.load() + ntop * sizeof(uint32_t);
+  if (dense) return hybrid::DenseCellMap::bytes_for(dims_);
+  return map_.bricked().bytes(nodes_);
 }
 
 // ---- walks ------------------------------------------------------------------------------

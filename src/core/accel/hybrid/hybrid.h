@@ -45,16 +45,15 @@
 #pragma once
 
 #include <atomic>
-#include <bit>
 #include <cstddef>
-#include <cstring>
-#include <cmath>
 #include <cstdint>
-#include <limits>
+#include <functional>
 #include <string>
 #include <vector>
 
 #include "accel/accelerator.h"
+#include "accel/hybrid/cell_map.h"
+#include "accel/hybrid/records.h"
 #include "accel/kd_kernel.h"
 #include "math/simd.h"
 #include "util/cancel.h"
@@ -67,7 +66,6 @@ struct WalkState;
 struct Exit;
 enum class StepResult;
 }  // namespace hybrid
-
 
 /// Auto rule density floor: at least this many cells per triangle, so that scenes mixing huge
 /// and tiny triangles (Sponza) still get a useful grid.
@@ -134,22 +132,11 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
  public:
   /// See HybridEstimate. Throws ParamError for invalid parameters, as build() does.
   static HybridEstimate estimate(const Mesh& mesh, const BuildParams& params);
-  /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.
-  /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
-  /// box widened over empty cells (see "Widened empty leaves").
-  struct alignas(64) Leaf {
-    /// The step box in cells: whole numbers, held as doubles so that the walk's exit reads
-    /// them with no conversion (7 per step; one cache line per leaf all the same). lo and hi
-    /// each start a 32-byte half of the line, so that the walk reads each as four lanes (the
-    /// fourth: first/count's bits after lo, `pad` after hi; see leaf_exit).
-    double lo[3];
-    uint32_t first, count;
-    double hi[3];
-    double pad;
-  };
-  /// Leaf::count bit: `first` is the root of the leaf's kd subtree in sub_nodes_ and the low
-  /// bits count the triangles the leaf references.
-  static constexpr uint32_t kSubtreeFlag = 0x80000000u;
+  using Node = hybrid::Node;
+  using Leaf = hybrid::Leaf;
+  using CellBox = hybrid::CellBox;
+  using TriVerts = hybrid::TriVerts;
+  static constexpr uint32_t kSubtreeFlag = hybrid::kSubtreeFlag;
   /// A leaf subtree in sub_nodes_ starts with the box of its clipped triangles (its corners
   /// as two ClipBox4 lanes, x, y, z, -inf and x, y, z, +inf, in this many nodes' bytes), which
   /// a ray is clipped to first (kd_clip4), then the kd-tree's nodes.
@@ -163,38 +150,6 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// grid's largest leaves hold 22, 310 and 187 references on the bunny, the dragon and Sponza); with
   /// one cell the whole scene is one leaf, whose subtree is then the kd-tree itself.
   static constexpr uint32_t kSubDeepMin = 1024;
-  /// Tree node kept for split walks and the matrix construction; leaves point into leaves_.
-  struct Node {
-    int32_t split;      ///< interior: the split boundary (cell index); leaf: leaf id
-    uint32_t right;     ///< interior: index of the right child (left child = this + 1)
-    uint32_t axis;      ///< 0..2 interior, 3 leaf
-  };
-  /// The three corners of a triangle, copied once per triangle in the order in which the
-  /// leaves (depth-first, so spatially coherent) first reference it: a leaf's triangles lie
-  /// close together in memory without paying a vertex copy per reference (references are
-  /// ~3 per triangle at the auto cell size, so per-reference copies tripled this array).
-  struct TriVerts {
-    Vec3 v0, v1, v2;
-  };
-
-  /// Bricked matrix entries: kLeafTag | leaf id, kNodeTag | kd node index, or a brick index.
-  static constexpr uint32_t kLeafTag = 0x80000000u;
-  static constexpr uint32_t kNodeTag = 0x40000000u;
-  static constexpr uint32_t kTagMask = kLeafTag | kNodeTag;
-  /// A region crossed by split planes whose kd subtree, restricted to the region, reaches at
-  /// most kMaxNodeEntryLeaves leaves within kMaxNodeEntryDepth levels keeps a kd node entry,
-  /// resolved at lookup by a descent of at most that many steps, instead of refining into a
-  /// brick. This keeps memory proportional to content: a lone split plane across a huge empty
-  /// stadium would otherwise refine every brick it crosses (its area, not content).
-  static constexpr int kMaxNodeEntryLeaves = 8;
-  static constexpr int kMaxNodeEntryDepth = 16;
-  /// The bricked matrix starts from a dense top array over blocks of 4^k cells, k >= 1 the
-  /// smallest giving at most this many blocks (1 MiB), so a lookup skips the upper levels
-  /// (the dragon's lookups read one brick level instead of two; docs/HYBRID.md, "The cell map").
-  static constexpr int kMaxTopEntries = 262144;
-  static constexpr int kBrickLog = 2;                          ///< 4 cells per brick axis
-  static constexpr int kBrickSide = 1 << kBrickLog;
-  static constexpr int kBrickEntries = kBrickSide * kBrickSide * kBrickSide;
   /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
   /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
   static constexpr double kRangeEps = 1e-6;
@@ -239,33 +194,15 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   uint64_t matrix_bytes(bool dense) const;
 
  private:
-  [[gnu::always_inline]] uint32_t lookup(int32_t x, int32_t y, int32_t z) const {
-    if (dense_) return matrix_[uint64_t(x) + uint64_t(dims_[0]) * (uint64_t(y) + uint64_t(dims_[1]) * uint64_t(z))];
-    // Strides instead of nested products: the two multiplies run in parallel.
-    uint32_t e = top_[uint64_t(uint32_t(x) >> top_shift_) + top_stride_[0] * uint64_t(uint32_t(y) >> top_shift_) +
-                      top_stride_[1] * uint64_t(uint32_t(z) >> top_shift_)];
-    int shift = top_shift_ - kBrickLog;
-    while (!(e & kTagMask)) {
-      const uint32_t local = ((uint32_t(x) >> shift) & (kBrickSide - 1)) |
-                             (((uint32_t(y) >> shift) & (kBrickSide - 1)) << kBrickLog) |
-                             (((uint32_t(z) >> shift) & (kBrickSide - 1)) << (2 * kBrickLog));
-      e = bricks_[uint64_t(e) * kBrickEntries + local];
-      shift -= kBrickLog;
-    }
-    if (e & kLeafTag) return e & ~kTagMask;
-    // A sparse region: finish with a short kd descent from the stored node.
-    const int32_t c[3] = {x, y, z};
-    const Node* n = nodes_.data() + (e & ~kTagMask);
-    while (n->axis != 3) n = c[n->axis] < n->split ? n + 1 : nodes_.data() + n->right;
-    return uint32_t(n->split);
-  }
-
   // ---- the walk (defined in walk.h) ----
   template <class Tri>
   using WalkState = hybrid::WalkState<Tri>;
   using Exit = hybrid::Exit;
   using StepResult = hybrid::StepResult;
 
+  [[gnu::always_inline]] uint32_t lookup(int32_t x, int32_t y, int32_t z) const {
+    return map_.lookup(x, y, z, nodes_.data());
+  }
   /// The leaf of cell n, which the ray reaches across the face of leaf `from` on `axis`:
   /// from the next-leaf cache when it holds a leaf whose kd box holds n, else from the map.
   [[gnu::always_inline]] inline uint32_t next_leaf(const Int4& n, uint32_t from, int axis) const;
@@ -304,20 +241,11 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   template <class Tri, class S, bool kAny>
   [[gnu::noinline]] StepResult walk_step(WalkState<Tri>& w, S& s) const;
 
+  // ---- the build (build.cpp, tree.cpp) ----
   void build_tree(const Mesh& mesh, const BuildParams& params);
-  void build_matrix(uint64_t budget, const CancelToken* cancel);
   /// Widens every empty leaf's box over the empty cells around it (see "Widened empty
   /// leaves" above); returns the BuildStats text. Skipped when its table exceeds `budget` bytes.
   std::string expand_empty_leaves(uint64_t budget, const CancelToken* cancel);
-  struct BrickBudget {
-    std::atomic<uint64_t> bytes{0};
-    uint64_t limit = ~uint64_t(0);
-  };
-  /// The entry for the region of 4^level cells at (x0, y0, z0), appending bricks to `out`
-  /// (nullptr: only count their bytes in `budget`). Brick indices are local to `out`.
-  uint32_t build_brick_entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
-                             std::vector<uint32_t>* out, BrickBudget& budget) const;
-  int count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit, int depth) const;
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
@@ -325,12 +253,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   Double4 top4_ = {0, 0, 0, 0};     ///< the last cell on each axis (dims_ - 1) and 0, in double
   double cell_ = 1.0, inv_cell_ = 1.0;
   int32_t dims_[3] = {1, 1, 1};
-  int top_shift_ = kBrickLog;       ///< log2 of the top blocks' side in cells
-  int32_t top_dims_[3] = {1, 1, 1};
-  uint64_t top_stride_[2] = {1, 1};  ///< top array strides of y and z
-  bool dense_ = false;
-  Box3 wbox_;            ///< the grid's world box, widened beyond rounding (walk_begin)
-  ClipBox4 wclip_;       ///< wbox_ as kd_begin reads it
+  hybrid::CellMap map_;   ///< cell -> leaf (BuildParams::hybrid_dense_matrix selects the form)
+  Box3 wbox_;             ///< the grid's world box, widened beyond rounding (walk_begin)
+  ClipBox4 wclip_;        ///< wbox_ as kd_begin reads it
   float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
   bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_guess
   uint64_t uid_ = 0;  ///< unique per build, never 0 (NextLeafCache::owner)
@@ -338,21 +263,12 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 
   std::vector<Node> nodes_;
   std::vector<Leaf> leaves_;
-  /// Each leaf's kd box (an empty leaf's before widening): they tile the grid.
-  struct CellBox {
-    /// x, y, z and a fourth lane that every cell passes (INT32_MIN, INT32_MAX; a walk's lane 3 is 0).
-    alignas(16) int32_t lo[4];
-    int32_t hi[4];
-  };
-  std::vector<CellBox> kd_boxes_;
+  std::vector<CellBox> kd_boxes_;   ///< each leaf's kd box; kept only for the next-leaf cache
   std::vector<uint8_t> leaf_depth_;
   std::vector<KdNode> sub_nodes_;   ///< leaf subtrees (world space, KdNode layout)
   std::vector<uint32_t> refs_;      ///< per leaf, indices into tris_ (local triangle ids)
   std::vector<TriVerts> tris_;      ///< corners by local id (first-reference order)
   std::vector<uint32_t> prim_of_;   ///< local id -> the mesh's triangle index
-  std::vector<uint32_t> matrix_;   ///< dense storage
-  std::vector<uint32_t> bricks_;   ///< bricked storage, kBrickEntries per brick
-  std::vector<uint32_t> top_;      ///< bricked storage: entries of the top blocks
   mutable std::atomic<uint64_t> step_errors_{0};
 };
 
