@@ -243,9 +243,6 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
 
   // ---- the build (build.cpp, tree.cpp) ----
   void build_tree(const Mesh& mesh, const BuildParams& params);
-  /// Widens every empty leaf's box over the empty cells around it (see "Widened empty
-  /// leaves" above); returns the BuildStats text. Skipped when its table exceeds `budget` bytes.
-  std::string expand_empty_leaves(uint64_t budget, const CancelToken* cancel);
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
