@@ -29,7 +29,7 @@ void dims_for(const double ext[3], double cell, double out[3]);
 /// The scene box's low corner and extent, over the triangles' vertices (a point at 0 without
 /// triangles).
 void scene_box(const Mesh& mesh, double origin[3], double ext[3]);
-/// The auto rule of hybrid.h ("Auto cell size"); `rule` describes each step taken.
+/// The auto rule (hybrid.h; docs/HYBRID.md, "The cell size"); `rule` describes each step taken.
 double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
                       std::string& rule);
 /// The cell size a build uses: params.cell_size (at most the scene's extent), or the auto rule;
@@ -37,9 +37,9 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
 double choose_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
                         std::string& rule);
 
-/// Widens every empty leaf's box over the empty cells around it (hybrid.h, "Widened empty
-/// leaves"), in a grid of dims cells; returns the BuildStats text. Skipped when its table of
-/// occupied cells exceeds `budget` bytes or Hybrid::kMaxExpandEntries entries.
+/// Widens every empty leaf's box over the empty cells around it (docs/HYBRID.md, "Widened
+/// empty leaves"), in a grid of dims cells; returns the BuildStats text. Skipped when its
+/// table of occupied cells exceeds `budget` bytes or Hybrid::kMaxExpandEntries entries.
 std::string widen_empty_leaves(std::vector<Leaf>& leaves, const int32_t dims[3], uint64_t budget,
                                const CancelToken* cancel);
 

@@ -1,47 +1,29 @@
-// The hybrid regular grid / kd-tree (after D. Muñoz Díaz; docs/HYBRID.md): an SAH kd-tree
-// whose split planes lie only on the boundaries of a regular grid of basic cells, plus a
-// cell -> leaf map, so that a ray steps from leaf to leaf by index arithmetic, like a uniform
-// grid, instead of descending the tree.
+// The hybrid regular grid / kd-tree (after D. Muñoz Díaz; docs/HYBRID.md has the long form):
+// an SAH kd-tree whose split planes lie only on the boundaries of a regular grid of cells,
+// plus a cell -> leaf map, so that a ray steps from leaf to leaf by index arithmetic, like a
+// uniform grid, instead of descending the tree. The files of accel/hybrid/:
 //
-// Grid. Cells of edge `cell` (BuildParams::cell_size) from the scene's low corner, dims[a] =
-// max(1, ceil(extent[a] / cell)) per axis. The walk works in grid space, g = (p - origin) /
-// cell, in double, where cell boundaries are the integers.
+//   hybrid.h          this class: parameters, records' names, the walk's declarations
+//   records.h         Node, Leaf (the step box), CellBox (the kd box), TriVerts
+//   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
+//   walk.h            the ray walk: clip, entry cell, leaf steps with mailboxed tests, and
+//                     the next-leaf cache (NextLeafCache)
+//   build.cpp         Hybrid::build; choose_cell_size (explicit size or the auto rule)
+//   tree.cpp          the kd-tree on cell boundaries, its leaf subtrees, flattened
+//   widen.cpp         widened empty leaves
+//   estimate.cpp      Hybrid::estimate: grid, bytes and seconds of a build before it runs
+//   hybrid.cpp        leaf boxes, split planes and map sizes for tests and the viewer
+//   build.h           what the build's files share
 //
-// Auto cell size (cell_size <= 0; BuildStats::extra "auto rule"): the cell_percentile-th
-// percentile (default 90) of the triangles' largest extents, lowered to give the scene box at
-// least kHybridAutoCellsPerTriangle cells per triangle, then raised until the grid has at most
-// kHybridAutoMaxCells cells (kHybridAutoMaxAxisCells per axis, the dense map within budget).
-//
-// Tree. A node is an integer box of cells; its candidates are the interior cell boundaries,
-// binned per cell so one prefix sum gives exact SAH counts. References are the triangles
-// clipped to the node box ("perfect splits"). Subtrees build in parallel; output is
-// deterministic.
-//
-// Cell map. Every cell maps to the id of the leaf covering it: one uint32 per cell (the dense
-// map, BuildParams::hybrid_dense_matrix), or by default a dense top array over blocks of 4^k
-// cells whose entries name a leaf, a 4x4x4 brick or a kd node with a short descent, so memory
-// follows the content rather than the volume. A lookup is at most k dependent loads.
-//
-// Leaf subtrees (BuildParams::hybrid_subtree_min). A leaf of more triangles keeps a kd subtree
-// of at most kSubMaxDepth levels, built by the kd-tree's own builder and walked by its
-// traversal (kd_traverse) over the ray's segment in the leaf; so a cell need not be a triangle
-// wide and the grid stays small.
-//
-// Widened empty leaves (BuildParams::hybrid_expand_empty). Each empty leaf's box is grown over
-// the empty cells around it (a summed-volume table of occupied cells), and the walk steps over
-// that box: fewer steps through empty space, the same hits.
-//
-// Next-leaf cache (BuildParams::hybrid_guess; NextLeafCache in walk.h). Each thread remembers the
-// leaf it last reached across each leaf face; the walk takes it when the exit cell lies in
-// that leaf's kd box (kd_boxes_ tile the grid, so the check is exact), else looks the cell up.
-// Coherent rays predict the check, so the next leaf's record loads while the exit is being
-// computed. A per-thread score turns the cache off while it mostly misses.
-//
-// Walk. Clip the ray in float to the grid's box, widened by the kd-tree's rounding bound; look
-// up the entry cell's leaf; then test the leaf's triangles (through a per-ray mailbox), compute
-// the exit over the leaf box's far planes in four lanes (x, y, z and a dummy axis), stop once
-// the closest hit lies before the exit, else step to the cell past the exit face. Cells move
-// monotonically along the ray, so at most nx+ny+nz+1 steps; the loop enforces that bound.
+// Grid: cells of edge `cell` from the scene's low corner, dims[a] = max(1, ceil(extent[a] /
+// cell)); the walk works in grid space, g = (p - origin) / cell, where cell boundaries are the
+// integers. Auto cell size (cell_size <= 0): the cell_percentile-th percentile of the
+// triangles' largest extents, lowered to give at least kHybridAutoCellsPerTriangle cells per
+// triangle, then raised to at most kHybridAutoMaxAxisCells per axis and kHybridAutoMaxCells in
+// all (kHybridAutoMaxCellsPlain with plain leaves). Leaves of more than hybrid_subtree_min
+// triangles keep a kd subtree, walked by the kd-tree's traversal. Empty leaves' step boxes are
+// widened over the empty cells around them (hybrid_expand_empty). A walk takes at most
+// nx+ny+nz+1 steps; the loop enforces that bound.
 #pragma once
 
 #include <atomic>

@@ -18,7 +18,7 @@ struct Node {
 
 /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.
 /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
-/// box widened over empty cells (see "Widened empty leaves" in hybrid.h).
+/// box widened over empty cells (widen.cpp).
 struct alignas(64) Leaf {
   /// The step box in cells: whole numbers, held as doubles so that the walk's exit reads
   /// them with no conversion (7 per step; one cache line per leaf all the same). lo and hi

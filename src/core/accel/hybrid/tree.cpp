@@ -1,6 +1,6 @@
-// The hybrid's tree: an SAH kd-tree whose split planes lie on cell boundaries (hybrid.h,
-// "Tree"), built over clipped triangle references, then flattened into the structure's nodes,
-// leaves and references (Hybrid::build_tree).
+// The hybrid's tree: an SAH kd-tree whose split planes lie on cell boundaries (docs/HYBRID.md,
+// "The structure"), built over clipped triangle references, then flattened into the
+// structure's nodes, leaves and references (Hybrid::build_tree).
 #include <tbb/parallel_for.h>
 #include <tbb/task_group.h>
 

@@ -113,19 +113,20 @@ inline uint64_t Hybrid::next_leaves_from_cache() { return hybrid::thread_next_le
 
 inline uint32_t Hybrid::next_leaf(const Int4& n, uint32_t from, int axis) const {
   if (!next_leaf_cache_) return lookup(n[0], n[1], n[2]);
-  hybrid::NextLeafCache& cache = hybrid::thread_next_leaf_cache;
+  using Cache = hybrid::NextLeafCache;
+  Cache& cache = hybrid::thread_next_leaf_cache;
   uint32_t& entry = cache.entry(from, axis);
   const uint32_t id = entry;
   if (cache.score >= 0) {
     if (in_kd_box(id, n)) [[likely]] {
-      cache.score = std::min(cache.score + 1, hybrid::NextLeafCache::kScoreMax);
+      cache.score = std::min(cache.score + 1, Cache::kScoreMax);
       ++cache.taken;
       return id;
     }
   }
   const uint32_t found = lookup(n[0], n[1], n[2]);
-  cache.score = found == id ? std::min(cache.score + 1, hybrid::NextLeafCache::kScoreMax)
-                            : std::max(cache.score - hybrid::NextLeafCache::kMissCost, hybrid::NextLeafCache::kScoreMin);
+  cache.score = found == id ? std::min(cache.score + 1, Cache::kScoreMax)
+                            : std::max(cache.score - Cache::kMissCost, Cache::kScoreMin);
   entry = found;
   return found;
 }

@@ -1,6 +1,7 @@
-// Widened empty leaves (hybrid.h): each empty leaf's step box grown over the empty cells
-// around it, so that a ray crosses empty space in fewer steps. The leaves' kd boxes, the cell
-// map and the triangle tests are unchanged; only Leaf::lo/hi of empty leaves move.
+// Widened empty leaves (BuildParams::hybrid_expand_empty): each empty leaf's step box grown
+// over the empty cells around it, so that a ray crosses empty space in fewer steps. The
+// leaves' kd boxes, the cell map and the triangle tests are unchanged; only Leaf::lo/hi of
+// empty leaves move.
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
