@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "accel/brute.h"
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 #include "scene/load.h"
 #include "test_util.h"
 #include "util/error.h"
@@ -799,12 +799,12 @@ std::vector<Ray> coherent_rays(int n) {
 }
 
 // The walk takes the leaf its thread last reached across the same leaf face when the exit
-// cell lies in that leaf's kd box (see "Guessed next leaf"). Guesses left by another
-// structure (which claim_guesses must clear: in_kd_box no longer checks that a guessed id is
+// cell lies in that leaf's kd box (the next-leaf cache, walk.h). Cache entries left by another
+// structure (which NextLeafCache::claim must clear: in_kd_box does not check that a cached id is
 // one of this structure's leaves, so without the claim this test fails), by incoherent rays or
 // by the same coherent rays must never change an answer, nor the counters (every resolution
 // counts as a lookup).
-TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
+TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   const Mesh ma = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
   const Mesh mb = random_soup(5, 3000, Vec3(-1), Vec3(1), 0.08f);
   Hybrid ha, hb;
@@ -818,14 +818,14 @@ TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
   const Reference refa = brute_reference(ma, ra), refb = brute_reference(mb, rb);
   int failures = 0;
   uint64_t steps = 0;
-  const uint64_t taken_before = Hybrid::guesses_taken();
-  // The two structures in turn on one thread: each finds the other's guesses in the table.
+  const uint64_t taken_before = Hybrid::next_leaves_from_cache();
+  // The two structures in turn on one thread: each finds the other's leaves in the cache.
   for (size_t i = 0; i < ra.size(); ++i) {
     failures += compare(ha, ma, {ra[i]}, Reference{{refa.hits[i]}, {refa.occluded[i]}}, "sphere, in turn");
     failures += compare(hb, mb, {rb[i]}, Reference{{refb.hits[i]}, {refb.occluded[i]}}, "soup, in turn");
     ASSERT_LE(failures, 5);
-    // The same ray counted right after itself (guesses right) and after the other structure's
-    // ray (guesses wrong): the same steps, lookups and tests.
+    // The same ray counted right after itself (the cache right) and after the other structure's
+    // ray (the cache wrong): the same steps, lookups and tests.
     RayCounters once, again;
     Hit h1, h2;
     ha.intersect_counted(ra[i], h1, once);
@@ -836,35 +836,35 @@ TEST(Hybrid, GuessedNextLeavesNeverChangeTheAnswer) {
     steps += once.steps;
   }
   EXPECT_EQ(failures, 0);
-  EXPECT_GT(steps, 4 * ra.size()) << "the rays cross several leaves, so guesses are taken";
-  // Alone again: the coherent rays with their own guesses warm.
-  const uint64_t taken_in_turn = Hybrid::guesses_taken();
+  EXPECT_GT(steps, 4 * ra.size()) << "the rays cross several leaves, so the cache is used";
+  // Alone again: the coherent rays with their own cache entries warm.
+  const uint64_t taken_in_turn = Hybrid::next_leaves_from_cache();
   EXPECT_EQ(compare(ha, ma, ra, refa, "sphere, alone"), 0);
-  EXPECT_GT(taken_in_turn, taken_before) << "a ray traced right after itself takes its guesses";
-  EXPECT_GT(Hybrid::guesses_taken(), taken_in_turn) << "coherent rays take guesses";
+  EXPECT_GT(taken_in_turn, taken_before) << "a ray traced right after itself takes its cached leaves";
+  EXPECT_GT(Hybrid::next_leaves_from_cache(), taken_in_turn) << "coherent rays take cached leaves";
 }
 
-// BuildParams::hybrid_guess = false (`--hybrid-no-guess`), the paper's walk: no guess taken,
-// and the same hits and counters as the walk with guesses, ray by ray.
-TEST(Hybrid, WithoutGuessesTheSameWalk) {
+// BuildParams::hybrid_guess = false (`--hybrid-no-guess`), the paper's walk: no leaf taken from
+// the next-leaf cache, and the same hits and counters as the walk with it, ray by ray.
+TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
   const Mesh m = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
   BuildParams p = params_with(0.0f, false);
-  Hybrid guessing, plain;
-  guessing.build(m, p);
+  Hybrid cached, plain;
+  cached.build(m, p);
   p.hybrid_guess = false;
   plain.build(m, p);
   const std::vector<Ray> rays = coherent_rays(48);
-  const uint64_t before = Hybrid::guesses_taken();
-  RayCounters with_guesses, without;
+  const uint64_t before = Hybrid::next_leaves_from_cache();
+  RayCounters with_cache, without;
   std::vector<Hit> hits_with(rays.size()), hits_without(rays.size());
   std::vector<char> found_with(rays.size()), found_without(rays.size());
   for (size_t i = 0; i < rays.size(); ++i)
-    found_with[i] = guessing.intersect_counted(rays[i], hits_with[i], with_guesses);
-  const uint64_t between = Hybrid::guesses_taken();
-  EXPECT_GT(between, before) << "coherent rays take guesses";
+    found_with[i] = cached.intersect_counted(rays[i], hits_with[i], with_cache);
+  const uint64_t between = Hybrid::next_leaves_from_cache();
+  EXPECT_GT(between, before) << "coherent rays take cached leaves";
   for (size_t i = 0; i < rays.size(); ++i)
     found_without[i] = plain.intersect_counted(rays[i], hits_without[i], without);
-  EXPECT_EQ(Hybrid::guesses_taken(), between) << "hybrid_guess = false takes no guess";
+  EXPECT_EQ(Hybrid::next_leaves_from_cache(), between) << "hybrid_guess = false takes no cached leaf";
   for (size_t i = 0; i < rays.size(); ++i) {
     ASSERT_EQ(found_with[i], found_without[i]) << "ray " << i;
     if (found_with[i]) {
@@ -872,7 +872,7 @@ TEST(Hybrid, WithoutGuessesTheSameWalk) {
       EXPECT_EQ(hits_with[i].t, hits_without[i].t) << "ray " << i;
     }
   }
-  EXPECT_EQ(with_guesses, without);
+  EXPECT_EQ(with_cache, without);
 }
 
 void check_trace_order(uint32_t subtree_min) {

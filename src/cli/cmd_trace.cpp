@@ -15,7 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 #include "bench/rayfile.h"
 #include "cli/commands.h"
 #include "cli/common.h"
@@ -43,7 +43,7 @@ struct TraceArgs {
 struct Counted {
   RayCounters c;
   uint64_t hits = 0;
-  uint64_t guessed = 0;  ///< the hybrid's next leaves taken from its guesses
+  uint64_t guessed = 0;  ///< the hybrid's next leaves taken from its next-leaf cache
 };
 
 void print_box(const Box3& b) {
@@ -161,15 +161,15 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
   const Counted counted = tbb::parallel_reduce(
       all, Counted{},
       [&](const tbb::blocked_range<size_t>& br, Counted acc) {
-        // The guesses taken are counted per thread: this chunk's runs on one.
-        const uint64_t guessed0 = Hybrid::guesses_taken();
+        // The cached leaves taken are counted per thread: this chunk's runs on one.
+        const uint64_t guessed0 = Hybrid::next_leaves_from_cache();
         for (size_t i = br.begin(); i < br.end(); ++i) {
           Hit h;
           const bool hit = a.any ? accel.occluded_counted(rays[i], acc.c)
                                  : accel.intersect_counted(rays[i], h, acc.c);
           acc.hits += hit;
         }
-        acc.guessed += Hybrid::guesses_taken() - guessed0;
+        acc.guessed += Hybrid::next_leaves_from_cache() - guessed0;
         return acc;
       },
       [](Counted x, const Counted& y) {

@@ -19,7 +19,7 @@
 #include <tbb/global_control.h>
 
 #include "accel/guards.h"
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 #include "scene/load.h"
 #include "util/error.h"
 #include "viewer/gl_util.h"

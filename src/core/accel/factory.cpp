@@ -7,7 +7,7 @@
 #include "accel/embree.h"
 #include "accel/grid.h"
 #include "accel/guards.h"
-#include "accel/hybrid.h"
+#include "accel/hybrid/hybrid.h"
 #include "accel/irregular.h"
 #include "accel/kdtree.h"
 #include "util/error.h"

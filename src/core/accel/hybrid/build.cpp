@@ -1,0 +1,369 @@
+// Hybrid::build: validates the parameters, chooses the cell size (choose_cell_size: explicit
+// or the auto rule), checks the memory budget, then builds the tree (tree.cpp), the cell map
+// (cell_map.cpp) and the widened empty leaves (widen.cpp), and reports the build's figures.
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <string>
+
+#include "accel/guards.h"
+#include "accel/hybrid/build.h"
+#include "accel/hybrid/hybrid.h"
+#include "util/cancel.h"
+#include "util/error.h"
+
+namespace kdgrid {
+
+namespace hybrid {
+
+std::string fmt(const char* f, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+
+std::string bytes_str(double b) {
+  if (b >= double(uint64_t(1) << 30)) return fmt("%.3g GiB", b / double(uint64_t(1) << 30));
+  if (b >= double(1 << 20)) return fmt("%.3g MiB", b / double(1 << 20));
+  return fmt("%.0f bytes", b);
+}
+
+void dims_for(const double ext[3], double cell, double out[3]) {
+  for (int a = 0; a < 3; ++a) out[a] = std::max(1.0, std::ceil(ext[a] / cell));
+}
+
+void scene_box(const Mesh& mesh, double origin[3], double ext[3]) {
+  Box3 sb;
+  for (const auto& t : mesh.triangles)
+    for (uint32_t v : t) sb.grow(mesh.positions[v]);
+  if (mesh.num_triangles() == 0) sb = Box3(Vec3(0.0f), Vec3(0.0f));
+  for (int a = 0; a < 3; ++a) {
+    origin[a] = double(sb.lo[a]);
+    ext[a] = double(sb.hi[a]) - double(sb.lo[a]);
+  }
+}
+
+double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
+                 std::string& rule) {
+  const size_t ntri = mesh.num_triangles();
+  const double max_ext = std::max({ext[0], ext[1], ext[2]});
+  double c = 0.0;
+  if (ntri > 0) {
+    std::vector<float> e(ntri);
+    for (size_t i = 0; i < ntri; ++i) e[i] = max_component(mesh.triangle_bounds(i).extent());
+    const double p = double(params.cell_percentile) / 100.0;
+    const size_t k = size_t(std::clamp(std::ceil(p * double(ntri)) - 1.0, 0.0, double(ntri - 1)));
+    std::nth_element(e.begin(), e.begin() + ptrdiff_t(k), e.end());
+    c = double(e[k]);
+  }
+  rule = fmt("p%g", params.cell_percentile);
+  rule += " of triangle extents = " + fmt("%.6g", c);
+  // Density floor: scenes mixing huge and tiny triangles (Sponza) would otherwise get a
+  // handful of cells holding hundreds of triangles each.
+  double vol = 1.0;
+  int flat_axes = 0;
+  for (int a = 0; a < 3; ++a) {
+    if (ext[a] > 0.0)
+      vol *= ext[a];
+    else
+      ++flat_axes;
+  }
+  if (ntri > 0 && flat_axes < 3) {
+    const double cd =
+        std::pow(vol / (kHybridAutoCellsPerTriangle * double(ntri)), 1.0 / double(3 - flat_axes));
+    if (cd < c || !(c > 0.0)) {
+      c = cd;
+      rule += "; lowered to " + fmt("%.6g", c) + " for >= " + fmt("%g", kHybridAutoCellsPerTriangle) +
+              " cells per triangle";
+    }
+  }
+  if (!(c > 0.0)) {
+    c = 1.0;
+    rule += "; degenerate scene, using 1";
+  }
+  const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
+  if (c < axis_floor) {
+    c = axis_floor;
+    rule += "; raised to " + fmt("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
+            " cells per axis";
+  }
+  // Plain leaves (no subtrees) need cells about a triangle wide: only the binning and the
+  // matrix bound them.
+  double limit = params.hybrid_subtree_min > 0 ? kHybridAutoMaxCells : kHybridAutoMaxCellsPlain;
+  if (params.hybrid_dense_matrix) limit = std::min(limit, double(budget) / 4.0);
+  bool raised = false;
+  for (int it = 0; it < 200; ++it) {
+    double d[3];
+    dims_for(ext, c, d);
+    const double cells = d[0] * d[1] * d[2];
+    if (cells <= limit) break;
+    c *= std::max(1.0001, std::cbrt(cells / limit));
+    raised = true;
+  }
+  if (raised) rule += "; raised to " + fmt("%.6g", c) + " for <= " + fmt("%.0f", limit) + " cells";
+  return c;
+}
+
+double choose_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
+                    std::string& rule) {
+  if (params.cell_size > 0.0f) {
+    rule = "explicit";
+    // A cell larger than the scene is one cell of the scene's size: the same single cell,
+    // but a grid box reaching far beyond the scene would widen the walk's rounding bound
+    // (KdRay::err grows with the box's coordinates) until every ray crossed every node of the
+    // cell's subtree (a cell of 1e9 on the bunny: 108,828 triangle tests for one ray).
+    const double max_ext = std::max({ext[0], ext[1], ext[2]});
+    if (double(params.cell_size) > max_ext && max_ext > 0.0) {
+      rule += fmt(" %g", params.cell_size);
+      rule += ", larger than the scene: one cell of its extent ";
+      rule += fmt("%.6g", max_ext);
+      return max_ext;
+    }
+    return double(params.cell_size);
+  }
+  return auto_cell_size(mesh, params, ext, budget, rule);
+}
+
+}  // namespace hybrid
+
+using hybrid::bytes_str;
+using hybrid::fmt;
+
+// ---- build ------------------------------------------------------------------------------
+
+BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
+  const auto t_start = std::chrono::steady_clock::now();
+  // Validate parameters before touching any state.
+  if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
+    throw ParamError("hybrid: cell_size " + fmt("%g", params.cell_size) +
+                     " is not a finite number: give a positive size in scene units, or 0 "
+                     "(--cell-size auto) for the percentile rule");
+  if (!(params.cell_percentile > 0.0f && params.cell_percentile <= 100.0f))
+    throw ParamError("hybrid: cell_percentile " + fmt("%g", params.cell_percentile) +
+                     " is out of range: give a value in (0, 100], e.g. 90");
+  if (!(params.hybrid_traversal_cost > 0.0f) || !std::isfinite(params.hybrid_traversal_cost) ||
+      !(params.hybrid_intersection_cost > 0.0f) || !std::isfinite(params.hybrid_intersection_cost))
+    throw ParamError("hybrid: hybrid_traversal_cost and hybrid_intersection_cost must be positive "
+                     "finite numbers, e.g. 1 and 1.5");
+  const size_t ntri = mesh.num_triangles();
+  for (size_t i = 0; i < ntri; ++i)
+    for (uint32_t v : mesh.triangles[i])
+      if (v >= mesh.positions.size() || !is_finite(mesh.positions[v]))
+        throw ParamError("hybrid: triangle " + std::to_string(i) +
+                         " has an out-of-range or non-finite vertex: validate the mesh first");
+
+  // Memory guard before any allocation: what the build needs at least, whatever the scene —
+  // the root's reference list and its children's at the first split (28 bytes per
+  // reference), then at least one reference and the corners and id of every triangle. How many
+  // references a triangle ends in depends on the scene (2.9 on the 1M landscape and the
+  // dragon, 1.2 on the 10M landscape, hundreds for long thin triangles), so the kd build
+  // keeps a running account (TreeBuilder::charge), the exact reference count is checked
+  // before the per-reference arrays are allocated, and the matrices are checked once the grid
+  // is known.
+  uint64_t estimate = 0;
+  {
+    const double nt = double(ntri);
+    estimate = check_memory_budget(
+        "hybrid", ntri,
+        {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
+         {"references, triangle corners and ids (at least one of each per triangle)",
+          nt * (2 * sizeof(uint32_t) + sizeof(TriVerts))},
+         {"leaf subtrees' classification flags (a byte per triangle per thread)",
+          params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
+        params,
+        "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
+        "lower kd_max_depth");
+  }
+  mesh_ = &mesh;
+  test_ = params.triangle_test;
+  next_leaf_cache_ = params.hybrid_guess;
+  nodes_.clear();
+  leaves_.clear();
+  kd_boxes_.clear();
+  leaf_depth_.clear();
+  refs_.clear();
+  sub_nodes_.clear();
+  tris_.clear();
+  prim_of_.clear();
+  map_.reset(params.hybrid_dense_matrix);
+  step_errors_.store(0);
+  {
+    static std::atomic<uint64_t> builds{0};
+    uid_ = ++builds;
+  }
+  stats_ = {};
+  stats_.peak_estimate = estimate;
+
+  const uint64_t budget = effective_memory_budget(params);
+  const int threads = effective_threads(params.threads);
+
+  double ext[3];
+  hybrid::scene_box(mesh, origin_, ext);
+
+  // ---- cell size ----
+  std::string rule;
+  const double cell = hybrid::choose_cell_size(mesh, params, ext, budget, rule);
+  if (params.cell_size > 0.0f) {
+    // An explicit size: refused before anything is allocated when its estimate does not fit.
+    const HybridEstimate est = Hybrid::estimate(mesh, params);
+    if (!est.fits) throw ParamError(est.refusal());
+  }
+  cell_ = cell;
+  inv_cell_ = 1.0 / cell;
+
+  // ---- memory guard before any allocation ----
+  double d[3];
+  hybrid::dims_for(ext, cell, d);
+  const double cells = d[0] * d[1] * d[2];
+  const double max_axis = std::max({d[0], d[1], d[2]});
+  auto dims_text = [&] { return fmt("%.0f", d[0]) + "x" + fmt("%.0f", d[1]) + "x" + fmt("%.0f", d[2]); };
+  const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 4 * sizeof(uint32_t));
+  if (map_.dense()) {
+    const double need = cells * 4.0 + tri_bytes;
+    if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
+      const double fit = cell * std::max(std::cbrt(need / double(budget)), max_axis / double(kHybridMaxAxisCells)) * 1.05;
+      throw ParamError("hybrid: cell size " + fmt("%g", cell) + " gives a " + dims_text() +
+                       " grid whose dense matrix needs " + bytes_str(need) + ", above the memory budget of " +
+                       bytes_str(double(budget)) + ": use a cell size of at least " + fmt("%.3g", fit) +
+                       ", 'auto', or the default bricked storage");
+    }
+  } else {
+    // The bricked matrix is guarded while it is built; before that, the build bins every
+    // node per cell along each axis (2 x 4 bytes per cell per axis per thread).
+    const double need = 8.0 * (d[0] + d[1] + d[2]) * double(threads) + tri_bytes;
+    if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
+      const double fit =
+          cell * std::max(need / double(budget), max_axis / double(kHybridMaxAxisCells)) * 1.05;
+      throw ParamError("hybrid: cell size " + fmt("%g", cell) + " gives a " + dims_text() +
+                       " grid; building it needs at least " + bytes_str(need) +
+                       " (per-cell binning arrays) and at most " + std::to_string(kHybridMaxAxisCells) +
+                       " cells per axis are supported (memory budget " + bytes_str(double(budget)) +
+                       "): use a cell size of at least " + fmt("%.3g", fit) + " or 'auto'");
+    }
+  }
+  for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
+  {
+    // The grid's world box for walk_begin's float clip, widened by 2^-18 of the largest
+    // coordinate: it contains the exact (double) grid box after rounding to float. The
+    // rounding of the clip itself grows with the ray's origin, not with this box, and is
+    // covered per ray by the clip's err (walk_begin); this widening alone lost rays from far
+    // away that graze the box.
+    double m = 0.0;
+    for (int a = 0; a < 3; ++a)
+      m = std::max({m, std::fabs(origin_[a]), std::fabs(origin_[a] + double(dims_[a]) * cell)});
+    const double widen = m * 0x1p-18 + std::numeric_limits<float>::min();
+    for (int a = 0; a < 3; ++a) {
+      wbox_.lo[a] = next_float_down(float(origin_[a] - widen));
+      wbox_.hi[a] = next_float_up(float(origin_[a] + double(dims_[a]) * cell + widen));
+    }
+    max_abs_ = std::max(max_component(abs(wbox_.lo)), max_component(abs(wbox_.hi)));
+    wclip_.set(wbox_);
+  }
+  max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
+  origin4_ = Double4{origin_[0], origin_[1], origin_[2], 0.0};
+  top4_ = Double4{double(dims_[0] - 1), double(dims_[1] - 1), double(dims_[2] - 1), 0.0};
+  map_.set_grid(dims_);
+
+  double t_tree = 0, t_matrix = 0, t_expand = 0;
+  std::string expand_text;
+  tbb::task_arena arena(threads);
+  arena.execute([&] {
+    const auto t0 = std::chrono::steady_clock::now();
+    build_tree(mesh, params);
+    check_cancel(params.cancel);
+    // Local triangle ids in first-reference order (leaves are numbered depth-first).
+    std::vector<uint32_t> local_of(ntri, kInvalidPrim);
+    prim_of_.clear();
+    prim_of_.reserve(ntri);
+    for (uint32_t& r : refs_) {
+      uint32_t& l = local_of[r];
+      if (l == kInvalidPrim) {
+        l = uint32_t(prim_of_.size());
+        prim_of_.push_back(r);
+      }
+      r = l;
+    }
+    tris_.resize(prim_of_.size());
+    tbb::parallel_for(size_t(0), prim_of_.size(), [&](size_t i) {
+      const auto c = mesh.corners(prim_of_[i]);
+      tris_[i] = {c[0], c[1], c[2]};
+    });
+    uint64_t other = 0;
+    other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(CellBox)) + leaf_depth_.size() +
+             refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
+    const auto t1 = std::chrono::steady_clock::now();
+    const uint64_t left = budget > other ? budget - other : 0;
+    map_.build(dims_, nodes_, leaves_, left, params.cancel);
+    check_cancel(params.cancel);
+    const uint64_t matrix = map_.entries() * sizeof(uint32_t);
+    const auto t2 = std::chrono::steady_clock::now();
+    // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
+    // inside one names its leaf (the next-leaf cache's check, walk.h; not kept without the cache).
+    if (next_leaf_cache_) kd_boxes_.resize(leaves_.size());
+    for (size_t i = 0; i < kd_boxes_.size(); ++i) {
+      for (int a = 0; a < 3; ++a) {
+        kd_boxes_[i].lo[a] = int32_t(leaves_[i].lo[a]);
+        kd_boxes_[i].hi[a] = int32_t(leaves_[i].hi[a]);
+      }
+      kd_boxes_[i].lo[3] = std::numeric_limits<int32_t>::min();
+      kd_boxes_[i].hi[3] = std::numeric_limits<int32_t>::max();
+    }
+    expand_text = params.hybrid_expand_empty
+                      ? hybrid::widen_empty_leaves(leaves_, dims_, left > matrix ? left - matrix : 0, params.cancel)
+                      : std::string("off (the paper's kd leaf boxes)");
+    t_expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();
+    t_tree = std::chrono::duration<double>(t1 - t0).count();
+    t_matrix = std::chrono::duration<double>(t2 - t1).count();
+  });
+
+  // ---- stats ----
+  stats_.nodes = nodes_.size();
+  stats_.leaves = leaves_.size();
+  for (const Leaf& l : leaves_) stats_.empty_leaves += l.count == 0;
+  uint64_t subtree_leaves = 0;
+  uint32_t largest_leaf = 0;
+  for (const Leaf& l : leaves_) {
+    subtree_leaves += (l.count & kSubtreeFlag) != 0;
+    largest_leaf = std::max(largest_leaf, l.count & ~kSubtreeFlag);
+  }
+  stats_.references = refs_.size();
+  const uint64_t b_tree = nodes_.size() * sizeof(Node);
+  const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
+  const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
+  const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(CellBox);
+  const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
+  const uint64_t b_tris = tris_.size() * (sizeof(TriVerts) + sizeof(uint32_t));
+  const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);
+  stats_.bytes = b_tree + b_leaves + b_kd_boxes + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
+  stats_.bytes_by_part = {{"tree nodes", b_tree},
+                          {"leaves", b_leaves},
+                          {"leaf kd boxes", b_kd_boxes},
+                          {"leaf subtrees", b_sub},
+                          {"references", b_refs},
+                          {"triangles (corners + ids)", b_tris},
+                          {map_.dense() ? "matrix (dense)" : "matrix (bricked)", b_matrix},
+                          {"object", sizeof(*this)}};
+  stats_.extra = {{"cell_size", fmt("%.6g", cell_)},
+                  {"auto rule", rule},
+                  {"grid", std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" +
+                               std::to_string(dims_[2])},
+                  {"matrix", map_.dense() ? "dense" : map_.bricked().describe()},
+                  {"leaf subtrees", params.hybrid_subtree_min == 0
+                                        ? std::string("off (plain leaves)")
+                                        : std::to_string(subtree_leaves) + " leaves with more than " +
+                                              std::to_string(params.hybrid_subtree_min) + " triangles, " +
+                                              std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
+                                              std::to_string(largest_leaf) + " triangles"},
+                  {"empty-leaf boxes", expand_text},
+                  {"build phases", "tree " + fmt("%.3f", t_tree) + " s, matrix " + fmt("%.3f", t_matrix) +
+                                       " s, empty-leaf boxes " + fmt("%.3f", t_expand) + " s"}};
+  stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  return stats_;
+}
+
+}  // namespace kdgrid

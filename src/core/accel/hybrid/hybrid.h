@@ -1,0 +1,257 @@
+// The hybrid regular grid / kd-tree (after D. Muñoz Díaz; docs/HYBRID.md has the long form):
+// an SAH kd-tree whose split planes lie only on the boundaries of a regular grid of cells,
+// plus a cell -> leaf map, so that a ray steps from leaf to leaf by index arithmetic, like a
+// uniform grid, instead of descending the tree. The files of accel/hybrid/:
+//
+//   hybrid.h          this class: parameters, records' names, the walk's declarations
+//   records.h         Node, Leaf (the step box), CellBox (the kd box), TriVerts
+//   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
+//   walk.h            the ray walk: clip, entry cell, leaf steps with mailboxed tests, and
+//                     the next-leaf cache (NextLeafCache)
+//   build.cpp         Hybrid::build; choose_cell_size (explicit size or the auto rule)
+//   tree.cpp          the kd-tree on cell boundaries, its leaf subtrees, flattened
+//   widen.cpp         widened empty leaves
+//   estimate.cpp      Hybrid::estimate: grid, bytes and seconds of a build before it runs
+//   hybrid.cpp        leaf boxes, split planes and map sizes for tests and the viewer
+//   build.h           what the build's files share
+//
+// Grid: cells of edge `cell` from the scene's low corner, dims[a] = max(1, ceil(extent[a] /
+// cell)); the walk works in grid space, g = (p - origin) / cell, where cell boundaries are the
+// integers. Auto cell size (cell_size <= 0): the cell_percentile-th percentile of the
+// triangles' largest extents, lowered to give at least kHybridAutoCellsPerTriangle cells per
+// triangle, then raised to at most kHybridAutoMaxAxisCells per axis and kHybridAutoMaxCells in
+// all (kHybridAutoMaxCellsPlain with plain leaves). Leaves of more than hybrid_subtree_min
+// triangles keep a kd subtree, walked by the kd-tree's traversal. Empty leaves' step boxes are
+// widened over the empty cells around them (hybrid_expand_empty). A walk takes at most
+// nx+ny+nz+1 steps; the loop enforces that bound.
+#pragma once
+
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "accel/accelerator.h"
+#include "accel/hybrid/cell_map.h"
+#include "accel/hybrid/records.h"
+#include "accel/kd_kernel.h"
+#include "math/simd.h"
+#include "util/cancel.h"
+
+namespace kdgrid {
+
+namespace hybrid {
+template <class Tri>
+struct WalkState;
+struct Exit;
+enum class StepResult;
+}  // namespace hybrid
+
+/// Auto rule density floor: at least this many cells per triangle, so that scenes mixing huge
+/// and tiny triangles (Sponza) still get a useful grid.
+constexpr double kHybridAutoCellsPerTriangle = 16.0;
+/// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
+constexpr int64_t kHybridAutoMaxAxisCells = 2048;
+/// Auto rule cap on the total cell count with leaf subtrees: the subtrees resolve the geometry,
+/// and a small grid keeps lookups in the caches and references few (docs/HYBRID.md, "The cell size").
+constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 19);
+/// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
+/// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
+constexpr double kHybridAutoMaxCellsPlain = double(uint64_t(1) << 24);
+/// Explicit cell sizes may give at most this many cells along one axis (int32 coordinates,
+/// at most 12 brick levels).
+constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
+
+/// What a hybrid build at given parameters would make, from the mesh alone (O(triangles), no
+/// allocation beyond one float per triangle): Hybrid::estimate. The viewer shows it before a
+/// build; Hybrid::build refuses parameters whose estimate does not fit, with the estimate and
+/// suggested_cell in the message.
+struct HybridEstimate {
+  double cell = 0;       ///< the cell size the build would use (the auto rule resolved)
+  double auto_cell = 0;  ///< the auto rule's size for this mesh and these parameters
+  std::string rule;      ///< how the cell size was chosen (BuildStats::extra "auto rule")
+  double dims[3] = {1, 1, 1};
+  double cells = 1;
+  /// Peak bytes of the build, estimated: the cell matrix (dense: 4 bytes a cell; bricked:
+  /// 256-byte bricks along the surface, about kHybridBricksPerArea x area / (4 cells)^2, the
+  /// figure measured on the bunny at 1-18x finer cells than auto), the per-cell binning
+  /// arrays, the empty-leaf table, and the tree (kHybridBytesPerTriangle a triangle).
+  double bytes = 0;
+  /// The built structure's bytes (BuildStats::bytes), estimated: bytes less what the build
+  /// frees before it returns (the binning arrays, the empty-leaf table).
+  double structure_bytes = 0;
+  /// Build time in seconds on BuildParams::threads threads at the rates kHybridSecondsPer*
+  /// (measured on a shared 2-core machine): an order of magnitude, for the refusal and the
+  /// viewer.
+  double seconds = 0;
+  uint64_t budget = 0;         ///< the memory budget it was checked against
+  double seconds_limit = 0;    ///< BuildParams::hybrid_max_build_seconds (0 = none)
+  bool fits = true;            ///< bytes within the budget and seconds within the limit
+  /// When !fits: the smallest cell size (two significant digits, rounded up) whose estimate
+  /// fits; 0 when even one cell does not.
+  double suggested_cell = 0;
+  /// "a 88x87x68 grid (5.21e+05 cells), about 15 MiB and under a second to build".
+  std::string describe() const;
+  /// Why the size does not fit, with the estimate and the fix (the build's ParamError text).
+  std::string refusal() const;
+};
+
+/// Estimate model constants (see HybridEstimate), measured with `kdgrid render --threads 1
+/// --stats-json` ("build phases") on the 2-core AMD EPYC this project is developed on while other
+/// builds shared it, so on the slow side: the bunny's matrix took 10-11 us a brick at 3.4x and
+/// 6.7x finer cells than auto (174K and 716K bricks, 4.4 and 4.5 bricks per (4-cell)^2 of
+/// area); the tree took 16 (Sponza) and 26 (the dragon) us a triangle at the auto size, and
+/// 220-580 bytes a triangle (the bunny, auto to 18x finer).
+constexpr double kHybridBricksPerArea = 4.5;       ///< bricks per (4-cell)^2 of triangle area
+constexpr double kHybridBytesPerTriangle = 600;    ///< tree, leaves, subtrees, references
+constexpr double kHybridSecondsPerBrick = 10e-6;   ///< matrix construction, one thread
+constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
+constexpr double kHybridSecondsPerBinOp = 1e-9;    ///< one per-cell binning entry
+
+class Hybrid final : public AcceleratorBase<Hybrid> {
+ public:
+  /// See HybridEstimate. Throws ParamError for invalid parameters, as build() does.
+  static HybridEstimate estimate(const Mesh& mesh, const BuildParams& params);
+  using Node = hybrid::Node;
+  using Leaf = hybrid::Leaf;
+  using CellBox = hybrid::CellBox;
+  using TriVerts = hybrid::TriVerts;
+  static constexpr uint32_t kSubtreeFlag = hybrid::kSubtreeFlag;
+  /// A leaf subtree in sub_nodes_ starts with the box of its clipped triangles (its corners
+  /// as two ClipBox4 lanes, x, y, z, -inf and x, y, z, +inf, in this many nodes' bytes), which
+  /// a ray is clipped to first (kd_clip4), then the kd-tree's nodes.
+  static constexpr uint32_t kSubBoxNodes = 4;
+  /// Leaf subtrees are at most this many levels deep (64 leaves): deeper ones test fewer
+  /// triangles but build longer and take more memory for no speed (docs/HYBRID.md, "Leaf subtrees").
+  static constexpr int kSubMaxDepth = 6;
+  /// A leaf with more references than this gets the kd-tree's whole depth rule (8 + 1.3
+  /// log2 n) instead of kSubMaxDepth levels: 64 leaves of 16 triangles or more would be
+  /// tested in bulk. Only a grid much coarser than the auto rule's makes such leaves (the auto
+  /// grid's largest leaves hold 22, 310 and 187 references on the bunny, the dragon and Sponza); with
+  /// one cell the whole scene is one leaf, whose subtree is then the kd-tree itself.
+  static constexpr uint32_t kSubDeepMin = 1024;
+  /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
+  /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
+  static constexpr double kRangeEps = 1e-6;
+  /// Direct-mapped per-ray mailbox of recently tested triangles (power of two): a triangle
+  /// referenced by several leaves is tested once; 32 entries catch most repeats at no cost.
+  static constexpr int kMailbox = 32;
+  /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
+  /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
+  static constexpr uint64_t kMaxExpandEntries = uint64_t(1) << 25;
+
+  std::string name() const override { return "hybrid"; }
+  BuildStats build(const Mesh& mesh, const BuildParams& params) override;
+
+  template <class Tri, class S>
+  bool closest(const Ray& ray, Hit& hit, S& s) const {
+    return walk<Tri, S, false>(ray, &hit, s);
+  }
+  template <class Tri, class S>
+  bool any(const Ray& ray, S& s) const {
+    return walk<Tri, S, true>(ray, nullptr, s);
+  }
+
+  void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
+  void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
+
+  // ---- introspection (tests, viewer) ----
+  double cell_size() const { return cell_; }
+  const int32_t* dims() const { return dims_; }
+  Vec3 origin() const { return {float(origin_[0]), float(origin_[1]), float(origin_[2])}; }
+  /// The leaf covering cell (x, y, z) (must lie inside the grid).
+  uint32_t leaf_at(int32_t x, int32_t y, int32_t z) const { return lookup(x, y, z); }
+  const std::vector<Leaf>& leaves() const { return leaves_; }
+  /// Next (and entry) leaves the calling thread took from its next-leaf cache so far, over
+  /// every hybrid (tests, `kdgrid trace`; see walk.h, NextLeafCache).
+  static uint64_t next_leaves_from_cache();
+  /// Rays whose traversal reached the nx+ny+nz+1 step bound (a correct traversal never does).
+  uint64_t step_bound_errors() const { return step_errors_.load(std::memory_order_relaxed); }
+  /// World box of a leaf: the box its steps cross (an empty leaf's widened box).
+  Box3 leaf_box(uint32_t leaf) const;
+  /// Bytes the storage selected by `dense` would take for the current tree (computed, not
+  /// allocated; the bricked figure is exact).
+  uint64_t matrix_bytes(bool dense) const;
+
+ private:
+  // ---- the walk (defined in walk.h) ----
+  template <class Tri>
+  using WalkState = hybrid::WalkState<Tri>;
+  using Exit = hybrid::Exit;
+  using StepResult = hybrid::StepResult;
+
+  [[gnu::always_inline]] uint32_t lookup(int32_t x, int32_t y, int32_t z) const {
+    return map_.lookup(x, y, z, nodes_.data());
+  }
+  /// The leaf of cell n, which the ray reaches across the face of leaf `from` on `axis`:
+  /// from the next-leaf cache when it holds a leaf whose kd box holds n, else from the map.
+  [[gnu::always_inline]] inline uint32_t next_leaf(const Int4& n, uint32_t from, int axis) const;
+  /// The leaf of a ray's entry cell c: the thread's previous entry leaf when its kd box holds
+  /// c (rays from one camera mostly start in one leaf), else the map's.
+  [[gnu::always_inline]] inline uint32_t start_leaf(const Int4& c) const;
+  /// Whether cell c lies in the kd box of leaf `id`, one of this structure's (the cache holds
+  /// only this structure's leaves: NextLeafCache::claim). The kd boxes tile the grid, so true
+  /// means that `id` is the leaf of c.
+  [[gnu::always_inline]] inline bool in_kd_box(uint32_t id, const Int4& c) const;
+
+  template <class Tri, class S, bool kAny>
+  bool walk(const Ray& ray, Hit* hit, S& s) const;
+  /// Where the ray leaves a leaf's step box (the nearest far plane) and the cell past it.
+  template <class Tri>
+  [[gnu::always_inline]] inline Exit leaf_exit(const WalkState<Tri>& w, const Leaf& L) const;
+  /// The rest of leaf_exit once the exit axis A is known (a branch per axis: see leaf_exit).
+  template <int A, class Tri>
+  [[gnu::always_inline]] inline void exit_through(const WalkState<Tri>& w, const Double4& lo,
+                                                  const Double4& hi, const Double4& far, double t,
+                                                  Exit& ex) const;
+  /// Counts one leaf step; true (and a step-bound error counted) once the ray has taken more
+  /// than the nx+ny+nz+1 steps a correct walk can take.
+  template <class Tri>
+  [[gnu::always_inline]] inline bool over_step_bound(WalkState<Tri>& w) const;
+  /// Clips the ray to the grid and finds its entry cell's leaf; false if it misses the grid.
+  /// Inlined into walk(): out of line, every ray pays a call and the stores that build the
+  /// walk's state (3% of a dragon ray's instructions; docs/HYBRID.md, "The walk").
+  template <class Tri>
+  [[gnu::always_inline]] inline bool walk_begin(WalkState<Tri>& w, const Ray& ray) const;
+  /// One leaf step: tests the leaf's triangles and moves to the next leaf. Out of line on
+  /// purpose: as its own function, with the ray's state in memory, the step compiled better
+  /// than inlined in the ray's loop (5-8% faster primary rays; docs/HYBRID.md, "The walk").
+  /// Empty leaves do not come here (traced walks excepted): walk() steps over them inline,
+  /// with nothing to test.
+  template <class Tri, class S, bool kAny>
+  [[gnu::noinline]] StepResult walk_step(WalkState<Tri>& w, S& s) const;
+
+  // ---- the build (build.cpp, tree.cpp) ----
+  void build_tree(const Mesh& mesh, const BuildParams& params);
+
+  const Mesh* mesh_ = nullptr;
+  double origin_[3] = {0, 0, 0};
+  Double4 origin4_ = {0, 0, 0, 0};  ///< origin_ and 0, for the walk's set-up
+  Double4 top4_ = {0, 0, 0, 0};     ///< the last cell on each axis (dims_ - 1) and 0, in double
+  double cell_ = 1.0, inv_cell_ = 1.0;
+  int32_t dims_[3] = {1, 1, 1};
+  hybrid::CellMap map_;   ///< cell -> leaf (BuildParams::hybrid_dense_matrix selects the form)
+  Box3 wbox_;             ///< the grid's world box, widened beyond rounding (walk_begin)
+  ClipBox4 wclip_;        ///< wbox_ as kd_begin reads it
+  float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
+  bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_guess
+  uint64_t uid_ = 0;  ///< unique per build, never 0 (NextLeafCache::owner)
+  uint64_t max_steps_ = 0;
+
+  std::vector<Node> nodes_;
+  std::vector<Leaf> leaves_;
+  std::vector<CellBox> kd_boxes_;   ///< each leaf's kd box; kept only for the next-leaf cache
+  std::vector<uint8_t> leaf_depth_;
+  std::vector<KdNode> sub_nodes_;   ///< leaf subtrees (world space, KdNode layout)
+  std::vector<uint32_t> refs_;      ///< per leaf, indices into tris_ (local triangle ids)
+  std::vector<TriVerts> tris_;      ///< corners by local id (first-reference order)
+  std::vector<uint32_t> prim_of_;   ///< local id -> the mesh's triangle index
+  mutable std::atomic<uint64_t> step_errors_{0};
+};
+
+}  // namespace kdgrid
+
+// The walk's definitions (templates, inlined into every query).
+#include "accel/hybrid/walk.h"

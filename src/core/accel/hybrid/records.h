@@ -1,0 +1,53 @@
+// The hybrid's records: the tree's nodes, the leaves the walk steps over, the leaves' kd boxes
+// and the triangles' corners (accel/hybrid/hybrid.h holds them; docs/HYBRID.md explains them).
+#pragma once
+
+#include <cstdint>
+
+#include "math/vec.h"
+
+namespace kdgrid::hybrid {
+
+/// Tree node, kept for the cell map's node entries, its construction and split walks (for_each_split);
+/// leaves point into the leaf array.
+struct Node {
+  int32_t split;      ///< interior: the split boundary (cell index); leaf: leaf id
+  uint32_t right;     ///< interior: index of the right child (left child = this + 1)
+  uint32_t axis;      ///< 0..2 interior, 3 leaf
+};
+
+/// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.
+/// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
+/// box widened over empty cells (widen.cpp).
+struct alignas(64) Leaf {
+  /// The step box in cells: whole numbers, held as doubles so that the walk's exit reads
+  /// them with no conversion (7 per step; one cache line per leaf all the same). lo and hi
+  /// each start a 32-byte half of the line, so that the walk reads each as four lanes (the
+  /// fourth: first/count's bits after lo, `pad` after hi; see leaf_exit in walk.h).
+  double lo[3];
+  uint32_t first, count;
+  double hi[3];
+  double pad;
+};
+
+/// Leaf::count bit: `first` is the root of the leaf's kd subtree in the subtree node array and
+/// the low bits count the triangles the leaf references.
+constexpr uint32_t kSubtreeFlag = 0x80000000u;
+
+/// A leaf's kd box (an empty leaf's before widening): the kd boxes tile the grid, so a cell
+/// inside one names its leaf (the next-leaf cache's check, walk.h).
+struct CellBox {
+  /// x, y, z and a fourth lane that every cell passes (INT32_MIN, INT32_MAX; a walk's lane 3 is 0).
+  alignas(16) int32_t lo[4];
+  int32_t hi[4];
+};
+
+/// The three corners of a triangle, copied once per triangle in the order in which the
+/// leaves (depth-first, so spatially coherent) first reference it: a leaf's triangles lie
+/// close together in memory without paying a vertex copy per reference (references are
+/// ~3 per triangle at the auto cell size, so per-reference copies tripled this array).
+struct TriVerts {
+  Vec3 v0, v1, v2;
+};
+
+}  // namespace kdgrid::hybrid

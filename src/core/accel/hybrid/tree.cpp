@@ -1,0 +1,415 @@
+// The hybrid's tree: an SAH kd-tree whose split planes lie on cell boundaries (docs/HYBRID.md,
+// "The structure"), built over clipped triangle references, then flattened into the
+// structure's nodes, leaves and references (Hybrid::build_tree).
+#include <tbb/parallel_for.h>
+#include <tbb/task_group.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <string>
+
+#include "accel/guards.h"
+#include "accel/hybrid/build.h"
+#include "accel/hybrid/hybrid.h"
+#include "accel/kdtree.h"
+#include "util/cancel.h"
+#include "util/error.h"
+
+namespace kdgrid {
+
+namespace {
+
+using hybrid::Ref;
+
+/// Nodes with more references than this build their children as parallel tasks.
+constexpr size_t kParallelThreshold = 2048;
+
+struct BuildNode {
+  int axis = -1;  ///< -1 leaf
+  int32_t split = 0;
+  int32_t lo[3], hi[3];
+  int depth = 0;
+  std::unique_ptr<BuildNode> kid[2];
+  std::vector<uint32_t> prims;
+  std::vector<KdNode> sub_nodes;  ///< leaf subtree: its box (Hybrid::kSubBoxNodes), then its nodes
+  std::vector<uint32_t> sub_refs;  ///< its references (mesh triangle ids)
+};
+
+struct P3 {
+  double v[3];
+};
+
+class TreeBuilder {
+ public:
+  TreeBuilder(const Mesh& mesh, const double origin[3], double cell, const int32_t dims[3],
+              const BuildParams& p)
+      : mesh_(mesh), inv_cell_(1.0 / cell), cell_(cell), kd_(mesh, p, Hybrid::kSubMaxDepth),
+        kd_deep_(mesh, p, KdTree::kMaxDepth), cancel_(p.cancel) {
+    for (int a = 0; a < 3; ++a) {
+      origin_[a] = origin[a];
+      dims_[a] = dims[a];
+    }
+    kt_ = p.hybrid_traversal_cost;
+    ki_ = p.hybrid_intersection_cost;
+    bonus_ = std::clamp(double(p.kd_empty_bonus), 0.0, 1.0);
+    subtree_min_ = p.hybrid_subtree_min;
+    const double n = double(std::max<size_t>(1, mesh.num_triangles()));
+    max_depth_ = p.kd_max_depth > 0 ? p.kd_max_depth : int(8.0 + 1.3 * std::log2(n));
+    max_depth_ = std::clamp(max_depth_, 1, 64);
+    budget_ = int64_t(std::min<uint64_t>(effective_memory_budget(p), uint64_t(INT64_MAX)));
+  }
+
+  /// Running account of the build's memory (reference lists alive in the recursion, build
+  /// nodes and their leaf lists). Straddling triangles are clipped into both children, so
+  /// scenes of long thin triangles multiply references with depth; past the budget every
+  /// pending node becomes an empty leaf and Hybrid::build throws instead of exhausting RAM.
+  void charge(int64_t bytes) {
+    const int64_t now = live_.fetch_add(bytes, std::memory_order_relaxed) + bytes;
+    int64_t peak = peak_.load(std::memory_order_relaxed);
+    while (now > peak && !peak_.compare_exchange_weak(peak, now, std::memory_order_relaxed)) {
+    }
+    if (bytes > 0 && now > budget_) over_.store(true, std::memory_order_relaxed);
+  }
+  bool over_budget() const { return over_.load(std::memory_order_relaxed); }
+  int64_t live_bytes() const { return live_.load(); }
+  int64_t peak_bytes() const { return peak_.load(); }
+  uint64_t leaf_refs() const { return leaf_refs_.load(); }
+  uint64_t nodes_made() const { return nodes_made_.load(); }
+
+  std::unique_ptr<BuildNode> build_root() {
+    const size_t n = mesh_.num_triangles();
+    charge(int64_t(n * sizeof(Ref)));
+    std::vector<Ref> refs(n);
+    const int32_t lo[3] = {0, 0, 0};
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
+      for (size_t i = r.begin(); i < r.end(); ++i) clip_range(uint32_t(i), lo, dims_, refs[i]);
+    });
+    return build(std::move(refs), lo, dims_, 0);
+  }
+
+  uint64_t sah_evaluations() const { return evals_.load(); }
+
+ private:
+  P3 grid_vertex(uint32_t v) const {
+    const Vec3& p = mesh_.positions[v];
+    return {{(double(p.x) - origin_[0]) * inv_cell_, (double(p.y) - origin_[1]) * inv_cell_,
+             (double(p.z) - origin_[2]) * inv_cell_}};
+  }
+
+  /// Bounds (grid space) of the triangle clipped to the box [lo, hi] (Sutherland-Hodgman).
+  /// False if the triangle misses the box.
+  bool clip_bounds(uint32_t prim, const double lo[3], const double hi[3], double bl[3], double bh[3]) const {
+    P3 buf[2][16];
+    P3* poly = buf[0];
+    P3* tmp = buf[1];
+    int n = 3;
+    const auto& tri = mesh_.triangles[prim];
+    for (int k = 0; k < 3; ++k) poly[k] = grid_vertex(tri[k]);
+    auto bounds = [&] {
+      for (int a = 0; a < 3; ++a) {
+        bl[a] = bh[a] = poly[0].v[a];
+        for (int k = 1; k < n; ++k) {
+          bl[a] = std::min(bl[a], poly[k].v[a]);
+          bh[a] = std::max(bh[a], poly[k].v[a]);
+        }
+      }
+    };
+    bounds();
+    bool inside = true;
+    for (int a = 0; a < 3; ++a) inside = inside && bl[a] >= lo[a] && bh[a] <= hi[a];
+    if (inside) return true;
+    for (int a = 0; a < 3 && n > 0; ++a) {
+      for (int side = 0; side < 2 && n > 0; ++side) {
+        const double plane = side == 0 ? lo[a] : hi[a];
+        // Planes the polygon lies entirely inside of leave it unchanged.
+        if (side == 0 ? bl[a] >= plane : bh[a] <= plane) continue;
+        auto in = [&](const P3& q) { return side == 0 ? q.v[a] >= plane : q.v[a] <= plane; };
+        int m = 0;
+        for (int k = 0; k < n; ++k) {
+          const P3& p = poly[k];
+          const P3& q = poly[k + 1 == n ? 0 : k + 1];
+          const bool pin = in(p), qin = in(q);
+          if (pin) tmp[m++] = p;
+          if (pin != qin) {
+            const double t = (plane - p.v[a]) / (q.v[a] - p.v[a]);
+            P3 x;
+            for (int b = 0; b < 3; ++b) x.v[b] = p.v[b] + (q.v[b] - p.v[b]) * t;
+            x.v[a] = plane;
+            tmp[m++] = x;
+          }
+        }
+        n = m;
+        std::swap(poly, tmp);
+      }
+    }
+    if (n == 0) return false;
+    bounds();
+    return true;
+  }
+
+  /// The triangle clipped to the node box [lo, hi) widened by kRangeEps, as an inclusive
+  /// integer cell range. False if the triangle misses the box.
+  bool clip_range(uint32_t prim, const int32_t lo[3], const int32_t hi[3], Ref& out) const {
+    constexpr double eps = Hybrid::kRangeEps;
+    double blo[3], bhi[3], bl[3], bh[3];
+    for (int a = 0; a < 3; ++a) {
+      blo[a] = double(lo[a]) - eps;
+      bhi[a] = double(hi[a]) + eps;
+    }
+    if (!clip_bounds(prim, blo, bhi, bl, bh)) return false;
+    out.prim = prim;
+    for (int a = 0; a < 3; ++a) {
+      const double l = std::floor(bl[a] - eps), h = std::floor(bh[a] + eps);
+      out.lo[a] = l < lo[a] ? lo[a] : (l > hi[a] - 1 ? hi[a] - 1 : int32_t(l));
+      out.hi[a] = h < lo[a] ? lo[a] : (h > hi[a] - 1 ? hi[a] - 1 : int32_t(h));
+    }
+    return true;
+  }
+
+  /// Builds the kd subtree of a leaf into node.sub_nodes/sub_refs with the kd-tree's own
+  /// builder, over the leaf's world box (rounded outwards to floats, so that it holds every
+  /// point of the leaf). The subtree starts with the box of its clipped triangles.
+  void build_subtree(BuildNode& node) {
+    Box3 box;
+    for (int a = 0; a < 3; ++a) {
+      const double l = origin_[a] + double(node.lo[a]) * cell_, h = origin_[a] + double(node.hi[a]) * cell_;
+      float fl = float(l), fh = float(h);
+      if (double(fl) > l) fl = next_float_down(fl);
+      if (double(fh) < h) fh = next_float_up(fh);
+      box.lo[a] = fl;
+      box.hi[a] = fh;
+    }
+    Box3 bounds;
+    std::vector<KdNode> nodes;
+    // A leaf far larger than the auto grid's (a coarse explicit cell, one cell for the whole
+    // scene) gets the kd-tree's whole depth rule: 6 levels would leave thousands of triangles
+    // per subtree leaf.
+    const KdSubtreeBuilder& kd = node.prims.size() > Hybrid::kSubDeepMin ? kd_deep_ : kd_;
+    kd.build(node.prims, box, nodes, node.sub_refs, bounds);
+    const float f[8] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, -kInf,
+                        bounds.hi.x, bounds.hi.y, bounds.hi.z, kInf};
+    static_assert(sizeof f == Hybrid::kSubBoxNodes * sizeof(KdNode));
+    node.sub_nodes.resize(Hybrid::kSubBoxNodes + nodes.size());
+    std::memcpy(node.sub_nodes.data(), f, sizeof f);
+    std::copy(nodes.begin(), nodes.end(), node.sub_nodes.begin() + Hybrid::kSubBoxNodes);
+    charge(int64_t(node.sub_nodes.size() * sizeof(KdNode) + node.sub_refs.size() * sizeof(uint32_t)));
+    // The leaf's references are the subtree's (leaf_refs() counts what flattening copies).
+    leaf_refs_.fetch_add(uint64_t(node.sub_refs.size()) - uint64_t(node.prims.size()), std::memory_order_relaxed);
+  }
+
+  std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3], const int32_t hi[3],
+                                   int depth) {
+    check_cancel(cancel_);
+    auto node = std::make_unique<BuildNode>();
+    charge(int64_t(sizeof(BuildNode)));
+    nodes_made_.fetch_add(1, std::memory_order_relaxed);
+    for (int a = 0; a < 3; ++a) {
+      node->lo[a] = lo[a];
+      node->hi[a] = hi[a];
+    }
+    node->depth = depth;
+    const size_t n = refs.size();
+    int best_axis = -1;
+    int32_t best_split = 0;
+    size_t n_left = 0, n_right = 0;
+    if (n > 0 && depth < max_depth_ && !over_budget())
+      find_split(refs, lo, hi, best_axis, best_split, n_left, n_right);
+    if (best_axis < 0) {
+      // Over budget: an empty leaf, so the recursion unwinds at once (the tree is discarded).
+      if (!over_budget()) {
+        charge(int64_t(n * sizeof(uint32_t)));
+        leaf_refs_.fetch_add(n, std::memory_order_relaxed);
+        node->prims.reserve(n);
+        for (const Ref& r : refs) node->prims.push_back(r.prim);
+      }
+      charge(-int64_t(refs.capacity() * sizeof(Ref)));
+      std::vector<Ref>().swap(refs);
+      if (subtree_min_ > 0 && node->prims.size() > subtree_min_ && !over_budget()) build_subtree(*node);
+      return node;
+    }
+    node->axis = best_axis;
+    node->split = best_split;
+    int32_t llo[3], lhi[3], rlo[3], rhi[3];
+    for (int a = 0; a < 3; ++a) {
+      llo[a] = rlo[a] = lo[a];
+      lhi[a] = rhi[a] = hi[a];
+    }
+    lhi[best_axis] = best_split;
+    rlo[best_axis] = best_split;
+    std::vector<Ref> left, right;
+    charge(int64_t((n_left + n_right) * sizeof(Ref)));
+    left.reserve(n_left);  // exact upper bounds: clipping can only drop references
+    right.reserve(n_right);
+    for (const Ref& r : refs) {
+      if (r.hi[best_axis] < best_split) {
+        left.push_back(r);
+      } else if (r.lo[best_axis] >= best_split) {
+        right.push_back(r);
+      } else {
+        Ref c;
+        if (clip_range(r.prim, llo, lhi, c)) left.push_back(c);
+        if (clip_range(r.prim, rlo, rhi, c)) right.push_back(c);
+      }
+    }
+    charge(-int64_t(refs.capacity() * sizeof(Ref)));
+    std::vector<Ref>().swap(refs);
+    if (n > kParallelThreshold) {
+      tbb::task_group tg;
+      tg.run([&] { node->kid[0] = build(std::move(left), llo, lhi, depth + 1); });
+      node->kid[1] = build(std::move(right), rlo, rhi, depth + 1);
+      tg.wait();
+    } else {
+      node->kid[0] = build(std::move(left), llo, lhi, depth + 1);
+      node->kid[1] = build(std::move(right), rlo, rhi, depth + 1);
+    }
+    return node;
+  }
+
+  /// Exact per-cell SAH binning over every interior cell boundary of the node.
+  void find_split(const std::vector<Ref>& refs, const int32_t lo[3], const int32_t hi[3], int& best_axis,
+                  int32_t& best_split, size_t& best_nl, size_t& best_nr) {
+    thread_local std::vector<uint32_t> starts, ends;
+    const size_t n = refs.size();
+    const double w[3] = {double(hi[0] - lo[0]), double(hi[1] - lo[1]), double(hi[2] - lo[2])};
+    const double area = w[0] * w[1] + w[1] * w[2] + w[2] * w[0];
+    const double inv_area = 1.0 / area;
+    double best_cost = ki_ * double(n);
+    uint64_t evals = 0;
+    for (int a = 0; a < 3; ++a) {
+      const int32_t width = hi[a] - lo[a];
+      if (width < 2) continue;
+      starts.assign(size_t(width), 0);
+      ends.assign(size_t(width), 0);
+      for (const Ref& r : refs) {
+        ++starts[size_t(r.lo[a] - lo[a])];
+        ++ends[size_t(r.hi[a] - lo[a])];
+      }
+      const double wb = w[(a + 1) % 3], wc = w[(a + 2) % 3];
+      const double cross = wb * wc, perim = wb + wc;
+      size_t nl = 0, nr = n;
+      for (int32_t j = 1; j < width; ++j) {
+        nl += starts[size_t(j - 1)];
+        nr -= ends[size_t(j - 1)];
+        const double al = double(j) * perim + cross, ar = double(width - j) * perim + cross;
+        double cost = kt_ + ki_ * (al * double(nl) + ar * double(nr)) * inv_area;
+        if (nl == 0 || nr == 0) cost *= 1.0 - bonus_;
+        if (cost < best_cost) {
+          best_cost = cost;
+          best_axis = a;
+          best_split = lo[a] + j;
+          best_nl = nl;
+          best_nr = nr;
+        }
+      }
+      evals += uint64_t(width - 1);
+    }
+    evals_.fetch_add(evals, std::memory_order_relaxed);
+  }
+
+  const Mesh& mesh_;
+  double origin_[3];
+  double inv_cell_, cell_;
+  KdSubtreeBuilder kd_, kd_deep_;  ///< leaf subtrees of kSubMaxDepth levels, and above kSubDeepMin
+  const CancelToken* cancel_;       ///< polled once per node
+  int32_t dims_[3];
+  double kt_, ki_, bonus_;
+  uint32_t subtree_min_ = 0;
+  int max_depth_;
+  std::atomic<uint64_t> evals_{0};
+  int64_t budget_ = 0;
+  std::atomic<int64_t> live_{0}, peak_{0};
+  std::atomic<bool> over_{false};
+  std::atomic<uint64_t> leaf_refs_{0}, nodes_made_{0};
+};
+
+}  // namespace
+
+void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
+  TreeBuilder tb(mesh, origin_, cell_, dims_, params);
+  std::unique_ptr<BuildNode> root = tb.build_root();
+  stats_.sah_evaluations = tb.sah_evaluations();
+  const std::string fix =
+      "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
+      "lower kd_max_depth";
+  if (tb.over_budget())
+    throw ParamError("hybrid: the kd build outgrew the memory budget of " +
+                     format_bytes_iec(double(effective_memory_budget(params))) +
+                     " (its account reached " + format_bytes_iec(double(tb.peak_bytes())) +
+                     " after " + std::to_string(tb.nodes_made()) + " nodes over " +
+                     std::to_string(mesh.num_triangles()) + " triangles; the estimate before "
+                     "building was " + format_bytes_iec(double(stats_.peak_estimate)) +
+                     "): triangles straddling many cells are referenced by every leaf they "
+                     "cross; " + fix + ", or raise --memory-budget-mb (0 = half of physical "
+                     "memory) if the machine has the memory");
+  // Exact now: the references are counted (leaf subtrees add a few). Flattening copies them
+  // while the build tree is alive, then the triangle corners replace the build tree.
+  const double refs = double(tb.leaf_refs()), nodes = double(tb.nodes_made());
+  const double flat = nodes * sizeof(Node) + (nodes + 1) / 2 * (sizeof(Leaf) + 1);
+  check_memory_budget("hybrid", mesh.num_triangles(),
+                      {{"build tree", double(tb.live_bytes())},
+                       {"references", refs * sizeof(uint32_t)},
+                       {"nodes and leaves", flat}},
+                      params, fix);
+  check_memory_budget("hybrid", mesh.num_triangles(),
+                      {{"references", refs * sizeof(uint32_t)},
+                       {"triangle corners and ids", double(mesh.num_triangles()) * (sizeof(TriVerts) + 4)},
+                       {"nodes and leaves", flat}},
+                      params, fix);
+  nodes_.reserve(size_t(nodes));
+  leaves_.reserve(size_t(nodes + 1) / 2);
+  leaf_depth_.reserve(size_t(nodes + 1) / 2);
+  refs_.reserve(size_t(refs));
+  // Flatten depth-first: left child follows its parent, leaves numbered in that order.
+  uint32_t max_depth = 0;
+  auto flatten = [&](auto&& self, BuildNode* n) -> void {
+    const size_t idx = nodes_.size();
+    nodes_.push_back({});
+    max_depth = std::max(max_depth, uint32_t(n->depth));
+    if (n->axis < 0) {
+      Leaf l{};
+      for (int a = 0; a < 3; ++a) {
+        l.lo[a] = n->lo[a];
+        l.hi[a] = n->hi[a];
+      }
+      l.first = uint32_t(refs_.size());
+      l.count = uint32_t(n->prims.size());
+      if (!n->sub_nodes.empty()) {
+        // Relocate the subtree: child and reference indices are local to the leaf.
+        const uint32_t base = uint32_t(sub_nodes_.size()), ref_base = uint32_t(refs_.size());
+        if (refs_.size() + n->sub_refs.size() >= (uint64_t(1) << 30) ||
+            sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
+          throw ParamError("hybrid: more than 2^30 subtree references or 2^29 nodes: use a larger cell size "
+                           "or --hybrid-subtree 0");
+        for (size_t k = 0; k < n->sub_nodes.size(); ++k) {
+          KdNode kn = n->sub_nodes[k];
+          if (k < kSubBoxNodes) {
+          } else if (kn.leaf()) {
+            kn.prim_offset += ref_base;
+          } else {
+            kn.bits = ((kn.above() + base + kSubBoxNodes) << 2) | uint32_t(kn.axis());
+          }
+          sub_nodes_.push_back(kn);
+        }
+        refs_.insert(refs_.end(), n->sub_refs.begin(), n->sub_refs.end());
+        l.first = base;
+        l.count |= kSubtreeFlag;
+      } else {
+        refs_.insert(refs_.end(), n->prims.begin(), n->prims.end());
+      }
+      nodes_[idx] = {int32_t(leaves_.size()), 0, 3};
+      leaves_.push_back(l);
+      leaf_depth_.push_back(uint8_t(std::min(n->depth, 255)));
+      return;
+    }
+    self(self, n->kid[0].get());
+    nodes_[idx] = {n->split, uint32_t(nodes_.size()), uint32_t(n->axis)};
+    self(self, n->kid[1].get());
+  };
+  flatten(flatten, root.get());
+  stats_.max_depth = max_depth;
+}
+
+}  // namespace kdgrid

@@ -1,0 +1,452 @@
+// The hybrid's ray walk (included by hybrid.h; the class is declared there). A ray is clipped
+// in float to the grid's box, widened by the kd-tree's rounding bound; its entry cell's leaf
+// is looked up; then each step tests the leaf's triangles (through a per-ray mailbox, so a
+// triangle referenced by several leaves is tested once), computes the exit over the leaf
+// box's far planes in four lanes (x, y, z and a dummy axis), stops once the closest hit lies
+// before the exit, else moves to the leaf of the cell past the exit face. Cells move
+// monotonically along the ray, so at most nx+ny+nz+1 steps; the loop enforces that bound.
+//
+// The next leaf comes from the map (cell_map.h) or from the thread's NextLeafCache, which
+// remembers the leaf last reached across each leaf face (BuildParams::hybrid_guess).
+#pragma once
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+
+#include "accel/hybrid/hybrid.h"
+
+namespace kdgrid::hybrid {
+
+/// The next-leaf cache: each thread remembers the leaf it last reached across each leaf face,
+/// and the walk takes it when the exit cell lies in that leaf's kd box (the kd boxes tile the
+/// grid, so the check is exact), else looks the cell up. Coherent rays predict the check, so the
+/// next leaf's record loads while the exit is being computed. The entry leaf is taken the same
+/// way from the thread's previous ray's. A score of recent predictions switches the cache off
+/// while they mostly fail (incoherent rays), so that a wrong prediction's mispredicted branch
+/// is not paid on every step; the plain lookups then keep scoring the predictions they would
+/// have made. One cache per thread, shared by every hybrid, since each checks a leaf against
+/// its own kd boxes. Zero-initialized, as every thread_local is (no member initializers).
+struct NextLeafCache {
+  /// Score: +1 per right prediction, -kMissCost per wrong one, within [kScoreMin, kScoreMax];
+  /// the cache is used while it is >= 0 (more right predictions than wrong ones keep it on). A
+  /// miss cost of 3 (on above 3 right in 4) kept the cache off on most of the dragon's primary
+  /// rays (71% right): a cost of 1 makes them 4-6% faster (one thread), with diffuse rays
+  /// (about 20% right) within the noise; no score at all cost the dragon's diffuse rays 5%.
+  static constexpr int32_t kScoreMax = 64, kScoreMin = -64, kMissCost = 1;
+  /// Entries per thread (direct-mapped by leaf and exit axis; 16 KiB). 65536 entries would
+  /// catch 1% more on Sponza's primary rays and 3% more on the dragon's.
+  static constexpr uint64_t kEntries = 4096;
+
+  /// The leaf last reached across each leaf face, by a hash of the leaf and the exit axis (the
+  /// ray's direction fixes the face's side).
+  uint32_t leaf[kEntries];
+  uint32_t start;  ///< the entry leaf of the thread's previous ray
+  int32_t score;
+  uint64_t taken;  ///< leaves taken from the cache (Hybrid::next_leaves_from_cache)
+  uint64_t owner;  ///< Hybrid::uid_ of the structure whose leaf ids the cache holds (0: none)
+
+  /// The entry of leaf `from`'s face on `axis`.
+  [[gnu::always_inline]] uint32_t& entry(uint32_t from, int axis) {
+    return leaf[(uint64_t(from) * 3 + uint64_t(axis)) & (kEntries - 1)];
+  }
+  /// Makes the cache structure `uid`'s before a walk: when another structure (or an earlier
+  /// build of this one) used it last, its leaf ids are replaced by leaf 0, so every entry names
+  /// a leaf of this structure and Hybrid::in_kd_box needs no bounds check. Structures only
+  /// alternate ray by ray on one thread in tests; the reset (16 KiB) is paid once per switch.
+  [[gnu::always_inline]] void claim(uint64_t uid) {
+    if (owner == uid) [[likely]]
+      return;
+    std::memset(leaf, 0, sizeof leaf);
+    start = 0;
+    owner = uid;
+  }
+};
+
+/// The calling thread's next-leaf cache.
+inline thread_local NextLeafCache thread_next_leaf_cache;
+
+/// One ray's walk between leaf steps: the ray in grid space, the current cell and leaf,
+/// the closest hit so far and the mailbox.
+template <class Tri>
+struct WalkState {
+  /// The ray in grid space, g(t) = o + t dg; inv[a] is t per grid unit along axis a (0 where
+  /// the ray does not move) and oc = -o inv (+inf there), so the exit over a far plane p is
+  /// p inv + oc. Lanes x, y, z, then a dummy axis that never exits (o, dg, inv 0, oc +inf),
+  /// moves "up" and stays in cell 0, so that every step computes the four lanes at once.
+  Double4 o, dg, inv, oc;
+  Long4 up_d;  ///< all ones on the axes the ray moves up along (the far plane is hi), and lane 3
+  Int4 up;     ///< the same as int32 lanes
+  Int4 down;   ///< ~up: added to a far plane's coordinate, gives the cell just past it
+  Int4 c;      ///< the current cell (lane 3: 0)
+  KdRay kr;    ///< the ray as the leaf subtrees' kd traversal reads it (world space, float)
+  KdRay4 kr4;  ///< the same, as the clip to a subtree's box reads it
+  float err;   ///< the largest of kr.err: widens the leaf's segment before that clip
+  double t1, t_cur;
+  /// Where the walk over empty leaves stops: t1, or the closest hit's t once one is found.
+  double t_stop;
+  uint32_t leaf_id;
+  uint64_t steps_left;  ///< steps before the bound of over_step_bound (max_steps_ + 1 at the start)
+  float tmin, tmax, best;
+  bool found;
+  Hit hit;
+  typename Tri::RayData rd;
+  uint32_t mailbox[Hybrid::kMailbox];
+};
+enum class StepResult { Next, Done, Answered };
+/// Where the ray leaves a leaf's (step) box: the exit t, the cell just past the exit face,
+/// and whether that cell lies outside the grid (the walk ends there).
+struct Exit {
+  double t;
+  Int4 n;  ///< lane 3: 0
+  int axis;
+  bool out;
+};
+
+}  // namespace kdgrid::hybrid
+
+namespace kdgrid {
+
+inline uint64_t Hybrid::next_leaves_from_cache() { return hybrid::thread_next_leaf_cache.taken; }
+
+inline uint32_t Hybrid::next_leaf(const Int4& n, uint32_t from, int axis) const {
+  if (!next_leaf_cache_) return lookup(n[0], n[1], n[2]);
+  using Cache = hybrid::NextLeafCache;
+  Cache& cache = hybrid::thread_next_leaf_cache;
+  uint32_t& entry = cache.entry(from, axis);
+  const uint32_t id = entry;
+  if (cache.score >= 0) {
+    if (in_kd_box(id, n)) [[likely]] {
+      cache.score = std::min(cache.score + 1, Cache::kScoreMax);
+      ++cache.taken;
+      return id;
+    }
+  }
+  const uint32_t found = lookup(n[0], n[1], n[2]);
+  cache.score = found == id ? std::min(cache.score + 1, Cache::kScoreMax)
+                            : std::max(cache.score - Cache::kMissCost, Cache::kScoreMin);
+  entry = found;
+  return found;
+}
+
+inline uint32_t Hybrid::start_leaf(const Int4& c) const {
+  if (!next_leaf_cache_) return lookup(c[0], c[1], c[2]);
+  hybrid::NextLeafCache& cache = hybrid::thread_next_leaf_cache;
+  cache.claim(uid_);
+  const uint32_t id = cache.start;
+  if (in_kd_box(id, c)) [[likely]] {
+    ++cache.taken;
+    return id;
+  }
+  return cache.start = lookup(c[0], c[1], c[2]);
+}
+
+inline bool Hybrid::in_kd_box(uint32_t id, const Int4& c) const {
+  const CellBox& b = kd_boxes_[id];
+  Int4 lo, hi;
+  std::memcpy(&lo, b.lo, sizeof lo);
+  std::memcpy(&hi, b.hi, sizeof hi);
+  // The four lanes at once (lane 3 always passes).
+  return all_lanes((c >= lo) & (c < hi));
+}
+
+template <class Tri>
+inline bool Hybrid::over_step_bound(WalkState<Tri>& w) const {
+  if (w.steps_left-- == 0) [[unlikely]] {
+    step_errors_.fetch_add(1, std::memory_order_relaxed);
+    return true;
+  }
+  return false;
+}
+
+template <class Tri, class S, bool kAny>
+bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
+  if (leaves_.empty()) return false;
+  WalkState<Tri> w;
+  if (!walk_begin(w, ray)) return false;
+  s.lookup();
+  StepResult r;
+  for (;;) {
+    if constexpr (!S::kTrace) {
+      // An empty leaf is only stepped over: inline, with the ray's state in registers.
+      const Leaf& L = leaves_[w.leaf_id];
+      if (L.count == 0) {
+        if (over_step_bound(w)) {
+          r = StepResult::Done;
+          break;
+        }
+        s.step();
+        const Exit e = leaf_exit(w, L);
+        // The end of the ray's segment, the grid or the walk (a hit found before this exit).
+        if (e.out || e.t >= w.t_stop) {
+          r = StepResult::Done;
+          break;
+        }
+        w.c = e.n;
+        w.t_cur = e.t;
+        w.leaf_id = next_leaf(e.n, w.leaf_id, e.axis);
+        s.lookup();
+        continue;
+      }
+    }
+    if ((r = walk_step<Tri, S, kAny>(w, s)) != StepResult::Next) break;
+  }
+  if (r == StepResult::Answered) return true;
+  if constexpr (!kAny)
+    if (w.found) *hit = w.hit;
+  return w.found;
+}
+
+template <class Tri>
+bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
+  // Cheap rejection first, in float as the kd-tree clips (most primary rays of a scanned model
+  // miss its box; `kdgrid profile` of the dragon: those rays 17.6 -> 12.9 ns), against the
+  // grid's world box (wbox_, widened beyond the grid's rounding) with each slab widened as the
+  // kd-tree widens its own, by err (KdRay): the rounding of (lo - o) grows with the origin's
+  // coordinates, so a ray from far away that grazes the box at an edge or a corner was lost
+  // without it (origins 1e4 away from a unit cube: 99 rays in 6000). So this clip never
+  // rejects a ray that reaches the grid, and its entry t is never later than the ray's entry
+  // into the grid: the walk starts there (below). Its reciprocals and err serve the leaf
+  // subtrees' traversal. kd_begin computes the three axes at once, as the grid-space ray
+  // below does in double (GCC's vector extensions: AVX where the target has it, else SSE2
+  // pairs): the set-up is most of a short ray's work.
+  float f0, f1;
+  if (!kd_begin(ray, wclip_, max_abs_, w.kr, f0, f1, &w.kr4)) return false;
+  w.err = std::max({w.kr.err[0], w.kr.err[1], w.kr.err[2]});
+  Float4 of, df;
+  load_ray4(ray, of, df);
+  // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
+  // negative-zero) direction components never exit on their axis: their inv is 0 and their
+  // oc +inf, so their exit t is +inf without a branch. Lane 3 (tmin, tmax in the ray's layout)
+  // is zeroed first: a fourth axis with a zero direction, in cell 0, that never exits.
+  // The exit over a leaf's far plane p on axis a is t = p * inv[a] + oc[a] (oc = -o * inv,
+  // +inf on a non-moving axis): one multiply and one add after the leaf's load.
+  constexpr double kDInf = std::numeric_limits<double>::infinity();
+  const Double4 zero = {0.0, 0.0, 0.0, 0.0};
+  const Long4 xyz = {-1, -1, -1, 0};
+  const Double4 od = xyz ? __builtin_convertvector(of, Double4) : zero;
+  const Double4 d = xyz ? __builtin_convertvector(df, Double4) : zero;
+  const Double4 o = (od - origin4_) * inv_cell_;
+  const Long4 moving = d != zero;
+  const Double4 inv = moving ? cell_ / d : zero;
+  w.o = o;
+  w.inv = inv;
+  w.oc = moving ? -o * inv : zero + kDInf;
+  w.dg = d * inv_cell_;
+  w.up_d = (d > zero) | ~xyz;
+  w.up = __builtin_convertvector(w.up_d, Int4);
+  w.down = ~w.up;
+  // The walk runs over the float clip's [f0, f1], not an exact clip to the grid: f0 is at most
+  // the ray's entry t, and the entry cell below is clamped into the grid, so the walk starts
+  // in a cell the ray reaches at or after that cell on every axis (a point at an earlier t lies
+  // behind along each axis it moves on), and its steps, monotone on every axis, cross all the
+  // cells the ray does. Past the grid the walk ends at the face it leaves by (out_of_grid in
+  // leaf_exit), so a t1 beyond the grid's exit changes nothing. (An exact clip in double cost
+  // 50 instructions a ray, 3% of a dragon ray's, and lost rays touching the box at an edge.)
+  // The entry cell: clamped into the grid in double, then truncated (the floor, as the value
+  // is >= 0; a NaN clamps to 0).
+  const double t0 = f0, t1 = f1;
+  const Double4 x = o + t0 * w.dg;
+  const Double4 xl = x > zero ? x : zero;
+  w.c = __builtin_convertvector(xl < top4_ ? xl : top4_, Int4);
+  w.rd = Tri::prepare(ray);
+  w.tmin = ray.tmin;
+  w.tmax = ray.tmax;
+  w.best = ray.tmax;
+  w.found = false;
+  for (auto& m : w.mailbox) m = kInvalidPrim;
+  w.t1 = t1;
+  w.t_cur = t0;
+  w.t_stop = t1;
+  w.steps_left = max_steps_ + 1;
+  w.leaf_id = start_leaf(w.c);
+  return true;
+}
+
+template <class Tri>
+Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
+  // The leaf's box as four lanes each (lo's fourth holds first/count's bits, hi's the pad, 0:
+  // lane 3 always takes hi, so its exit t is 0 * 0 + inf). The exit is the nearest far plane,
+  // the first axis winning ties, found by compares on the three lanes that GCC turns into
+  // branches: on coherent rays they are predicted, so the CPU computes the exit cell and starts
+  // the next lookup (whose cache entry is keyed by the exit axis) before the compares resolve. The
+  // axis is a constant in each branch (exit_through<A>). (The scalar form that computed all
+  // three exit cells and then overrode the exit axis's compiled to selects, whose chain the
+  // lookup had to wait for: Sponza's primary rays were 7% slower.)
+  static_assert(offsetof(Leaf, first) == 24 && offsetof(Leaf, hi) == 32 && offsetof(Leaf, pad) == 56 &&
+                sizeof(Leaf) == 64);
+  Double4 lo, hi;
+  const char* bytes = reinterpret_cast<const char*>(&L);  // the record's two halves
+  std::memcpy(&lo, bytes, sizeof lo);
+  std::memcpy(&hi, bytes + offsetof(Leaf, hi), sizeof hi);
+  const Double4 far = w.up_d ? hi : lo;
+  Double4 e;
+  mul_add(far, w.inv, w.oc, e);
+  const double e0 = e[0], e1 = e[1], e2 = e[2];
+  Exit ex;
+  if (e0 <= e1 && e0 <= e2)
+    exit_through<0>(w, lo, hi, far, e0, ex);
+  else if (e1 <= e2)
+    exit_through<1>(w, lo, hi, far, e1, ex);
+  else
+    exit_through<2>(w, lo, hi, far, e2, ex);
+  return ex;
+}
+
+template <int A, class Tri>
+void Hybrid::exit_through(const WalkState<Tri>& w, const Double4& lo, const Double4& hi,
+                          const Double4& far, double t, Exit& ex) const {
+  // Next cell: on the other axes the exit point's cell, clamped into the leaf (the point
+  // lies on the leaf's face, so this only removes rounding) and never moving against the
+  // ray; on the exit axis A the integer cell just past the leaf's face (the far plane, minus
+  // one when moving down). All four lanes are computed, then lane A is taken from the face.
+  // The clamp is done in double before a truncating conversion: the clamped value is at
+  // least lo >= 0, where truncation is the floor, so it needs no floor instruction (a NaN
+  // coordinate would clamp to lo).
+  ex.axis = A;
+  ex.t = t;
+  Double4 x;
+  mul_add(Double4{t, t, t, t}, w.dg, w.o, x);
+  const Double4 hm = hi - 0.5;
+  const Double4 xl = x > lo ? x : lo;
+  const Int4 v = __builtin_convertvector(xl < hm ? xl : hm, Int4);
+  const Int4 mono = w.up ? (v > w.c ? v : w.c) : (v < w.c ? v : w.c);
+  const Int4 face = __builtin_convertvector(far, Int4) + w.down;
+  ex.n = __builtin_shufflevector(mono, face, A == 0 ? 4 : 0, A == 1 ? 5 : 1, A == 2 ? 6 : 2, 3);
+  ex.out = uint32_t(face[A]) >= uint32_t(dims_[A]);
+}
+
+template <class Tri, class S, bool kAny>
+Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
+  if (over_step_bound(w)) return StepResult::Done;
+  const uint32_t leaf_id = w.leaf_id;
+  const Leaf& L = leaves_[leaf_id];
+  s.step();
+  // Tests a list of references (mailboxed); true = any-hit query answered.
+  auto test = [&](const uint32_t* r, uint32_t count) {
+    s.leaf();
+    for (uint32_t i = 0; i < count; ++i) {
+      const uint32_t local = r[i];
+      uint32_t& slot = w.mailbox[local & (kMailbox - 1)];
+      if (slot == local) {
+        s.mailbox_skip();
+        continue;
+      }
+      slot = local;
+      if constexpr (S::kCount) s.tri_test(prim_of_[local]);
+      const TriVerts& tv = tris_[local];
+      float t, u, v;
+      if (Tri::intersect(w.rd, tv.v0, tv.v1, tv.v2, w.tmin, w.best, t, u, v)) {
+        if constexpr (kAny) {
+          return true;
+        } else {
+          w.best = t;
+          w.hit = {t, prim_of_[local], u, v};
+          w.found = true;
+        }
+      }
+    }
+    return false;
+  };
+  const Exit ex = leaf_exit(w, L);
+  const double t_exit = ex.t;
+  const bool last = ex.out || t_exit >= w.t1;
+  if constexpr (S::kTrace) {
+    const float tin = float(w.t_cur);
+    s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, leaf_box(leaf_id), tin,
+                      std::max(tin, float(std::min(t_exit, double(w.tmax))))});
+  }
+  // The next cell's leaf is looked up before this leaf's triangles are tested, so the
+  // dependent loads of the lookup (top array, bricks, leaf record) overlap with the tests
+  // instead of following them; most leaves entered are left again (2.8 steps per primary
+  // ray on the dragon), so the lookup is rarely wasted.
+  uint32_t next_id = 0;
+  if (!last) {
+    next_id = next_leaf(ex.n, leaf_id, ex.axis);
+    s.lookup();
+    __builtin_prefetch(leaves_.data() + next_id);
+  }
+  if (L.count & kSubtreeFlag) {
+    // The kd-tree's walk of the leaf's subtree over the ray's segment in the leaf, clipped to
+    // the subtree's box first (the two t's widened by err as the kd-tree widens its own).
+    const KdNode* sub = sub_nodes_.data() + L.first;
+    Float4 sub_lo, sub_hi;
+    std::memcpy(&sub_lo, sub, sizeof sub_lo);
+    std::memcpy(&sub_hi, sub + 2, sizeof sub_hi);
+    [[maybe_unused]] Box3 sub_box;
+    if constexpr (S::kTrace)
+      sub_box = Box3(Vec3(sub_lo[0], sub_lo[1], sub_lo[2]), Vec3(sub_hi[0], sub_hi[1], sub_hi[2]));
+    // The ray in a local: the loop then keeps it in registers (read through w, it was
+    // reloaded at every node).
+    const KdRay kr = w.kr;
+    float ta = float(w.t_cur) - w.err, tb = float(std::min(t_exit, w.t1)) + w.err;
+    if (kd_clip4(w.kr4, sub_lo, sub_hi, ta, tb)) {
+      // Tested as the kd-tree tests, with the closest hit in the walk's own locals (through
+      // test() and w, primary rays on the dragon were 5% slower), but through the ray's
+      // mailbox: a triangle that crosses cell boundaries is referenced by every grid leaf it
+      // touches and by several leaves of a subtree, and a second test of the whole triangle
+      // can only repeat the first (best only decreases).
+      const auto& rd = w.rd;
+      const float tmin = w.tmin;
+      uint32_t hit_local = kInvalidPrim;
+      float hit_u = 0.0f, hit_v = 0.0f;
+      auto leaf = [&](const KdNode& sn, float& best, bool& found) __attribute__((always_inline)) {
+        s.leaf();
+        const uint32_t* r = refs_.data() + sn.prim_offset;
+        for (uint32_t i = 0, count = sn.count(); i < count; ++i) {
+          const uint32_t local = r[i];
+          uint32_t& slot = w.mailbox[local & (kMailbox - 1)];
+          if (slot == local) {
+            s.mailbox_skip();
+            continue;
+          }
+          slot = local;
+          if constexpr (S::kCount) s.tri_test(prim_of_[local]);
+          const TriVerts& tv = tris_[local];
+          float t, u, v;
+          if (Tri::intersect(rd, tv.v0, tv.v1, tv.v2, tmin, best, t, u, v)) {
+            if constexpr (kAny) return true;
+            best = t;
+            found = true;
+            hit_local = local;
+            hit_u = u;
+            hit_v = v;
+          }
+        }
+        return false;
+      };
+      // Traces: each node's segment as the walk sees it, within the leaf's segment and never
+      // starting before the previous node's (the walk widens its intervals by err, a bound on
+      // rounding, so a popped node may start up to 2 err before the leaf it follows).
+      [[maybe_unused]] float trace_in = float(w.t_cur);
+      auto visit = [&](StepKind kind, int depth, uint32_t, const Box3& box, float tn, float tf) {
+        trace_in = std::max(trace_in, tn);
+        const float out = std::max(trace_in, std::min(tf, float(std::min(t_exit, double(w.tmax)))));
+        s.visit(TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
+      };
+      float best = w.best;
+      bool found = w.found;
+      if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found, s, leaf, visit))
+        return StepResult::Answered;
+      if constexpr (!kAny)
+        if (hit_local != kInvalidPrim) {
+          w.best = best;
+          w.found = true;
+          w.hit = {best, prim_of_[hit_local], hit_u, hit_v};
+        }
+    }
+  } else if (L.count) {
+    if (test(refs_.data() + L.first, L.count)) return StepResult::Answered;
+  }
+  if (w.found && double(w.best) <= t_exit) return StepResult::Done;
+  if (last) return StepResult::Done;
+  if (w.found) w.t_stop = std::min(w.t1, double(w.best));
+  w.c = ex.n;
+  w.t_cur = t_exit;
+  w.leaf_id = next_id;
+  return StepResult::Next;
+}
+
+}  // namespace kdgrid
