@@ -16,22 +16,11 @@
 #include "accel/hybrid/hybrid.h"
 #include "util/cancel.h"
 #include "util/error.h"
+#include "util/format.h"
 
 namespace kdgrid {
 
 namespace hybrid {
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
-
-std::string bytes_str(double b) {
-  if (b >= double(uint64_t(1) << 30)) return fmt("%.3g GiB", b / double(uint64_t(1) << 30));
-  if (b >= double(1 << 20)) return fmt("%.3g MiB", b / double(1 << 20));
-  return fmt("%.0f bytes", b);
-}
 
 void dims_for(const double ext[3], double cell, double out[3]) {
   for (int a = 0; a < 3; ++a) out[a] = std::max(1.0, std::ceil(ext[a] / cell));
@@ -61,8 +50,8 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
     std::nth_element(e.begin(), e.begin() + ptrdiff_t(k), e.end());
     c = double(e[k]);
   }
-  rule = fmt("p%g", params.cell_percentile);
-  rule += " of triangle extents = " + fmt("%.6g", c);
+  rule = format_double("p%g", params.cell_percentile);
+  rule += " of triangle extents = " + format_double("%.6g", c);
   // Density floor: scenes mixing huge and tiny triangles (Sponza) would otherwise get a
   // handful of cells holding hundreds of triangles each.
   double vol = 1.0;
@@ -78,7 +67,7 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
         std::pow(vol / (kHybridAutoCellsPerTriangle * double(ntri)), 1.0 / double(3 - flat_axes));
     if (cd < c || !(c > 0.0)) {
       c = cd;
-      rule += "; lowered to " + fmt("%.6g", c) + " for >= " + fmt("%g", kHybridAutoCellsPerTriangle) +
+      rule += "; lowered to " + format_double("%.6g", c) + " for >= " + format_double("%g", kHybridAutoCellsPerTriangle) +
               " cells per triangle";
     }
   }
@@ -89,7 +78,7 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
   const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
   if (c < axis_floor) {
     c = axis_floor;
-    rule += "; raised to " + fmt("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
+    rule += "; raised to " + format_double("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
             " cells per axis";
   }
   // Plain leaves (no subtrees) need cells about a triangle wide: only the binning and the
@@ -105,7 +94,7 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
     c *= std::max(1.0001, std::cbrt(cells / limit));
     raised = true;
   }
-  if (raised) rule += "; raised to " + fmt("%.6g", c) + " for <= " + fmt("%.0f", limit) + " cells";
+  if (raised) rule += "; raised to " + format_double("%.6g", c) + " for <= " + format_double("%.0f", limit) + " cells";
   return c;
 }
 
@@ -119,9 +108,9 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
     // cell's subtree (a cell of 1e9 on the bunny: 108,828 triangle tests for one ray).
     const double max_ext = std::max({ext[0], ext[1], ext[2]});
     if (double(params.cell_size) > max_ext && max_ext > 0.0) {
-      rule += fmt(" %g", params.cell_size);
+      rule += format_double(" %g", params.cell_size);
       rule += ", larger than the scene: one cell of its extent ";
-      rule += fmt("%.6g", max_ext);
+      rule += format_double("%.6g", max_ext);
       return max_ext;
     }
     return double(params.cell_size);
@@ -131,8 +120,6 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
 
 }  // namespace hybrid
 
-using hybrid::bytes_str;
-using hybrid::fmt;
 
 // ---- build ------------------------------------------------------------------------------
 
@@ -140,11 +127,11 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const auto t_start = std::chrono::steady_clock::now();
   // Validate parameters before touching any state.
   if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
-    throw ParamError("hybrid: cell_size " + fmt("%g", params.cell_size) +
+    throw ParamError("hybrid: cell_size " + format_double("%g", params.cell_size) +
                      " is not a finite number: give a positive size in scene units, or 0 "
                      "(--cell-size auto) for the percentile rule");
   if (!(params.cell_percentile > 0.0f && params.cell_percentile <= 100.0f))
-    throw ParamError("hybrid: cell_percentile " + fmt("%g", params.cell_percentile) +
+    throw ParamError("hybrid: cell_percentile " + format_double("%g", params.cell_percentile) +
                      " is out of range: give a value in (0, 100], e.g. 90");
   if (!(params.hybrid_traversal_cost > 0.0f) || !std::isfinite(params.hybrid_traversal_cost) ||
       !(params.hybrid_intersection_cost > 0.0f) || !std::isfinite(params.hybrid_intersection_cost))
@@ -221,15 +208,15 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   hybrid::dims_for(ext, cell, d);
   const double cells = d[0] * d[1] * d[2];
   const double max_axis = std::max({d[0], d[1], d[2]});
-  auto dims_text = [&] { return fmt("%.0f", d[0]) + "x" + fmt("%.0f", d[1]) + "x" + fmt("%.0f", d[2]); };
+  auto dims_text = [&] { return format_double("%.0f", d[0]) + "x" + format_double("%.0f", d[1]) + "x" + format_double("%.0f", d[2]); };
   const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 4 * sizeof(uint32_t));
   if (map_.dense()) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
       const double fit = cell * std::max(std::cbrt(need / double(budget)), max_axis / double(kHybridMaxAxisCells)) * 1.05;
-      throw ParamError("hybrid: cell size " + fmt("%g", cell) + " gives a " + dims_text() +
-                       " grid whose dense matrix needs " + bytes_str(need) + ", above the memory budget of " +
-                       bytes_str(double(budget)) + ": use a cell size of at least " + fmt("%.3g", fit) +
+      throw ParamError("hybrid: cell size " + format_double("%g", cell) + " gives a " + dims_text() +
+                       " grid whose dense matrix needs " + format_bytes_iec(need) + ", above the memory budget of " +
+                       format_bytes_iec(double(budget)) + ": use a cell size of at least " + format_double("%.3g", fit) +
                        ", 'auto', or the default bricked storage");
     }
   } else {
@@ -239,11 +226,11 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
       const double fit =
           cell * std::max(need / double(budget), max_axis / double(kHybridMaxAxisCells)) * 1.05;
-      throw ParamError("hybrid: cell size " + fmt("%g", cell) + " gives a " + dims_text() +
-                       " grid; building it needs at least " + bytes_str(need) +
+      throw ParamError("hybrid: cell size " + format_double("%g", cell) + " gives a " + dims_text() +
+                       " grid; building it needs at least " + format_bytes_iec(need) +
                        " (per-cell binning arrays) and at most " + std::to_string(kHybridMaxAxisCells) +
-                       " cells per axis are supported (memory budget " + bytes_str(double(budget)) +
-                       "): use a cell size of at least " + fmt("%.3g", fit) + " or 'auto'");
+                       " cells per axis are supported (memory budget " + format_bytes_iec(double(budget)) +
+                       "): use a cell size of at least " + format_double("%.3g", fit) + " or 'auto'");
     }
   }
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
@@ -348,7 +335,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                           {"triangles (corners + ids)", b_tris},
                           {map_.dense() ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
-  stats_.extra = {{"cell_size", fmt("%.6g", cell_)},
+  stats_.extra = {{"cell_size", format_double("%.6g", cell_)},
                   {"auto rule", rule},
                   {"grid", std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" +
                                std::to_string(dims_[2])},
@@ -360,8 +347,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                                               std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
                                               std::to_string(largest_leaf) + " triangles"},
                   {"empty-leaf boxes", expand_text},
-                  {"build phases", "tree " + fmt("%.3f", t_tree) + " s, matrix " + fmt("%.3f", t_matrix) +
-                                       " s, empty-leaf boxes " + fmt("%.3f", t_expand) + " s"}};
+                  {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " + format_double("%.3f", t_matrix) +
+                                       " s, empty-leaf boxes " + format_double("%.3f", t_expand) + " s"}};
   stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;
 }

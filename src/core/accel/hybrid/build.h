@@ -10,13 +10,9 @@
 #include "accel/params.h"
 #include "scene/mesh.h"
 #include "util/cancel.h"
+#include "util/format.h"
 
 namespace kdgrid::hybrid {
-
-/// printf of one number, for the build's texts and errors.
-std::string fmt(const char* f, double v);
-/// "12.3 MiB", "1.5 GiB" or "812 bytes", as the build's errors and notes print sizes.
-std::string bytes_str(double b);
 
 /// A triangle reference during the build: its inclusive integer cell range in the node.
 struct Ref {

@@ -8,6 +8,7 @@
 
 #include "accel/hybrid/build.h"
 #include "util/error.h"
+#include "util/format.h"
 
 namespace kdgrid::hybrid {
 
@@ -75,7 +76,7 @@ class BrickBuilder {
     if (out && bytes > budget_.limit)
       throw ParamError("hybrid: the bricked cell matrix of the " + std::to_string(dims_[0]) + "x" +
                        std::to_string(dims_[1]) + "x" + std::to_string(dims_[2]) +
-                       " grid exceeds the memory budget of " + bytes_str(double(budget_.limit)) +
+                       " grid exceeds the memory budget of " + format_bytes_iec(double(budget_.limit)) +
                        ": use a larger cell size or 'auto'");
     const int32_t sub = int32_t(side >> B::kBrickLog);
     uint64_t b = 0;

@@ -10,10 +10,10 @@
 #include "accel/hybrid/build.h"
 #include "accel/hybrid/hybrid.h"
 #include "util/error.h"
+#include "util/format.h"
 
 namespace kdgrid {
 
-using hybrid::fmt;
 
 namespace {
 
@@ -75,9 +75,9 @@ double round_up_2(double x) {
 
 std::string seconds_str(double s) {
   if (s < 1.0) return "under a second";
-  if (s < 120.0) return fmt("about %.0f s", s);
-  if (s < 7200.0) return fmt("about %.0f min", s / 60.0);
-  return fmt("about %.3g hours", s / 3600.0);
+  if (s < 120.0) return format_double("about %.0f s", s);
+  if (s < 7200.0) return format_double("about %.0f min", s / 60.0);
+  return format_double("about %.3g hours", s / 3600.0);
 }
 
 }  // namespace
@@ -91,17 +91,17 @@ std::string HybridEstimate::refusal() const {
     why += std::string(why.empty() ? "" : ", and ") + "more than " + std::to_string(kHybridMaxAxisCells) +
            " cells per axis";
   if (why.empty())
-    why = "longer than the limit of " + fmt("%g", e.seconds_limit) +
+    why = "longer than the limit of " + format_double("%g", e.seconds_limit) +
           " s (--hybrid-max-build-seconds; the memory budget is " + format_bytes_iec(double(e.budget)) + ")";
   std::string fix;
   if (e.suggested_cell > 0.0) {
-    fix = "use a cell size of at least " + fmt("%.2g", e.suggested_cell) + " (" + fmt("%.3g", e.suggested_cell / e.auto_cell) +
+    fix = "use a cell size of at least " + format_double("%.2g", e.suggested_cell) + " (" + format_double("%.3g", e.suggested_cell / e.auto_cell) +
           "x auto)";
   } else {
     fix = "even one cell does not fit: raise --memory-budget-mb";
   }
-  return "hybrid: cell size " + fmt("%g", e.cell) + " gives " + e.describe() + ", " + why + ": " + fix +
-         ", or 'auto' (" + fmt("%.4g", e.auto_cell) + ")";
+  return "hybrid: cell size " + format_double("%g", e.cell) + " gives " + e.describe() + ", " + why + ": " + fix +
+         ", or 'auto' (" + format_double("%.4g", e.auto_cell) + ")";
 }
 
 std::string HybridEstimate::describe() const {
@@ -112,7 +112,7 @@ std::string HybridEstimate::describe() const {
 
 HybridEstimate Hybrid::estimate(const Mesh& mesh, const BuildParams& params) {
   if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
-    throw ParamError("hybrid: cell_size " + fmt("%g", params.cell_size) + " is not a finite number");
+    throw ParamError("hybrid: cell_size " + format_double("%g", params.cell_size) + " is not a finite number");
   HybridEstimate e;
   e.budget = effective_memory_budget(params);
   e.seconds_limit = params.hybrid_max_build_seconds;

@@ -20,7 +20,7 @@ std::string widen_empty_leaves(std::vector<Leaf>& leaves, const int32_t dims[3],
   const int64_t nx = dims[0], ny = dims[1], nz = dims[2];
   const uint64_t entries = uint64_t(nx + 1) * uint64_t(ny + 1) * uint64_t(nz + 1);
   if (entries > kMaxExpandEntries || entries * sizeof(uint32_t) > budget)
-    return "skipped: its table of occupied cells would take " + bytes_str(double(entries) * 4.0) +
+    return "skipped: its table of occupied cells would take " + format_bytes_iec(double(entries) * 4.0) +
            (entries > kMaxExpandEntries ? " (more than " + std::to_string(kMaxExpandEntries) + " cells)"
                                         : ", above the memory left in the budget") +
            "; steps use the kd leaf boxes";
@@ -111,8 +111,8 @@ std::string widen_empty_leaves(std::vector<Leaf>& leaves, const int32_t dims[3],
     cells_after += after;
   });
   return std::to_string(widened.load()) + " empty leaves widened over empty cells (step boxes hold " +
-         fmt("%.2f", double(cells_after.load()) / double(std::max<uint64_t>(1, cells_before.load()))) +
-         "x the cells of the kd leaf boxes; table " + bytes_str(double(entries) * 4.0) + ", freed)";
+         format_double("%.2f", double(cells_after.load()) / double(std::max<uint64_t>(1, cells_before.load()))) +
+         "x the cells of the kd leaf boxes; table " + format_bytes_iec(double(entries) * 4.0) + ", freed)";
 }
 
 }  // namespace kdgrid::hybrid
