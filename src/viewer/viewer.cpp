@@ -1526,8 +1526,21 @@ int Viewer::run() {
       }
       if (!opts_.rebuild_cell_size.empty() && !scripted_rebuild_started_ && have_image_ && !task_) {
         scripted_rebuild_started_ = true;
+        scripted_rebuild_at_ = Clock::now();
         const float cs = cli::parse_cell_size(opts_.rebuild_cell_size);
         start_build(accel_name_, params_with_cell_size(accel_name_, cs));
+      }
+      // The second request goes in while the first build runs (or once it has ended, if it
+      // ended sooner), through the panel's own path.
+      if (!opts_.supersede_cell_size.empty() && scripted_rebuild_started_ && !supersede_started_ &&
+          (scripted_rebuild_done_ ||
+           std::chrono::duration<double>(Clock::now() - scripted_rebuild_at_).count() >= opts_.supersede_after)) {
+        supersede_started_ = true;
+        const CellChoice c = CellChoice::parse(opts_.supersede_cell_size, "--supersede-cell-size");
+        if (accel_name_ == "hybrid")
+          request_cell_choice(c);
+        else
+          start_build(accel_name_, params_with_cell_size(accel_name_, c.resolve(auto_cell_)));
       }
     }
     if (!opts_.drop.empty() && !drop_started_ && have_image_ && !task_) {
@@ -1570,7 +1583,8 @@ int Viewer::run() {
         end_reason_ = "render failed";
         break;
       }
-      const bool rebuild_ok = opts_.rebuild_cell_size.empty() || scripted_rebuild_done_;
+      const bool rebuild_ok = (opts_.rebuild_cell_size.empty() || scripted_rebuild_done_) &&
+                              (opts_.supersede_cell_size.empty() || supersede_started_);
       const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
                             image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
       const bool script_done = opts_.hold > 0 ? closing : frame_count_ >= opts_.frames;

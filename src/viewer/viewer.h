@@ -47,6 +47,10 @@ struct ViewerOptions {
   std::string heatmap;               ///< "", "steps" or "tests"
   std::vector<std::string> overlays; ///< "splits", "cells", "boxes"
   std::string rebuild_cell_size;     ///< scripted live rebuild after start-up
+  /// Scripted: the cell size requested (as the panel's cell-size box requests it) while the
+  /// --rebuild-cell-size build runs, supersede_after seconds into it; "" = none.
+  std::string supersede_cell_size;
+  double supersede_after = 2.0;      ///< seconds; 2 s lets the first build get well under way
   std::string export_heatmap;        ///< scripted: EXR of the heat map's raw counts at the end
   bool hide_ui = false;              ///< no ImGui panels (reproducible screenshots)
   /// > 0: keep the window open and interactive for up to this many seconds (input tests drive
@@ -169,6 +173,8 @@ class Viewer {
   /// Why brute force renders nothing (its work limit, --brute-work-limit); "" when it renders.
   std::string brute_refusal_;
   bool scripted_rebuild_started_ = false, scripted_rebuild_done_ = false;
+  std::chrono::steady_clock::time_point scripted_rebuild_at_{};  ///< when it was requested
+  bool supersede_started_ = false;  ///< --supersede-cell-size requested
 
   // Render job tracking.
   /// Resolution factor of the first preview of a moving camera, before any pass has been
