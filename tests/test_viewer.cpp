@@ -855,6 +855,33 @@ TEST(Viewer, EscCancelsARunningBuildAndTheOldStructureStays) {
   EXPECT_GT(luminance_variance(shot), 1e-3) << "no picture after the cancel";
 }
 
+TEST(Viewer, ANewCellSizeRequestCancelsTheRunningBuildAndBuildsTheNewSize) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  // A 6e-5 cell on the bunny (build-time limit off, 0.7 GB) builds for 6.5 s on an idle 2-core
+  // machine and longer on a busy one; 2 s into it a 0.003 cell is requested through the panel's
+  // cell-size path (about 1 s to build). The newer request stops the running build within a
+  // second, and the 0.003 structure is what remains.
+  const RunResult r = run_viewer(dir, "'" + bunny + "' --accel hybrid --width 640 --height 480 --max-samples 1 "
+                                      "--frames 3 --timeout 120 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5 "
+                                      "--supersede-cell-size 0.003 --supersede-after 2 --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  const auto& builds = st["builds"];
+  ASSERT_EQ(builds.size(), 3u) << "load, the 6e-5 rebuild, the 0.003 rebuild: " << builds.dump() << r.output;
+  EXPECT_EQ(builds[1].value("error", ""), "cancelled") << "the running build was not superseded: " << builds[1].dump();
+  ASSERT_TRUE(builds[1]["cancel_seconds"].is_number()) << builds[1].dump();
+  EXPECT_LT(builds[1]["cancel_seconds"].get<double>(), 1.0) << "the build took that long to stop";
+  EXPECT_FALSE(builds[2].contains("error")) << builds[2].dump();
+  EXPECT_FLOAT_EQ(builds[2]["requested_cell_size"].get<float>(), 0.003f) << builds[2].dump();
+  EXPECT_FLOAT_EQ(st["state"]["cell_size"].get<float>(), 0.003f) << st["state"].dump();
+  EXPECT_EQ(st["state"]["error"], "") << "a superseded build is not an error";
+  // The 6e-5 build ended within a second of the second request (2 s in), not at its own end.
+  EXPECT_LT(builds[1]["wall_seconds"].get<double>(), 3.0) << builds.dump();
+}
+
 TEST(Viewer, CtrlQDuringTheFirstBuildExitsWithinASecond) {
   KDGRID_REQUIRE_XVFB();
   KDGRID_REQUIRE_XDOTOOL();

@@ -102,6 +102,16 @@ int main(int argc, char** argv) {
   app.add_option("--rebuild-cell-size", o.rebuild_cell_size,
                  "After start-up, rebuild live with this cell size ('auto' or a size) and wait for it")
       ->group(gs);
+  app.add_option("--supersede-cell-size", o.supersede_cell_size,
+                 "Scripted: while the --rebuild-cell-size build runs, request this cell size "
+                 "('auto', '0.5x' or a size) the way the panel's cell-size box does, "
+                 "--supersede-after seconds into it; the newer request cancels the running build")
+      ->group(gs);
+  app.add_option("--supersede-after", o.supersede_after,
+                 "Scripted: seconds into the --rebuild-cell-size build at which --supersede-cell-size is requested")
+      ->group(gs)
+      ->check(CLI::Range(0.0, 3600.0))
+      ->capture_default_str();
   app.add_option("--export-heatmap", o.export_heatmap,
                  "Scripted: write the heat map's raw per-pixel counts to this EXR (needs --heatmap)")
       ->group(gs);
@@ -138,6 +148,11 @@ int main(int argc, char** argv) {
     (void)o.accel.resolve();
     if (o.accel_given) (void)kdgrid::make_accelerator(o.accel.accel);
     if (!o.rebuild_cell_size.empty()) (void)kdgrid::cli::parse_cell_size(o.rebuild_cell_size);
+    if (!o.supersede_cell_size.empty()) {
+      if (o.rebuild_cell_size.empty())
+        throw kdgrid::ParamError("--supersede-cell-size supersedes the --rebuild-cell-size build: give --rebuild-cell-size too");
+      (void)kdgrid::viewer::CellChoice::parse(o.supersede_cell_size, "--supersede-cell-size");
+    }
     if (!pick.empty()) {
       int x = 0, y = 0;
       char extra = 0;

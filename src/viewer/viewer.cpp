@@ -1,3 +1,6 @@
+// kdgrid-viewer's application: set-up, input, the hand-over to the render worker, the main
+// loop. The panels are in panels.cpp, the background loads and builds in background_tasks.cpp,
+// the --stats-json writer in stats_json.cpp and the pick's view in pick_view.cpp.
 #include "viewer/viewer.h"
 
 #include <epoxy/gl.h>
@@ -12,27 +15,26 @@
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
-#include <fstream>
-#include <sstream>
-
-#include <nlohmann/json.hpp>
-#include <tbb/global_control.h>
 
 #include "accel/guards.h"
-#include "accel/hybrid/hybrid.h"
-#include "scene/load.h"
 #include "util/error.h"
+#include "util/format.h"
 #include "viewer/gl_util.h"
+#include "viewer/viewer_internal.h"
 #include "viewer_shaders.h"
 
 namespace kdgrid::viewer {
 
+const char* mode_name(RenderMode m) {
+  switch (m) {
+    case RenderMode::Shaded: return "shaded";
+    case RenderMode::HeatSteps: return "steps";
+    case RenderMode::HeatTests: return "tests";
+  }
+  return "shaded";
+}
+
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-/// Colour of the brute-force refusal: orange, apart from the errors' red.
-const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
 
 Viewer* self(GLFWwindow* w) { return static_cast<Viewer*>(glfwGetWindowUserPointer(w)); }
 
@@ -48,22 +50,8 @@ std::string shell_quote(const std::string& s) {
   return q + "'";
 }
 
-std::string format_bytes(uint64_t b) {
-  char buf[64];
-  if (b >= (1ull << 20))
-    std::snprintf(buf, sizeof buf, "%.2f MiB", double(b) / double(1 << 20));
-  else if (b >= 1024)
-    std::snprintf(buf, sizeof buf, "%.1f KiB", double(b) / 1024.0);
-  else
-    std::snprintf(buf, sizeof buf, "%llu B", (unsigned long long)b);
-  return buf;
-}
-
-std::string fmt_float(float v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.9g", v);
-  return buf;
-}
+/// A float as a command-line value that reads back as the same float.
+std::string fmt_float(float v) { return format_double("%.9g", v); }
 
 /// The build flags of `p` that differ from the defaults, as `kdgrid` options, so a printed
 /// command line rebuilds the very same structure.
@@ -84,50 +72,7 @@ std::string accel_flags(const std::string& name, const BuildParams& p) {
   return s;
 }
 
-const char* mode_name(RenderMode m) {
-  switch (m) {
-    case RenderMode::Shaded: return "shaded";
-    case RenderMode::HeatSteps: return "steps";
-    case RenderMode::HeatTests: return "tests";
-  }
-  return "shaded";
-}
-
-/// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
-/// it ends; it polls the task's future at once instead of at its next timeout.
-struct WakeUiOnExit {
-  WakeUiOnExit() = default;
-  WakeUiOnExit(const WakeUiOnExit&) = delete;
-  WakeUiOnExit& operator=(const WakeUiOnExit&) = delete;
-  ~WakeUiOnExit() { glfwPostEmptyEvent(); }
-};
-
-/// Threads a background build may use: all but one of those the process may use, so that the
-/// render worker keeps a core and the picture follows the camera while a structure builds (a
-/// build on every core starves the passes, which then take seconds). At least 1.
-int background_build_threads() {
-  const int n = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
-  return std::max(1, n - 1);
-}
-
-/// The body of a background load or build: builds `name` over `scene` with `params`, polling
-/// `cancel` (BuildCancelled when it is set).
-std::shared_ptr<World> build_world(std::shared_ptr<const Scene> scene, const std::string& name,
-                                   const BuildParams& params, const CancelToken& cancel) {
-  auto w = std::make_shared<World>();
-  w->scene = std::move(scene);
-  w->name = name;
-  w->params = params;  // as requested; the token and thread count below belong to this build only
-  BuildParams p = params;
-  p.cancel = &cancel;
-  p.threads = background_build_threads();
-  cancel.check();  // cancelled while the scene loaded
-  const auto t0 = Clock::now();
-  w->accel = build_accelerator(name, w->scene->mesh, p);
-  w->build_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-  return w;
-}
-
+/// Appends `v` to a plot's history, which keeps the last 120 values.
 void push_history(std::deque<float>& h, float v) {
   h.push_back(v);
   while (h.size() > 120) h.pop_front();
@@ -135,7 +80,7 @@ void push_history(std::deque<float>& h, float v) {
 
 }  // namespace
 
-// ---- construction --------------------------------------------------------------------------
+// ---- construction ---------------------------------------------------------------------------
 
 Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
   // Scripted runs are reproducible: they neither read nor write the remembered settings.
@@ -308,184 +253,12 @@ void Viewer::shutdown() {
   window_ = nullptr;
 }
 
-// ---- worlds ----------------------------------------------------------------------------------
-
 float Viewer::scene_radius() const {
   if (!world_) return 1.0f;
   return std::max(length(world_->scene->mesh.bounds().extent()) * 0.5f, 1e-6f);
 }
 
-BuildParams Viewer::params_with_cell_size(const std::string& name, float cs) const {
-  BuildParams p = params_;
-  if (name == "grid" && cs > 0 && world_) {
-    // The uniform grid has no cell size knob; pick the density that gives cells of about
-    // this edge: cells = volume / cs^3 = lambda * triangles.
-    const Vec3 e = world_->scene->mesh.bounds().extent();
-    const double v = double(std::max(e.x, cs)) * std::max(e.y, cs) * std::max(e.z, cs);
-    const double cells = v / (double(cs) * cs * cs);
-    p.grid_lambda = float(std::clamp(cells / double(world_->scene->mesh.num_triangles()), 1e-3, 1e3));
-  } else {
-    p.cell_size = cs;
-  }
-  return p;
-}
-
-void Viewer::start_load(const std::string& path) {
-  if (task_) {
-    task_error_ = "busy " + task_->what + "; drop the file again when it is done";
-    return;
-  }
-  task_error_.clear();
-  const std::string name = accel_name_;
-  const BuildParams params = params_;
-  // The new scene's own cell size: the command line's for its scene, else the remembered one;
-  // a size in scene units never carries over from another scene.
-  const bool own = path == opts_.scene && opts_.cell_size_given;
-  CellChoice choice = remembered_cell_choice(settings_, path);
-  if (own) choice = cell_choice_.kind == CellChoice::Kind::Multiple ? cell_choice_ : CellChoice::parse(opts_.accel.cell_size, "--cell-size");
-  loading_choice_ = choice;
-  Task t;
-  t.what = "loading " + std::filesystem::path(path).filename().string();
-  t.path = path;
-  t.kind = "load";
-  t.new_scene = true;
-  t.started = Clock::now();
-  t.cancel = std::make_shared<CancelToken>();
-  t.result = std::async(std::launch::async, [path, name, params, choice, cancel = t.cancel] {
-    const WakeUiOnExit wake;
-    auto scene = std::make_shared<Scene>(load_scene(path));
-    BuildParams p = params;
-    p.cell_size = choice.resolve(choice.kind == CellChoice::Kind::Multiple
-                                     ? Hybrid::estimate(scene->mesh, params).auto_cell
-                                     : 0.0);
-    return build_world(std::move(scene), name, p, *cancel);
-  });
-  task_ = std::move(t);
-}
-
-void Viewer::start_build(const std::string& name, const BuildParams& params) {
-  if (!world_) return;
-  if (task_) {
-    // The newest request wins: a running build stops (its old structure keeps rendering)
-    // and this one starts when it has; a load of a new scene runs to its end first.
-    if (!task_->new_scene) cancel_task();
-    pending_build_ = {name, params};
-    return;
-  }
-  task_error_.clear();
-  std::shared_ptr<const Scene> scene = world_->scene;
-  Task t;
-  t.what = "building " + name;
-  t.kind = name == accel_name_ ? "rebuild" : "build";
-  t.started = Clock::now();
-  t.cancel = std::make_shared<CancelToken>();
-  t.result = std::async(std::launch::async, [scene, name, params, cancel = t.cancel] {
-    const WakeUiOnExit wake;
-    return build_world(scene, name, params, *cancel);
-  });
-  task_ = std::move(t);
-}
-
-void Viewer::cancel_task() {
-  if (!task_ || task_->cancel->cancelled()) return;
-  task_->cancel->cancel();
-  task_->cancelled_at = Clock::now();
-  pending_build_.reset();
-}
-
-void Viewer::poll_tasks() {
-  if (!task_ || task_->result.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
-  const bool new_scene = task_->new_scene;
-  const bool was_scripted_rebuild = scripted_rebuild_started_ && !scripted_rebuild_done_ && !new_scene;
-  BuildRecord rec;
-  rec.kind = task_->kind;
-  rec.wall_seconds = std::chrono::duration<double>(Clock::now() - task_->started).count();
-  try {
-    std::shared_ptr<World> w = task_->result.get();
-    std::printf("kdgrid-viewer: %s %s in %.3f s (%s)\n", new_scene ? "loaded and built" : "rebuilt",
-                w->name.c_str(), w->build_seconds, format_bytes(w->accel->stats().bytes).c_str());
-    std::fflush(stdout);
-    rec.accel = w->name;
-    rec.scene = w->scene->source;
-    rec.build_seconds = w->build_seconds;
-    rec.stats = w->accel->stats();
-    rec.cell_size = w->params.cell_size;
-    install_world(std::move(w), new_scene);
-  } catch (const BuildCancelled&) {
-    // Not an error: the old structure stays and renders.
-    rec.cancelled = true;
-    rec.error = "cancelled";
-    rec.cancel_seconds = std::chrono::duration<double>(Clock::now() - task_->cancelled_at).count();
-    message_ = "cancelled " + task_->what + (world_ ? "; showing " + world_->name : "");
-    std::printf("kdgrid-viewer: cancelled %s after %.3f s (it stopped %.3f s after the request)\n",
-                task_->what.c_str(), rec.wall_seconds, rec.cancel_seconds);
-    std::fflush(stdout);
-  } catch (const std::exception& e) {
-    task_error_ = e.what();
-    rec.error = e.what();
-    std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(), e.what());
-    if (new_scene && !world_) {
-      // The window stays with the error in its panel; its title names the file, as a loaded
-      // scene's does.
-      const std::string title =
-          "kdgrid-viewer - " + std::filesystem::path(task_->path).filename().string() + " (failed to load)";
-      glfwSetWindowTitle(window_, title.c_str());
-    }
-  }
-  builds_.push_back(std::move(rec));
-  task_.reset();
-  if (was_scripted_rebuild) scripted_rebuild_done_ = true;
-  if (drop_started_ && new_scene) drop_done_ = true;
-  if (pending_build_) {
-    auto [name, params] = *pending_build_;
-    pending_build_.reset();
-    start_build(name, params);
-  }
-}
-
-void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
-  if (new_scene) {
-    const bool first = !world_;
-    built_.clear();
-    Camera c = *w->scene->camera;
-    // Command-line camera flags apply to the scene given on the command line only.
-    if (first) c = opts_.camera.apply(c);
-    cam_.reset(c, w->scene->mesh.bounds());
-    start_camera_ = cam_.camera();
-    pick_.reset();
-    // The title names the scene; input tests wait for it (xdotool search --sync --name)
-    // before they send events, as the camera is reset here.
-    const std::string title =
-        "kdgrid-viewer - " + std::filesystem::path(w->scene->source).filename().string();
-    glfwSetWindowTitle(window_, title.c_str());
-  }
-  if (new_scene) {
-    cell_choice_ = loading_choice_;
-    BuildParams a = w->params;
-    a.cell_size = 0.0f;
-    auto_cell_ = Hybrid::estimate(w->scene->mesh, a).auto_cell;
-    cell_refusal_.clear();
-  }
-  // The choice follows what was built (a scripted rebuild, a build from the panel), and the
-  // slider shows the built size, the auto rule's included.
-  const float cs = w->params.cell_size;
-  if (w->name == "hybrid") {
-    if (cs <= 0.0f)
-      cell_choice_ = {};
-    else if (cell_choice_.kind != CellChoice::Kind::Multiple || std::fabs(cell_choice_.resolve(auto_cell_) - cs) > 1e-6f * cs)
-      cell_choice_ = {CellChoice::Kind::Units, double(cs)};
-    if (const auto* h = dynamic_cast<const Hybrid*>(w->accel.get())) cell_size_slider_ = float(h->cell_size());
-    cell_estimated_for_ = -1;
-  }
-  accel_name_ = w->name;
-  params_ = w->params;
-  built_[w->name] = w;
-  world_ = std::move(w);
-  overlay_dirty_ = true;
-  if (pick_) retrace_pick();  // the same ray through the new structure
-}
-
-// ---- input -----------------------------------------------------------------------------------
+// ---- input ----------------------------------------------------------------------------------
 
 void Viewer::print_camera() {
   message_ = cam_.cli_flags();
@@ -640,7 +413,7 @@ void Viewer::handle_continuous_input(float dt) {
   }
 }
 
-// ---- render hand-over ----------------------------------------------------------------------
+// ---- render hand-over -----------------------------------------------------------------------
 
 void Viewer::sync_render_job() {
   if (!world_ || !worker_) return;
@@ -763,6 +536,35 @@ void Viewer::receive_image() {
   upload_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - t1).count());
 }
 
+void Viewer::draw_scene() {
+  int fw, fh;
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  GL_CHECK(glViewport(0, 0, fw, fh));
+  GL_CHECK(glClearColor(0.08f, 0.08f, 0.1f, 1.0f));
+  GL_CHECK(glClear(GL_COLOR_BUFFER_BIT));
+  GL_CHECK(glDisable(GL_DEPTH_TEST));
+  if (have_image_ && brute_refusal_.empty()) {
+    GL_CHECK(glUseProgram(image_program_));
+    GL_CHECK(glActiveTexture(GL_TEXTURE0));
+    GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
+    GL_CHECK(glUniform1i(glGetUniformLocation(image_program_, "u_image"), 0));
+    GL_CHECK(glBindVertexArray(empty_vao_));
+    GL_CHECK(glDrawArrays(GL_TRIANGLES, 0, 6));
+    GL_CHECK(glBindVertexArray(0));
+  }
+  if (world_ && posted_w_ > 0) {
+    // The live camera (not the displayed image's) so overlays follow the mouse at once.
+    const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
+    const float r = scene_radius();
+    const float dist = length(f.eye - world_->scene->mesh.bounds().center());
+    const auto vp = view_projection(f, r * 1e-4f, (dist + r) * 10.0f);
+    GL_CHECK(glEnable(GL_BLEND));
+    GL_CHECK(glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA));
+    structure_lines_.draw(vp, overlay_alpha_);
+    GL_CHECK(glDisable(GL_BLEND));
+  }
+}
+
 // ---- overlays and pick ----------------------------------------------------------------------
 
 void Viewer::rebuild_structure_overlay() {
@@ -815,7 +617,7 @@ void Viewer::retrace_pick() {
   if (splits_of_pick_) overlay_dirty_ = true;
 }
 
-// ---- output ----------------------------------------------------------------------------------
+// ---- output ---------------------------------------------------------------------------------
 
 std::string Viewer::default_output_name(const char* prefix, const char* ext) const {
   const std::time_t now = std::time(nullptr);
@@ -841,615 +643,7 @@ void Viewer::save_screenshot(const std::string& path) {
   std::fflush(stdout);
 }
 
-namespace {
-
-nlohmann::json vec_json(const Vec3& v) { return {v.x, v.y, v.z}; }
-
-nlohmann::json camera_json(const Camera& c) {
-  return {{"eye", vec_json(c.eye)}, {"target", vec_json(c.target)}, {"up", vec_json(c.up)}, {"fov", c.fov_deg}};
-}
-
-}  // namespace
-
-void Viewer::write_stats(const std::string& path, int exit_code) const {
-  using nlohmann::json;
-  int ww = 0, wh = 0, fw = 0, fh = 0;
-  glfwGetWindowSize(window_, &ww, &wh);
-  glfwGetFramebufferSize(window_, &fw, &fh);
-  json j;
-  j["exit_code"] = exit_code;
-  j["end"] = end_reason_;
-  j["display"] = {{"window", {ww, wh}},
-                  {"framebuffer", {fw, fh}},
-                  {"content_scale", {content_scale_[0], content_scale_[1]}},
-                  {"ui_scale", ui_scale_},
-                  {"font_size", ImGui::GetIO().Fonts->Fonts.empty() ? 0.0f : ImGui::GetIO().Fonts->Fonts[0]->FontSize},
-                  {"image", {posted_w_, posted_h_}},
-                  {"panel", opts_.hide_ui ? json(nullptr)
-                                          : json{{"x", panel_rect_[0]}, {"y", panel_rect_[1]},
-                                                 {"w", panel_rect_[2]}, {"h", panel_rect_[3]}}},
-                  {"gl_renderer", gl_renderer_},
-                  {"gl_version", gl_version_}};
-  const RenderSettings rs;  // what sync_render_job leaves at its defaults
-  j["settings"] = {{"threads", tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)},
-                   {"threads_option", opts_.threads},
-                   {"max_samples", opts_.max_samples},
-                   {"samples_per_pass", 1},
-                   {"shadows", rs.shadows},
-                   {"max_depth", rs.max_depth},
-                   {"resolution_scale", opts_.resolution_scale},
-                   {"max_fps", opts_.max_fps},
-                   {"mode", mode_name(mode_)}};
-  json st;
-  if (world_) {
-    st["scene"] = world_->scene->source;
-    st["triangles"] = world_->scene->mesh.num_triangles();
-    st["accel"] = world_->name;
-    st["cell_size"] = world_->params.cell_size;
-    if (const auto* h = dynamic_cast<const Hybrid*>(world_->accel.get())) {
-      st["built_cell_size"] = h->cell_size();
-      st["auto_cell_size"] = auto_cell_;
-      st["cell_size_shown"] = cell_size_slider_;
-      st["cell_choice"] = cell_choice_.text();
-    }
-    st["cell_estimate"] = cell_estimate_;
-    st["cell_refusal"] = cell_refusal_;
-  } else {
-    st["scene"] = nullptr;
-  }
-  st["camera"] = camera_json(cam_.camera());
-  st["ui_hidden"] = opts_.hide_ui;
-  st["keys_shown"] = show_keys_;
-  st["start_camera"] = camera_json(start_camera_);
-  st["camera_mode"] = cam_.mode() == CameraMode::Fly ? "fly" : "orbit";
-  st["speed_scale"] = cam_.speed_scale();
-  st["speed"] = cam_.speed();
-  st["camera_flags"] = cam_.cli_flags();
-  if (pick_)
-    st["pick"] = {{"x", pick_->x}, {"y", pick_->y}, {"steps", pick_->trace.steps.size()},
-                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}, {"framed", pick_->framed},
-                  {"segment", {pick_->segment.t0, pick_->segment.t1}}};
-  else
-    st["pick"] = nullptr;
-  st["overlay"] = {{"splits", show_splits_}, {"cells", show_cells_}, {"boxes", show_boxes_},
-                   {"splits_of_pick", splits_of_pick_}, {"split_depths", {split_depth_[0], split_depth_[1]}},
-                   {"items", overlay_items_}, {"lines", structure_lines_.vertex_count() / 2}};
-  st["message"] = message_;
-  st["error"] = task_error_;
-  st["render_error"] = worker_ ? worker_->error() : std::string();
-  st["render_refusal"] = brute_refusal_;
-  st["samples"] = have_image_ ? image_.samples : 0;
-  j["state"] = st;
-  // What the last frame's panels showed (empty with the panels hidden).
-  j["ui"] = {{"clipped", audit_.clipped},
-             {"legends", audit_.legends},
-             {"status_top", audit_.status_top},
-             {"below_status_y", audit_.below_status_y},
-             {"table_cells", audit_.table_cells},
-             {"below_status_y_by_state", below_status_y_by_state_}};
-
-  j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
-                 {"swap_ms", frame_swap_ms_}};
-  json passes = json::array();
-  for (const PassRecord& p : passes_) {
-    const uint64_t rays = p.rays.total();
-    passes.push_back({{"job", p.job},
-                      {"preview", p.preview},
-                      {"latency_ms", p.latency_ms},
-                      {"shown_at", p.shown_at},
-                      {"width", p.width},
-                      {"height", p.height},
-                      {"samples", p.samples},
-                      {"seconds", p.seconds},
-                      {"rays", rays},
-                      {"primary", p.rays.primary},
-                      {"shadow", p.rays.shadow},
-                      {"reflection", p.rays.reflection},
-                      {"refraction", p.rays.refraction},
-                      {"mrays", p.seconds > 0 ? double(rays) / p.seconds * 1e-6 : 0.0}});
-  }
-  j["passes"] = passes;
-  j["colorize_ms"] = colorize_ms_;
-  j["upload_ms"] = upload_ms_;
-  json builds = json::array();
-  for (const BuildRecord& b : builds_) {
-    json e = {{"kind", b.kind}, {"accel", b.accel}, {"scene", b.scene}, {"build_seconds", b.build_seconds},
-              {"wall_seconds", b.wall_seconds}, {"requested_cell_size", b.cell_size}};
-    if (b.cancelled) e["cancel_seconds"] = b.cancel_seconds;
-    if (!b.error.empty()) {
-      e["error"] = b.error;
-    } else {
-      json extra = json::object();
-      for (const auto& [k, v] : b.stats.extra) extra[k] = v;
-      e["stats"] = {{"seconds", b.stats.seconds}, {"bytes", b.stats.bytes}, {"nodes", b.stats.nodes},
-                    {"leaves", b.stats.leaves}, {"max_depth", b.stats.max_depth}, {"extra", extra}};
-    }
-    builds.push_back(e);
-  }
-  j["builds"] = builds;
-
-  std::ofstream out(path);
-  // Error texts can quote a file's bytes (a PLY with garbage after its header): invalid UTF-8
-  // is replaced (U+FFFD) instead of throwing out of dump() and leaving the file empty.
-  out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
-  if (!out)
-    std::fprintf(stderr, "kdgrid-viewer: could not write --stats-json %s\n", path.c_str());
-  else
-    std::printf("kdgrid-viewer: wrote %s\n", path.c_str());
-  std::fflush(stdout);
-}
-
-// ---- panels ----------------------------------------------------------------------------------
-
-void Viewer::request_cell_choice(const CellChoice& c) {
-  if (!world_) return;
-  const BuildParams p = params_with_cell_size("hybrid", c.resolve(auto_cell_));
-  try {
-    const HybridEstimate e = Hybrid::estimate(world_->scene->mesh, p);
-    cell_estimate_ = e.describe();
-    cell_estimated_for_ = float(e.cell);
-    if (!e.fits) {
-      cell_refusal_ = e.refusal();
-      cell_suggested_ = e.suggested_cell;
-      return;
-    }
-  } catch (const ParamError& err) {
-    cell_refusal_ = err.what();
-    cell_suggested_ = 0;
-    return;
-  }
-  cell_refusal_.clear();
-  cell_choice_ = c;
-  start_build("hybrid", p);
-}
-
-void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
-  // The hybrid's cell size, in scene units and as a multiple of the auto size; the slider and
-  // the boxes show the built size until edited. Every request is estimated first (cells,
-  // bytes, build time) and refused with a size that fits when it does not.
-  const float r = scene_radius();
-  bool auto_cs = cell_choice_.kind == CellChoice::Kind::Auto;
-  const auto chk = [this](const char* label) { audit_.item(label); };
-  if (ImGui::Checkbox("auto cell size", &auto_cs))
-    request_cell_choice(auto_cs ? CellChoice{} : CellChoice{CellChoice::Kind::Units, double(cell_size_slider_)});
-  const float lo = std::min(r * 1e-3f, cell_size_slider_), hi = std::max(r * 2.0f, cell_size_slider_);
-  ImGui::SliderFloat("cell", &cell_size_slider_, lo, hi, "%.4g", ImGuiSliderFlags_Logarithmic);
-  if (ImGui::IsItemDeactivatedAfterEdit()) request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
-  chk("cell");
-  ImGui::InputFloat("units", &cell_size_slider_, 0, 0, "%.6g");
-  chk("units");
-  if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0)
-    request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
-  if (auto_cell_ > 0) {
-    float mult = float(cell_size_slider_ / auto_cell_);
-    ImGui::InputFloat("x auto", &mult, 0, 0, "%.4g");
-    chk("x auto");
-    if (ImGui::IsItemDeactivatedAfterEdit() && mult > 0) {
-      cell_size_slider_ = float(mult * auto_cell_);
-      request_cell_choice({CellChoice::Kind::Multiple, double(mult)});
-    }
-  }
-  // The estimate of the size on the slider, updated while it moves (O(triangles)).
-  if (cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 && world_) {
-    try {
-      cell_estimate_ =
-          Hybrid::estimate(world_->scene->mesh, params_with_cell_size("hybrid", cell_size_slider_)).describe();
-    } catch (const ParamError& e) {
-      cell_estimate_ = e.what();
-    }
-    cell_estimated_for_ = cell_size_slider_;
-  }
-  ImGui::PushTextWrapPos(0.0f);
-  ImGui::TextDisabled("estimate: %s", cell_estimate_.c_str());
-  if (!cell_refusal_.empty()) {
-    ImGui::TextColored(ImVec4(1.0f, 0.45f, 0.35f, 1.0f), "refused: %s", cell_refusal_.c_str());
-    if (cell_suggested_ > 0) {
-      char label[64];
-      std::snprintf(label, sizeof label, "use %.2g", cell_suggested_);
-      if (ImGui::Button(label)) {
-        cell_size_slider_ = float(cell_suggested_);
-        request_cell_choice({CellChoice::Kind::Units, cell_suggested_});
-      }
-    }
-  }
-  ImGui::PopTextWrapPos();
-}
-
-void Viewer::draw_key_list() {
-  if (!show_keys_) return;
-  const ImGuiIO& io = ImGui::GetIO();
-  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x * 0.5f, io.DisplaySize.y * 0.5f), ImGuiCond_Appearing,
-                          ImVec2(0.5f, 0.5f));
-  if (!ImGui::Begin("keys (F1)", &show_keys_, ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings)) {
-    ImGui::End();
-    return;
-  }
-  static const char* const kKeys[][2] = {
-      {"left drag", "orbit about the target"},
-      {"right drag", "look around from the eye"},
-      {"wheel", "dolly towards / away from the target"},
-      {"W A S D Q E", "fly forward, left, back, right, down, up (Shift: 4x)"},
-      {"Tab", "switch orbit / fly camera"},
-      {"+ / -", "faster / slower camera"},
-      {"Home", "frame the scene"},
-      {"click", "pick the pixel: its ray's traversal, step by step"},
-      {"F", "frame the pick: its leaves/cells and ray fill the view"},
-      {"C", "print the camera as command-line flags"},
-      {"P or F12", "save a screenshot"},
-      {"H", "hide / show the panels"},
-      {"F1", "this list"},
-      {"Ctrl+Q", "quit"},
-  };
-  if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingFixedFit | ImGuiTableFlags_RowBg)) {
-    for (const auto& k : kKeys) {
-      ImGui::TableNextRow();
-      ImGui::TableNextColumn();
-      ImGui::TextUnformatted(k[0]);
-      ImGui::TableNextColumn();
-      ImGui::TextUnformatted(k[1]);
-    }
-    ImGui::EndTable();
-  }
-  ImGui::End();
-}
-
-void Viewer::draw_panels() {
-  // The panel starts kPanelWidth wide and, with the window's height, at most a quarter of its
-  // area; it is resizable and collapsible (the title bar's triangle), and an interactive run
-  // remembers its place and size in imgui.ini.
-  const ImGuiIO& io = ImGui::GetIO();
-  const ImGuiStyle& style = ImGui::GetStyle();
-  const float margin = 8 * ui_scale_;
-  const float pw = std::min(kPanelWidth * ui_scale_, io.DisplaySize.x * 0.5f);
-  const float ph = std::max(std::min(io.DisplaySize.y - 2 * margin, io.DisplaySize.x * io.DisplaySize.y * 0.25f / pw),
-                            ImGui::GetFrameHeight() * 4);
-  ImGui::SetNextWindowPos(ImVec2(margin, margin), ImGuiCond_FirstUseEver);
-  ImGui::SetNextWindowSize(ImVec2(pw, ph), ImGuiCond_FirstUseEver);
-  ImGui::Begin("kdgrid");
-  const ImVec2 panel_pos = ImGui::GetWindowPos(), panel_size = ImGui::GetWindowSize();
-  panel_rect_[0] = panel_pos.x;
-  panel_rect_[1] = panel_pos.y;
-  panel_rect_[2] = panel_size.x;
-  panel_rect_[3] = panel_size.y;
-  // Widgets leave room on their right for the widest label, so no label is cut.
-  float label_w = 0;
-  for (const char* l : {"structure", "max leaf size", "test/step cost", "cell", "units", "x auto", "cell size",
-                        "max samples", "resolution", "Mrays/s", "frame work", "split depths", "box depths",
-                        "opacity", "min", "max"})
-    label_w = std::max(label_w, ImGui::CalcTextSize(l).x);
-  ImGui::PushItemWidth(-(label_w + style.ItemInnerSpacing.x + 1));
-  const auto chk = [this](const char* label) { audit_.item(label); };
-
-  // The status area: a fixed height for the build's progress and the errors, scrolling when
-  // they need more, so that nothing under it moves when a build starts or ends or an error
-  // appears.
-  audit_.status_top = ImGui::GetCursorPosY();
-  ImGui::BeginChild("status", ImVec2(0, ImGui::GetFrameHeightWithSpacing() * kStatusLines), false);
-  const std::string render_error = worker_ ? worker_->error() : std::string();
-  if (task_) {
-    const double secs = std::chrono::duration<double>(Clock::now() - task_->started).count();
-    ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
-    chk(task_->what.c_str());
-    same_line_if_fits(task_->cancel->cancelled() ? "cancelling" : "cancel (Esc)");
-    if (task_->cancel->cancelled())
-      ImGui::TextDisabled("cancelling");
-    else if (ImGui::SmallButton("cancel (Esc)"))
-      cancel_task();
-    chk("cancel (Esc)");
-    // Builds report no progress, so show motion rather than a fraction.
-    ImGui::ProgressBar(float(std::fmod(secs, 1.0)), ImVec2(-1, 0), "");
-  } else if (task_error_.empty() && render_error.empty() && brute_refusal_.empty()) {
-    ImGui::TextDisabled("%s", world_ ? ("showing " + world_->name).c_str() : "no scene");
-  }
-  ImGui::PushTextWrapPos(0.0f);
-  if (!task_error_.empty()) {
-    ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.4f, 0.4f, 1));
-    ImGui::TextUnformatted(task_error_.c_str());
-    ImGui::PopStyleColor();
-    if (ImGui::SmallButton("dismiss")) task_error_.clear();
-  }
-  if (!render_error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", render_error.c_str());
-  if (!brute_refusal_.empty()) ImGui::TextColored(kRefusalColor, "not rendered: %s", brute_refusal_.c_str());
-  ImGui::PopTextWrapPos();
-  ImGui::EndChild();
-  ImGui::Separator();
-  audit_.below_status_y = ImGui::GetCursorPosY();
-  auto& ys = below_status_y_by_state_[task_ ? "build" : (!task_error_.empty() ? "error" : "idle")];
-  if (std::find(ys.begin(), ys.end(), audit_.below_status_y) == ys.end()) ys.push_back(audit_.below_status_y);
-
-  if (!world_ && !task_) {
-    ImGui::PushTextWrapPos(0.0f);
-    ImGui::TextDisabled("no scene loaded: drop a .gltf/.glb/.ply/.obj file to load one");
-    ImGui::PopTextWrapPos();
-  }
-  if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
-    const Scene& s = *world_->scene;
-    ImGui::TextWrapped("%s", s.source.c_str());
-    ImGui::TextWrapped("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
-    ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
-                       s.textures.size());
-    const Box3 b = s.mesh.bounds();
-    ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
-    ImGui::PushTextWrapPos(0.0f);
-    ImGui::TextDisabled("drop a .gltf/.glb/.ply/.obj file to load it");
-    ImGui::PopTextWrapPos();
-  }
-
-  if (ImGui::CollapsingHeader("Structure", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
-    const auto names = accelerator_names();
-    if (ImGui::BeginCombo("structure", accel_name_.c_str())) {
-      for (const auto& n : names) {
-        const bool built = built_.count(n) > 0;
-        const std::string label = n + (built ? "" : "  (build)");
-        if (ImGui::Selectable(label.c_str(), n == accel_name_) && n != accel_name_) {
-          if (built)
-            install_world(built_[n], false);  // switch on the same view, no rebuild
-          else
-            start_build(n, params_);
-        }
-      }
-      ImGui::EndCombo();
-    }
-    chk("structure");
-    // The main build knob of the selected structure; any change rebuilds off the UI thread.
-    bool rebuild = false;
-    BuildParams p = params_;
-    const float r = scene_radius();
-    if (accel_name_ == "bvh") {
-      ImGui::SliderInt("max leaf size", &p.bvh_max_leaf, 1, 32);
-      rebuild = ImGui::IsItemDeactivatedAfterEdit();
-      chk("max leaf size");
-    } else if (accel_name_ == "kdtree") {
-      ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
-                         ImGuiSliderFlags_Logarithmic);
-      rebuild = ImGui::IsItemDeactivatedAfterEdit();
-      chk("test/step cost");
-    } else if (accel_name_ == "hybrid") {
-      draw_cell_size_controls(p, rebuild);
-    } else if (accel_name_ != "brute" && accel_name_ != "embree") {
-      if (cell_size_slider_ <= 0) cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
-      bool auto_cs = params_.cell_size <= 0 && accel_name_ != "grid";
-      if (accel_name_ != "grid" && ImGui::Checkbox("auto cell size", &auto_cs)) {
-        p = params_with_cell_size(accel_name_, auto_cs ? 0.0f : cell_size_slider_);
-        rebuild = true;
-      }
-      ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
-                         ImGuiSliderFlags_Logarithmic);
-      audit_.item("cell size");
-      if (ImGui::IsItemDeactivatedAfterEdit()) {
-        p = params_with_cell_size(accel_name_, cell_size_slider_);
-        rebuild = true;
-      }
-      ImGui::InputFloat("##cellvalue", &cell_size_slider_, 0, 0, "%.6g");
-      if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0) {
-        p = params_with_cell_size(accel_name_, cell_size_slider_);
-        rebuild = true;
-      }
-      if (accel_name_ == "grid") {
-        ImGui::PushTextWrapPos(0.0f);
-        ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
-        ImGui::PopTextWrapPos();
-      }
-    }
-    if (rebuild) start_build(accel_name_, p);
-
-    const BuildStats& st = world_->accel->stats();
-    if (ImGui::BeginTable("stats", 2)) {
-      // Labels keep their whole width; long values (the hybrid's build notes) wrap instead.
-      ImGui::TableSetupColumn("name", ImGuiTableColumnFlags_WidthFixed);
-      ImGui::TableSetupColumn("value", ImGuiTableColumnFlags_WidthStretch);
-      const auto row = [](const char* k, const std::string& v) {
-        ImGui::TableNextRow();
-        ImGui::TableNextColumn();
-        ImGui::TextUnformatted(k);
-        ImGui::TableNextColumn();
-        ImGui::TextWrapped("%s", v.c_str());
-      };
-      char buf[64];
-      std::snprintf(buf, sizeof buf, "%.3f s", st.seconds > 0 ? st.seconds : world_->build_seconds);
-      row("build time", buf);
-      row("bytes", format_bytes(st.bytes));
-      row("nodes", std::to_string(st.nodes));
-      row("leaves", std::to_string(st.leaves) + " (" + std::to_string(st.empty_leaves) + " empty)");
-      row("references", std::to_string(st.references));
-      row("max depth", std::to_string(st.max_depth));
-      for (const auto& [k, v] : st.extra) row(k.c_str(), v);
-      ImGui::EndTable();
-    }
-  }
-
-  if (ImGui::CollapsingHeader("Render", ImGuiTreeNodeFlags_DefaultOpen)) {
-    int m = int(mode_);
-    ImGui::RadioButton("shaded", &m, int(RenderMode::Shaded));
-    ImGui::SameLine();
-    ImGui::RadioButton("steps", &m, int(RenderMode::HeatSteps));
-    ImGui::SameLine();
-    ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
-    mode_ = RenderMode(m);
-    chk("tri tests");
-    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
-                       last_mrays_);
-    ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d", ImGuiSliderFlags_Logarithmic);
-    chk("max samples");
-    if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
-      opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
-    }
-    chk("resolution");
-    // Both plots run from 0 to their history's maximum, which the overlay names (with the
-    // latest value), so that their height reads as a fraction of a stated value.
-    const auto plot = [&chk](const char* name, const std::deque<float>& hist, const char* unit) {
-      std::vector<float> v(hist.begin(), hist.end());
-      const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
-      char overlay[64];
-      std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(), unit, hi);
-      ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f, ImVec2(0, 40));
-      chk(name);
-    };
-    plot("Mrays/s", mrays_hist_, "");
-    // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
-    plot("frame work", frame_ms_hist_, " ms");
-    ImGui::TextWrapped("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
-                       cam_.speed_scale());
-    if (ImGui::Button("print camera (C)")) print_camera();
-    chk("print camera (C)");
-    same_line_if_fits("frame scene (Home)");
-    if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
-    chk("frame scene (Home)");
-    same_line_if_fits("screenshot (P)");
-    if (ImGui::Button("screenshot (P)")) save_screenshot(default_output_name("kdgrid-screenshot", "png"));
-    chk("screenshot (P)");
-  }
-
-  if (mode_ != RenderMode::Shaded && ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
-    int s = int(settings_.heat_scale);
-    bool changed = ImGui::RadioButton("auto", &s, int(HeatScale::Auto));
-    ImGui::SameLine();
-    changed |= ImGui::RadioButton("fixed", &s, int(HeatScale::Fixed));
-    ImGui::SameLine();
-    changed |= ImGui::RadioButton("log", &s, int(HeatScale::Log));
-    chk("log");
-    settings_.heat_scale = HeatScale(s);
-    if (settings_.heat_scale == HeatScale::Fixed) {
-      changed |= ImGui::InputFloat("min", &settings_.heat_fixed_min);
-      changed |= ImGui::InputFloat("max", &settings_.heat_fixed_max);
-    }
-    if (changed) recolor_ = true;
-    if (ImGui::Button("export EXR") && have_image_ && image_.mode != RenderMode::Shaded) {
-      const std::string path = default_output_name(image_.mode == RenderMode::HeatSteps ? "kdgrid-steps" : "kdgrid-tests", "exr");
-      const std::string err = write_counts_exr(path, image_, std::string("kdgrid ") + mode_name(image_.mode) +
-                                                                  " per pixel, " + accel_name_);
-      message_ = err.empty() ? "wrote " + path : err;
-      std::printf("kdgrid-viewer: %s\n", message_.c_str());
-    }
-  }
-
-  if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) {
-    bool dirty = ImGui::Checkbox("kd split planes", &show_splits_);
-    if (show_splits_) {
-      dirty |= ImGui::Checkbox("splits of the picked ray", &splits_of_pick_);
-      chk("splits of the picked ray");
-      if (splits_of_pick_ && !pick_) {
-        ImGui::PushTextWrapPos(0.0f);
-        ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
-        ImGui::PopTextWrapPos();
-      }
-      ImGui::SliderInt2("split depths", split_depth_, 0, 64);
-      dirty |= ImGui::IsItemDeactivatedAfterEdit();
-      chk("split depths");
-      char l0[32], l2[32];
-      std::snprintf(l0, sizeof l0, "depth %d", split_depth_[0]);
-      std::snprintf(l2, sizeof l2, "%d", split_depth_[1]);
-      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
-      audit_.legends.push_back(std::string("split depth: ") + l0 + " .. " + l2);
-    }
-    dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
-    dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
-    if (show_boxes_) {
-      ImGui::SliderInt2("box depths", box_depth_, 0, 64);
-      dirty |= ImGui::IsItemDeactivatedAfterEdit();
-      chk("box depths");
-      char l0[32], l2[32];
-      std::snprintf(l0, sizeof l0, "depth %d", box_depth_[0]);
-      std::snprintf(l2, sizeof l2, "%d", box_depth_[1]);
-      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
-    }
-    ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
-    chk("opacity");
-    if (dirty) overlay_dirty_ = true;
-    ImGui::TextWrapped("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
-                       structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
-  }
-
-  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
-  if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
-  ImGui::PopItemWidth();
-  ImGui::End();
-
-  draw_pick_steps();
-  if (have_image_ && image_.mode != RenderMode::Shaded) draw_heat_legend();
-}
-
-void Viewer::draw_heat_legend() {
-  const ImGuiIO& io = ImGui::GetIO();
-  const float s = ui_scale_;
-  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - 8, io.DisplaySize.y - 8), ImGuiCond_Always, ImVec2(1, 1));
-  ImGui::SetNextWindowBgAlpha(0.7f);
-  ImGui::Begin("legend", nullptr,
-               ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings |
-                   ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
-  if (world_ && !world_->accel->has_counters()) {
-    // Embree counts nothing: a ramp with a 0..1 scale would read as "no work at all".
-    ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f), "%s keeps no traversal counters: no %s heat map",
-                       world_->name.c_str(), image_.mode == RenderMode::HeatSteps ? "step" : "test");
-    ImGui::TextDisabled("choose a kdgrid structure to see its work per pixel");
-    ImGui::End();
-    return;
-  }
-  ImGui::Text("%s per pixel (%s scale)", image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
-              to_string(settings_.heat_scale));
-  // The value at the middle of the bar differs between linear and log scales.
-  const float mid = settings_.heat_scale == HeatScale::Log
-                        ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
-                        : 0.5f * (heat_range_.lo + heat_range_.hi);
-  char l0[32], l1[32], l2[32];
-  std::snprintf(l0, sizeof l0, "%.4g", heat_range_.lo);
-  std::snprintf(l1, sizeof l1, "%.4g", mid);
-  std::snprintf(l2, sizeof l2, "%.4g", heat_range_.hi);
-  draw_ramp_bar(240 * s, l0, l1, l2);
-  ImGui::End();
-}
-
-void Viewer::draw_ramp_bar(float w, const char* lo, const char* mid, const char* hi) {
-  const float s = ui_scale_;
-  const ImVec2 p = ImGui::GetCursorScreenPos();
-  const float h = 14 * s;
-  ImDrawList* dl = ImGui::GetWindowDrawList();
-  constexpr int kSegs = 32;
-  for (int i = 0; i < kSegs; ++i) {
-    const Color a = ramp(float(i) / kSegs), b = ramp(float(i + 1) / kSegs);
-    const ImU32 ca = ImGui::GetColorU32(ImVec4(a.r, a.g, a.b, 1)), cb = ImGui::GetColorU32(ImVec4(b.r, b.g, b.b, 1));
-    dl->AddRectFilledMultiColor(ImVec2(p.x + w * i / kSegs, p.y), ImVec2(p.x + w * (i + 1) / kSegs, p.y + h), ca, cb,
-                                cb, ca);
-  }
-  ImGui::Dummy(ImVec2(w, h));
-  const float x0 = ImGui::GetCursorPosX();
-  ImGui::TextUnformatted(lo);
-  ImGui::SameLine(x0 + 0.5f * (w - ImGui::CalcTextSize(mid).x));
-  ImGui::TextUnformatted(mid);
-  ImGui::SameLine(x0 + w - ImGui::CalcTextSize(hi).x);
-  ImGui::TextUnformatted(hi);
-}
-
-void Viewer::draw_scene() {
-  int fw, fh;
-  glfwGetFramebufferSize(window_, &fw, &fh);
-  GL_CHECK(glViewport(0, 0, fw, fh));
-  GL_CHECK(glClearColor(0.08f, 0.08f, 0.1f, 1.0f));
-  GL_CHECK(glClear(GL_COLOR_BUFFER_BIT));
-  GL_CHECK(glDisable(GL_DEPTH_TEST));
-  if (have_image_ && brute_refusal_.empty()) {
-    GL_CHECK(glUseProgram(image_program_));
-    GL_CHECK(glActiveTexture(GL_TEXTURE0));
-    GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
-    GL_CHECK(glUniform1i(glGetUniformLocation(image_program_, "u_image"), 0));
-    GL_CHECK(glBindVertexArray(empty_vao_));
-    GL_CHECK(glDrawArrays(GL_TRIANGLES, 0, 6));
-    GL_CHECK(glBindVertexArray(0));
-  }
-  if (world_ && posted_w_ > 0) {
-    // The live camera (not the displayed image's) so overlays follow the mouse at once.
-    const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
-    const float r = scene_radius();
-    const float dist = length(f.eye - world_->scene->mesh.bounds().center());
-    const auto vp = view_projection(f, r * 1e-4f, (dist + r) * 10.0f);
-    GL_CHECK(glEnable(GL_BLEND));
-    GL_CHECK(glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA));
-    structure_lines_.draw(vp, overlay_alpha_);
-    GL_CHECK(glDisable(GL_BLEND));
-  }
-}
-
-// ---- main loop -------------------------------------------------------------------------------
+// ---- main loop ------------------------------------------------------------------------------
 
 int Viewer::run() {
   if (!create_window()) return 3;
@@ -1526,8 +720,21 @@ int Viewer::run() {
       }
       if (!opts_.rebuild_cell_size.empty() && !scripted_rebuild_started_ && have_image_ && !task_) {
         scripted_rebuild_started_ = true;
+        scripted_rebuild_at_ = Clock::now();
         const float cs = cli::parse_cell_size(opts_.rebuild_cell_size);
         start_build(accel_name_, params_with_cell_size(accel_name_, cs));
+      }
+      // The second request goes in while the first build runs (or once it has ended, if it
+      // ended sooner), through the panel's own path.
+      if (!opts_.supersede_cell_size.empty() && scripted_rebuild_started_ && !supersede_started_ &&
+          (scripted_rebuild_done_ ||
+           std::chrono::duration<double>(Clock::now() - scripted_rebuild_at_).count() >= opts_.supersede_after)) {
+        supersede_started_ = true;
+        const CellChoice c = CellChoice::parse(opts_.supersede_cell_size, "--supersede-cell-size");
+        if (accel_name_ == "hybrid")
+          request_cell_choice(c);
+        else
+          start_build(accel_name_, params_with_cell_size(accel_name_, c.resolve(auto_cell_)));
       }
     }
     if (!opts_.drop.empty() && !drop_started_ && have_image_ && !task_) {
@@ -1570,7 +777,8 @@ int Viewer::run() {
         end_reason_ = "render failed";
         break;
       }
-      const bool rebuild_ok = opts_.rebuild_cell_size.empty() || scripted_rebuild_done_;
+      const bool rebuild_ok = (opts_.rebuild_cell_size.empty() || scripted_rebuild_done_) &&
+                              (opts_.supersede_cell_size.empty() || supersede_started_);
       const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
                             image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
       const bool script_done = opts_.hold > 0 ? closing : frame_count_ >= opts_.frames;

@@ -1,6 +1,8 @@
 // kdgrid-viewer's application: window, input, panels, overlays, and the hand-over between
 // the UI thread and the render worker / background builds. The core library does all the
-// ray tracing; this file only shows it.
+// ray tracing; the viewer only shows it. The Viewer class is defined over several files, each
+// named above the methods it holds: viewer.cpp, background_tasks.cpp, panels.cpp,
+// pick_view.cpp, stats_json.cpp.
 #pragma once
 
 #include <array>
@@ -47,6 +49,10 @@ struct ViewerOptions {
   std::string heatmap;               ///< "", "steps" or "tests"
   std::vector<std::string> overlays; ///< "splits", "cells", "boxes"
   std::string rebuild_cell_size;     ///< scripted live rebuild after start-up
+  /// Scripted: the cell size requested (as the panel's cell-size box requests it) while the
+  /// --rebuild-cell-size build runs, supersede_after seconds into it; "" = none.
+  std::string supersede_cell_size;
+  double supersede_after = 2.0;      ///< seconds; 2 s lets the first build get well under way
   std::string export_heatmap;        ///< scripted: EXR of the heat map's raw counts at the end
   bool hide_ui = false;              ///< no ImGui panels (reproducible screenshots)
   /// > 0: keep the window open and interactive for up to this many seconds (input tests drive
@@ -76,42 +82,47 @@ class Viewer {
   void on_drop(int count, const char** paths);
 
  private:
-  // ---- set-up
+  // ---- viewer.cpp: set-up, input, the render hand-over, the main loop
   bool create_window();
   void init_gl();
   void apply_ui_scale(float scale);
   void shutdown();
+  float scene_radius() const;
+  void note_input();
+  bool wants_continuous_frames() const;
+  void handle_continuous_input(float dt);
+  void print_camera();
+  void sync_render_job();
+  void receive_image();
+  void draw_scene();
+  void rebuild_structure_overlay();
+  void do_pick(int px, int py);
+  /// Traces the pick's ray again (a new structure) and refreshes what is derived from it.
+  void retrace_pick();
+  void save_screenshot(const std::string& path);
+  std::string default_output_name(const char* prefix, const char* ext) const;
 
-  // ---- world: scene + structure, built off the UI thread
+  // ---- background_tasks.cpp: the scene and its structure, loaded and built off the UI thread
   void start_load(const std::string& path);
   void start_build(const std::string& name, const BuildParams& params);
   void cancel_task();
   void poll_tasks();
   void install_world(std::shared_ptr<const World> w, bool new_scene);
   BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
+
+  // ---- panels.cpp: the ImGui panels
   /// Estimates the hybrid at `c` (HybridEstimate) and rebuilds when it fits; otherwise keeps
   /// the structure and shows the refusal with the size that fits.
   void request_cell_choice(const CellChoice& c);
   void draw_cell_size_controls(BuildParams& p, bool& rebuild);
-
-  // ---- per frame
-  void note_input();
-  bool wants_continuous_frames() const;
-  void handle_continuous_input(float dt);
-  void sync_render_job();
-  void receive_image();
   void draw_panels();
   void draw_heat_legend();
   /// The key list (F1): every key and mouse action of the viewer.
   void draw_key_list();
   /// A colour ramp bar (the heat map's and the overlays' ramp) with three labels under it.
   void draw_ramp_bar(float width, const char* lo, const char* mid, const char* hi);
-  void draw_scene();
-  void rebuild_structure_overlay();
-  void do_pick(int px, int py);
-  /// Traces the pick's ray again (a new structure) and refreshes what is derived from it.
-  void retrace_pick();
-  // pick_view.cpp
+
+  // ---- pick_view.cpp: the picked ray's view
   /// Moves the camera so that the picked ray's leaves/cells and its segment in the scene fill
   /// the view, keeping the view direction (key F, "frame pick").
   void frame_pick();
@@ -121,11 +132,9 @@ class Viewer {
   void draw_pick_panel();
   /// The picked ray's steps, a table in a window of its own.
   void draw_pick_steps();
-  void save_screenshot(const std::string& path);
+
+  // ---- stats_json.cpp: --stats-json
   void write_stats(const std::string& path, int exit_code) const;
-  void print_camera();
-  std::string default_output_name(const char* prefix, const char* ext) const;
-  float scene_radius() const;
 
   ViewerOptions opts_;
   GLFWwindow* window_ = nullptr;
@@ -169,6 +178,8 @@ class Viewer {
   /// Why brute force renders nothing (its work limit, --brute-work-limit); "" when it renders.
   std::string brute_refusal_;
   bool scripted_rebuild_started_ = false, scripted_rebuild_done_ = false;
+  std::chrono::steady_clock::time_point scripted_rebuild_at_{};  ///< when it was requested
+  bool supersede_started_ = false;  ///< --supersede-cell-size requested
 
   // Render job tracking.
   /// Resolution factor of the first preview of a moving camera, before any pass has been

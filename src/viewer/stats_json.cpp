@@ -1,0 +1,159 @@
+// kdgrid-viewer's --stats-json: the run's statistics (every frame, pass and build) and its
+// final state (scene, structure, camera, overlays, pick, what the panels showed), written at
+// exit for the tests and the reports.
+#include "viewer/viewer.h"
+
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <imgui.h>
+
+#include <cstdio>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+#include <tbb/global_control.h>
+
+#include "accel/hybrid/hybrid.h"
+#include "viewer/viewer_internal.h"
+
+namespace kdgrid::viewer {
+
+namespace {
+
+nlohmann::json vec_json(const Vec3& v) { return {v.x, v.y, v.z}; }
+
+nlohmann::json camera_json(const Camera& c) {
+  return {{"eye", vec_json(c.eye)}, {"target", vec_json(c.target)}, {"up", vec_json(c.up)}, {"fov", c.fov_deg}};
+}
+
+}  // namespace
+
+void Viewer::write_stats(const std::string& path, int exit_code) const {
+  using nlohmann::json;
+  int ww = 0, wh = 0, fw = 0, fh = 0;
+  glfwGetWindowSize(window_, &ww, &wh);
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  json j;
+  j["exit_code"] = exit_code;
+  j["end"] = end_reason_;
+  j["display"] = {{"window", {ww, wh}},
+                  {"framebuffer", {fw, fh}},
+                  {"content_scale", {content_scale_[0], content_scale_[1]}},
+                  {"ui_scale", ui_scale_},
+                  {"font_size", ImGui::GetIO().Fonts->Fonts.empty() ? 0.0f : ImGui::GetIO().Fonts->Fonts[0]->FontSize},
+                  {"image", {posted_w_, posted_h_}},
+                  {"panel", opts_.hide_ui ? json(nullptr)
+                                          : json{{"x", panel_rect_[0]}, {"y", panel_rect_[1]},
+                                                 {"w", panel_rect_[2]}, {"h", panel_rect_[3]}}},
+                  {"gl_renderer", gl_renderer_},
+                  {"gl_version", gl_version_}};
+  const RenderSettings rs;  // what sync_render_job leaves at its defaults
+  j["settings"] = {{"threads", tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)},
+                   {"threads_option", opts_.threads},
+                   {"max_samples", opts_.max_samples},
+                   {"samples_per_pass", 1},
+                   {"shadows", rs.shadows},
+                   {"max_depth", rs.max_depth},
+                   {"resolution_scale", opts_.resolution_scale},
+                   {"max_fps", opts_.max_fps},
+                   {"mode", mode_name(mode_)}};
+  json st;
+  if (world_) {
+    st["scene"] = world_->scene->source;
+    st["triangles"] = world_->scene->mesh.num_triangles();
+    st["accel"] = world_->name;
+    st["cell_size"] = world_->params.cell_size;
+    if (const auto* h = dynamic_cast<const Hybrid*>(world_->accel.get())) {
+      st["built_cell_size"] = h->cell_size();
+      st["auto_cell_size"] = auto_cell_;
+      st["cell_size_shown"] = cell_size_slider_;
+      st["cell_choice"] = cell_choice_.text();
+    }
+    st["cell_estimate"] = cell_estimate_;
+    st["cell_refusal"] = cell_refusal_;
+  } else {
+    st["scene"] = nullptr;
+  }
+  st["camera"] = camera_json(cam_.camera());
+  st["ui_hidden"] = opts_.hide_ui;
+  st["keys_shown"] = show_keys_;
+  st["start_camera"] = camera_json(start_camera_);
+  st["camera_mode"] = cam_.mode() == CameraMode::Fly ? "fly" : "orbit";
+  st["speed_scale"] = cam_.speed_scale();
+  st["speed"] = cam_.speed();
+  st["camera_flags"] = cam_.cli_flags();
+  if (pick_)
+    st["pick"] = {{"x", pick_->x}, {"y", pick_->y}, {"steps", pick_->trace.steps.size()},
+                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}, {"framed", pick_->framed},
+                  {"segment", {pick_->segment.t0, pick_->segment.t1}}};
+  else
+    st["pick"] = nullptr;
+  st["overlay"] = {{"splits", show_splits_}, {"cells", show_cells_}, {"boxes", show_boxes_},
+                   {"splits_of_pick", splits_of_pick_}, {"split_depths", {split_depth_[0], split_depth_[1]}},
+                   {"items", overlay_items_}, {"lines", structure_lines_.vertex_count() / 2}};
+  st["message"] = message_;
+  st["error"] = task_error_;
+  st["render_error"] = worker_ ? worker_->error() : std::string();
+  st["render_refusal"] = brute_refusal_;
+  st["samples"] = have_image_ ? image_.samples : 0;
+  j["state"] = st;
+  // What the last frame's panels showed (empty with the panels hidden).
+  j["ui"] = {{"clipped", audit_.clipped},
+             {"legends", audit_.legends},
+             {"status_top", audit_.status_top},
+             {"below_status_y", audit_.below_status_y},
+             {"table_cells", audit_.table_cells},
+             {"below_status_y_by_state", below_status_y_by_state_}};
+
+  j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
+                 {"swap_ms", frame_swap_ms_}};
+  json passes = json::array();
+  for (const PassRecord& p : passes_) {
+    const uint64_t rays = p.rays.total();
+    passes.push_back({{"job", p.job},
+                      {"preview", p.preview},
+                      {"latency_ms", p.latency_ms},
+                      {"shown_at", p.shown_at},
+                      {"width", p.width},
+                      {"height", p.height},
+                      {"samples", p.samples},
+                      {"seconds", p.seconds},
+                      {"rays", rays},
+                      {"primary", p.rays.primary},
+                      {"shadow", p.rays.shadow},
+                      {"reflection", p.rays.reflection},
+                      {"refraction", p.rays.refraction},
+                      {"mrays", p.seconds > 0 ? double(rays) / p.seconds * 1e-6 : 0.0}});
+  }
+  j["passes"] = passes;
+  j["colorize_ms"] = colorize_ms_;
+  j["upload_ms"] = upload_ms_;
+  json builds = json::array();
+  for (const BuildRecord& b : builds_) {
+    json e = {{"kind", b.kind}, {"accel", b.accel}, {"scene", b.scene}, {"build_seconds", b.build_seconds},
+              {"wall_seconds", b.wall_seconds}, {"requested_cell_size", b.cell_size}};
+    if (b.cancelled) e["cancel_seconds"] = b.cancel_seconds;
+    if (!b.error.empty()) {
+      e["error"] = b.error;
+    } else {
+      json extra = json::object();
+      for (const auto& [k, v] : b.stats.extra) extra[k] = v;
+      e["stats"] = {{"seconds", b.stats.seconds}, {"bytes", b.stats.bytes}, {"nodes", b.stats.nodes},
+                    {"leaves", b.stats.leaves}, {"max_depth", b.stats.max_depth}, {"extra", extra}};
+    }
+    builds.push_back(e);
+  }
+  j["builds"] = builds;
+
+  std::ofstream out(path);
+  // Error texts can quote a file's bytes (a PLY with garbage after its header): invalid UTF-8
+  // is replaced (U+FFFD) instead of throwing out of dump() and leaving the file empty.
+  out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
+  if (!out)
+    std::fprintf(stderr, "kdgrid-viewer: could not write --stats-json %s\n", path.c_str());
+  else
+    std::printf("kdgrid-viewer: wrote %s\n", path.c_str());
+  std::fflush(stdout);
+}
+
+}  // namespace kdgrid::viewer

@@ -1,0 +1,21 @@
+// What the viewer's source files (viewer.cpp, panels.cpp, background_tasks.cpp,
+// stats_json.cpp) share besides the Viewer class itself.
+#pragma once
+
+#include <chrono>
+
+#include <imgui.h>
+
+#include "viewer/viewer.h"
+
+namespace kdgrid::viewer {
+
+using Clock = std::chrono::steady_clock;
+
+/// Colour of the brute-force refusal: orange, apart from the errors' red.
+inline const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
+
+/// The render mode as --heatmap and --stats-json spell it ("shaded", "steps", "tests").
+const char* mode_name(RenderMode m);
+
+}  // namespace kdgrid::viewer
