@@ -138,6 +138,9 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// Direct-mapped per-ray mailbox of recently tested triangles (power of two): a triangle
   /// referenced by several leaves is tested once; 32 entries catch most repeats at no cost.
   static constexpr int kMailbox = 32;
+  /// Triangles a colliding one pushed out of the mailbox are kept too (up to this many per
+  /// ray), so that no ray tests a triangle twice unless it evicted more than this many.
+  static constexpr int kEvicted = 64;
   /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
   /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
   static constexpr uint64_t kMaxExpandEntries = uint64_t(1) << 25;
