@@ -2,7 +2,7 @@
 
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
-#include <tbb/task_group.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
 #include <array>
@@ -185,10 +185,11 @@ class Builder {
     node.count = BvhNode::kInner;
     SubStats sl, sr;
     if (n > kParallelThreshold) {
-      tbb::task_group g;
-      g.run([&] { sl = build(left_slot, begin, mid, depth + 1); });
-      sr = build(right_slot, mid, end, depth + 1);
-      g.wait();
+      // parallel_invoke rather than a task_group: when both halves throw (a cancel), a
+      // task_group destroyed during the unwinding rethrows the other half's exception from its
+      // destructor, which terminates the process.
+      tbb::parallel_invoke([&] { sl = build(left_slot, begin, mid, depth + 1); },
+                           [&] { sr = build(right_slot, mid, end, depth + 1); });
     } else {
       sl = build(left_slot, begin, mid, depth + 1);
       sr = build(right_slot, mid, end, depth + 1);

@@ -2,7 +2,7 @@
 // "The structure"), built over clipped triangle references, then flattened into the
 // structure's nodes, leaves and references (Hybrid::build_tree).
 #include <tbb/parallel_for.h>
-#include <tbb/task_group.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
 #include <atomic>
@@ -257,10 +257,9 @@ class TreeBuilder {
     charge(-int64_t(refs.capacity() * sizeof(Ref)));
     std::vector<Ref>().swap(refs);
     if (n > kParallelThreshold) {
-      tbb::task_group tg;
-      tg.run([&] { node->kid[0] = build(std::move(left), llo, lhi, depth + 1); });
-      node->kid[1] = build(std::move(right), rlo, rhi, depth + 1);
-      tg.wait();
+      // parallel_invoke, not a task_group: see the BVH builder (both halves may throw a cancel).
+      tbb::parallel_invoke([&] { node->kid[0] = build(std::move(left), llo, lhi, depth + 1); },
+                           [&] { node->kid[1] = build(std::move(right), rlo, rhi, depth + 1); });
     } else {
       node->kid[0] = build(std::move(left), llo, lhi, depth + 1);
       node->kid[1] = build(std::move(right), rlo, rhi, depth + 1);
