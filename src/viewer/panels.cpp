@@ -320,7 +320,19 @@ void Viewer::draw_panels() {
   }
 
   if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) {
-    bool dirty = ImGui::Checkbox("kd split planes", &show_splits_);
+    bool dirty = false;
+    // A depth-range slider with its colour ramp; the legend is recorded for --stats-json.
+    const auto depth_range = [&](const char* label, const char* what, int range[2]) {
+      ImGui::SliderInt2(label, range, 0, 64);
+      dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      chk(label);
+      char l0[32], l2[32];
+      std::snprintf(l0, sizeof l0, "depth %d", range[0]);
+      std::snprintf(l2, sizeof l2, "%d", range[1]);
+      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
+      audit_.legends.push_back(std::string(what) + ": " + l0 + " .. " + l2);
+    };
+    dirty |= ImGui::Checkbox("kd split planes", &show_splits_);
     if (show_splits_) {
       dirty |= ImGui::Checkbox("splits of the picked ray", &splits_of_pick_);
       chk("splits of the picked ray");
@@ -329,25 +341,12 @@ void Viewer::draw_panels() {
         ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
         ImGui::PopTextWrapPos();
       }
-      ImGui::SliderInt2("split depths", split_depth_, 0, 64);
-      dirty |= ImGui::IsItemDeactivatedAfterEdit();
-      chk("split depths");
-      char l0[32], l2[32];
-      std::snprintf(l0, sizeof l0, "depth %d", split_depth_[0]);
-      std::snprintf(l2, sizeof l2, "%d", split_depth_[1]);
-      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
-      audit_.legends.push_back(std::string("split depth: ") + l0 + " .. " + l2);
+      depth_range("split depths", "split depth", split_depth_);
     }
     dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
     dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
     if (show_boxes_) {
-      ImGui::SliderInt2("box depths", box_depth_, 0, 64);
-      dirty |= ImGui::IsItemDeactivatedAfterEdit();
-      chk("box depths");
-      char l0[32], l2[32];
-      std::snprintf(l0, sizeof l0, "depth %d", box_depth_[0]);
-      std::snprintf(l2, sizeof l2, "%d", box_depth_[1]);
-      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
+      depth_range("box depths", "box depth", box_depth_);
     }
     ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
     chk("opacity");
