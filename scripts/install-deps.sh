@@ -19,6 +19,8 @@ packages=(
   xdotool x11-xserver-utils
   # fuzzing and sanitizers (clang's libFuzzer runtime)
   clang libclang-rt-14-dev
+  # scripts/format.sh (checked in CI)
+  clang-format-14
   # scripts/cache-profile.sh: callgrind's cache and branch simulation
   valgrind
   # plots

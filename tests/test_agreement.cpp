@@ -84,13 +84,15 @@ const Workload* workload(const SceneCase& sc, std::string& skip) {
   const Mesh& mesh = w->mesh;
   const Box3 bounds = mesh.bounds();
 
-  RaySet primary{"primary", primary_rays(canonical_camera(bounds), kCameraWidth, kCameraHeight), {}};
+  RaySet primary{
+      "primary", primary_rays(canonical_camera(bounds), kCameraWidth, kCameraHeight), {}};
   // The reference's own primary hits seed the secondary sets, so no structure under test
   // influences the rays it is tested on.
   primary.reference = test::brute_reference(mesh, primary.rays);
-  RaySet shadow{"shadow",
-                shadow_rays(mesh, primary.rays, primary.reference, canonical_light_position(bounds)),
-                {}};
+  RaySet shadow{
+      "shadow",
+      shadow_rays(mesh, primary.rays, primary.reference, canonical_light_position(bounds)),
+      {}};
   RaySet diffuse{"diffuse", diffuse_rays(mesh, primary.rays, primary.reference, 7), {}};
   shadow.reference = test::brute_reference(mesh, shadow.rays);
   diffuse.reference = test::brute_reference(mesh, diffuse.rays);

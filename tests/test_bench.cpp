@@ -32,8 +32,8 @@ namespace kdgrid {
 namespace {
 
 namespace fs = std::filesystem;
-using test::TempDir;
 using nlohmann::json;
+using test::TempDir;
 
 /// A fresh directory under the system temp dir, removed at the end of the test.
 
@@ -220,7 +220,8 @@ TEST(BenchSuite, DefaultSuiteFoundInAnInstalledLayout) {
     ::setenv("KDGRID_SCENES", saved.c_str(), 1);
   else
     ::unsetenv("KDGRID_SCENES");
-  EXPECT_EQ(fs::path(found), (dir / "share" / "kdgrid" / "assets" / "suite.json").lexically_normal());
+  EXPECT_EQ(fs::path(found),
+            (dir / "share" / "kdgrid" / "assets" / "suite.json").lexically_normal());
 }
 
 // ---- statistics and memory -------------------------------------------------------------------
@@ -594,7 +595,10 @@ TEST(BenchCli, OnlyRunsTheNamedScenesAndRefusesUnknownNames) {
   EXPECT_NE(text.find("no scene named 'nosuch'"), std::string::npos) << text;
   EXPECT_NE(text.find("box, box2"), std::string::npos) << "lists the suite's scenes: " << text;
   // A list of no names is refused too, not taken as "run nothing".
-  EXPECT_NE(run_cli("bench --accel brute --suite \"" + suite.string() + "\" --only , --res 8 --reps 1", log), 0);
+  EXPECT_NE(
+      run_cli("bench --accel brute --suite \"" + suite.string() + "\" --only , --res 8 --reps 1",
+              log),
+      0);
   EXPECT_NE(slurp(log).find("names no scene"), std::string::npos) << slurp(log);
 }
 
@@ -711,19 +715,25 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   Camera cam;
   cam.eye = Vec3(0.3f, 0.2f, 4.0f);
   write_rays(rays.string(), primary_rays(cam, 16, 16));
-  const std::string base = "trace \"" + ply.string() + "\" --rays \"" + rays.string() + "\" --repeat 1 ";
+  const std::string base =
+      "trace \"" + ply.string() + "\" --rays \"" + rays.string() + "\" --repeat 1 ";
   ASSERT_EQ(run_cli(base + "--accel hybrid --traversal-only", log), 0) << slurp(log);
   EXPECT_NE(slurp(log).find("hit fraction 0.0000"), std::string::npos) << slurp(log);
   EXPECT_NE(slurp(log).find("ns per lookup"), std::string::npos) << slurp(log);
   // The guessed next leaves, counted: neighbouring rays of a finer image take some.
   const fs::path fine = dir / "fine.rays";
   write_rays(fine.string(), primary_rays(cam, 128, 128));
-  const std::string fine_base = "trace \"" + ply.string() + "\" --rays \"" + fine.string() + "\" --repeat 1 ";
+  const std::string fine_base =
+      "trace \"" + ply.string() + "\" --rays \"" + fine.string() + "\" --repeat 1 ";
   ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1", log), 0) << slurp(log);
-  EXPECT_NE(slurp(log).find("of the lookups per ray answered by the guessed next leaf"), std::string::npos)
+  EXPECT_NE(slurp(log).find("of the lookups per ray answered by the guessed next leaf"),
+            std::string::npos)
       << slurp(log);
-  EXPECT_EQ(slurp(log).find("guesses      0.00 "), std::string::npos) << "coherent rays take guesses\n" << slurp(log);
-  ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1 --hybrid-no-guess", log), 0) << slurp(log);
+  EXPECT_EQ(slurp(log).find("guesses      0.00 "), std::string::npos)
+      << "coherent rays take guesses\n"
+      << slurp(log);
+  ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1 --hybrid-no-guess", log), 0)
+      << slurp(log);
   EXPECT_NE(slurp(log).find("guesses      0.00 "), std::string::npos) << slurp(log);
   ASSERT_EQ(run_cli(base + "--accel kdtree --traversal-only --json", log), 0) << slurp(log);
   const json j = json::parse(slurp(log));
@@ -734,9 +744,15 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   EXPECT_EQ(slurp(log).find("traversal    alone"), std::string::npos) << slurp(log);
   EXPECT_NE(run_cli(base + "--accel embree --traversal-only", log), 0);
   EXPECT_NE(slurp(log).find("no traversal-only timing"), std::string::npos) << slurp(log);
-  EXPECT_NE(run_cli(base + "--accel kdtree --traversal-only --hits \"" + (dir / "h.hits").string() + "\"", log), 0);
+  EXPECT_NE(
+      run_cli(base + "--accel kdtree --traversal-only --hits \"" + (dir / "h.hits").string() + "\"",
+              log),
+      0);
   EXPECT_NE(slurp(log).find("finds no hits: drop --hits"), std::string::npos) << slurp(log);
-  EXPECT_NE(run_cli("trace \"" + ply.string() + "\" --pixel 8,8 --res 16 --accel kdtree --traversal-only", log), 0);
+  EXPECT_NE(
+      run_cli("trace \"" + ply.string() + "\" --pixel 8,8 --res 16 --accel kdtree --traversal-only",
+              log),
+      0);
   EXPECT_NE(slurp(log).find("use it with --rays, not --pixel"), std::string::npos) << slurp(log);
 }
 
@@ -745,12 +761,16 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
 // are refused with the fix.
 TEST(RaysCli, PixelWritesCopiesOfThatPixelsPrimaryRay) {
   TempDir dir("rays");
-  const fs::path ply = dir / "sphere.ply", all = dir / "all.rays", one = dir / "one.rays", log = dir / "log.txt";
+  const fs::path ply = dir / "sphere.ply", all = dir / "all.rays", one = dir / "one.rays",
+                 log = dir / "log.txt";
   write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
   const std::string base = "rays \"" + ply.string() + "\" --res 16x12 ";
   ASSERT_EQ(run_cli(base + "-o \"" + all.string() + "\"", log), 0) << slurp(log);
-  ASSERT_EQ(run_cli(base + "--pixel 5,7 --count 10 -o \"" + one.string() + "\"", log), 0) << slurp(log);
-  EXPECT_NE(slurp(log).find("wrote 10 copies of the primary ray through pixel 5,7"), std::string::npos) << slurp(log);
+  ASSERT_EQ(run_cli(base + "--pixel 5,7 --count 10 -o \"" + one.string() + "\"", log), 0)
+      << slurp(log);
+  EXPECT_NE(slurp(log).find("wrote 10 copies of the primary ray through pixel 5,7"),
+            std::string::npos)
+      << slurp(log);
   const std::vector<Ray> set = read_rays(all.string()), copies = read_rays(one.string());
   ASSERT_EQ(set.size(), 16u * 12u);
   ASSERT_EQ(copies.size(), 10u);
@@ -771,7 +791,8 @@ TEST(RaysCli, PixelWritesCopiesOfThatPixelsPrimaryRay) {
   EXPECT_NE(slurp(log).find("--count must be at least 1"), std::string::npos) << slurp(log);
   EXPECT_NE(run_cli(base + "--pixel 1,1 --count 100000000000 -o \"" + one.string() + "\"", log), 0);
   EXPECT_NE(slurp(log).find("GiB of rays: use at most 134217728"), std::string::npos) << slurp(log);
-  EXPECT_NE(run_cli(base + "--set random --count 100000000000 -o \"" + one.string() + "\"", log), 0);
+  EXPECT_NE(run_cli(base + "--set random --count 100000000000 -o \"" + one.string() + "\"", log),
+            0);
   EXPECT_NE(slurp(log).find("GiB of rays: use at most 134217728"), std::string::npos) << slurp(log);
 }
 
@@ -779,17 +800,21 @@ TEST(ProfileCli, PrintsEveryStructureAndClass) {
   TempDir dir("profile");
   const fs::path ply = dir / "sphere.ply", log = dir / "log.txt";
   write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
-  const int rc = run_cli("profile \"" + ply.string() + "\" --res 24 --reps 1 --accel kdtree,hybrid --reference bvh", log);
+  const int rc = run_cli(
+      "profile \"" + ply.string() + "\" --res 24 --reps 1 --accel kdtree,hybrid --reference bvh",
+      log);
   ASSERT_EQ(rc, 0) << slurp(log);
   const std::string out = slurp(log);
-  for (const char* s : {"| kdtree | all |", "| kdtree | hit |", "| hybrid | miss-box |", "| hybrid | miss-out |"})
+  for (const char* s :
+       {"| kdtree | all |", "| kdtree | hit |", "| hybrid | miss-box |", "| hybrid | miss-out |"})
     EXPECT_NE(out.find(s), std::string::npos) << s << "\n" << out;
   EXPECT_NE(run_cli("profile \"" + ply.string() + "\" --reps 0", log), 0);
   EXPECT_NE(slurp(log).find("--reps must be at least 1"), std::string::npos) << slurp(log);
   // A misspelt structure fails before the scene is loaded and the reference built.
   EXPECT_NE(run_cli("profile \"" + ply.string() + "\" --accel kdtree,hybird", log), 0);
   EXPECT_NE(slurp(log).find("unknown accelerator 'hybird'"), std::string::npos) << slurp(log);
-  EXPECT_EQ(slurp(log).find("| structure |"), std::string::npos) << "nothing measured\n" << slurp(log);
+  EXPECT_EQ(slurp(log).find("| structure |"), std::string::npos) << "nothing measured\n"
+                                                                 << slurp(log);
 }
 
 TEST(Profile, CacheSimPassTracesEachRayOnceAndCountRaysMatchesTheCountedPass) {
@@ -827,7 +852,8 @@ TEST(ProfileCli, CacheSimNumbersItsPassesInCallOrder) {
   const fs::path ply = dir / "sphere.ply", log = dir / "log.txt";
   write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
   const int rc = run_cli("profile \"" + ply.string() +
-                             "\" --res 24 --accel kdtree,hybrid --reference bvh --cache-sim --eye 0,0,4 --target 0,0,0 --fov 50",
+                             "\" --res 24 --accel kdtree,hybrid --reference bvh --cache-sim --eye "
+                             "0,0,4 --target 0,0,0 --fov 50",
                          log);
   ASSERT_EQ(rc, 0) << slurp(log);
   const std::string out = slurp(log);
@@ -835,8 +861,9 @@ TEST(ProfileCli, CacheSimNumbersItsPassesInCallOrder) {
   EXPECT_EQ(out.find("cold ns/ray"), std::string::npos) << out;
   // This camera sees the sphere in the middle, the box around it and space beyond: every
   // class is present for both structures, in structure then class order.
-  const char* expected[] = {"| 1 | kdtree | hit |",    "| 2 | kdtree | miss-box |", "| 3 | kdtree | miss-out |",
-                            "| 4 | hybrid | hit |",    "| 5 | hybrid | miss-box |", "| 6 | hybrid | miss-out |"};
+  const char* expected[] = {"| 1 | kdtree | hit |",      "| 2 | kdtree | miss-box |",
+                            "| 3 | kdtree | miss-out |", "| 4 | hybrid | hit |",
+                            "| 5 | hybrid | miss-box |", "| 6 | hybrid | miss-out |"};
   size_t at = 0;
   for (const char* s : expected) {
     const size_t pos = out.find(s, at);

@@ -36,8 +36,8 @@ double seconds_since(Clock::time_point t0) {
 
 std::string temp_path(const std::string& name) {
   const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  return (fs::temp_directory_path() / ("kdgrid_" + std::string(info->name()) + "_" +
-                                       std::to_string(::getpid()) + "_" + name))
+  return (fs::temp_directory_path() /
+          ("kdgrid_" + std::string(info->name()) + "_" + std::to_string(::getpid()) + "_" + name))
       .string();
 }
 
@@ -56,8 +56,8 @@ Scene landscape(int count, uint64_t seed = 1) {
 }
 
 /// The structures that build something (brute force has no memory to guard).
-const std::vector<std::string> kGuarded = {"bvh", "kdtree", "grid", "hybrid", "irregular",
-                                           "embree"};
+const std::vector<std::string> kGuarded = {"bvh",    "kdtree",    "grid",
+                                           "hybrid", "irregular", "embree"};
 
 // ---- the generator -----------------------------------------------------------------------
 
@@ -233,8 +233,8 @@ struct CliResult {
 
 CliResult run_cli(const std::string& args) {
   const std::string log = temp_path("cli.log");
-  const std::string cmd = std::string("\"") + KDGRID_CLI_PATH + "\" " + args + " > \"" + log +
-                          "\" 2>&1";
+  const std::string cmd =
+      std::string("\"") + KDGRID_CLI_PATH + "\" " + args + " > \"" + log + "\" 2>&1";
   const int status = std::system(cmd.c_str());
   CliResult r;
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;

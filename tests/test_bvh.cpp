@@ -16,7 +16,8 @@
 namespace kdgrid {
 namespace {
 
-bool same_hit(const Mesh& mesh, const Accelerator& a, const Accelerator& b, const Ray& r, std::string& why) {
+bool same_hit(const Mesh& mesh, const Accelerator& a, const Accelerator& b, const Ray& r,
+              std::string& why) {
   Hit ha, hb;
   const bool xa = a.intersect(r, ha), xb = b.intersect(r, hb);
   const bool oa = a.occluded(r), ob = b.occluded(r);
@@ -24,8 +25,7 @@ bool same_hit(const Mesh& mesh, const Accelerator& a, const Accelerator& b, cons
   // vertex and that triangle alone yields the same t.
   float t_own = 0;
   const bool tie = xa && ha.prim != hb.prim &&
-                   test::intersect_one(mesh, r, ha.prim, TriangleTestKind::Watertight,
-                                       t_own) &&
+                   test::intersect_one(mesh, r, ha.prim, TriangleTestKind::Watertight, t_own) &&
                    t_own == hb.t;
   if (xa != xb || oa != ob || (xa && (ha.t != hb.t || (ha.prim != hb.prim && !tie)))) {
     why = test::describe(r) + ": bvh " + (xa ? std::to_string(ha.t) : "miss") + " brute " +
@@ -199,10 +199,10 @@ TEST(Bvh, InvalidRaysMiss) {
   bvh.build(mesh, BuildParams{});
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const std::vector<Ray> bad = {
-      {{nan, 0, 0}, 0, {0, 0, 1}, kInf},        {{0, 0, -5}, 0, {nan, 0, 1}, kInf},
-      {{0, 0, -5}, nan, {0, 0, 1}, kInf},       {{0, 0, -5}, 0, {0, 0, 1}, nan},
-      {{0, 0, -5}, 0, {0, 0, 0}, kInf},         {{kInf, 0, -5}, 0, {0, 0, 1}, kInf},
-      {{0, 0, -5}, 0, {0, 0, kInf}, kInf},      {{0, 0, -5}, 3, {0, 0, 1}, 2},
+      {{nan, 0, 0}, 0, {0, 0, 1}, kInf},   {{0, 0, -5}, 0, {nan, 0, 1}, kInf},
+      {{0, 0, -5}, nan, {0, 0, 1}, kInf},  {{0, 0, -5}, 0, {0, 0, 1}, nan},
+      {{0, 0, -5}, 0, {0, 0, 0}, kInf},    {{kInf, 0, -5}, 0, {0, 0, 1}, kInf},
+      {{0, 0, -5}, 0, {0, 0, kInf}, kInf}, {{0, 0, -5}, 3, {0, 0, 1}, 2},
   };
   for (const Ray& r : bad) {
     Hit h;

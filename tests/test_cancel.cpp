@@ -5,25 +5,27 @@
 
 #include <algorithm>
 #include <atomic>
-#include <random>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <random>
 #include <string>
 #include <thread>
 
 #include "accel/accelerator.h"
 #include "scene/procedural.h"
+#include "test_util.h"
 #include "util/cancel.h"
 #include "util/cancellable_sort.h"
-#include "test_util.h"
 
 namespace kdgrid::test {
 namespace {
 
 using Clock = std::chrono::steady_clock;
 
-double seconds_since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+double seconds_since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
 
 /// Every structure that builds something (brute force has no build to cancel).
 std::vector<std::string> built_structures() {
@@ -99,10 +101,11 @@ TEST(Cancel, TokenSetMidBuildFromAnotherThreadStopsEveryBuilderPromptly) {
     }
     const auto t1 = Clock::now();
     canceller.join();
-    ASSERT_TRUE(threw) << name << " finished its build of " << soup.num_triangles() << " triangles in "
-                       << std::chrono::duration<double>(t1 - t0).count()
-                       << " s without noticing the cancel at 0.1 s (or before it: then slow_params needs a "
-                          "slower build)";
+    ASSERT_TRUE(threw)
+        << name << " finished its build of " << soup.num_triangles() << " triangles in "
+        << std::chrono::duration<double>(t1 - t0).count()
+        << " s without noticing the cancel at 0.1 s (or before it: then slow_params needs a "
+           "slower build)";
     const double latency = std::chrono::duration<double>(t1 - cancelled_at).count();
     std::printf("[ cancel   ] %-9s stopped %.3f s after the cancel\n", name.c_str(), latency);
     // Generous: the builders poll at least once per node or block, ~100 ms apart at worst.
@@ -188,7 +191,8 @@ TEST(Cancel, SortOfEveryEventSortsLikeStdSortAndStopsSoonAfterACancel) {
     return a < b;
   };
   got = v;
-  EXPECT_THROW(cancellable_sort(got.begin(), got.end(), cancelling_less, &token, 10'000), BuildCancelled);
+  EXPECT_THROW(cancellable_sort(got.begin(), got.end(), cancelling_less, &token, 10'000),
+               BuildCancelled);
   const uint64_t after = compares.load() - at_cancel.load();
   // At most one block sort per thread or one merge of two runs (up to all elements) runs on.
   EXPECT_LT(after, full / 4) << "comparisons after the cancel: " << after << " of " << full;
@@ -196,15 +200,17 @@ TEST(Cancel, SortOfEveryEventSortsLikeStdSortAndStopsSoonAfterACancel) {
 
 TEST(Cancel, CtrlCInTheCliStopsABuildWithAClearMessageAndExitCode130) {
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
-  // A 6e-5 cell on the bunny (with the build-time limit off) builds for tens of seconds. SIGINT every 0.2 s from 3 s on (a
-  // background job of sh starts with SIGINT ignored until the build installs its handler);
-  // the time from the first SIGINT the build saw to the exit is what the shell measures from
-  // the last SIGINT before the build had started, so it is an upper bound.
+  // A 6e-5 cell on the bunny (with the build-time limit off) builds for tens of seconds. SIGINT
+  // every 0.2 s from 3 s on (a background job of sh starts with SIGINT ignored until the build
+  // installs its handler); the time from the first SIGINT the build saw to the exit is what the
+  // shell measures from the last SIGINT before the build had started, so it is an upper bound.
   const std::string cmd =
       "sh -c '" + std::string(KDGRID_CLI_PATH) + " trace " + bunny +
-      " --accel hybrid --cell-size 6e-5 --hybrid-max-build-seconds 0 --pixel 320,240 --res 640x480 & pid=$!; sleep 3; "
+      " --accel hybrid --cell-size 6e-5 --hybrid-max-build-seconds 0 --pixel 320,240 --res 640x480 "
+      "& pid=$!; sleep 3; "
       "t0=$(date +%s%N); i=0; while kill -0 $pid 2>/dev/null && [ $i -lt 300 ]; do "
-      "kill -INT $pid 2>/dev/null; sleep 0.2; i=$((i+1)); done; t1=$(date +%s%N); kill -KILL $pid 2>/dev/null; "
+      "kill -INT $pid 2>/dev/null; sleep 0.2; i=$((i+1)); done; t1=$(date +%s%N); kill -KILL $pid "
+      "2>/dev/null; "
       "wait $pid; echo rc=$? signals=$i ms=$(( (t1 - t0) / 1000000 ))' 2>&1";
   FILE* pipe = ::popen(cmd.c_str(), "r");
   ASSERT_NE(pipe, nullptr);

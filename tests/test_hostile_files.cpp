@@ -37,7 +37,6 @@ namespace fs = std::filesystem;
 using test::load_error;
 using test::TempDir;
 
-
 std::string read_all(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::stringstream ss;
@@ -78,8 +77,8 @@ std::string without_address_limit(std::string prefix) {
 /// Runs the CLI through bash, after `prefix` (e.g. "ulimit -f 4;") in the same shell.
 CliResult run_cli(const std::string& args, const TempDir& tmp, const std::string& prefix = "") {
   const std::string out = tmp.file("stdout.txt"), err = tmp.file("stderr.txt");
-  const std::string script = without_address_limit(prefix) + " \"" + std::string(KDGRID_CLI_PATH) + "\" " + args +
-                             " >\"" + out + "\" 2>\"" + err + "\"";
+  const std::string script = without_address_limit(prefix) + " \"" + std::string(KDGRID_CLI_PATH) +
+                             "\" " + args + " >\"" + out + "\" 2>\"" + err + "\"";
   std::string quoted;
   for (char c : script) quoted += c == '\'' ? std::string("'\\''") : std::string(1, c);
   const int status = std::system(("bash -c '" + quoted + "'").c_str());
@@ -140,10 +139,10 @@ TEST(HostileFiles, FullDiskKeepsOldRaysAndHits) {
   TempDir tmp;
   const std::string rays = tmp.file("keep.rays"), hits = tmp.file("keep.hits");
   ASSERT_EQ(run_cli("rays gen:sphere --res 8 -o \"" + rays + "\"", tmp).exit_code, 0);
-  ASSERT_EQ(run_cli("trace gen:sphere --repeat 1 --rays \"" + rays + "\" --hits \"" + hits + "\"",
-                    tmp)
-                .exit_code,
-            0);
+  ASSERT_EQ(
+      run_cli("trace gen:sphere --repeat 1 --rays \"" + rays + "\" --hits \"" + hits + "\"", tmp)
+          .exit_code,
+      0);
   const std::string rays_before = read_all(rays), hits_before = read_all(hits);
   CliResult r = run_cli("rays gen:sphere --res 64 -o \"" + rays + "\"", tmp, kFullDisk);
   EXPECT_NE(r.exit_code, 0);
@@ -233,9 +232,11 @@ TEST(HostileFiles, OutputDirectoryIsRefusedBeforeRendering) {
   TempDir tmp;
   fs::create_directories(tmp.file("out.png"));
   // brute force at this size would take minutes: the refusal must come first.
-  const CliResult r = run_cli("render gen:sphere --accel brute --brute-work-limit 0 --res 4096 "
-                              "--spp 1 -o \"" + tmp.file("out.png") + "\"",
-                              tmp, "ulimit -t 20;");
+  const CliResult r = run_cli(
+      "render gen:sphere --accel brute --brute-work-limit 0 --res 4096 "
+      "--spp 1 -o \"" +
+          tmp.file("out.png") + "\"",
+      tmp, "ulimit -t 20;");
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_CONTAINS(r.err, "is a directory");
   const CliResult g = run_cli("gen sphere -o \"" + tmp.file("out.png") + "\"", tmp);
@@ -286,22 +287,24 @@ TEST(HostileFiles, CheckRefusesNegativeThreadsAndAcneRays) {
 
 TEST(HostileFiles, MemoryBudgetThatWouldOverflowIsRefused) {
   TempDir tmp;
-  const CliResult r =
-      run_cli("render gen:sphere --res 8 --spp 1 -o \"" + tmp.file("x.png") +
-                  "\" --memory-budget-mb 17592186044417",
-              tmp);
+  const CliResult r = run_cli("render gen:sphere --res 8 --spp 1 -o \"" + tmp.file("x.png") +
+                                  "\" --memory-budget-mb 17592186044417",
+                              tmp);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_CONTAINS(r.err, "--memory-budget-mb 17592186044417 is too large");
 }
 
 TEST(HostileFiles, BuildRunningOutOfMemorySaysSoWithTheBudget) {
-  if (kAddressSanitizer) GTEST_SKIP() << "needs ulimit -v, under which AddressSanitizer cannot start";
+  if (kAddressSanitizer)
+    GTEST_SKIP() << "needs ulimit -v, under which AddressSanitizer cannot start";
   TempDir tmp;
   // A budget far above what ulimit -v leaves: the estimate passes, the allocations fail (on
   // the machine this was written on, 600 MB leave the hybrid build of 500000 triangles short).
-  const CliResult r = run_cli("render gen:landscape:500000 --accel hybrid --memory-budget-mb "
-                              "100000 --res 8 --spp 1 -o \"" + tmp.file("m.png") + "\"",
-                              tmp, "ulimit -v 600000;");
+  const CliResult r = run_cli(
+      "render gen:landscape:500000 --accel hybrid --memory-budget-mb "
+      "100000 --res 8 --spp 1 -o \"" +
+          tmp.file("m.png") + "\"",
+      tmp, "ulimit -v 600000;");
   EXPECT_EQ(r.err.find("internal error"), std::string::npos) << r.err;
   EXPECT_EQ(r.err.find("bad_alloc"), std::string::npos) << r.err;
   if (r.exit_code != 0) {
@@ -407,12 +410,13 @@ std::string png_header_only(uint32_t w, uint32_t h) {
 
 TEST(HostileFiles, HugeTextureIsRefusedFromItsHeaderBeforeDecoding) {
   if (kAddressSanitizer)
-    GTEST_SKIP() << "its memory budget comes from ulimit -v, under which AddressSanitizer cannot start";
+    GTEST_SKIP()
+        << "its memory budget comes from ulimit -v, under which AddressSanitizer cannot start";
   TempDir tmp;
   tmp.write("big.png", png_header_only(40000, 40000));
   tmp.write("t.mtl", "newmtl a\nKd 1 1 1\nmap_Kd big.png\n");
-  const std::string obj =
-      tmp.write("a.obj", "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nusemtl a\nf 1/1 2/1 3/1\n");
+  const std::string obj = tmp.write(
+      "a.obj", "mtllib t.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nusemtl a\nf 1/1 2/1 3/1\n");
   // Under a 4 GB address-space limit the budget is 2 GB: 40000^2 pixels need 11 GB.
   const CliResult r = run_cli("info \"" + obj + "\"", tmp, "ulimit -v 4000000;");
   EXPECT_EQ(r.exit_code, 0) << r.err;
@@ -463,10 +467,9 @@ TEST(HostileFiles, PlyLineEndingsNulBytesAndMissingEndHeader) {
     const std::string p = tmp.write("cr.ply", text);
     EXPECT_EQ(load_scene(p).mesh.num_triangles(), 1u) << (eol == "\r" ? "CR" : "CRLF");
   }
-  const std::string noend = tmp.write(
-      "noend.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n0\n");
-  EXPECT_CONTAINS(load_error([&] { load_scene(noend); }),
-                  "no 'end_header' line came before it");
+  const std::string noend =
+      tmp.write("noend.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n0\n");
+  EXPECT_CONTAINS(load_error([&] { load_scene(noend); }), "no 'end_header' line came before it");
   static const char kNulPly[] =
       "ply\nformat ascii 1.0\nelement vertex 1\nproperty fl\0at x\nend_header\n0\n";
   const std::string nul = tmp.write("nul.ply", std::string(kNulPly, sizeof kNulPly - 1));
@@ -485,7 +488,8 @@ std::string gltf_text(const std::string& nodes, const std::string& buffer_uri = 
          R"(","byteLength":36}],"bufferViews":[{"buffer":0,"byteLength":36}],)"
          R"("accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3",)"
          R"("min":[0,0,0],"max":[1,1,0]}],"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],)"
-         R"("nodes":)" + nodes + R"(,"scenes":[{"nodes":[0]}],"scene":0)" + extra + "}";
+         R"("nodes":)" +
+         nodes + R"(,"scenes":[{"nodes":[0]}],"scene":0)" + extra + "}";
 }
 
 std::string triangle_bin() {
@@ -530,7 +534,8 @@ TEST(HostileFiles, GltfInstanceExplosionAndDeepChainsAreRefused) {
     nodes += R"({"children":[)" + std::to_string(i + 1) + "," + std::to_string(i + 1) + "]},";
   nodes += R"({}])";
   const std::string empty_tree = tmp.write("empty_tree.gltf", gltf_text(nodes));
-  EXPECT_CONTAINS(load_error([&] { load_scene(empty_tree); }), "expands to 1.678e+07 node instances");
+  EXPECT_CONTAINS(load_error([&] { load_scene(empty_tree); }),
+                  "expands to 1.678e+07 node instances");
   // A chain of 1100 nodes: too deep, which is not a cycle.
   nodes = "[";
   for (int i = 0; i < 1100; ++i) nodes += R"({"children":[)" + std::to_string(i + 1) + "]},";
@@ -547,11 +552,13 @@ TEST(HostileFiles, GltfLightIntensityOutOfRangeIsRefused) {
   for (const std::string value : {"1e300", "-2"}) {
     const std::string extra =
         R"(,"extensionsUsed":["KHR_lights_punctual"],"extensions":{"KHR_lights_punctual":)"
-        R"({"lights":[{"type":"point","name":"lamp","intensity":)" + value + "}]}}";
+        R"({"lights":[{"type":"point","name":"lamp","intensity":)" +
+        value + "}]}}";
     const std::string p = tmp.write(
         "light.gltf",
-        gltf_text(R"([{"mesh":0,"children":[1]},{"extensions":{"KHR_lights_punctual":{"light":0}}}])",
-                  "tri.bin", extra));
+        gltf_text(
+            R"([{"mesh":0,"children":[1]},{"extensions":{"KHR_lights_punctual":{"light":0}}}])",
+            "tri.bin", extra));
     const std::string e = load_error([&] { load_scene(p); });
     EXPECT_CONTAINS(e, "light 0 'lamp' has intensity");
     EXPECT_CONTAINS(e, "between 0 and 3.4e38");
@@ -585,7 +592,8 @@ TEST(HostileFiles, BrokenGlbHeadersNameTheField) {
 
 TEST(HostileFiles, GltfHugeImageIsRefusedFromItsHeader) {
   if (kAddressSanitizer)
-    GTEST_SKIP() << "its memory budget comes from ulimit -v, under which AddressSanitizer cannot start";
+    GTEST_SKIP()
+        << "its memory budget comes from ulimit -v, under which AddressSanitizer cannot start";
   TempDir tmp;
   tmp.write("tri.bin", triangle_bin());
   tmp.write("big.png", png_header_only(20000, 20000));

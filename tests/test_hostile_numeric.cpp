@@ -1,8 +1,8 @@
 // Hostile numbers: rays and scenes at the edges of float range, extreme render depths and
 // degenerate cameras. Each must give a correct result or a clear refusal, never an abort, a
 // hang or a silently wrong (black, flat) image. docs/LIMITS.md states the limits tested here.
-#include <gtest/gtest.h>
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -19,10 +19,10 @@
 #include "accel/accelerator.h"
 #include "accel/grid.h"
 #include "bench/rayfile.h"
+#include "cli_util.h"
 #include "render/camera.h"
 #include "render/renderer.h"
 #include "scene/load.h"
-#include "cli_util.h"
 #include "test_util.h"
 #include "util/error.h"
 
@@ -46,7 +46,8 @@ void write_ply(const std::string& path, const std::vector<Vec3>& v,
                "property float z\nelement face %zu\nproperty list uchar int vertex_indices\n"
                "end_header\n",
                v.size(), tris.size());
-  for (const Vec3& p : v) std::fprintf(f, "%.9g %.9g %.9g\n", double(p.x), double(p.y), double(p.z));
+  for (const Vec3& p : v)
+    std::fprintf(f, "%.9g %.9g %.9g\n", double(p.x), double(p.y), double(p.z));
   for (const auto& t : tris) std::fprintf(f, "3 %u %u %u\n", t[0], t[1], t[2]);
   std::fclose(f);
 }
@@ -111,7 +112,7 @@ TEST(HostileNumeric, OutOfRangeRayFileTracesWithoutAbort) {
       Hit h;
       const bool hit = a->intersect(r, h);
       EXPECT_EQ(hit, ray_is_valid(r)) << a->name() << " org " << r.org.x << "," << r.org.y << ","
-                                       << r.org.z << " tmin " << r.tmin;
+                                      << r.org.z << " tmin " << r.tmin;
     }
 }
 
@@ -139,7 +140,8 @@ TEST(HostileNumeric, TrianglesAt1e13HitInEveryStructure) {
     for (int i = 0; i < 20; ++i)
       for (int j = 0; j < 20; ++j) {
         // Aim at a 2s x 2s grid of points over [-1.5s, 1.5s]^2 from (0, 0, 3s).
-        const float x = (-1.5f + 3.0f * (i + 0.5f) / 20) * s, y = (-1.5f + 3.0f * (j + 0.5f) / 20) * s;
+        const float x = (-1.5f + 3.0f * (i + 0.5f) / 20) * s,
+                    y = (-1.5f + 3.0f * (j + 0.5f) / 20) * s;
         rays.push_back({{0, 0, 3 * s}, 0.0f, normalize(Vec3(x, y, -3 * s)), kInf});
         expected += std::fabs(x) < s && std::fabs(y) < s;
       }
@@ -312,15 +314,16 @@ TEST(HostileNumeric, CameraLookingAlongUpHasAFrame) {
   EXPECT_EQ(f.right, normalize(cross(fwd, cam.up)));
 
   TempDir dir;
-  const CliResult r = run_cli("render " + test::source_path("assets/cornell.gltf") + " -o " +
-                              dir.file("down.exr") + " --res 16 --spp 1 --eye 0,5,0 --target 0,0,0");
+  const CliResult r =
+      run_cli("render " + test::source_path("assets/cornell.gltf") + " -o " + dir.file("down.exr") +
+              " --res 16 --spp 1 --eye 0,5,0 --target 0,0,0");
   ASSERT_EQ(r.code, 0) << r.output;
 }
 
 TEST(HostileNumeric, FovOutsideOpenRangeIsRefused) {
   TempDir dir;
-  const std::string base =
-      "render " + test::source_path("assets/cornell.gltf") + " -o " + dir.file("f.png") + " --res 8 --spp 1";
+  const std::string base = "render " + test::source_path("assets/cornell.gltf") + " -o " +
+                           dir.file("f.png") + " --res 8 --spp 1";
   for (const char* fov : {"0", "180", "-5"}) {
     const CliResult r = run_cli(base + " --fov " + fov);
     EXPECT_EQ(r.code, 1) << fov << ": " << r.output;

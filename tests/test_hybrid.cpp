@@ -5,9 +5,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
-#include <cmath>
 #include <random>
 #include <string>
 #include <vector>
@@ -57,7 +57,8 @@ Mesh random_soup(uint32_t seed, int n, Vec3 lo, Vec3 hi, float size) {
 Mesh subdivided_sphere(Vec3 center, float radius, int levels) {
   std::vector<std::array<Vec3, 3>> tris;
   const Vec3 v[6] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
-  const int f[8][3] = {{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4}, {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
+  const int f[8][3] = {{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4},
+                       {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}};
   for (const auto& t : f) tris.push_back({v[t[0]], v[t[1]], v[t[2]]});
   for (int l = 0; l < levels; ++l) {
     std::vector<std::array<Vec3, 3>> next;
@@ -71,7 +72,8 @@ Mesh subdivided_sphere(Vec3 center, float radius, int levels) {
     tris.swap(next);
   }
   Mesh m;
-  for (const auto& t : tris) add_tri(m, center + t[0] * radius, center + t[1] * radius, center + t[2] * radius);
+  for (const auto& t : tris)
+    add_tri(m, center + t[0] * radius, center + t[1] * radius, center + t[2] * radius);
   return m;
 }
 
@@ -154,7 +156,10 @@ std::vector<Ray> random_rays(const Mesh& m, int n, uint32_t seed) {
       case 1: {
         const auto t = m.corners(size_t(rng() % m.num_triangles()));
         float a = u(rng), bb = u(rng);
-        if (a + bb > 1) { a = 1 - a; bb = 1 - bb; }
+        if (a + bb > 1) {
+          a = 1 - a;
+          bb = 1 - bb;
+        }
         r.dir = t[0] * (1 - a - bb) + t[1] * a + t[2] * bb - r.org;
         break;
       }
@@ -221,11 +226,12 @@ int compare(const Hybrid& h, const Mesh& m, const std::vector<Ray>& rays, const 
     ok = ok && occ == bool(ref.occluded[i]);
     if (!ok && ++failures <= 5) {
       const Ray& r = rays[i];
-      ADD_FAILURE() << label << ": ray " << i << " org (" << r.org.x << "," << r.org.y << "," << r.org.z
-                    << ") dir (" << r.dir.x << "," << r.dir.y << "," << r.dir.z << ") [" << r.tmin << ","
-                    << r.tmax << "]: hybrid " << (got ? "hit" : "miss") << " t=" << hh.t << " prim=" << hh.prim
-                    << " occ=" << occ << "; brute " << (rh.valid() ? "hit" : "miss") << " t=" << rh.t
-                    << " prim=" << rh.prim << " occ=" << int(ref.occluded[i]);
+      ADD_FAILURE() << label << ": ray " << i << " org (" << r.org.x << "," << r.org.y << ","
+                    << r.org.z << ") dir (" << r.dir.x << "," << r.dir.y << "," << r.dir.z << ") ["
+                    << r.tmin << "," << r.tmax << "]: hybrid " << (got ? "hit" : "miss")
+                    << " t=" << hh.t << " prim=" << hh.prim << " occ=" << occ << "; brute "
+                    << (rh.valid() ? "hit" : "miss") << " t=" << rh.t << " prim=" << rh.prim
+                    << " occ=" << int(ref.occluded[i]);
     }
   }
   EXPECT_EQ(h.step_bound_errors(), 0u) << label;
@@ -260,7 +266,9 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
     float cell;
     const char* what;
   };
-  const Case cases[] = {{0.0f, "auto"}, {big, "one cell"}, {tiny, "cell < smallest triangle"},
+  const Case cases[] = {{0.0f, "auto"},
+                        {big, "one cell"},
+                        {tiny, "cell < smallest triangle"},
                         {explicit_cell, "explicit"}};
   for (const Case& c : cases) {
     // The defaults (bricked, leaf subtrees over 4 triangles, empty-leaf boxes), dense
@@ -278,7 +286,8 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
         // A dense matrix over the budget must be refused, not allocated.
         const Vec3 e = m.bounds().extent();
         double cells = 1.0;
-        for (int a = 0; a < 3; ++a) cells *= std::max(1.0, std::ceil(double(e[a]) / double(c.cell)));
+        for (int a = 0; a < 3; ++a)
+          cells *= std::max(1.0, std::ceil(double(e[a]) / double(c.cell)));
         if (cells * 4.0 > double(p.memory_budget)) {
           EXPECT_THROW(h.build(m, p), ParamError) << name << " " << c.what;
           continue;
@@ -289,7 +298,7 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
         EXPECT_EQ(h.dims()[0] * h.dims()[1] * h.dims()[2], 1) << name;
       }
       const std::string label = name + " / " + c.what + " (" + st.extra[2].second + ", " +
-                                (dense              ? "dense"
+                                (dense          ? "dense"
                                  : variant == 2 ? "bricked, subtrees over 2"
                                  : variant == 3 ? "bricked, plain leaves"
                                  : variant == 4 ? "bricked, plain leaves, kd leaf boxes"
@@ -297,7 +306,10 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
                                 ")";
       const auto t0 = std::chrono::steady_clock::now();
       EXPECT_EQ(compare(h, m, rays, ref, label), 0) << label;
-      if (getenv("HYB_TIME")) printf("%s build %.3fs rays %.3fs nodes %lu refs %lu\n", label.c_str(), st.seconds, std::chrono::duration<double>(std::chrono::steady_clock::now()-t0).count(), (unsigned long)st.nodes, (unsigned long)st.references);
+      if (getenv("HYB_TIME"))
+        printf("%s build %.3fs rays %.3fs nodes %lu refs %lu\n", label.c_str(), st.seconds,
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+               (unsigned long)st.nodes, (unsigned long)st.references);
     }
   }
 }
@@ -352,7 +364,8 @@ TEST(Hybrid, DenseAndBrickedMapEveryCellToTheSameCoveringLeaf) {
         const uint32_t l = b.leaf_at(x, y, z);
         ASSERT_EQ(l, d.leaf_at(x, y, z));
         const auto& L = b.leaves()[l];
-        ASSERT_TRUE(x >= L.lo[0] && x < L.hi[0] && y >= L.lo[1] && y < L.hi[1] && z >= L.lo[2] && z < L.hi[2]);
+        ASSERT_TRUE(x >= L.lo[0] && x < L.hi[0] && y >= L.lo[1] && y < L.hi[1] && z >= L.lo[2] &&
+                    z < L.hi[2]);
       }
 }
 
@@ -375,7 +388,7 @@ void check_rays(const Mesh& m, const std::vector<Ray>& rays, float cell, const s
     if (variant >= 3) p.hybrid_subtree_min = 0;
     if (variant == 4) p.hybrid_expand_empty = false;
     h.build(m, p);
-    const std::string v = dense              ? " dense"
+    const std::string v = dense          ? " dense"
                           : variant == 2 ? " bricked, subtrees over 2"
                           : variant == 3 ? " bricked, plain leaves"
                           : variant == 4 ? " bricked, plain leaves, kd leaf boxes"
@@ -483,7 +496,8 @@ TEST(HybridExtremeRays, OriginsOnCellBoundaries) {
     Ray r;
     r.org = Vec3(float(k(rng)), float(k(rng)), float(k(rng))) * 0.25f;  // lattice points
     r.dir = Vec3(s(rng), s(rng), s(rng));
-    if (i % 3 == 0) r.dir = Vec3(1.0f, 1.0f, 1.0f) * (i % 2 ? 1.0f : -1.0f);  // through cell corners
+    if (i % 3 == 0)
+      r.dir = Vec3(1.0f, 1.0f, 1.0f) * (i % 2 ? 1.0f : -1.0f);  // through cell corners
     rays.push_back(r);
   }
   check_rays(m, rays, 0.25f, "origins on cell boundaries");
@@ -520,7 +534,7 @@ TEST(HybridExtremeRays, RaysMissingTheBox) {
     r.org = Vec3(5.0f + s(rng), s(rng), s(rng));
     r.dir = Vec3(std::abs(s(rng)) + 0.01f, s(rng), s(rng));
     if (i % 3 == 0) r.dir = Vec3(0.0f, 1.0f, -0.0f);  // parallel to the box, outside its slab
-    if (i % 3 == 1) {  // pointing at the box but ending before it
+    if (i % 3 == 1) {                                 // pointing at the box but ending before it
       r.dir = Vec3(-1.0f, 0.0f, 0.0f);
       r.org = Vec3(5.0f, 1.0f, 1.0f);
       r.tmax = 2.0f;
@@ -543,14 +557,17 @@ TEST(HybridExtremeRays, RaysGrazingTheSceneBoxEdgesAndCorners) {
   struct Case {
     float offset, distance;
   };
-  for (const Case cs : {Case{0.0f, 50.0f}, Case{1e3f, 50.0f}, Case{1e5f, 50.0f}, Case{0.0f, 1e4f}, Case{0.0f, 1e6f}}) {
+  for (const Case cs : {Case{0.0f, 50.0f}, Case{1e3f, 50.0f}, Case{1e5f, 50.0f}, Case{0.0f, 1e4f},
+                        Case{0.0f, 1e6f}}) {
     const float offset = cs.offset;
     Mesh m;
     const Vec3 lo(offset, offset * 0.5f, -offset), hi = lo + Vec3(1.0f, 2.0f, 0.5f);
-    const Vec3 c[8] = {{lo.x, lo.y, lo.z}, {hi.x, lo.y, lo.z}, {lo.x, hi.y, lo.z}, {hi.x, hi.y, lo.z},
-                       {lo.x, lo.y, hi.z}, {hi.x, lo.y, hi.z}, {lo.x, hi.y, hi.z}, {hi.x, hi.y, hi.z}};
+    const Vec3 c[8] = {{lo.x, lo.y, lo.z}, {hi.x, lo.y, lo.z}, {lo.x, hi.y, lo.z},
+                       {hi.x, hi.y, lo.z}, {lo.x, lo.y, hi.z}, {hi.x, lo.y, hi.z},
+                       {lo.x, hi.y, hi.z}, {hi.x, hi.y, hi.z}};
     for (const Vec3& p : c) m.positions.push_back(p);
-    const uint32_t quads[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
+    const uint32_t quads[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1},
+                                  {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
     for (const auto& q : quads) {
       m.triangles.push_back({q[0], q[1], q[2]});
       m.triangles.push_back({q[0], q[2], q[3]});
@@ -576,7 +593,8 @@ TEST(HybridExtremeRays, RaysGrazingTheSceneBoxEdgesAndCorners) {
     const Reference ref = brute_reference(m, rays);
     int hits = 0;
     for (const Hit& h : ref.hits) hits += h.valid();
-    const std::string what = "cube at offset " + std::to_string(offset) + ", origins " + std::to_string(cs.distance) + " away";
+    const std::string what = "cube at offset " + std::to_string(offset) + ", origins " +
+                             std::to_string(cs.distance) + " away";
     EXPECT_GT(hits, 1000) << what;
     Hybrid h;
     h.build(m, params_with(0.0f, false));
@@ -641,7 +659,8 @@ TEST(HybridEmptyBoxes, CoverOnlyEmptyCellsAndTheirOwnLeaf) {
         for (int32_t x = 0; x < n[0]; ++x) ++own[h.leaf_at(x, y, z)];
     for (uint32_t i = 0; i < leaves.size(); ++i) {
       const auto& L = leaves[i];
-      const uint64_t cells = uint64_t(L.hi[0] - L.lo[0]) * uint64_t(L.hi[1] - L.lo[1]) * uint64_t(L.hi[2] - L.lo[2]);
+      const uint64_t cells =
+          uint64_t(L.hi[0] - L.lo[0]) * uint64_t(L.hi[1] - L.lo[1]) * uint64_t(L.hi[2] - L.lo[2]);
       box_cells += cells;
       if (L.count != 0) {
         // Leaves with triangles keep their kd box: exactly the cells that map to them.
@@ -652,7 +671,8 @@ TEST(HybridEmptyBoxes, CoverOnlyEmptyCellsAndTheirOwnLeaf) {
       // An empty leaf's step box holds only cells of empty leaves (its own among them).
       for (int32_t z = L.lo[2]; z < L.hi[2]; ++z)
         for (int32_t y = L.lo[1]; y < L.hi[1]; ++y)
-          for (int32_t x = L.lo[0]; x < L.hi[0]; ++x) ASSERT_EQ(leaves[h.leaf_at(x, y, z)].count, 0u);
+          for (int32_t x = L.lo[0]; x < L.hi[0]; ++x)
+            ASSERT_EQ(leaves[h.leaf_at(x, y, z)].count, 0u);
     }
     EXPECT_GT(widened, 0u);
     EXPECT_GT(box_cells, uint64_t(n[0]) * n[1] * n[2]) << "boxes overlap once widened";
@@ -792,7 +812,8 @@ std::vector<Ray> coherent_rays(int n) {
     for (int i = 0; i < n; ++i) {
       Ray r;
       r.org = Vec3(0.2f, 0.1f, 4.0f);
-      r.dir = normalize(Vec3(-1.3f + 2.6f * float(i) / float(n - 1), -1.3f + 2.6f * float(j) / float(n - 1), -4.0f));
+      r.dir = normalize(Vec3(-1.3f + 2.6f * float(i) / float(n - 1),
+                             -1.3f + 2.6f * float(j) / float(n - 1), -4.0f));
       rays.push_back(r);
     }
   return rays;
@@ -821,8 +842,10 @@ TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   const uint64_t taken_before = Hybrid::next_leaves_from_cache();
   // The two structures in turn on one thread: each finds the other's leaves in the cache.
   for (size_t i = 0; i < ra.size(); ++i) {
-    failures += compare(ha, ma, {ra[i]}, Reference{{refa.hits[i]}, {refa.occluded[i]}}, "sphere, in turn");
-    failures += compare(hb, mb, {rb[i]}, Reference{{refb.hits[i]}, {refb.occluded[i]}}, "soup, in turn");
+    failures +=
+        compare(ha, ma, {ra[i]}, Reference{{refa.hits[i]}, {refa.occluded[i]}}, "sphere, in turn");
+    failures +=
+        compare(hb, mb, {rb[i]}, Reference{{refb.hits[i]}, {refb.occluded[i]}}, "soup, in turn");
     ASSERT_LE(failures, 5);
     // The same ray counted right after itself (the cache right) and after the other structure's
     // ray (the cache wrong): the same steps, lookups and tests.
@@ -840,7 +863,8 @@ TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   // Alone again: the coherent rays with their own cache entries warm.
   const uint64_t taken_in_turn = Hybrid::next_leaves_from_cache();
   EXPECT_EQ(compare(ha, ma, ra, refa, "sphere, alone"), 0);
-  EXPECT_GT(taken_in_turn, taken_before) << "a ray traced right after itself takes its cached leaves";
+  EXPECT_GT(taken_in_turn, taken_before)
+      << "a ray traced right after itself takes its cached leaves";
   EXPECT_GT(Hybrid::next_leaves_from_cache(), taken_in_turn) << "coherent rays take cached leaves";
 }
 
@@ -864,7 +888,8 @@ TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
   EXPECT_GT(between, before) << "coherent rays take cached leaves";
   for (size_t i = 0; i < rays.size(); ++i)
     found_without[i] = plain.intersect_counted(rays[i], hits_without[i], without);
-  EXPECT_EQ(Hybrid::next_leaves_from_cache(), between) << "hybrid_guess = false takes no cached leaf";
+  EXPECT_EQ(Hybrid::next_leaves_from_cache(), between)
+      << "hybrid_guess = false takes no cached leaf";
   for (size_t i = 0; i < rays.size(); ++i) {
     ASSERT_EQ(found_with[i], found_without[i]) << "ray " << i;
     if (found_with[i]) {
@@ -918,9 +943,13 @@ void check_trace_order(uint32_t subtree_min) {
   EXPECT_GT(hits, 500);
 }
 
-TEST(Hybrid, TraceVisitsLeavesInRayOrder) { check_trace_order(0); }
+TEST(Hybrid, TraceVisitsLeavesInRayOrder) {
+  check_trace_order(0);
+}
 
-TEST(Hybrid, TraceVisitsLeafSubtreesInRayOrder) { check_trace_order(2); }
+TEST(Hybrid, TraceVisitsLeafSubtreesInRayOrder) {
+  check_trace_order(2);
+}
 
 TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
   const Mesh m = random_soup(6, 1000, Vec3(-1), Vec3(1), 0.1f);
@@ -991,11 +1020,13 @@ TEST(HybridParams, AutoRuleIsReported) {
   // The auto cell is the 90th percentile of the triangles' largest extents, unless the
   // density floor (16 cells per triangle) asks for a smaller one.
   std::vector<float> e;
-  for (size_t i = 0; i < m.num_triangles(); ++i) e.push_back(max_component(m.triangle_bounds(i).extent()));
+  for (size_t i = 0; i < m.num_triangles(); ++i)
+    e.push_back(max_component(m.triangle_bounds(i).extent()));
   std::sort(e.begin(), e.end());
   const double p90 = e[size_t(std::ceil(0.9 * double(e.size()))) - 1];
   const Vec3 ext = m.bounds().extent();
-  const double dens = std::cbrt(double(ext.x) * ext.y * ext.z / (kHybridAutoCellsPerTriangle * m.num_triangles()));
+  const double dens =
+      std::cbrt(double(ext.x) * ext.y * ext.z / (kHybridAutoCellsPerTriangle * m.num_triangles()));
   EXPECT_NEAR(h.cell_size(), std::min(p90, dens), 1e-6 * p90);
   // A few large triangles among many small ones: the percentile rule alone would keep them
   // in a handful of cells; the density floor gives at least 16 cells per triangle.
@@ -1004,7 +1035,8 @@ TEST(HybridParams, AutoRuleIsReported) {
   Hybrid hm;
   hm.build(mixed, params_with(0.0f, false));
   EXPECT_GE(double(hm.dims()[0]) * hm.dims()[1] * hm.dims()[2], 16.0 * 220.0);
-  EXPECT_NE(hm.stats().extra[1].second.find("lowered"), std::string::npos) << hm.stats().extra[1].second;
+  EXPECT_NE(hm.stats().extra[1].second.find("lowered"), std::string::npos)
+      << hm.stats().extra[1].second;
 }
 
 TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
@@ -1017,7 +1049,8 @@ TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
   const double cells = double(h.dims()[0]) * h.dims()[1] * h.dims()[2];
   EXPECT_LE(cells, kHybridAutoMaxCells);
   EXPECT_GE(cells, 0.5 * kHybridAutoMaxCells) << "raised no further than the cap needs";
-  EXPECT_NE(h.stats().extra[1].second.find("raised"), std::string::npos) << h.stats().extra[1].second;
+  EXPECT_NE(h.stats().extra[1].second.find("raised"), std::string::npos)
+      << h.stats().extra[1].second;
   // Plain leaves keep cells about a triangle wide, up to the larger kHybridAutoMaxCellsPlain.
   BuildParams plain = params_with(0.0f, false);
   plain.hybrid_subtree_min = 0;
@@ -1105,8 +1138,10 @@ TEST(HybridEstimate, MatchesTheBuildAtAutoAndFinerSizes) {
     const BuildStats st = h.build(m, params_with(c, false));
     const HybridEstimate e = Hybrid::estimate(m, params_with(c, false));
     EXPECT_TRUE(e.fits) << f;
-    EXPECT_GT(e.structure_bytes, double(st.bytes) / 3.0) << "cells " << f << "x finer than auto: " << e.describe();
-    EXPECT_LT(e.structure_bytes, double(st.bytes) * 3.0) << "cells " << f << "x finer than auto: " << e.describe();
+    EXPECT_GT(e.structure_bytes, double(st.bytes) / 3.0)
+        << "cells " << f << "x finer than auto: " << e.describe();
+    EXPECT_LT(e.structure_bytes, double(st.bytes) * 3.0)
+        << "cells " << f << "x finer than auto: " << e.describe();
     EXPECT_GE(e.bytes, e.structure_bytes);
   }
 }
@@ -1132,7 +1167,8 @@ TEST(HybridEstimate, TinyCellIsRefusedUpFrontWithASizeThatBuildsQuickly) {
     std::string msg;
     const auto t0 = std::chrono::steady_clock::now();
     const double suggested = refused_and_suggested(m, tiny, &msg);
-    const double refuse_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double refuse_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     ASSERT_GT(suggested, 0.0) << tiny << ": " << msg;
     EXPECT_LT(refuse_s, 2.0) << "the refusal is an estimate, not a build";
     EXPECT_NE(msg.find("cells"), std::string::npos) << msg;
@@ -1147,7 +1183,8 @@ TEST(HybridEstimate, TinyCellIsRefusedUpFrontWithASizeThatBuildsQuickly) {
     Hybrid h;
     const auto t1 = std::chrono::steady_clock::now();
     ASSERT_NO_THROW(h.build(m, params_with(float(suggested), false))) << suggested;
-    const double build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+    const double build_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
     EXPECT_LT(build_s, 60.0) << "suggested cell size " << suggested;
     const auto rays = random_rays(m, 2000, 41);
     EXPECT_EQ(compare(h, m, rays, brute_reference(m, rays), "suggested size"), 0);
@@ -1167,8 +1204,8 @@ TEST(HybridEstimate, BunnySuggestedSizeBuildsWithinABound) {
   EXPECT_LT(s, 90.0) << msg;
   const HybridEstimate e = Hybrid::estimate(m, params_with(float(suggested), false));
   EXPECT_LT(double(st.bytes), e.bytes * 3.0) << e.describe();
-  std::printf("bunny: %s\nsuggested %g built in %.1f s, %.0f MiB (estimate: %s)\n", msg.c_str(), suggested, s,
-              double(st.bytes) / 1048576.0, e.describe().c_str());
+  std::printf("bunny: %s\nsuggested %g built in %.1f s, %.0f MiB (estimate: %s)\n", msg.c_str(),
+              suggested, s, double(st.bytes) / 1048576.0, e.describe().c_str());
 }
 
 TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
@@ -1196,9 +1233,9 @@ TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
     tests_grid += double(grid.trace(r).counters.tri_tests);
   }
   EXPECT_EQ(twice, 0) << "rays that tested a triangle twice";
-  EXPECT_LT(tests_one, 2.0 * tests_grid + double(rays.size())) << "one cell " << tests_one / double(rays.size())
-                                                                << " tests per ray, auto grid "
-                                                                << tests_grid / double(rays.size());
+  EXPECT_LT(tests_one, 2.0 * tests_grid + double(rays.size()))
+      << "one cell " << tests_one / double(rays.size()) << " tests per ray, auto grid "
+      << tests_grid / double(rays.size());
 }
 
 }  // namespace

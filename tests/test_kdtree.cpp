@@ -230,7 +230,8 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
   // A second, smaller box for kd_clip4 (the hybrid's clip to a leaf subtree's box), with faces
   // that some origins lie on; its corners as kd_clip4 reads them.
   const Box3 sub(Vec3(0.25f, 0.55f, 400.0f), Vec3(2.0f, 0.7f, 600.0f));
-  const Float4 sub_lo = {sub.lo.x, sub.lo.y, sub.lo.z, -kInf}, sub_hi = {sub.hi.x, sub.hi.y, sub.hi.z, kInf};
+  const Float4 sub_lo = {sub.lo.x, sub.lo.y, sub.lo.z, -kInf},
+               sub_hi = {sub.hi.x, sub.hi.y, sub.hi.z, kInf};
   int hits = 0, misses = 0, sub_hits = 0, sub_misses = 0;
   for (int i = 0; i < 20000; ++i) {
     const float scale = (i % 5 == 0) ? 1e6f : (i % 5 == 1 ? 1e-3f : 10.0f);
@@ -301,7 +302,8 @@ TEST(KdTree, LaneClipsContainScalarClipWithSubnormalDirections) {
   const Box3 box(Vec3(-1.0f, -2.0f, -0.5f), Vec3(1.0f, 2.0f, 0.5f));
   ClipBox4 cb;
   cb.set(box);
-  const Float4 lo = {box.lo.x, box.lo.y, box.lo.z, -kInf}, hi = {box.hi.x, box.hi.y, box.hi.z, kInf};
+  const Float4 lo = {box.lo.x, box.lo.y, box.lo.z, -kInf},
+               hi = {box.hi.x, box.hi.y, box.hi.z, kInf};
   const float max_abs = 2.0f;
   int hits = 0, nan_axes = 0;
   for (int i = 0; i < 20000; ++i) {

@@ -22,12 +22,15 @@ namespace {
 namespace fs = std::filesystem;
 
 fs::path temp_file(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("kdgrid_rayfile_test_" + std::to_string(::getpid()));
+  const fs::path dir =
+      fs::temp_directory_path() / ("kdgrid_rayfile_test_" + std::to_string(::getpid()));
   fs::create_directories(dir);
   return dir / name;
 }
 
-bool bits_equal(float a, float b) { return std::memcmp(&a, &b, 4) == 0; }
+bool bits_equal(float a, float b) {
+  return std::memcmp(&a, &b, 4) == 0;
+}
 
 std::string load_error_of(const std::vector<uint8_t>& bytes, const std::string& name) {
   try {

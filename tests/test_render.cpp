@@ -18,11 +18,11 @@
 
 #include "accel/accelerator.h"
 #include "accel/triangle.h"
+#include "cli_util.h"
 #include "image/image_io.h"
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "scene/procedural.h"
-#include "cli_util.h"
 #include "test_util.h"
 #include "util/error.h"
 

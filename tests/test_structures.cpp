@@ -28,12 +28,16 @@ std::vector<std::string> names_except(const std::vector<std::string>& skip) {
 /// kdgrid's own structures, checked bit for bit against brute force with the same triangle
 /// test: brute force is the reference itself, and Embree's own triangle test is compared
 /// within a tolerance in test_embree.cpp.
-std::vector<std::string> own_structures() { return names_except({"brute", "embree"}); }
+std::vector<std::string> own_structures() {
+  return names_except({"brute", "embree"});
+}
 
 /// Structures whose trace lists steps in order of t and ends in the leaf of the hit, as
 /// test::check_counted_and_trace requires. BVH nodes overlap: its trace is in visiting order
 /// and the hit may lie in an earlier leaf (test_bvh.cpp checks its trace).
-bool trace_in_t_order(const std::string& name) { return name != "bvh"; }
+bool trace_in_t_order(const std::string& name) {
+  return name != "bvh";
+}
 
 /// Instance names are the structure names ("Structures/grid").
 std::string structure_name(const ::testing::TestParamInfo<std::string>& info) {

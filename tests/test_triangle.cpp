@@ -34,7 +34,10 @@ void check_interior_hits(uint32_t seed) {
     const Vec3 n = cross(b - a, c - a);
     if (length(n) < 1e-3f) continue;
     float bu = unit(rng), bv = unit(rng);
-    if (bu + bv > 0.95f) { bu *= 0.5f; bv *= 0.5f; }
+    if (bu + bv > 0.95f) {
+      bu *= 0.5f;
+      bv *= 0.5f;
+    }
     const Vec3 target = a * (1 - bu - bv) + b * bu + c * bv;
     const Vec3 org = target + normalize(random_point(rng, 1) + n * 0.0f) * 3.0f;
     Ray r{org, 0.0f, target - org, kInf};
@@ -52,8 +55,12 @@ void check_interior_hits(uint32_t seed) {
   EXPECT_GT(hits, 4000);
 }
 
-TEST(Triangle, WatertightHitsInteriorPoints) { check_interior_hits<WatertightTest>(1); }
-TEST(Triangle, MollerHitsInteriorPoints) { check_interior_hits<MollerTest>(2); }
+TEST(Triangle, WatertightHitsInteriorPoints) {
+  check_interior_hits<WatertightTest>(1);
+}
+TEST(Triangle, MollerHitsInteriorPoints) {
+  check_interior_hits<MollerTest>(2);
+}
 
 // Both tests agree with the double-precision reference away from edges.
 TEST(Triangle, AgreesWithDoubleReference) {
@@ -114,7 +121,8 @@ TEST(Triangle, WatertightNeverLeaksThroughSharedEdge) {
 // v[k] bit for bit (signed zeros and NaN payloads included), on every axis.
 TEST(Triangle, ComponentReadsTheAxisBitForBit) {
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  for (const Vec3 v : {Vec3(1.5f, -2.25f, 3e-38f), Vec3(-0.0f, 0.0f, -0.0f), Vec3(nan, -1e30f, 7.0f)})
+  for (const Vec3 v :
+       {Vec3(1.5f, -2.25f, 3e-38f), Vec3(-0.0f, 0.0f, -0.0f), Vec3(nan, -1e30f, 7.0f)})
     for (int k = 0; k < 3; ++k) {
       const float a = component(v, k), b = v[k];
       uint32_t ba, bb;

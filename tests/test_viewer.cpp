@@ -25,7 +25,9 @@
 
 namespace kdgrid {
 // Readable failure messages for camera vectors.
-inline void PrintTo(const Vec3& v, std::ostream* os) { *os << "(" << v.x << ", " << v.y << ", " << v.z << ")"; }
+inline void PrintTo(const Vec3& v, std::ostream* os) {
+  *os << "(" << v.x << ", " << v.y << ", " << v.z << ")";
+}
 }  // namespace kdgrid
 
 namespace kdgrid::test {
@@ -50,7 +52,9 @@ RunResult run_command(const std::string& cmd) {
   return r;
 }
 
-bool have_xvfb() { return std::system("command -v xvfb-run >/dev/null 2>&1") == 0; }
+bool have_xvfb() {
+  return std::system("command -v xvfb-run >/dev/null 2>&1") == 0;
+}
 
 /// A scratch directory per test (also the viewer's config directory, so no user settings leak
 /// in and none are written to the user's home).
@@ -70,9 +74,11 @@ std::string scratch_dir() {
 RunResult run_viewer(const std::string& dir, const std::string& args) {
   const std::string script = dir + "/run-viewer.sh", code_file = dir + "/viewer-exit-code";
   fs::remove(code_file);
-  std::ofstream(script) << "'" << KDGRID_VIEWER_PATH << "' " << args << "\necho $? > '" << code_file << "'\n";
+  std::ofstream(script) << "'" << KDGRID_VIEWER_PATH << "' " << args << "\necho $? > '" << code_file
+                        << "'\n";
   const std::string cmd = "cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
-                          "' LIBGL_ALWAYS_SOFTWARE=1 xvfb-run -a -s '-screen 0 1280x1024x24' sh '" + script + "'";
+                          "' LIBGL_ALWAYS_SOFTWARE=1 xvfb-run -a -s '-screen 0 1280x1024x24' sh '" +
+                          script + "'";
   RunResult r = run_command(cmd);
   std::ifstream recorded(code_file);
   int code = 0;
@@ -92,7 +98,8 @@ double luminance_variance(const ImageRGB& img) {
   double s = 0, s2 = 0;
   const size_t n = size_t(img.width) * size_t(img.height);
   for (size_t i = 0; i < n; ++i) {
-    const double y = 0.2126 * img.rgb[i * 3] + 0.7152 * img.rgb[i * 3 + 1] + 0.0722 * img.rgb[i * 3 + 2];
+    const double y =
+        0.2126 * img.rgb[i * 3] + 0.7152 * img.rgb[i * 3 + 1] + 0.0722 * img.rgb[i * 3 + 2];
     s += y;
     s2 += y * y;
   }
@@ -114,16 +121,17 @@ int changed_pixels_near(const ImageRGB& a, const ImageRGB& b, int cx, int cy, in
   return n;
 }
 
-#define KDGRID_REQUIRE_XVFB()                                                                   \
-  if (!have_xvfb())                                                                             \
-  GTEST_SKIP() << "xvfb-run is not installed (Debian package xvfb): the viewer tests need a "   \
+#define KDGRID_REQUIRE_XVFB()                                                                 \
+  if (!have_xvfb())                                                                           \
+  GTEST_SKIP() << "xvfb-run is not installed (Debian package xvfb): the viewer tests need a " \
                   "virtual X display"
 
 const std::string kDefaultScene = source_path("assets/cornell.gltf");
 
-#define KDGRID_REQUIRE_DEFAULT_SCENE()                                                          \
-  if (!fs::exists(kDefaultScene))                                                               \
-  GTEST_SKIP() << "default scene " << kDefaultScene << " is missing (generate it with "         \
+#define KDGRID_REQUIRE_DEFAULT_SCENE()              \
+  if (!fs::exists(kDefaultScene))                   \
+  GTEST_SKIP() << "default scene " << kDefaultScene \
+               << " is missing (generate it with "  \
                   "`kdgrid gen cornell -o assets/cornell.gltf`)"
 
 // Small windows and one deterministic sample per pixel keep runs short and screenshots
@@ -167,7 +175,8 @@ TEST(Viewer, StanfordBunnyScreenshotIsNotBlank) {
   const std::string accel = fast_accel();
   if (accel.empty()) GTEST_SKIP() << "no structure faster than brute force is built in yet";
   const std::string dir = scratch_dir();
-  const RunResult r = run_viewer(dir, "'" + bunny + "' --accel " + accel + kSmall + "--hide-ui --screenshot shot.png");
+  const RunResult r = run_viewer(
+      dir, "'" + bunny + "' --accel " + accel + kSmall + "--hide-ui --screenshot shot.png");
   ASSERT_EQ(r.code, 0) << r.output;
   const ImageRGB img = read_image(dir + "/shot.png");
   EXPECT_GT(luminance_variance(img), 1e-3) << "screenshot looks blank";
@@ -186,7 +195,8 @@ std::string small_scene() {
 TEST(Viewer, PickDrawsTraversalAtThePickedPixel) {
   KDGRID_REQUIRE_XVFB();
   const std::string scene = small_scene();
-  if (scene.empty()) GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
+  if (scene.empty())
+    GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
   const std::string accel = fast_accel();
   if (accel.empty()) GTEST_SKIP() << "no structure with a traversal to show is built in yet";
   const std::string dir = scratch_dir();
@@ -198,7 +208,8 @@ TEST(Viewer, PickDrawsTraversalAtThePickedPixel) {
   ASSERT_EQ(picked.code, 0) << picked.output;
   // The viewer prints the command line that replays the pick.
   EXPECT_NE(picked.output.find("kdgrid trace"), std::string::npos) << picked.output;
-  EXPECT_NE(picked.output.find("--pixel 170,130 --res 320x240"), std::string::npos) << picked.output;
+  EXPECT_NE(picked.output.find("--pixel 170,130 --res 320x240"), std::string::npos)
+      << picked.output;
 
   const ImageRGB a = read_image(dir + "/plain.png"), b = read_image(dir + "/picked.png");
   ASSERT_EQ(a.width, b.width);
@@ -215,12 +226,14 @@ TEST(Viewer, PickDrawsTraversalAtThePickedPixel) {
 TEST(Viewer, HeatMapExportsRawCountsAsExr) {
   KDGRID_REQUIRE_XVFB();
   const std::string scene = small_scene();
-  if (scene.empty()) GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
+  if (scene.empty())
+    GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
   const std::string accel = fast_accel();
   if (accel.empty()) GTEST_SKIP() << "no structure faster than brute force is built in yet";
   const std::string dir = scratch_dir();
-  const RunResult r = run_viewer(dir, "'" + scene + "' --accel " + accel + kSmall +
-                                          "--heatmap tests --export-heatmap tests.exr --screenshot shot.png");
+  const RunResult r =
+      run_viewer(dir, "'" + scene + "' --accel " + accel + kSmall +
+                          "--heatmap tests --export-heatmap tests.exr --screenshot shot.png");
   ASSERT_EQ(r.code, 0) << r.output;
   const ImageRGB img = read_image(dir + "/tests.exr");
   ASSERT_EQ(img.width, 320);
@@ -240,7 +253,8 @@ TEST(Viewer, HeatMapExportsRawCountsAsExr) {
 TEST(Viewer, LiveRebuildCompletes) {
   KDGRID_REQUIRE_XVFB();
   const std::string scene = small_scene();
-  if (scene.empty()) GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
+  if (scene.empty())
+    GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
   const std::string accel = fast_accel();
   if (accel.empty()) GTEST_SKIP() << "no structure faster than brute force is built in yet";
   const std::string dir = scratch_dir();
@@ -254,7 +268,8 @@ TEST(Viewer, LiveRebuildCompletes) {
 TEST(Viewer, LiveRebuildWithNewCellSizeChangesTheView) {
   KDGRID_REQUIRE_XVFB();
   const std::string scene = small_scene();
-  if (scene.empty()) GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
+  if (scene.empty())
+    GTEST_SKIP() << "neither assets/cornell.gltf nor the shared bunny is available";
   const auto names = accelerator_names();
   std::string accel;
   for (const char* n : {"hybrid", "grid"})
@@ -262,7 +277,8 @@ TEST(Viewer, LiveRebuildWithNewCellSizeChangesTheView) {
   if (accel.empty()) GTEST_SKIP() << "no structure with a cell size (hybrid, grid) is built in yet";
   const std::string dir = scratch_dir();
   // Cells overlay and a steps heat map: both depend on the cell size, the render does not.
-  const std::string base = "'" + scene + "' --accel " + accel + kSmall + "--hide-ui --overlay cells --heatmap steps ";
+  const std::string base =
+      "'" + scene + "' --accel " + accel + kSmall + "--hide-ui --overlay cells --heatmap steps ";
   const RunResult before = run_viewer(dir, base + "--screenshot before.png");
   ASSERT_EQ(before.code, 0) << before.output;
   const RunResult after = run_viewer(dir, base + "--rebuild-cell-size 0.5 --screenshot after.png");
@@ -280,12 +296,15 @@ TEST(Viewer, LiveRebuildWithNewCellSizeChangesTheView) {
 // appear within 60 s, the viewer's --hold ends it after 90 s whatever happens, and the whole
 // run is killed after 240 s.
 
-bool have_xdotool() { return std::system("command -v xdotool >/dev/null 2>&1") == 0; }
+bool have_xdotool() {
+  return std::system("command -v xdotool >/dev/null 2>&1") == 0;
+}
 
-#define KDGRID_REQUIRE_XDOTOOL()                                                                \
-  if (!have_xdotool())                                                                          \
-  GTEST_SKIP() << "xdotool is not installed (Debian package xdotool, in scripts/install-deps.sh): "\
-                  "the input tests drive the viewer's window with it"
+#define KDGRID_REQUIRE_XDOTOOL()                                                           \
+  if (!have_xdotool())                                                                     \
+  GTEST_SKIP()                                                                             \
+      << "xdotool is not installed (Debian package xdotool, in scripts/install-deps.sh): " \
+         "the input tests drive the viewer's window with it"
 
 nlohmann::json read_json(const std::string& path) {
   std::ifstream in(path);
@@ -337,7 +356,8 @@ Driven drive_viewer(const std::string& dir, const std::string& args, const std::
     std::ofstream f(driver);
     f << "#!/bin/bash\nset -u\ncd '" << dir << "'\n"
       << setup << "\n"
-      << "'" << KDGRID_VIEWER_PATH << "' " << args << " --stats-json stats.json > viewer.log 2>&1 &\n"
+      << "'" << KDGRID_VIEWER_PATH << "' " << args
+      << " --stats-json stats.json > viewer.log 2>&1 &\n"
       << "pid=$!\n"
       << "wid=$(timeout 60 xdotool search --sync --name 'kdgrid-viewer - " << title_file
       << "' 2>/dev/null | head -1)\n"
@@ -360,8 +380,11 @@ Driven drive_viewer(const std::string& dir, const std::string& args, const std::
   }
   Driven d;
   const std::string cmd = "cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
-                          "' LIBGL_ALWAYS_SOFTWARE=1 timeout -k 10 240 xvfb-run -a -s '-screen 0 " + screen + "x24 -noreset' "
-                          "bash '" + driver + "'";
+                          "' LIBGL_ALWAYS_SOFTWARE=1 timeout -k 10 240 xvfb-run -a -s '-screen 0 " +
+                          screen +
+                          "x24 -noreset' "
+                          "bash '" +
+                          driver + "'";
   d.run = run_command(cmd);
   // The viewer's own exit code, as the driver printed it (see run_viewer on xvfb-run's).
   const std::string tag = "driver: viewer exit code ";
@@ -374,7 +397,9 @@ Driven drive_viewer(const std::string& dir, const std::string& args, const std::
   return d;
 }
 
-Vec3 json_vec(const nlohmann::json& j) { return {j[0].get<float>(), j[1].get<float>(), j[2].get<float>()}; }
+Vec3 json_vec(const nlohmann::json& j) {
+  return {j[0].get<float>(), j[1].get<float>(), j[2].get<float>()};
+}
 
 /// The state's camera (or start_camera) as a Camera.
 Camera json_camera(const nlohmann::json& j) {
@@ -388,26 +413,27 @@ Camera json_camera(const nlohmann::json& j) {
 
 /// Everything a driven test checks first: the run ended by Ctrl+Q (not by its time limit)
 /// with exit code 0 and left its statistics.
-#define ASSERT_DRIVEN_OK(d)                                                                      \
-  ASSERT_EQ((d).run.code, 0) << (d).run.output << (d).viewer_log;                                \
-  ASSERT_TRUE((d).stats.is_object()) << "no stats.json\n" << (d).run.output << (d).viewer_log;   \
+#define ASSERT_DRIVEN_OK(d)                                                                    \
+  ASSERT_EQ((d).run.code, 0) << (d).run.output << (d).viewer_log;                              \
+  ASSERT_TRUE((d).stats.is_object()) << "no stats.json\n" << (d).run.output << (d).viewer_log; \
   ASSERT_EQ((d).stats["end"], "ctrl+q") << (d).run.output << (d).viewer_log
 
 /// The default scene for the input tests (small; it has its own camera, away from the
 /// canonical one, so Home visibly changes the view).
-#define KDGRID_REQUIRE_INPUT_TEST()                                                             \
-  KDGRID_REQUIRE_XVFB();                                                                        \
-  KDGRID_REQUIRE_XDOTOOL();                                                                     \
+#define KDGRID_REQUIRE_INPUT_TEST() \
+  KDGRID_REQUIRE_XVFB();            \
+  KDGRID_REQUIRE_XDOTOOL();         \
   KDGRID_REQUIRE_DEFAULT_SCENE()
 
 // 640x480 leaves the right half of the window free of the panel (330 wide at (8, 8)).
-const std::string kDriven = " --accel bvh --width 640 --height 480 --threads 1 --max-samples 1 --hold 90 ";
+const std::string kDriven =
+    " --accel bvh --width 640 --height 480 --threads 1 --max-samples 1 --hold 90 ";
 
 TEST(Viewer, InputFlyModeWMovesForwardAlongTheViewDirection) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
-                                "mv 480 240\nkey Tab\nholdkey w 0.6");
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui",
+                                "cornell.gltf", "mv 480 240\nkey Tab\nholdkey w 0.6");
   ASSERT_DRIVEN_OK(d);
   const auto& st = d.stats["state"];
   EXPECT_EQ(st["camera_mode"], "fly") << "Tab did not switch orbit to fly";
@@ -425,14 +451,15 @@ TEST(Viewer, InputLeftDragOrbitsAboutTheTargetKeepingTheDistance) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
   // 80 units to the right: the eye turns 80 * 0.005 = 0.4 rad about the up axis.
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
-                                "drag 1 420 240 500 240");
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui",
+                                "cornell.gltf", "drag 1 420 240 500 240");
   ASSERT_DRIVEN_OK(d);
   const auto& st = d.stats["state"];
   EXPECT_EQ(st["camera_mode"], "orbit");
   EXPECT_TRUE(st["pick"].is_null()) << "a drag was taken for a click (pick)";
   const Camera a = json_camera(st["start_camera"]), b = json_camera(st["camera"]);
-  EXPECT_LT(length(b.target - a.target), 1e-6f * length(a.target - a.eye) + 1e-6f) << "the target moved";
+  EXPECT_LT(length(b.target - a.target), 1e-6f * length(a.target - a.eye) + 1e-6f)
+      << "the target moved";
   const float da = length(a.eye - a.target), db = length(b.eye - b.target);
   EXPECT_NEAR(db / da, 1.0f, 1e-4f) << "orbit changed the distance";
   // The angle between the start and end offsets, both projected on the plane normal to up.
@@ -448,10 +475,11 @@ TEST(Viewer, InputLeftDragOrbitsAboutTheTargetKeepingTheDistance) {
 TEST(Viewer, InputRightDragLooksAroundFromTheEye) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
-                                "key Tab\ndrag 3 420 240 480 240");
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui",
+                                "cornell.gltf", "key Tab\ndrag 3 420 240 480 240");
   ASSERT_DRIVEN_OK(d);
-  const Camera a = json_camera(d.stats["state"]["start_camera"]), b = json_camera(d.stats["state"]["camera"]);
+  const Camera a = json_camera(d.stats["state"]["start_camera"]),
+               b = json_camera(d.stats["state"]["camera"]);
   EXPECT_EQ(a.eye, b.eye) << "looking around moved the eye";
   // 60 units to the right turn the view 60 * 0.005 = 0.3 rad about the up axis.
   const Vec3 up = normalize(a.up);
@@ -466,10 +494,11 @@ TEST(Viewer, InputWheelDolliesTowardsTheTarget) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
   // Three notches in, one out: 0.9^3 / 0.9 of the distance.
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
-                                "mv 480 240\nwheel 3 4\nwheel 1 5");
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui",
+                                "cornell.gltf", "mv 480 240\nwheel 3 4\nwheel 1 5");
   ASSERT_DRIVEN_OK(d);
-  const Camera a = json_camera(d.stats["state"]["start_camera"]), b = json_camera(d.stats["state"]["camera"]);
+  const Camera a = json_camera(d.stats["state"]["start_camera"]),
+               b = json_camera(d.stats["state"]["camera"]);
   EXPECT_EQ(a.target, b.target);
   EXPECT_NEAR(length(b.eye - b.target) / length(a.eye - a.target), 0.81f, 1e-4f);
   EXPECT_NEAR(dot(normalize(a.target - a.eye), normalize(b.target - b.eye)), 1.0f, 1e-6f);
@@ -478,8 +507,9 @@ TEST(Viewer, InputWheelDolliesTowardsTheTarget) {
 TEST(Viewer, InputSpeedKeysAndHomeFramesTheScene) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
-                                "mv 480 240\nkey plus plus minus equal\nwheel 2 4\ndrag 1 420 240 480 200\nkey Home");
+  const Driven d = drive_viewer(
+      dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui", "cornell.gltf",
+      "mv 480 240\nkey plus plus minus equal\nwheel 2 4\ndrag 1 420 240 480 200\nkey Home");
   ASSERT_DRIVEN_OK(d);
   const auto& st = d.stats["state"];
   // + + - = : 1.25^3 / 1.25 (= is + without shift).
@@ -491,15 +521,17 @@ TEST(Viewer, InputSpeedKeysAndHomeFramesTheScene) {
   const float r = length(scene.mesh.bounds().extent());
   EXPECT_LT(length(end.eye - want.eye), 1e-5f * r);
   EXPECT_LT(length(end.target - want.target), 1e-5f * r);
-  EXPECT_GT(length(start.eye - want.eye), 1e-3f * r) << "the scene's own camera is already the framing: "
-                                                         "this test cannot tell Home did anything";
+  EXPECT_GT(length(start.eye - want.eye), 1e-3f * r)
+      << "the scene's own camera is already the framing: "
+         "this test cannot tell Home did anything";
 }
 
 TEST(Viewer, InputCPrintsTheCameraAsFlagsThatRenderReproduces) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui --screenshot viewer.png",
-                                "cornell.gltf", "drag 1 420 240 470 270\nwheel 2 4\nkey c");
+  const Driven d =
+      drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui --screenshot viewer.png",
+                   "cornell.gltf", "drag 1 420 240 470 270\nwheel 2 4\nkey c");
   ASSERT_DRIVEN_OK(d);
   const std::string flags = d.stats["state"]["camera_flags"];
   const size_t at = d.viewer_log.find("--eye ");
@@ -521,9 +553,9 @@ TEST(Viewer, InputCPrintsTheCameraAsFlagsThatRenderReproduces) {
   const double same = rmse(viewer, cli);
   // And the comparison can fail: the start camera gives a clearly different picture.
   char start_flags[256];
-  std::snprintf(start_flags, sizeof start_flags, "--eye %.9g,%.9g,%.9g --target %.9g,%.9g,%.9g --fov %.9g",
-                start.eye.x, start.eye.y, start.eye.z, start.target.x, start.target.y, start.target.z,
-                start.fov_deg);
+  std::snprintf(start_flags, sizeof start_flags,
+                "--eye %.9g,%.9g,%.9g --target %.9g,%.9g,%.9g --fov %.9g", start.eye.x, start.eye.y,
+                start.eye.z, start.target.x, start.target.y, start.target.z, start.fov_deg);
   const RunResult r0 = run_command(render + start_flags + " -o '" + dir + "/start.png'");
   ASSERT_EQ(r0.code, 0) << r0.output;
   const double other = rmse(viewer, read_image(dir + "/start.png"));
@@ -531,7 +563,8 @@ TEST(Viewer, InputCPrintsTheCameraAsFlagsThatRenderReproduces) {
   EXPECT_GT(other, 10 * same + 0.01);
   // In fact byte for byte: the viewer's table-driven sRGB encoder (image_view.h) must give
   // exactly the bytes of tonemap_srgb8, which the PNG writer uses.
-  EXPECT_EQ(same, 0.0) << "the viewer shows other bytes than kdgrid render writes for the same samples";
+  EXPECT_EQ(same, 0.0)
+      << "the viewer shows other bytes than kdgrid render writes for the same samples";
 }
 
 TEST(Viewer, InputImGuiPanelTakesTheMouseFirst) {
@@ -540,8 +573,9 @@ TEST(Viewer, InputImGuiPanelTakesTheMouseFirst) {
   // The panel's title bar is at y 8..27 (13 px font) from x 8 to 338. Click it, drag it by
   // (100, 40), wheel over the panel: none of that may pick or move the camera. Then a click on
   // the image must pick (so the clicks above would have, had ImGui not taken them).
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven, "cornell.gltf",
-                                "click 150 16\ndrag 1 150 16 250 56\nmv 200 150\nwheel 3 4\nclick 560 400");
+  const Driven d =
+      drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven, "cornell.gltf",
+                   "click 150 16\ndrag 1 150 16 250 56\nmv 200 150\nwheel 3 4\nclick 560 400");
   ASSERT_DRIVEN_OK(d);
   const auto& st = d.stats["state"];
   const Camera a = json_camera(st["start_camera"]), b = json_camera(st["camera"]);
@@ -549,8 +583,10 @@ TEST(Viewer, InputImGuiPanelTakesTheMouseFirst) {
   EXPECT_EQ(a.target, b.target) << "input on the panel moved the camera";
   const auto& panel = d.stats["display"]["panel"];
   ASSERT_TRUE(panel.is_object());
-  EXPECT_NEAR(panel["x"].get<float>(), 108.0f, 1.0f) << "the drag did not reach ImGui (panel not moved)";
-  EXPECT_NEAR(panel["y"].get<float>(), 48.0f, 1.0f) << "the drag did not reach ImGui (panel not moved)";
+  EXPECT_NEAR(panel["x"].get<float>(), 108.0f, 1.0f)
+      << "the drag did not reach ImGui (panel not moved)";
+  EXPECT_NEAR(panel["y"].get<float>(), 48.0f, 1.0f)
+      << "the drag did not reach ImGui (panel not moved)";
   ASSERT_TRUE(st["pick"].is_object()) << "the click on the image did not pick";
   EXPECT_EQ(st["pick"]["x"], 560);
   EXPECT_EQ(st["pick"]["y"], 400);
@@ -563,8 +599,10 @@ TEST(Viewer, IdleWindowSleepsButStillShowsEveryPass) {
   // Three seconds with nothing to do after four passes: a loop drawing at 60 Hz would draw
   // about 180 frames; an idle one sleeps on its event queue (waking every 0.25 s at most)
   // and is woken by each finished pass, which it must still show.
-  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 320 --height 240 --threads 1 "
-                                      "--hold 3 --min-samples 4 --max-samples 4 --stats-json stats.json");
+  const RunResult r =
+      run_viewer(dir, "'" + kDefaultScene +
+                          "' --accel bvh --width 320 --height 240 --threads 1 "
+                          "--hold 3 --min-samples 4 --max-samples 4 --stats-json stats.json");
   ASSERT_EQ(r.code, 0) << r.output;
   const auto stats = read_json(dir + "/stats.json");
   ASSERT_TRUE(stats.is_object()) << r.output;
@@ -593,7 +631,8 @@ TEST(Viewer, DropLoadsTheDroppedScene) {
   const std::string base = "'" + kDefaultScene + "' --accel bvh" + kSmall + "--hide-ui ";
   const RunResult before = run_viewer(dir, base + "--screenshot before.png");
   ASSERT_EQ(before.code, 0) << before.output;
-  const RunResult r = run_viewer(dir, base + "--drop '" + tetra + "' --screenshot after.png --stats-json stats.json");
+  const RunResult r = run_viewer(
+      dir, base + "--drop '" + tetra + "' --screenshot after.png --stats-json stats.json");
   ASSERT_EQ(r.code, 0) << r.output;
   const auto stats = read_json(dir + "/stats.json");
   ASSERT_TRUE(stats.is_object()) << r.output;
@@ -621,12 +660,15 @@ TEST(Viewer, DroppedBadFileShowsAnErrorAndKeepsTheScene) {
   KDGRID_REQUIRE_DEFAULT_SCENE();
   const std::string dir = scratch_dir();
   const std::string bad = dir + "/bad.ply";
-  std::ofstream(bad) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\nnot a number\n";
+  std::ofstream(bad)
+      << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\nnot a number\n";
   // With the panels, 640 wide so they fit.
-  const std::string base = "'" + kDefaultScene + "' --accel bvh --width 640 --height 480 --frames 3 --max-samples 1 ";
+  const std::string base =
+      "'" + kDefaultScene + "' --accel bvh --width 640 --height 480 --frames 3 --max-samples 1 ";
   const RunResult ok = run_viewer(dir, base + "--screenshot ok.png");
   ASSERT_EQ(ok.code, 0) << ok.output;
-  const RunResult r = run_viewer(dir, base + "--drop '" + bad + "' --screenshot shot.png --stats-json stats.json");
+  const RunResult r =
+      run_viewer(dir, base + "--drop '" + bad + "' --screenshot shot.png --stats-json stats.json");
   // A scripted run reports the failed load with exit code 1, after writing its outputs.
   EXPECT_EQ(r.code, 1) << r.output;
   EXPECT_NE(r.output.find("bad.ply"), std::string::npos) << r.output;
@@ -643,9 +685,12 @@ TEST(Viewer, DroppedBadFileShowsAnErrorAndKeepsTheScene) {
 }
 
 /// Makes GLFW report a content scale of 2 on this virtual display (Xft.dpi 192 = 2 x 96).
-const std::string kHiDpiSetup = "echo 'Xft.dpi: 192' | xrdb -nocpp -merge || echo 'driver: xrdb failed'";
+const std::string kHiDpiSetup =
+    "echo 'Xft.dpi: 192' | xrdb -nocpp -merge || echo 'driver: xrdb failed'";
 
-bool have_xrdb() { return std::system("command -v xrdb >/dev/null 2>&1") == 0; }
+bool have_xrdb() {
+  return std::system("command -v xrdb >/dev/null 2>&1") == 0;
+}
 
 TEST(Viewer, HiDpiContentScaleScalesTheUiAndPicksTheRightPixel) {
   KDGRID_REQUIRE_INPUT_TEST();
@@ -653,7 +698,8 @@ TEST(Viewer, HiDpiContentScaleScalesTheUiAndPicksTheRightPixel) {
   const std::string dir = scratch_dir();
   // 400x300 screen units at scale 2: an 800x600 window; half resolution renders 400x300, so
   // a click at window (700, 500) is image pixel (350, 250).
-  const std::string args = "'" + kDefaultScene + "' --accel bvh --width 400 --height 300 --threads 1 "
+  const std::string args = "'" + kDefaultScene +
+                           "' --accel bvh --width 400 --height 300 --threads 1 "
                            "--max-samples 1 --hold 90 --resolution-scale 0.5 --screenshot shot.png";
   const Driven hi = drive_viewer(dir, args, "cornell.gltf", "click 700 500", kHiDpiSetup);
   ASSERT_DRIVEN_OK(hi);
@@ -679,7 +725,8 @@ TEST(Viewer, HiDpiContentScaleScalesTheUiAndPicksTheRightPixel) {
   ASSERT_DRIVEN_OK(lo);
   EXPECT_EQ(lo.stats["display"]["content_scale"][0], 1.0f);
   EXPECT_EQ(lo.stats["display"]["window"][0], 400);
-  EXPECT_NEAR(disp["panel"]["w"].get<float>() / lo.stats["display"]["panel"]["w"].get<float>(), 2.0f, 0.02f);
+  EXPECT_NEAR(disp["panel"]["w"].get<float>() / lo.stats["display"]["panel"]["w"].get<float>(),
+              2.0f, 0.02f);
   EXPECT_EQ(lo.stats["state"]["pick"]["x"], 175);
 }
 
@@ -689,8 +736,11 @@ TEST(Viewer, HiDpiRemembersTheWindowSizeInScreenUnits) {
   const std::string dir = scratch_dir();
   // An interactive run (no --hold): it remembers its window size when closed. At scale 2 the
   // 400x300 window is 800x600 pixels; remembering 800 would double it at every start.
-  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 400 --height 300 --threads 1 "
-                                "--max-samples 1", "cornell.gltf", "mv 300 200", kHiDpiSetup);
+  const Driven d = drive_viewer(dir,
+                                "'" + kDefaultScene +
+                                    "' --accel bvh --width 400 --height 300 --threads 1 "
+                                    "--max-samples 1",
+                                "cornell.gltf", "mv 300 200", kHiDpiSetup);
   ASSERT_EQ(d.run.code, 0) << d.run.output << d.viewer_log;
   ASSERT_TRUE(d.stats.is_object()) << d.run.output << d.viewer_log;
   EXPECT_EQ(d.stats["display"]["window"][0], 800);
@@ -749,9 +799,11 @@ FlyResult read_fly(const std::string& path) {
   r.grabs = int(j.size());
   std::vector<double> changes;
   for (const auto& g : j)
-    if (g["changed"].is_number() && g["changed"].get<int>() > 0) changes.push_back(g["t"].get<double>());
+    if (g["changed"].is_number() && g["changed"].get<int>() > 0)
+      changes.push_back(g["t"].get<double>());
   if (!changes.empty()) r.first_change = changes.front();
-  for (size_t i = 1; i < changes.size(); ++i) r.longest_gap = std::max(r.longest_gap, changes[i] - changes[i - 1]);
+  for (size_t i = 1; i < changes.size(); ++i)
+    r.longest_gap = std::max(r.longest_gap, changes[i] - changes[i - 1]);
   std::vector<double> gaps;
   for (size_t i = 1; i < changes.size(); ++i) gaps.push_back(changes[i] - changes[i - 1]);
   if (!j.empty()) {
@@ -763,9 +815,9 @@ FlyResult read_fly(const std::string& path) {
     std::sort(gaps.begin(), gaps.end());
     r.median_gap = gaps[gaps.size() / 2];
   }
-  r.text = std::to_string(r.grabs) + " grabs, " + std::to_string(changes.size()) + " changed, first change " +
-           std::to_string(r.first_change) + " s, median gap " + std::to_string(r.median_gap) + " s, longest gap " +
-           std::to_string(r.longest_gap) + " s";
+  r.text = std::to_string(r.grabs) + " grabs, " + std::to_string(changes.size()) +
+           " changed, first change " + std::to_string(r.first_change) + " s, median gap " +
+           std::to_string(r.median_gap) + " s, longest gap " + std::to_string(r.longest_gap) + " s";
   return r;
 }
 
@@ -775,13 +827,14 @@ FlyResult read_fly(const std::string& path) {
 /// 1 s: on a machine busy with other work (load 15 on 2 cores) Xvfb itself sometimes shows
 /// nothing new for 0.6 s while the viewer's records show a picture every 40-80 ms. A viewer
 /// that restarts the preview at every frame shows no change at all until the key is released.
-nlohmann::json expect_live_flight(const std::string& scene, const std::string& title, const std::string& extra,
-                                  const std::string& before = "sleep 1") {
+nlohmann::json expect_live_flight(const std::string& scene, const std::string& title,
+                                  const std::string& extra, const std::string& before = "sleep 1") {
   const std::string dir = scratch_dir();
   std::ofstream(dir + "/fly.py") << kFlyScript;
-  const Driven d = drive_viewer(dir, "'" + scene + "' --width 800 --height 450 --hide-ui --max-samples 4 --hold 90 " + extra,
-                                title, before + "\n/usr/bin/python3 fly.py 2 fly", "",
-                                "800x450");  // the window fills the screen: grabs take ~10 ms
+  const Driven d = drive_viewer(
+      dir, "'" + scene + "' --width 800 --height 450 --hide-ui --max-samples 4 --hold 90 " + extra,
+      title, before + "\n/usr/bin/python3 fly.py 2 fly", "",
+      "800x450");  // the window fills the screen: grabs take ~10 ms
   EXPECT_EQ(d.run.code, 0) << d.run.output << d.viewer_log;
   if (!d.stats.is_object()) {
     ADD_FAILURE() << "no stats.json\n" << d.run.output << d.viewer_log;
@@ -793,17 +846,19 @@ nlohmann::json expect_live_flight(const std::string& scene, const std::string& t
   EXPECT_GE(f.first_change, 0.0) << "the picture never changed while W was held: " << f.text;
   EXPECT_LE(f.first_change, 0.5) << f.text;
   EXPECT_LE(f.median_gap, 0.2) << f.text;
-  EXPECT_LE(f.longest_gap, 1.0) << "the picture froze while W was held: " << f.text << "\n" << d.viewer_log;
+  EXPECT_LE(f.longest_gap, 1.0) << "the picture froze while W was held: " << f.text << "\n"
+                                << d.viewer_log;
   int previews = 0;
   for (const auto& p : d.stats["passes"]) previews += p["preview"].get<bool>();
   EXPECT_GE(previews, 8) << "fewer than 8 preview pictures in 2 s of flight";
   return d.stats;
 }
 
-#define KDGRID_REQUIRE_FLY_TEST()                                                               \
-  KDGRID_REQUIRE_XVFB();                                                                        \
-  KDGRID_REQUIRE_XDOTOOL();                                                                     \
-  if (!have_screen_grab()) GTEST_SKIP() << "/usr/bin/python3 with PIL (Debian python3-pil) is needed to grab the screen"
+#define KDGRID_REQUIRE_FLY_TEST() \
+  KDGRID_REQUIRE_XVFB();          \
+  KDGRID_REQUIRE_XDOTOOL();       \
+  if (!have_screen_grab())        \
+  GTEST_SKIP() << "/usr/bin/python3 with PIL (Debian python3-pil) is needed to grab the screen"
 
 TEST(Viewer, LiveFlightOnTheBunnyChangesThePictureEvery200ms) {
   KDGRID_REQUIRE_FLY_TEST();
@@ -822,13 +877,16 @@ TEST(Viewer, LiveFlightDuringARebuildFollowsTheCameraOnTheOldStructure) {
   // The smaller dragon (the full one is measured in docs/VIEWER.md): a hybrid rebuild with a
   // fine cell runs for several seconds while W is held.
   KDGRID_REQUIRE_SCENE(dragon, "dragon/dragon_vrip_res2.ply");
-  const auto stats = expect_live_flight(dragon, "dragon_vrip_res2.ply", "--accel hybrid --hybrid-max-build-seconds 0 --rebuild-cell-size 0.0004");
+  const auto stats =
+      expect_live_flight(dragon, "dragon_vrip_res2.ply",
+                         "--accel hybrid --hybrid-max-build-seconds 0 --rebuild-cell-size 0.0004");
   ASSERT_TRUE(stats.is_object());
   // The flight (1 to 3 s after the window showed the scene) happened during the rebuild:
   // Ctrl+Q cancelled it, or it ran past then.
   ASSERT_EQ(stats["builds"].size(), 2u);
   const auto& rebuild = stats["builds"][1];
-  EXPECT_TRUE(rebuild.value("error", "") == "cancelled" || rebuild["wall_seconds"].get<double>() > 3.5)
+  EXPECT_TRUE(rebuild.value("error", "") == "cancelled" ||
+              rebuild["wall_seconds"].get<double>() > 3.5)
       << rebuild.dump();
 }
 
@@ -836,16 +894,21 @@ TEST(Viewer, EscCancelsARunningBuildAndTheOldStructureStays) {
   KDGRID_REQUIRE_INPUT_TEST();
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
-  // A 6e-5 cell on the bunny (with the build-time limit off) builds for tens of seconds; Esc 2 s in.
-  const Driven d = drive_viewer(dir, "'" + bunny + "' --accel hybrid --width 640 --height 480 --max-samples 1 "
-                                "--hold 90 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5 --screenshot shot.png",
-                                "bun_zipper.ply", "sleep 2\nkey Escape\nsleep 1");
+  // A 6e-5 cell on the bunny (with the build-time limit off) builds for tens of seconds; Esc 2 s
+  // in.
+  const Driven d = drive_viewer(
+      dir,
+      "'" + bunny +
+          "' --accel hybrid --width 640 --height 480 --max-samples 1 "
+          "--hold 90 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5 --screenshot shot.png",
+      "bun_zipper.ply", "sleep 2\nkey Escape\nsleep 1");
   ASSERT_DRIVEN_OK(d);
   const auto& builds = d.stats["builds"];
   ASSERT_EQ(builds.size(), 2u) << d.viewer_log;
   EXPECT_EQ(builds[1]["error"], "cancelled") << d.viewer_log;
   ASSERT_TRUE(builds[1]["cancel_seconds"].is_number()) << d.viewer_log;
-  EXPECT_LT(builds[1]["cancel_seconds"].get<double>(), 1.0) << "the build took that long to stop after Esc";
+  EXPECT_LT(builds[1]["cancel_seconds"].get<double>(), 1.0)
+      << "the build took that long to stop after Esc";
   EXPECT_LT(builds[1]["wall_seconds"].get<double>(), 10.0);
   // The old structure (auto cell size) is what the viewer shows and renders.
   EXPECT_EQ(d.stats["state"]["accel"], "hybrid");
@@ -863,15 +926,19 @@ TEST(Viewer, ANewCellSizeRequestCancelsTheRunningBuildAndBuildsTheNewSize) {
   // machine and longer on a busy one; 2 s into it a 0.003 cell is requested through the panel's
   // cell-size path (about 1 s to build). The newer request stops the running build within a
   // second, and the 0.003 structure is what remains.
-  const RunResult r = run_viewer(dir, "'" + bunny + "' --accel hybrid --width 640 --height 480 --max-samples 1 "
-                                      "--frames 3 --timeout 120 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5 "
-                                      "--supersede-cell-size 0.003 --supersede-after 2 --stats-json stats.json");
+  const RunResult r = run_viewer(
+      dir, "'" + bunny +
+               "' --accel hybrid --width 640 --height 480 --max-samples 1 "
+               "--frames 3 --timeout 120 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5 "
+               "--supersede-cell-size 0.003 --supersede-after 2 --stats-json stats.json");
   ASSERT_EQ(r.code, 0) << r.output;
   const auto st = read_json(dir + "/stats.json");
   ASSERT_TRUE(st.is_object()) << r.output;
   const auto& builds = st["builds"];
-  ASSERT_EQ(builds.size(), 3u) << "load, the 6e-5 rebuild, the 0.003 rebuild: " << builds.dump() << r.output;
-  EXPECT_EQ(builds[1].value("error", ""), "cancelled") << "the running build was not superseded: " << builds[1].dump();
+  ASSERT_EQ(builds.size(), 3u) << "load, the 6e-5 rebuild, the 0.003 rebuild: " << builds.dump()
+                               << r.output;
+  EXPECT_EQ(builds[1].value("error", ""), "cancelled")
+      << "the running build was not superseded: " << builds[1].dump();
   ASSERT_TRUE(builds[1]["cancel_seconds"].is_number()) << builds[1].dump();
   EXPECT_LT(builds[1]["cancel_seconds"].get<double>(), 1.0) << "the build took that long to stop";
   EXPECT_FALSE(builds[2].contains("error")) << builds[2].dump();
@@ -889,35 +956,44 @@ TEST(Viewer, CtrlQDuringTheFirstBuildExitsWithinASecond) {
   const std::string dir = scratch_dir();
   const std::string driver = dir + "/driver.sh";
   // An interactive run (no --hold), as a person starts it; Ctrl+Q 3 s into the build.
-  std::ofstream(driver) << "#!/bin/bash\ncd '" << dir << "'\n'" << KDGRID_VIEWER_PATH << "' '" << bunny
-                        << "' --accel hybrid --cell-size 6e-5 --hybrid-max-build-seconds 0 --width 640 --height 480 > viewer.log 2>&1 &\n"
-                        << "pid=$!\n"
-                        << "wid=$(timeout 60 xdotool search --sync --name '^kdgrid-viewer$' | head -1)\n"
-                        << "xdotool windowfocus --sync \"$wid\"; sleep 3\n"
-                        << "t0=$(date +%s%N); xdotool key --clearmodifiers ctrl+q\n"
-                        << "for i in $(seq 1 300); do kill -0 $pid 2>/dev/null || break; sleep 0.01; done\n"
-                        << "t1=$(date +%s%N); kill -0 $pid 2>/dev/null && { echo 'driver: still running'; kill $pid; }\n"
-                        << "wait $pid; echo \"driver: rc $? exit_ms $(( (t1 - t0) / 1000000 ))\"\n";
-  const RunResult r = run_command("cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
-                                  "' LIBGL_ALWAYS_SOFTWARE=1 timeout -k 10 120 xvfb-run -a -s '-screen 0 1280x1024x24' "
-                                  "bash '" + driver + "'");
+  std::ofstream(driver)
+      << "#!/bin/bash\ncd '" << dir << "'\n'" << KDGRID_VIEWER_PATH << "' '" << bunny
+      << "' --accel hybrid --cell-size 6e-5 --hybrid-max-build-seconds 0 --width 640 --height 480 "
+         "> viewer.log 2>&1 &\n"
+      << "pid=$!\n"
+      << "wid=$(timeout 60 xdotool search --sync --name '^kdgrid-viewer$' | head -1)\n"
+      << "xdotool windowfocus --sync \"$wid\"; sleep 3\n"
+      << "t0=$(date +%s%N); xdotool key --clearmodifiers ctrl+q\n"
+      << "for i in $(seq 1 300); do kill -0 $pid 2>/dev/null || break; sleep 0.01; done\n"
+      << "t1=$(date +%s%N); kill -0 $pid 2>/dev/null && { echo 'driver: still running'; kill $pid; "
+         "}\n"
+      << "wait $pid; echo \"driver: rc $? exit_ms $(( (t1 - t0) / 1000000 ))\"\n";
+  const RunResult r = run_command(
+      "cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
+      "' LIBGL_ALWAYS_SOFTWARE=1 timeout -k 10 120 xvfb-run -a -s '-screen 0 1280x1024x24' "
+      "bash '" +
+      driver + "'");
   const size_t at = r.output.find("driver: rc ");
   ASSERT_NE(at, std::string::npos) << r.output;
   int rc = -1, ms = -1;
-  ASSERT_EQ(std::sscanf(r.output.c_str() + at, "driver: rc %d exit_ms %d", &rc, &ms), 2) << r.output;
+  ASSERT_EQ(std::sscanf(r.output.c_str() + at, "driver: rc %d exit_ms %d", &rc, &ms), 2)
+      << r.output;
   EXPECT_EQ(rc, 0) << r.output;
-  EXPECT_LT(ms, 1000) << "Ctrl+Q took " << ms << " ms to end the viewer during a build\n" << r.output;
+  EXPECT_LT(ms, 1000) << "Ctrl+Q took " << ms << " ms to end the viewer during a build\n"
+                      << r.output;
 }
 
 // ---- cell sizes: remembered per scene, built size shown, estimate and refusal --------------
 
 /// An interactive run (it reads and writes the remembered settings) of the bunny with the hybrid
 /// and `settings` as viewer.json; returns its statistics.
-Driven run_with_settings(const std::string& dir, const std::string& scene, const nlohmann::json& settings) {
+Driven run_with_settings(const std::string& dir, const std::string& scene,
+                         const nlohmann::json& settings) {
   fs::create_directories(dir + "/kdgrid");
   std::ofstream(dir + "/kdgrid/viewer.json") << settings.dump(2);
-  return drive_viewer(dir, "'" + scene + "' --accel hybrid --width 640 --height 480 --threads 2 --max-samples 1",
-                      fs::path(scene).filename().string(), "sleep 1");
+  return drive_viewer(
+      dir, "'" + scene + "' --accel hybrid --width 640 --height 480 --threads 2 --max-samples 1",
+      fs::path(scene).filename().string(), "sleep 1");
 }
 
 TEST(Viewer, CellSizeInSceneUnitsIsRememberedPerSceneOnly) {
@@ -925,12 +1001,14 @@ TEST(Viewer, CellSizeInSceneUnitsIsRememberedPerSceneOnly) {
   KDGRID_REQUIRE_XDOTOOL();
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
-  const std::string dragon = shared_scene("dragon/dragon_vrip.ply").empty() ? "/elsewhere/dragon_vrip.ply"
-                                                                             : shared_scene("dragon/dragon_vrip.ply");
+  const std::string dragon = shared_scene("dragon/dragon_vrip.ply").empty()
+                                 ? "/elsewhere/dragon_vrip.ply"
+                                 : shared_scene("dragon/dragon_vrip.ply");
   // 0.0008 remembered for the dragon, and as a bare number (an older file): the bunny builds
   // its own auto size (0.00178), and the dragon's size stays remembered for the dragon.
-  Driven d = run_with_settings(dir, bunny, {{"accel", "hybrid"}, {"cell_size", "0.0008"},
-                                            {"cell_size_by_scene", {{dragon, "0.0008"}}}});
+  Driven d = run_with_settings(
+      dir, bunny,
+      {{"accel", "hybrid"}, {"cell_size", "0.0008"}, {"cell_size_by_scene", {{dragon, "0.0008"}}}});
   ASSERT_DRIVEN_OK(d);
   const auto& st = d.stats["state"];
   ASSERT_TRUE(st.contains("built_cell_size")) << st.dump();
@@ -950,7 +1028,8 @@ TEST(Viewer, CellSizeInSceneUnitsIsRememberedPerSceneOnly) {
   EXPECT_EQ(d.stats["state"]["cell_choice"], "2x");
   EXPECT_NEAR(d.stats["state"]["built_cell_size"].get<double>(), 2.0 * auto_cell, 1e-6);
   // A size in scene units remembered for this scene is this scene's.
-  d = run_with_settings(dir, bunny, {{"cell_size_by_scene", {{fs::canonical(bunny).string(), "0.004"}}}});
+  d = run_with_settings(dir, bunny,
+                        {{"cell_size_by_scene", {{fs::canonical(bunny).string(), "0.004"}}}});
   ASSERT_DRIVEN_OK(d);
   EXPECT_NEAR(d.stats["state"]["built_cell_size"].get<double>(), 0.004, 1e-7);
   EXPECT_NEAR(d.stats["state"]["cell_size_shown"].get<double>(), 0.004, 1e-7);
@@ -958,9 +1037,10 @@ TEST(Viewer, CellSizeInSceneUnitsIsRememberedPerSceneOnly) {
 
 /// Two scripted screenshots of the bunny (UI hidden, one sample, two threads) that differ by
 /// `a` and `b`, written as a.png and b.png in `dir`; asserts that both runs succeed.
-void two_bunny_shots(const std::string& dir, const std::string& bunny, const std::string& size, const std::string& a,
-                     const std::string& b, ImageRGB& img_a, ImageRGB& img_b) {
-  const std::string common = "'" + bunny + "' --width " + size + " --frames 3 --min-samples 1 --max-samples 1 "
+void two_bunny_shots(const std::string& dir, const std::string& bunny, const std::string& size,
+                     const std::string& a, const std::string& b, ImageRGB& img_a, ImageRGB& img_b) {
+  const std::string common = "'" + bunny + "' --width " + size +
+                             " --frames 3 --min-samples 1 --max-samples 1 "
                              "--hide-ui --threads 2 --timeout 120 ";
   const RunResult ra = run_viewer(dir, common + a + " --screenshot a.png");
   ASSERT_EQ(ra.code, 0) << ra.output;
@@ -976,8 +1056,8 @@ TEST(Viewer, CellLargerThanTheSceneRendersAsTheKdTreeDoes) {
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
   ImageRGB a, b;
-  two_bunny_shots(dir, bunny, "320 --height 240", "--accel hybrid --cell-size 1e9 --stats-json one.json",
-                  "--accel kdtree", a, b);
+  two_bunny_shots(dir, bunny, "320 --height 240",
+                  "--accel hybrid --cell-size 1e9 --stats-json one.json", "--accel kdtree", a, b);
   if (HasFatalFailure()) return;
   const auto st = read_json(dir + "/one.json");
   ASSERT_TRUE(st.is_object());
@@ -992,8 +1072,10 @@ TEST(Viewer, TooSmallCellSizeIsRefusedWithASizeThatBuilds) {
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
   // The build is refused at once (no 300 s build), with the estimate and a size that fits.
-  const RunResult r = run_viewer(dir, "'" + bunny + "' --accel hybrid --cell-size 1e-8 --width 320 --height 240 "
-                                      "--frames 3 --threads 2 --timeout 60 --screenshot e.png");
+  const RunResult r =
+      run_viewer(dir, "'" + bunny +
+                          "' --accel hybrid --cell-size 1e-8 --width 320 --height 240 "
+                          "--frames 3 --threads 2 --timeout 60 --screenshot e.png");
   EXPECT_NE(r.output.find("use a cell size of at least"), std::string::npos) << r.output;
   EXPECT_NE(r.output.find("cells"), std::string::npos) << r.output;
 }
@@ -1005,18 +1087,22 @@ TEST(Viewer, StatsJsonStaysValidWhenAnErrorQuotesInvalidUtf8) {
   // Bytes that are not UTF-8 in the file's name (quoted as they are by every error that names
   // the file) and in its body (quoted by the loader, which escapes them as \xFF).
   const std::string bad = dir + "/garbage\xff\xfe.ply";
-  std::ofstream(bad, std::ios::binary) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
-                                          "property float y\nproperty float z\nelement face 1\n"
-                                          "property list uchar int vertex_indices\nend_header\n"
-                                       << "\xff\xfe\xc3\x28 \xa0\xa1\n";
-  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 320 --height 240 --frames 3 "
-                                      "--max-samples 1 --drop '" + bad + "' --stats-json stats.json");
+  std::ofstream(bad, std::ios::binary)
+      << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+         "property float y\nproperty float z\nelement face 1\n"
+         "property list uchar int vertex_indices\nend_header\n"
+      << "\xff\xfe\xc3\x28 \xa0\xa1\n";
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene +
+                                          "' --accel bvh --width 320 --height 240 --frames 3 "
+                                          "--max-samples 1 --drop '" +
+                                          bad + "' --stats-json stats.json");
   EXPECT_EQ(r.code, 1) << r.output;
   const auto stats = read_json(dir + "/stats.json");
   ASSERT_TRUE(stats.is_object()) << "stats.json is not valid JSON: " << r.output;
   const std::string error = stats["state"]["error"].get<std::string>();
   EXPECT_NE(error.find("garbage"), std::string::npos) << error;
-  EXPECT_TRUE(error.find("\xef\xbf\xbd") != std::string::npos || error.find("\\xFF") != std::string::npos)
+  EXPECT_TRUE(error.find("\xef\xbf\xbd") != std::string::npos ||
+              error.find("\\xFF") != std::string::npos)
       << "the quoted bytes, replaced by U+FFFD or escaped: " << error;
 }
 
@@ -1025,7 +1111,8 @@ TEST(Viewer, SplitOverlayAtItsDefaultDepthsLeavesTheModelVisible) {
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
   ImageRGB a, b;
-  two_bunny_shots(dir, bunny, "480 --height 360", "--accel hybrid", "--accel hybrid --overlay splits", a, b);
+  two_bunny_shots(dir, bunny, "480 --height 360", "--accel hybrid",
+                  "--accel hybrid --overlay splits", a, b);
   if (HasFatalFailure()) return;
   // Of the model's pixels (lit in the plain shot), most are still the model's under the
   // default split depths (0-6); with all 64 levels almost none were.
@@ -1038,15 +1125,16 @@ TEST(Viewer, SplitOverlayAtItsDefaultDepthsLeavesTheModelVisible) {
       kept += changed_pixels_near(a, b, x, y, 0) == 0;
     }
   ASSERT_GT(model, 1000) << "no model in the plain shot";
-  EXPECT_GT(kept, model * 6 / 10) << kept << " of " << model << " model pixels unchanged by the split overlay";
+  EXPECT_GT(kept, model * 6 / 10) << kept << " of " << model
+                                  << " model pixels unchanged by the split overlay";
   EXPECT_LT(kept, model) << "the overlay drew nothing over the model";
 }
 
 TEST(Viewer, InputF1ShowsTheKeyListAndHHidesThePanels) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
-  Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--screenshot keys.png", "cornell.gltf",
-                          "mv 500 400; key F1");
+  Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--screenshot keys.png",
+                          "cornell.gltf", "mv 500 400; key F1");
   ASSERT_DRIVEN_OK(d);
   EXPECT_EQ(d.stats["state"]["keys_shown"], true);
   EXPECT_EQ(d.stats["state"]["ui_hidden"], false);
@@ -1071,13 +1159,15 @@ double changed_fraction(const ImageRGB& a, const ImageRGB& b) {
 double changed_area_fraction(const ImageRGB& a, const ImageRGB& b) {
   std::vector<uint8_t> diff(size_t(a.width) * size_t(a.height));
   for (int y = 0; y < a.height; ++y)
-    for (int x = 0; x < a.width; ++x) diff[size_t(y) * size_t(a.width) + size_t(x)] = changed_pixels_near(a, b, x, y, 0) > 0;
+    for (int x = 0; x < a.width; ++x)
+      diff[size_t(y) * size_t(a.width) + size_t(x)] = changed_pixels_near(a, b, x, y, 0) > 0;
   size_t n = 0;
   for (int y = 2; y + 2 < a.height; ++y)
     for (int x = 2; x + 2 < a.width; ++x) {
       bool all = true;
       for (int dy = -2; dy <= 2 && all; ++dy)
-        for (int dx = -2; dx <= 2 && all; ++dx) all = diff[size_t(y + dy) * size_t(a.width) + size_t(x + dx)] != 0;
+        for (int dx = -2; dx <= 2 && all; ++dx)
+          all = diff[size_t(y + dy) * size_t(a.width) + size_t(x + dx)] != 0;
       n += all;
     }
   return double(n) / (double(a.width) * double(a.height));
@@ -1092,14 +1182,16 @@ struct PickCoverage {
   nlohmann::json framed_stats;
 };
 
-PickCoverage pick_coverage(const std::string& dir, const std::string& scene, const std::string& accel,
-                           const std::string& pick) {
+PickCoverage pick_coverage(const std::string& dir, const std::string& scene,
+                           const std::string& accel, const std::string& pick) {
   PickCoverage c;
-  const std::string base = "'" + scene + "' --accel " + accel +
-                           " --width 640 --height 360 --frames 3 --min-samples 1 --max-samples 1 --hide-ui "
-                           "--threads 2 --timeout 120 ";
+  const std::string base =
+      "'" + scene + "' --accel " + accel +
+      " --width 640 --height 360 --frames 3 --min-samples 1 --max-samples 1 --hide-ui "
+      "--threads 2 --timeout 120 ";
   const RunResult framed =
-      run_viewer(dir, base + "--pick " + pick + " --frame-pick --stats-json framed.json --screenshot framed.png");
+      run_viewer(dir, base + "--pick " + pick +
+                          " --frame-pick --stats-json framed.json --screenshot framed.png");
   EXPECT_EQ(framed.code, 0) << framed.output;
   c.framed_stats = read_json(dir + "/framed.json");
   if (!c.framed_stats.is_object()) {
@@ -1119,8 +1211,8 @@ PickCoverage pick_coverage(const std::string& dir, const std::string& scene, con
   c.unframed = changed_fraction(ua, ub);
   c.framed_area = changed_area_fraction(fa, fb);
   c.unframed_area = changed_area_fraction(ua, ub);
-  std::printf("pick overlay: framed %.4f of the image (areas %.4f), unframed %.4f (areas %.4f)\n", c.framed,
-              c.framed_area, c.unframed, c.unframed_area);
+  std::printf("pick overlay: framed %.4f of the image (areas %.4f), unframed %.4f (areas %.4f)\n",
+              c.framed, c.framed_area, c.unframed, c.unframed_area);
   return c;
 }
 
@@ -1137,12 +1229,15 @@ TEST(Viewer, FramePickFillsTheViewWithTheBunnysVisitedLeaves) {
   // the scene's own camera they are specks, and the overlay there is mostly the inner nodes'
   // thin frames.
   EXPECT_GE(c.framed_area, 0.10) << "framed leaves cover " << c.framed_area << " of the image";
-  EXPECT_LT(c.unframed_area, 0.01) << "unframed leaves cover " << c.unframed_area << " of the image";
+  EXPECT_LT(c.unframed_area, 0.01)
+      << "unframed leaves cover " << c.unframed_area << " of the image";
   EXPECT_GT(c.framed, 2 * c.unframed) << "framed " << c.framed << ", unframed " << c.unframed;
   // The camera kept its view direction.
-  const Camera a = json_camera(c.framed_stats["state"]["start_camera"]), b = json_camera(c.framed_stats["state"]["camera"]);
+  const Camera a = json_camera(c.framed_stats["state"]["start_camera"]),
+               b = json_camera(c.framed_stats["state"]["camera"]);
   EXPECT_GT(dot(normalize(a.target - a.eye), normalize(b.target - b.eye)), 0.9999f);
-  EXPECT_LT(length(b.target - b.eye), 0.5f * length(a.target - a.eye)) << "the camera did not move closer";
+  EXPECT_LT(length(b.target - b.eye), 0.5f * length(a.target - a.eye))
+      << "the camera did not move closer";
 }
 
 TEST(Viewer, FramePickFillsTheViewOnTheDefaultScene) {
@@ -1155,7 +1250,8 @@ TEST(Viewer, FramePickFillsTheViewOnTheDefaultScene) {
   EXPECT_EQ(c.framed_stats["state"]["pick"]["framed"], true);
   EXPECT_EQ(c.framed_stats["state"]["pick"]["hit"], true);
   EXPECT_GE(c.framed_area, 0.10) << "framed leaves cover " << c.framed_area << " of the image";
-  EXPECT_GT(c.framed_area, 5 * c.unframed_area) << "framed " << c.framed_area << ", unframed " << c.unframed_area;
+  EXPECT_GT(c.framed_area, 5 * c.unframed_area)
+      << "framed " << c.framed_area << ", unframed " << c.unframed_area;
 }
 
 /// Pixels that differ between a and b outside the rectangle `panel` ({x, y, w, h} of
@@ -1164,8 +1260,10 @@ int changed_outside(const ImageRGB& a, const ImageRGB& b, const nlohmann::json& 
   int n = 0;
   for (int y = 0; y < a.height; ++y)
     for (int x = 0; x < a.width; ++x) {
-      if (panel.is_object() && x >= panel["x"].get<float>() - 1 && x <= panel["x"].get<float>() + panel["w"].get<float>() + 1 &&
-          y >= panel["y"].get<float>() - 1 && y <= panel["y"].get<float>() + panel["h"].get<float>() + 1)
+      if (panel.is_object() && x >= panel["x"].get<float>() - 1 &&
+          x <= panel["x"].get<float>() + panel["w"].get<float>() + 1 &&
+          y >= panel["y"].get<float>() - 1 &&
+          y <= panel["y"].get<float>() + panel["h"].get<float>() + 1)
         continue;
       n += changed_pixels_near(a, b, x, y, 0);
     }
@@ -1183,29 +1281,37 @@ TEST(Viewer, SplitsOfThePickedRayDrawFarFewerPlanesWithAVisitOrderLegend) {
   KDGRID_REQUIRE_XVFB();
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
-  const std::string base = "'" + bunny + "' --accel kdtree --width 640 --height 360 --frames 3 --min-samples 1 "
+  const std::string base = "'" + bunny +
+                           "' --accel kdtree --width 640 --height 360 --frames 3 --min-samples 1 "
                            "--max-samples 1 --threads 2 --timeout 120 --pick 320,180 ";
   const RunResult a = run_viewer(dir, base + "--hide-ui --screenshot a.png");
   ASSERT_EQ(a.code, 0) << a.output;
-  const RunResult all = run_viewer(dir, base + "--hide-ui --overlay splits --stats-json all.json --screenshot all.png");
+  const RunResult all = run_viewer(
+      dir, base + "--hide-ui --overlay splits --stats-json all.json --screenshot all.png");
   ASSERT_EQ(all.code, 0) << all.output;
-  const RunResult mine = run_viewer(dir, base + "--hide-ui --overlay splits --splits-of-pick --stats-json pick.json "
-                                                "--screenshot pick.png");
+  const RunResult mine =
+      run_viewer(dir, base +
+                          "--hide-ui --overlay splits --splits-of-pick --stats-json pick.json "
+                          "--screenshot pick.png");
   ASSERT_EQ(mine.code, 0) << mine.output;
   // Again with the panels, for the legends.
-  const RunResult ui = run_viewer(dir, base + "--overlay splits --splits-of-pick --stats-json ui.json");
+  const RunResult ui =
+      run_viewer(dir, base + "--overlay splits --splits-of-pick --stats-json ui.json");
   ASSERT_EQ(ui.code, 0) << ui.output;
-  const auto sa = read_json(dir + "/all.json"), sp = read_json(dir + "/pick.json"), su = read_json(dir + "/ui.json");
+  const auto sa = read_json(dir + "/all.json"), sp = read_json(dir + "/pick.json"),
+             su = read_json(dir + "/ui.json");
   ASSERT_TRUE(sa.is_object() && sp.is_object() && su.is_object());
   const ImageRGB img_a = read_image(dir + "/a.png");
   const int n_all = changed_outside(img_a, read_image(dir + "/all.png"), nullptr);
   const int n_pick = changed_outside(img_a, read_image(dir + "/pick.png"), nullptr);
-  const size_t planes_all = sa["state"]["overlay"]["items"], planes_pick = sp["state"]["overlay"]["items"];
+  const size_t planes_all = sa["state"]["overlay"]["items"],
+               planes_pick = sp["state"]["overlay"]["items"];
   EXPECT_EQ(sp["state"]["overlay"]["splits_of_pick"], true);
   EXPECT_GE(planes_pick, 1u) << "the picked ray crosses no split plane at depths 0-6";
   EXPECT_LT(planes_pick * 8, planes_all) << planes_pick << " of " << planes_all << " planes";
   EXPECT_GT(n_pick, 0) << "the crossed planes drew nothing";
-  EXPECT_LT(n_pick * 4, n_all) << n_pick << " pixels for the crossed planes, " << n_all << " for all";
+  EXPECT_LT(n_pick * 4, n_all) << n_pick << " pixels for the crossed planes, " << n_all
+                               << " for all";
   // The visit order's legend: first and last step numbers of the picked ray.
   const size_t steps = sp["state"]["pick"]["steps"];
   const std::string want = "visit order: step 0 .. " + std::to_string(steps - 1);
@@ -1220,9 +1326,11 @@ TEST(Viewer, PickStepTableShowsEveryValueWhole) {
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const std::string dir = scratch_dir();
   // The kd-tree's trace has dozens of steps with long coordinates in every column.
-  const RunResult r = run_viewer(dir, "'" + bunny + "' --accel kdtree --width 960 --height 540 --frames 3 "
-                                      "--min-samples 1 --max-samples 1 --threads 2 --timeout 120 --pick 480,270 "
-                                      "--stats-json stats.json --screenshot shot.png");
+  const RunResult r = run_viewer(
+      dir, "'" + bunny +
+               "' --accel kdtree --width 960 --height 540 --frames 3 "
+               "--min-samples 1 --max-samples 1 --threads 2 --timeout 120 --pick 480,270 "
+               "--stats-json stats.json --screenshot shot.png");
   ASSERT_EQ(r.code, 0) << r.output;
   const auto st = read_json(dir + "/stats.json");
   ASSERT_TRUE(st.is_object()) << r.output;
@@ -1240,9 +1348,11 @@ TEST(Viewer, PanelCoversAQuarterOfA1280x720WindowWithNoLabelCut) {
   const std::string dir = scratch_dir();
   // Every section open and populated: the hybrid's cell controls, a heat map, both overlays
   // with their depth sliders and legends, a pick.
-  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel hybrid --width 1280 --height 720 --frames 3 "
-                                      "--min-samples 1 --max-samples 1 --threads 2 --heatmap steps --overlay splits "
-                                      "--overlay boxes --pick 640,360 --stats-json stats.json --screenshot shot.png");
+  const RunResult r = run_viewer(
+      dir, "'" + kDefaultScene +
+               "' --accel hybrid --width 1280 --height 720 --frames 3 "
+               "--min-samples 1 --max-samples 1 --threads 2 --heatmap steps --overlay splits "
+               "--overlay boxes --pick 640,360 --stats-json stats.json --screenshot shot.png");
   ASSERT_EQ(r.code, 0) << r.output;
   const auto st = read_json(dir + "/stats.json");
   ASSERT_TRUE(st.is_object()) << r.output;
@@ -1260,22 +1370,28 @@ TEST(Viewer, StatusAreaKeepsTheWidgetsBelowItInPlace) {
   KDGRID_REQUIRE_DEFAULT_SCENE();
   const std::string dir = scratch_dir();
   const std::string bad = dir + "/bad.ply";
-  std::ofstream(bad) << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\nnot a number\n";
+  std::ofstream(bad)
+      << "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\nnot a number\n";
   // A rebuild (progress bar), then a dropped file that fails to load (an error message).
-  const RunResult r = run_viewer(dir, "'" + kDefaultScene + "' --accel bvh --width 1280 --height 720 --frames 3 "
-                                      "--max-samples 1 --rebuild-cell-size 0.5 --drop '" + bad + "' "
-                                      "--stats-json stats.json --screenshot shot.png");
+  const RunResult r = run_viewer(dir, "'" + kDefaultScene +
+                                          "' --accel bvh --width 1280 --height 720 --frames 3 "
+                                          "--max-samples 1 --rebuild-cell-size 0.5 --drop '" +
+                                          bad +
+                                          "' "
+                                          "--stats-json stats.json --screenshot shot.png");
   EXPECT_EQ(r.code, 1) << "the failed load is the scripted run's error\n" << r.output;
   const auto st = read_json(dir + "/stats.json");
   ASSERT_TRUE(st.is_object()) << r.output;
   const auto& by_state = st["ui"]["below_status_y_by_state"];
   std::vector<double> ys;
   for (const char* state : {"idle", "build", "error"}) {
-    ASSERT_TRUE(by_state.contains(state)) << "no frame drawn in state " << state << ": " << by_state.dump();
+    ASSERT_TRUE(by_state.contains(state))
+        << "no frame drawn in state " << state << ": " << by_state.dump();
     for (const auto& y : by_state[state]) ys.push_back(y.get<double>());
   }
   ASSERT_FALSE(ys.empty());
-  for (double y : ys) EXPECT_EQ(y, ys.front()) << "the widgets under the status area moved: " << by_state.dump();
+  for (double y : ys)
+    EXPECT_EQ(y, ys.front()) << "the widgets under the status area moved: " << by_state.dump();
   // Without a pick, and with the error shown: no label cut either.
   const std::string cut = clipped_list(st);
   EXPECT_TRUE(cut.empty()) << "cut labels:" << cut;
@@ -1284,7 +1400,8 @@ TEST(Viewer, StatusAreaKeepsTheWidgetsBelowItInPlace) {
 TEST(Viewer, InputPanelIsResizableAndCollapsible) {
   KDGRID_REQUIRE_INPUT_TEST();
   const std::string dir = scratch_dir();
-  const std::string args = "'" + kDefaultScene + "' --accel bvh --width 1280 --height 720 --threads 1 --max-samples 1 "
+  const std::string args = "'" + kDefaultScene +
+                           "' --accel bvh --width 1280 --height 720 --threads 1 --max-samples 1 "
                            "--hold 90";
   // The panel starts at (8, 8), 320 x 704: drag its bottom-right grip 120 right and 100 up.
   Driven d = drive_viewer(dir, args, "cornell.gltf", "drag 1 325 709 445 609");
@@ -1295,23 +1412,28 @@ TEST(Viewer, InputPanelIsResizableAndCollapsible) {
   // The title bar's arrow collapses it to the title bar.
   d = drive_viewer(dir, args, "cornell.gltf", "click 18 17");
   ASSERT_DRIVEN_OK(d);
-  EXPECT_LT(d.stats["display"]["panel"]["h"].get<double>(), 40.0) << d.stats["display"]["panel"].dump();
+  EXPECT_LT(d.stats["display"]["panel"]["h"].get<double>(), 40.0)
+      << d.stats["display"]["panel"].dump();
 }
 
-// ---- a start-up scene that fails to load ----------------------------------------------------------
+// ---- a start-up scene that fails to load
+// ----------------------------------------------------------
 
 /// Occurrences of `what` in `text`.
 int count_of(const std::string& text, const std::string& what) {
   int n = 0;
-  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + what.size())) ++n;
+  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + what.size()))
+    ++n;
   return n;
 }
 
 TEST(Viewer, MissingSceneKeepsTheWindowWithTheErrorShownAndPrintedOnce) {
   KDGRID_REQUIRE_XVFB();
   const std::string dir = scratch_dir();
-  const RunResult r = run_viewer(dir, "'" + dir + "/missing.ply' --accel bvh --width 640 --height 480 --frames 20 "
-                                      "--stats-json stats.json --screenshot shot.png");
+  const RunResult r =
+      run_viewer(dir, "'" + dir +
+                          "/missing.ply' --accel bvh --width 640 --height 480 --frames 20 "
+                          "--stats-json stats.json --screenshot shot.png");
   EXPECT_EQ(r.code, 1) << "the exit code says the load failed\n" << r.output;
   const auto st = read_json(dir + "/stats.json");
   ASSERT_TRUE(st.is_object()) << r.output;
@@ -1331,7 +1453,9 @@ TEST(Viewer, MissingSceneKeepsTheWindowWithTheErrorShownAndPrintedOnce) {
 int refusal_orange_pixels(const ImageRGB& img) {
   int n = 0;
   for (size_t i = 0; i + 2 < img.rgb.size(); i += 3)
-    if (img.rgb[i] > 0.8f && img.rgb[i + 1] > 0.2f && img.rgb[i + 1] < 0.45f && img.rgb[i + 2] < 0.06f) ++n;
+    if (img.rgb[i] > 0.8f && img.rgb[i + 1] > 0.2f && img.rgb[i + 1] < 0.45f &&
+        img.rgb[i + 2] < 0.06f)
+      ++n;
   return n;
 }
 
@@ -1340,9 +1464,11 @@ TEST(Viewer, BruteForceStopsAtItsWorkLimitAndSaysSoOnScreen) {
   KDGRID_REQUIRE_DEFAULT_SCENE();
   const std::string dir = scratch_dir();
   // 320 x 240 pixels x 2572 triangles = 1.98e8 tests per pass, above a limit of 1e6.
-  const std::string base = "'" + kDefaultScene + "' --accel brute --width 320 --height 240 --frames 3 --min-samples 1 "
+  const std::string base = "'" + kDefaultScene +
+                           "' --accel brute --width 320 --height 240 --frames 3 --min-samples 1 "
                            "--max-samples 1 --threads 2 --hide-ui --timeout 120 ";
-  const RunResult r = run_viewer(dir, base + "--brute-work-limit 1e6 --stats-json stats.json --screenshot stopped.png");
+  const RunResult r = run_viewer(
+      dir, base + "--brute-work-limit 1e6 --stats-json stats.json --screenshot stopped.png");
   EXPECT_EQ(r.code, 1) << r.output;
   const auto st = read_json(dir + "/stats.json");
   ASSERT_TRUE(st.is_object()) << r.output;
@@ -1367,7 +1493,8 @@ TEST(Viewer, BruteForceStopsAtItsWorkLimitAndSaysSoOnScreen) {
 #else
 
 TEST(Viewer, NotBuilt) {
-  GTEST_SKIP() << "kdgrid-viewer is not built (KDGRID_BUILD_VIEWER=OFF or GLFW/epoxy/imgui missing)";
+  GTEST_SKIP()
+      << "kdgrid-viewer is not built (KDGRID_BUILD_VIEWER=OFF or GLFW/epoxy/imgui missing)";
 }
 
 #endif

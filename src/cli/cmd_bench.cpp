@@ -70,9 +70,10 @@ void add_bench_command(CLI::App& app) {
   cmd->add_option("--reference", a->reference,
                   "Structure the ratios and agreement refer to (default embree)");
   cmd->add_flag("--quiet,-q", a->quiet, "No progress on stderr, no tables on stdout");
-  cmd->add_option("--clock", a->clock,
-                  "wall, or cpu: time tracing by the threads' CPU time (divided by the thread count), "
-                  "so that other processes on a shared machine do not count")
+  cmd->add_option(
+         "--clock", a->clock,
+         "wall, or cpu: time tracing by the threads' CPU time (divided by the thread count), "
+         "so that other processes on a shared machine do not count")
       ->check(CLI::IsMember({"wall", "cpu"}))
       ->capture_default_str();
   cmd->add_flag("--no-interleave", a->no_interleave,
@@ -130,12 +131,15 @@ void add_bench_command(CLI::App& app) {
       for (const auto& s : suite.scenes) names += (names.empty() ? "" : ", ") + s.name;
       if (names.empty()) names = "none";
       if (wanted.empty())
-        throw ParamError("--only '" + a->only + "' names no scene; give suite scene names, e.g. --only sponza (the suite's: " +
-                         names + ")");
+        throw ParamError(
+            "--only '" + a->only +
+            "' names no scene; give suite scene names, e.g. --only sponza (the suite's: " + names +
+            ")");
       for (const auto& w : wanted)
         if (std::none_of(suite.scenes.begin(), suite.scenes.end(),
                          [&](const SuiteScene& s) { return s.name == w; }))
-          throw ParamError("--only " + a->only + ": the suite has no scene named '" + w + "'; its scenes: " + names);
+          throw ParamError("--only " + a->only + ": the suite has no scene named '" + w +
+                           "'; its scenes: " + names);
       std::erase_if(suite.scenes, [&](const SuiteScene& s) {
         return std::find(wanted.begin(), wanted.end(), s.name) == wanted.end();
       });
@@ -147,8 +151,8 @@ void add_bench_command(CLI::App& app) {
     }
 
     // Outputs are checked before the benchmark runs, not after it.
-    for (const auto& [path, option, ext] : {std::tuple{a->json, "--json", ".json"},
-                                            std::tuple{a->md, "--md", ".md"}}) {
+    for (const auto& [path, option, ext] :
+         {std::tuple{a->json, "--json", ".json"}, std::tuple{a->md, "--md", ".md"}}) {
       if (path.empty()) continue;
       std::error_code ec;
       if (std::filesystem::path(path).has_parent_path())

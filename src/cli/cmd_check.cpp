@@ -8,8 +8,8 @@
 #include <mutex>
 #include <thread>
 
-#include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
+#include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
 #include "bench/check.h"
@@ -54,8 +54,8 @@ class Watchdog {
     while (!stop_) {
       cv_.wait_for(lock, std::chrono::milliseconds(200));
       if (armed_ && std::chrono::steady_clock::now() > deadline_) {
-        std::fprintf(stderr, "kdgrid check: HANG: %s did not finish within %.0f s\n",
-                     what_.c_str(), seconds_);
+        std::fprintf(stderr, "kdgrid check: HANG: %s did not finish within %.0f s\n", what_.c_str(),
+                     seconds_);
         std::fflush(stderr);
         std::_Exit(3);
       }
@@ -123,8 +123,8 @@ void add_check_command(CLI::App& app) {
     const auto cases = make_check_cases(o->rays, o->seed);
     nlohmann::json out = nlohmann::json::array();
     uint64_t failures = 0;
-    std::printf("%-10s %-22s %8s %8s %9s %8s %8s %7s %7s\n", "structure", "scene", "rays",
-                "agree", "ambiguous", "DISAGREE", "any-dis", "steps", "sec");
+    std::printf("%-10s %-22s %8s %8s %9s %8s %8s %7s %7s\n", "structure", "scene", "rays", "agree",
+                "ambiguous", "DISAGREE", "any-dis", "steps", "sec");
     for (const auto& c : cases) {
       for (const auto& a : accels) {
         watchdog.arm(a + " on " + c.name);
@@ -133,22 +133,26 @@ void add_check_command(CLI::App& app) {
         std::printf("%-10s %-22s %8llu %8llu %9llu %8llu %8llu %7llu %7.2f%s\n", a.c_str(),
                     c.name.c_str(), (unsigned long long)r.rays, (unsigned long long)r.agree,
                     (unsigned long long)r.ambiguous, (unsigned long long)r.disagree,
-                    (unsigned long long)r.any_disagree, (unsigned long long)r.max_steps,
-                    r.seconds, r.error.empty() ? "" : "  ERROR");
+                    (unsigned long long)r.any_disagree, (unsigned long long)r.max_steps, r.seconds,
+                    r.error.empty() ? "" : "  ERROR");
         if (!r.error.empty()) std::printf("    error: %s\n", r.error.c_str());
         for (const auto& e : r.examples) std::printf("    %s\n", e.c_str());
         std::fflush(stdout);
         // Embree is the external reference: its non-watertight test may accept slivers the
         // double-precision reference rejects; reported, but only a crash counts against it.
         const bool exact = a != "embree";
-        const bool failed =
-            !r.error.empty() || (exact && (r.disagree > 0 || r.any_disagree > 0));
+        const bool failed = !r.error.empty() || (exact && (r.disagree > 0 || r.any_disagree > 0));
         failures += failed;
-        nlohmann::json j = {{"structure", a},        {"scene", c.name},
-                            {"rays", r.rays},        {"agree", r.agree},
-                            {"ambiguous", r.ambiguous}, {"disagree", r.disagree},
-                            {"any_disagree", r.any_disagree}, {"max_steps", r.max_steps},
-                            {"seconds", r.seconds},  {"error", r.error},
+        nlohmann::json j = {{"structure", a},
+                            {"scene", c.name},
+                            {"rays", r.rays},
+                            {"agree", r.agree},
+                            {"ambiguous", r.ambiguous},
+                            {"disagree", r.disagree},
+                            {"any_disagree", r.any_disagree},
+                            {"max_steps", r.max_steps},
+                            {"seconds", r.seconds},
+                            {"error", r.error},
                             {"examples", r.examples}};
         for (size_t f = 0; f < r.disagree_by_family.size(); ++f)
           j["disagree_by_family"][check_ray_families()[f]] = r.disagree_by_family[f];
@@ -157,9 +161,10 @@ void add_check_command(CLI::App& app) {
     }
     nlohmann::json acne = nlohmann::json::array();
     if (o->acne) {
-      std::printf("\nself-intersection: rays leaving a surface that re-hit their own triangle,\n"
-                  "and the speed of those rays with each policy (%s, 1 thread, median of %d)\n",
-                  kAcneSceneDescription, kAcneTimingReps);
+      std::printf(
+          "\nself-intersection: rays leaving a surface that re-hit their own triangle,\n"
+          "and the speed of those rays with each policy (%s, 1 thread, median of %d)\n",
+          kAcneSceneDescription, kAcneTimingReps);
       const auto results = run_acne_study(o->acne_rays, o->seed);
       const float eps = results.empty() ? 1e-4f : results.front().epsilon;
       char eps_head[32];
@@ -174,9 +179,12 @@ void add_check_command(CLI::App& app) {
                     (unsigned long long)r.rays, (unsigned long long)r.robust_self_hits,
                     (unsigned long long)r.epsilon_self_hits, mrays(r.rays, r.robust_seconds),
                     mrays(r.rays, r.epsilon_seconds));
-        acne.push_back({{"scale", r.scale}, {"translation", r.translation}, {"rays", r.rays},
+        acne.push_back({{"scale", r.scale},
+                        {"translation", r.translation},
+                        {"rays", r.rays},
                         {"robust_self_hits", r.robust_self_hits},
-                        {"epsilon_self_hits", r.epsilon_self_hits}, {"epsilon", r.epsilon},
+                        {"epsilon_self_hits", r.epsilon_self_hits},
+                        {"epsilon", r.epsilon},
                         {"robust_seconds", r.robust_seconds},
                         {"epsilon_seconds", r.epsilon_seconds}});
         if (r.robust_self_hits > 0) ++failures;
@@ -186,9 +194,9 @@ void add_check_command(CLI::App& app) {
         robust_s += r.robust_seconds;
         eps_s += r.epsilon_seconds;
       }
-      std::printf("%10s %12s %8llu %14llu %16llu %14.2f %16.2f\n", "all", "", (unsigned long long)rays,
-                  (unsigned long long)robust_hits, (unsigned long long)eps_hits,
-                  mrays(rays, robust_s), mrays(rays, eps_s));
+      std::printf("%10s %12s %8llu %14llu %16llu %14.2f %16.2f\n", "all", "",
+                  (unsigned long long)rays, (unsigned long long)robust_hits,
+                  (unsigned long long)eps_hits, mrays(rays, robust_s), mrays(rays, eps_s));
     }
     if (!o->json.empty()) {
       const nlohmann::json meta = {{"rays_per_family", o->rays},

@@ -11,9 +11,12 @@ namespace kdgrid::cli {
 namespace {
 const char* light_type_name(LightType t) {
   switch (t) {
-    case LightType::Point: return "point";
-    case LightType::Directional: return "directional";
-    case LightType::Spot: return "spot";
+    case LightType::Point:
+      return "point";
+    case LightType::Directional:
+      return "directional";
+    case LightType::Spot:
+      return "spot";
   }
   return "?";
 }
@@ -60,9 +63,10 @@ void add_info_command(CLI::App& app) {
       return;
     }
     std::printf("file        %s\n", path->c_str());
-    std::printf("triangles   %zu\nvertices    %zu\n", s.mesh.num_triangles(), s.mesh.num_vertices());
-    std::printf("bounds      (%g, %g, %g) - (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x,
-                b.hi.y, b.hi.z);
+    std::printf("triangles   %zu\nvertices    %zu\n", s.mesh.num_triangles(),
+                s.mesh.num_vertices());
+    std::printf("bounds      (%g, %g, %g) - (%g, %g, %g)\n", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y,
+                b.hi.z);
     std::printf("materials   %zu\n", s.materials.size());
     for (const auto& m : s.materials)
       std::printf("  %-24s base (%.3g %.3g %.3g) metallic %.2g rough %.2g transmission %.2g%s\n",

@@ -45,7 +45,8 @@ void add_rays_command(CLI::App& app) {
   cmd->add_option("--res", a->res, "Image size W or WxH of the primary rays")
       ->capture_default_str();
   cmd->add_option("--seed", a->seed, "Seed of the diffuse and random sets")->capture_default_str();
-  cmd->add_option("--count", a->count, "Number of rays of the random set, or of copies of the --pixel ray")
+  cmd->add_option("--count", a->count,
+                  "Number of rays of the random set, or of copies of the --pixel ray")
       ->capture_default_str();
   cmd->add_option("--pixel", a->pixel,
                   "Write --count copies of the primary ray through pixel X,Y (integers: the pixel "
@@ -71,14 +72,16 @@ void add_rays_command(CLI::App& app) {
     spec.camera = cam;
     if (!a->pixel.empty()) {
       if (spec.kind != RaySetKind::Primary)
-        throw ParamError("--pixel repeats one primary ray: use it without --set, or with --set primary");
+        throw ParamError(
+            "--pixel repeats one primary ray: use it without --set, or with --set primary");
       if (a->count == 0) throw ParamError("--count must be at least 1");
       const Ray ray = pixel_ray(cam, a->res, a->pixel);
       write_rays(a->out, std::vector<Ray>(a->count, ray));
-      std::printf("wrote %zu copies of the primary ray through pixel %s of %dx%d (camera --eye %g,%g,%g "
-                  "--target %g,%g,%g --fov %g) to %s\n",
-                  a->count, a->pixel.c_str(), spec.width, spec.height, cam.eye.x, cam.eye.y, cam.eye.z,
-                  cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, a->out.c_str());
+      std::printf(
+          "wrote %zu copies of the primary ray through pixel %s of %dx%d (camera --eye %g,%g,%g "
+          "--target %g,%g,%g --fov %g) to %s\n",
+          a->count, a->pixel.c_str(), spec.width, spec.height, cam.eye.x, cam.eye.y, cam.eye.z,
+          cam.target.x, cam.target.y, cam.target.z, cam.fov_deg, a->out.c_str());
       return;
     }
     std::unique_ptr<Accelerator> accel;
@@ -90,11 +93,12 @@ void add_rays_command(CLI::App& app) {
       std::printf("wrote %zu random rays (seed %llu) to %s\n", rays.size(),
                   (unsigned long long)spec.seed, a->out.c_str());
     else
-      std::printf("wrote %zu %s rays (%dx%d, camera --eye %g,%g,%g --target %g,%g,%g --fov %g%s) "
-                  "to %s\n",
-                  rays.size(), to_string(spec.kind), spec.width, spec.height, cam.eye.x,
-                  cam.eye.y, cam.eye.z, cam.target.x, cam.target.y, cam.target.z, cam.fov_deg,
-                  accel ? (", primary hits by " + accel->name()).c_str() : "", a->out.c_str());
+      std::printf(
+          "wrote %zu %s rays (%dx%d, camera --eye %g,%g,%g --target %g,%g,%g --fov %g%s) "
+          "to %s\n",
+          rays.size(), to_string(spec.kind), spec.width, spec.height, cam.eye.x, cam.eye.y,
+          cam.eye.z, cam.target.x, cam.target.y, cam.target.z, cam.fov_deg,
+          accel ? (", primary hits by " + accel->name()).c_str() : "", a->out.c_str());
   });
 }
 

@@ -75,10 +75,12 @@ void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& acce
   const Trace tr = accel.trace(ray);
   if (a.json) {
     nlohmann::json j;
-    j["ray"] = {{"org", {ray.org.x, ray.org.y, ray.org.z}}, {"dir", {ray.dir.x, ray.dir.y, ray.dir.z}}};
+    j["ray"] = {{"org", {ray.org.x, ray.org.y, ray.org.z}},
+                {"dir", {ray.dir.x, ray.dir.y, ray.dir.z}}};
     for (const TraceStep& s : tr.steps) {
       nlohmann::json js;
-      js["kind"] = s.kind == StepKind::Inner ? "inner" : (s.kind == StepKind::Leaf ? "leaf" : "cell");
+      js["kind"] =
+          s.kind == StepKind::Inner ? "inner" : (s.kind == StepKind::Leaf ? "leaf" : "cell");
       js["depth"] = s.depth;
       js["id"] = s.id;
       js["box"] = {{s.box.lo.x, s.box.lo.y, s.box.lo.z}, {s.box.hi.x, s.box.hi.y, s.box.hi.z}};
@@ -90,7 +92,8 @@ void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& acce
     }
     j["hit"] = tr.hit.valid() ? nlohmann::json{{"t", tr.hit.t}, {"prim", tr.hit.prim}}
                               : nlohmann::json(nullptr);
-    j["counters"] = {{"steps", tr.counters.steps}, {"leaves", tr.counters.leaves},
+    j["counters"] = {{"steps", tr.counters.steps},
+                     {"leaves", tr.counters.leaves},
                      {"tri_tests", tr.counters.tri_tests},
                      {"mailbox_skips", tr.counters.mailbox_skips},
                      {"lookups", tr.counters.lookups}};
@@ -196,7 +199,8 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
   const double per = n ? 1.0 / double(n) : 0.0;
   const BuildStats& st = accel.stats();
   const size_t tris = scene.mesh.num_triangles();
-  const int threads = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  const int threads =
+      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
   // Thread time per ray (wall time x threads / rays: exact on one thread), and per step.
   const double thread_ns_per_ray = median * double(threads) * 1e9 * per;
   const double steps_per_ray = double(counted.c.steps) * per;
@@ -235,35 +239,40 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
   std::printf("scene        %s (%zu triangles)\n", a.scene.c_str(), tris);
   std::printf("structure    %s\n", accel.name().c_str());
   std::printf("rays         %zu from %s (%s hits)\n", n, a.rays.c_str(), a.any ? "any" : "closest");
-  std::printf("speed        %.4g Mrays/s (median of %zu, %d threads, %.4f s)\n", mrays,
-              secs.size(), threads, median);
+  std::printf("speed        %.4g Mrays/s (median of %zu, %d threads, %.4f s)\n", mrays, secs.size(),
+              threads, median);
   std::printf("hit fraction %.4f\n", double(counted.hits) * per);
   if (accel.has_counters())
-    std::printf("per ray      %.2f steps, %.2f leaves, %.2f triangle tests, %.2f mailbox skips, "
-                "%.2f lookups\n",
-                double(counted.c.steps) * per, double(counted.c.leaves) * per,
-                double(counted.c.tri_tests) * per, double(counted.c.mailbox_skips) * per,
-                double(counted.c.lookups) * per);
+    std::printf(
+        "per ray      %.2f steps, %.2f leaves, %.2f triangle tests, %.2f mailbox skips, "
+        "%.2f lookups\n",
+        double(counted.c.steps) * per, double(counted.c.leaves) * per,
+        double(counted.c.tri_tests) * per, double(counted.c.mailbox_skips) * per,
+        double(counted.c.lookups) * per);
   else
     std::printf("per ray      (this structure cannot count its traversal)\n");
   if (accel.name() == "hybrid")
-    std::printf("guesses      %.2f of the lookups per ray answered by the guessed next leaf (counted pass)\n",
-                double(counted.guessed) * per);
+    std::printf(
+        "guesses      %.2f of the lookups per ray answered by the guessed next leaf (counted "
+        "pass)\n",
+        double(counted.guessed) * per);
   if (a.traversal_only) {
-    std::printf("traversal    alone (no triangle tested, every ray misses): %.1f ns per ray, %.2f ns "
-                "per step",
-                thread_ns_per_ray, ns_per_step);
+    std::printf(
+        "traversal    alone (no triangle tested, every ray misses): %.1f ns per ray, %.2f ns "
+        "per step",
+        thread_ns_per_ray, ns_per_step);
     // Structures that step cell to cell (grids, the hybrid): the time per lookup, which
     // includes everything done in that cell or leaf (the hybrid's leaf subtrees).
     if (counted.c.lookups > 0)
       std::printf(", %.2f ns per lookup", thread_ns_per_ray / (double(counted.c.lookups) * per));
     std::printf(" (thread time)\n");
   }
-  std::printf("build        %.4f s, %.2f Mtris/s, %llu nodes, %llu leaves, depth %u, %llu refs, "
-              "%llu SAH evaluations\n",
-              st.seconds, st.seconds > 0 ? double(tris) / st.seconds * 1e-6 : 0.0,
-              (unsigned long long)st.nodes, (unsigned long long)st.leaves, st.max_depth,
-              (unsigned long long)st.references, (unsigned long long)st.sah_evaluations);
+  std::printf(
+      "build        %.4f s, %.2f Mtris/s, %llu nodes, %llu leaves, depth %u, %llu refs, "
+      "%llu SAH evaluations\n",
+      st.seconds, st.seconds > 0 ? double(tris) / st.seconds * 1e-6 : 0.0,
+      (unsigned long long)st.nodes, (unsigned long long)st.leaves, st.max_depth,
+      (unsigned long long)st.references, (unsigned long long)st.sah_evaluations);
   std::printf("memory       %.2f MiB, %.1f bytes/triangle", double(st.bytes) / (1 << 20),
               tris ? double(st.bytes) / double(tris) : 0.0);
   for (const auto& [k, v] : st.bytes_by_part)
@@ -303,7 +312,8 @@ void add_trace_command(CLI::App& app) {
   a->camera.add_to(cmd);
   cmd->callback([a] {
     if (a->rays.empty() && a->pixel.empty())
-      throw ParamError("trace needs --rays FILE.rays (write one with `kdgrid rays`) or --pixel X,Y");
+      throw ParamError(
+          "trace needs --rays FILE.rays (write one with `kdgrid rays`) or --pixel X,Y");
     if (a->threads < 0) throw ParamError("--threads must be >= 0 (0 = all hardware threads)");
     if (a->repeat < 1) throw ParamError("--repeat must be >= 1");
     const BuildParams params = a->accel.resolve();
@@ -322,7 +332,8 @@ void add_trace_command(CLI::App& app) {
     BuildParams p = params;
     if (p.threads == 0) p.threads = a->threads;
     if (a->traversal_only) {
-      if (!a->pixel.empty()) throw ParamError("--traversal-only times a .rays file: use it with --rays, not --pixel");
+      if (!a->pixel.empty())
+        throw ParamError("--traversal-only times a .rays file: use it with --rays, not --pixel");
       if (!a->hits.empty()) throw ParamError("--traversal-only finds no hits: drop --hits");
       p.triangle_test = TriangleTestKind::None;
     }

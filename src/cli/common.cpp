@@ -18,7 +18,8 @@ namespace kdgrid::cli {
 void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
   accel = default_accel;
   const std::string g = "Acceleration structure";
-  cmd->add_option("--accel", accel, "Structure: brute, bvh, grid, kdtree, hybrid, irregular, embree")
+  cmd->add_option("--accel", accel,
+                  "Structure: brute, bvh, grid, kdtree, hybrid, irregular, embree")
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--cell-size", cell_size,
@@ -46,9 +47,10 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "Hybrid: triangle test cost relative to a leaf step (SAH leaf termination)")
       ->group(g)
       ->capture_default_str();
-  cmd->add_option("--hybrid-subtree", params.hybrid_subtree_min,
-                  "Hybrid: leaves with more triangles than this get a kd subtree built and walked as "
-                  "the kd-tree is (default 4); 0 = the paper's plain leaves")
+  cmd->add_option(
+         "--hybrid-subtree", params.hybrid_subtree_min,
+         "Hybrid: leaves with more triangles than this get a kd subtree built and walked as "
+         "the kd-tree is (default 4); 0 = the paper's plain leaves")
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--hybrid-max-build-seconds", params.hybrid_max_build_seconds,
@@ -75,7 +77,8 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "Irregular grid: second-level cells per reference")
       ->group(g)
       ->capture_default_str();
-  cmd->add_option("--embree-quality", params.embree_quality, "Embree build quality: low, medium, high")
+  cmd->add_option("--embree-quality", params.embree_quality,
+                  "Embree build quality: low, medium, high")
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--memory-budget-mb", budget_mb_,
@@ -112,8 +115,9 @@ BuildParams AccelOptions::resolve() const {
   // MiB to bytes must not wrap: 2^44 MiB is 2^64 bytes.
   constexpr long kMaxBudgetMb = (long(1) << 44) - 1;
   if (budget_mb_ > kMaxBudgetMb)
-    throw ParamError("--memory-budget-mb " + std::to_string(budget_mb_) + " is too large: at most " +
-                     std::to_string(kMaxBudgetMb) + " MiB (0 = half of the memory available)");
+    throw ParamError("--memory-budget-mb " + std::to_string(budget_mb_) +
+                     " is too large: at most " + std::to_string(kMaxBudgetMb) +
+                     " MiB (0 = half of the memory available)");
   if (budget_mb_ > 0) p.memory_budget = uint64_t(budget_mb_) << 20;
   return p;
 }
@@ -122,8 +126,8 @@ void CameraOptions::add_to(CLI::App* cmd) {
   const std::string g = "Camera (default: the scene's, else the canonical camera)";
   cmd->add_option("--eye", eye, "Camera position x,y,z")->group(g);
   cmd->add_option("--target", target, "Point looked at x,y,z")->group(g);
-  fov_option_ = cmd->add_option("--fov", fov, "Vertical field of view in degrees, in (0, 180)")
-                    ->group(g);
+  fov_option_ =
+      cmd->add_option("--fov", fov, "Vertical field of view in degrees, in (0, 180)")->group(g);
 }
 
 Camera CameraOptions::apply(const Camera& base) const {
@@ -182,7 +186,8 @@ void parse_resolution(const std::string& s, int& width, int& height) {
     ok = ok && *end == '\0';
   }
   if (!ok || w < 1 || h < 1 || w > 16384 || h > 16384)
-    throw ParamError("resolution '" + s + "' must be W or WxH with 1 <= W, H <= 16384, e.g. 800x600");
+    throw ParamError("resolution '" + s +
+                     "' must be W or WxH with 1 <= W, H <= 16384, e.g. 800x600");
   width = int(w);
   height = int(h);
 }
@@ -191,7 +196,8 @@ Ray pixel_ray(const Camera& cam, const std::string& res, const std::string& pixe
   int w = 0, h = 0;
   parse_resolution(res, w, h);
   float px = 0, py = 0;
-  if (std::sscanf(pixel.c_str(), "%f,%f", &px, &py) != 2 || !(px >= 0 && px < w) || !(py >= 0 && py < h))
+  if (std::sscanf(pixel.c_str(), "%f,%f", &px, &py) != 2 || !(px >= 0 && px < w) ||
+      !(py >= 0 && py < h))
     throw ParamError("--pixel '" + pixel + "' must be X,Y inside the " + std::to_string(w) + "x" +
                      std::to_string(h) + " image (set the size with --res WxH)");
   const CameraFrame f = CameraFrame::make(cam, w, h);
@@ -231,7 +237,9 @@ void require_accelerator_names(const std::vector<std::string>& names) {
 namespace {
 // Set by SIGINT while build_interruptible runs (CancelToken::cancel is a lock-free store).
 CancelToken g_build_interrupt;
-extern "C" void on_build_sigint(int) { g_build_interrupt.cancel(); }
+extern "C" void on_build_sigint(int) {
+  g_build_interrupt.cancel();
+}
 }  // namespace
 
 std::unique_ptr<Accelerator> build_interruptible(const std::string& name, const Mesh& mesh,
@@ -249,7 +257,8 @@ std::unique_ptr<Accelerator> build_interruptible(const std::string& name, const 
     return build_accelerator(name, mesh, p);
   } catch (const BuildCancelled&) {
     char secs[32];
-    std::snprintf(secs, sizeof secs, "%.1f", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    std::snprintf(secs, sizeof secs, "%.1f",
+                  std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     throw BuildCancelled("interrupted (Ctrl-C) while building " + name + " over " +
                          std::to_string(mesh.num_triangles()) + " triangles, " + secs +
                          " s in; the build stopped and nothing was written");

@@ -35,7 +35,8 @@ struct WakeUiOnExit {
 /// render worker keeps a core and the picture follows the camera while a structure builds (a
 /// build on every core starves the passes, which then take seconds). At least 1.
 int background_build_threads() {
-  const int n = int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+  const int n =
+      int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
   return std::max(1, n - 1);
 }
 
@@ -67,7 +68,8 @@ BuildParams Viewer::params_with_cell_size(const std::string& name, float cs) con
     const Vec3 e = world_->scene->mesh.bounds().extent();
     const double v = double(std::max(e.x, cs)) * std::max(e.y, cs) * std::max(e.z, cs);
     const double cells = v / (double(cs) * cs * cs);
-    p.grid_lambda = float(std::clamp(cells / double(world_->scene->mesh.num_triangles()), 1e-3, 1e3));
+    p.grid_lambda =
+        float(std::clamp(cells / double(world_->scene->mesh.num_triangles()), 1e-3, 1e3));
   } else {
     p.cell_size = cs;
   }
@@ -86,7 +88,10 @@ void Viewer::start_load(const std::string& path) {
   // a size in scene units never carries over from another scene.
   const bool own = path == opts_.scene && opts_.cell_size_given;
   CellChoice choice = remembered_cell_choice(settings_, path);
-  if (own) choice = cell_choice_.kind == CellChoice::Kind::Multiple ? cell_choice_ : CellChoice::parse(opts_.accel.cell_size, "--cell-size");
+  if (own)
+    choice = cell_choice_.kind == CellChoice::Kind::Multiple
+                 ? cell_choice_
+                 : CellChoice::parse(opts_.accel.cell_size, "--cell-size");
   loading_choice_ = choice;
   Task t;
   t.what = "loading " + std::filesystem::path(path).filename().string();
@@ -138,16 +143,19 @@ void Viewer::cancel_task() {
 }
 
 void Viewer::poll_tasks() {
-  if (!task_ || task_->result.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+  if (!task_ || task_->result.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
+    return;
   const bool new_scene = task_->new_scene;
-  const bool was_scripted_rebuild = scripted_rebuild_started_ && !scripted_rebuild_done_ && !new_scene;
+  const bool was_scripted_rebuild =
+      scripted_rebuild_started_ && !scripted_rebuild_done_ && !new_scene;
   BuildRecord rec;
   rec.kind = task_->kind;
   rec.wall_seconds = std::chrono::duration<double>(Clock::now() - task_->started).count();
   try {
     std::shared_ptr<World> w = task_->result.get();
     std::printf("kdgrid-viewer: %s %s in %.3f s (%s)\n", new_scene ? "loaded and built" : "rebuilt",
-                w->name.c_str(), w->build_seconds, format_bytes_iec(double(w->accel->stats().bytes)).c_str());
+                w->name.c_str(), w->build_seconds,
+                format_bytes_iec(double(w->accel->stats().bytes)).c_str());
     std::fflush(stdout);
     rec.accel = w->name;
     rec.scene = w->scene->source;
@@ -171,8 +179,9 @@ void Viewer::poll_tasks() {
     if (new_scene && !world_) {
       // The window stays with the error in its panel; its title names the file, as a loaded
       // scene's does.
-      const std::string title =
-          "kdgrid-viewer - " + std::filesystem::path(task_->path).filename().string() + " (failed to load)";
+      const std::string title = "kdgrid-viewer - " +
+                                std::filesystem::path(task_->path).filename().string() +
+                                " (failed to load)";
       glfwSetWindowTitle(window_, title.c_str());
     }
   }
@@ -216,9 +225,11 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
   if (w->name == "hybrid") {
     if (cs <= 0.0f)
       cell_choice_ = {};
-    else if (cell_choice_.kind != CellChoice::Kind::Multiple || std::fabs(cell_choice_.resolve(auto_cell_) - cs) > 1e-6f * cs)
+    else if (cell_choice_.kind != CellChoice::Kind::Multiple ||
+             std::fabs(cell_choice_.resolve(auto_cell_) - cs) > 1e-6f * cs)
       cell_choice_ = {CellChoice::Kind::Units, double(cs)};
-    if (const auto* h = dynamic_cast<const Hybrid*>(w->accel.get())) cell_size_slider_ = float(h->cell_size());
+    if (const auto* h = dynamic_cast<const Hybrid*>(w->accel.get()))
+      cell_size_slider_ = float(h->cell_size());
     cell_estimated_for_ = -1;
   }
   accel_name_ = w->name;

@@ -53,7 +53,8 @@ GLuint make_program(const char* name, const char* vertex_src, const char* fragme
     std::vector<char> log(size_t(std::max(len, 1)));
     glGetProgramInfoLog(p, len, nullptr, log.data());
     glDeleteProgram(p);
-    throw std::runtime_error(std::string("shader program ") + name + " failed to link: " + log.data());
+    throw std::runtime_error(std::string("shader program ") + name +
+                             " failed to link: " + log.data());
   }
   return p;
 }

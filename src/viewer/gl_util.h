@@ -12,10 +12,10 @@ void check_gl_error(const char* call, const char* file, int line);
 
 /// Wraps a GL call and reports errors it raised (pbrt's GL_CHECK). Cheap enough to keep in
 /// release builds: glGetError is a query the driver answers without a round trip.
-#define GL_CHECK(call)                                                 \
-  do {                                                                 \
-    call;                                                              \
-    ::kdgrid::viewer::check_gl_error(#call, __FILE__, __LINE__);       \
+#define GL_CHECK(call)                                           \
+  do {                                                           \
+    call;                                                        \
+    ::kdgrid::viewer::check_gl_error(#call, __FILE__, __LINE__); \
   } while (0)
 
 /// Compiles and links a program from vertex and fragment source. Throws std::runtime_error

@@ -73,7 +73,8 @@ SrgbEncoder::SrgbEncoder() {
   }
 }
 
-void colorize(const RenderedImage& img, HeatScale scale, HeatRange range, std::vector<uint8_t>& rgba) {
+void colorize(const RenderedImage& img, HeatScale scale, HeatRange range,
+              std::vector<uint8_t>& rgba) {
   const size_t n = size_t(img.width) * size_t(img.height);
   rgba.resize(n * 4);
   if (img.mode == RenderMode::Shaded) {

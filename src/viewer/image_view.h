@@ -48,7 +48,8 @@ class SrgbEncoder {
 };
 
 /// RGBA8, row 0 at the top: tonemapped radiance (Shaded) or the colour ramp (heat modes).
-void colorize(const RenderedImage& img, HeatScale scale, HeatRange range, std::vector<uint8_t>& rgba);
+void colorize(const RenderedImage& img, HeatScale scale, HeatRange range,
+              std::vector<uint8_t>& rgba);
 
 /// Writes RGB8 (row 0 at the top) as PNG, byte for byte (write_image would round-trip the
 /// bytes through linear floats); returns an error message or "".

@@ -7,8 +7,8 @@
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 
-#include <CLI/CLI.hpp>
 #include <tbb/global_control.h>
+#include <CLI/CLI.hpp>
 #include <memory>
 
 #include "accel/accelerator.h"
@@ -46,18 +46,23 @@ bool env_set(const char* name) {
 int main(int argc, char** argv) {
   using kdgrid::viewer::ViewerOptions;
   ViewerOptions o;
-  CLI::App app{"kdgrid-viewer: interactive viewer and debugger for kdgrid's acceleration structures"};
-  app.add_option("scene", o.scene, "Scene file (.gltf .glb .ply .obj); default assets/cornell.gltf");
+  CLI::App app{
+      "kdgrid-viewer: interactive viewer and debugger for kdgrid's acceleration structures"};
+  app.add_option("scene", o.scene,
+                 "Scene file (.gltf .glb .ply .obj); default assets/cornell.gltf");
   o.accel.add_to(&app);
   o.camera.add_to(&app);
   const std::string gw = "Window";
-  app.add_option("--width", o.width, "Window width in screen units (default: remembered, else 1280)")
+  app.add_option("--width", o.width,
+                 "Window width in screen units (default: remembered, else 1280)")
       ->group(gw)
       ->check(CLI::Range(64, 16384));
-  app.add_option("--height", o.height, "Window height in screen units (default: remembered, else 800)")
+  app.add_option("--height", o.height,
+                 "Window height in screen units (default: remembered, else 800)")
       ->group(gw)
       ->check(CLI::Range(64, 16384));
-  app.add_option("--resolution-scale", o.resolution_scale, "Render pixels per framebuffer pixel (0.1-1)")
+  app.add_option("--resolution-scale", o.resolution_scale,
+                 "Render pixels per framebuffer pixel (0.1-1)")
       ->group(gw)
       ->check(CLI::Range(0.1f, 1.0f))
       ->capture_default_str();
@@ -76,17 +81,20 @@ int main(int argc, char** argv) {
   app.add_option("--frames", o.frames, "Run at least N frames, then write --screenshot and exit 0")
       ->group(gs)
       ->check(CLI::Range(1, 1 << 30));
-  app.add_option("--screenshot", o.screenshot, "PNG of the window (image, overlays, panels) at the end")
+  app.add_option("--screenshot", o.screenshot,
+                 "PNG of the window (image, overlays, panels) at the end")
       ->group(gs);
   app.add_option("--min-samples", o.min_samples, "Scripted: wait for this many samples per pixel")
       ->group(gs)
       ->check(CLI::Range(1, 1 << 20))
       ->capture_default_str();
-  app.add_option("--timeout", o.timeout, "Scripted: give up with exit code 4 after this many seconds")
+  app.add_option("--timeout", o.timeout,
+                 "Scripted: give up with exit code 4 after this many seconds")
       ->group(gs)
       ->capture_default_str();
   std::string pick;
-  app.add_option("--pick", pick, "Trace image pixel X,Y (0,0 = top left) and show its traversal")->group(gs);
+  app.add_option("--pick", pick, "Trace image pixel X,Y (0,0 = top left) and show its traversal")
+      ->group(gs);
   app.add_flag("--frame-pick", o.frame_pick,
                "Scripted: after --pick, frame its ray's traversal as the F key does")
       ->group(gs);
@@ -99,8 +107,9 @@ int main(int argc, char** argv) {
   app.add_option("--overlay", o.overlays, "Overlay: splits, cells or boxes (repeatable)")
       ->group(gs)
       ->check(CLI::IsMember({"splits", "cells", "boxes"}));
-  app.add_option("--rebuild-cell-size", o.rebuild_cell_size,
-                 "After start-up, rebuild live with this cell size ('auto' or a size) and wait for it")
+  app.add_option(
+         "--rebuild-cell-size", o.rebuild_cell_size,
+         "After start-up, rebuild live with this cell size ('auto' or a size) and wait for it")
       ->group(gs);
   app.add_option("--supersede-cell-size", o.supersede_cell_size,
                  "Scripted: while the --rebuild-cell-size build runs, request this cell size "
@@ -108,23 +117,27 @@ int main(int argc, char** argv) {
                  "--supersede-after seconds into it; the newer request cancels the running build")
       ->group(gs);
   app.add_option("--supersede-after", o.supersede_after,
-                 "Scripted: seconds into the --rebuild-cell-size build at which --supersede-cell-size is requested")
+                 "Scripted: seconds into the --rebuild-cell-size build at which "
+                 "--supersede-cell-size is requested")
       ->group(gs)
       ->check(CLI::Range(0.0, 3600.0))
       ->capture_default_str();
-  app.add_option("--export-heatmap", o.export_heatmap,
-                 "Scripted: write the heat map's raw per-pixel counts to this EXR (needs --heatmap)")
+  app.add_option(
+         "--export-heatmap", o.export_heatmap,
+         "Scripted: write the heat map's raw per-pixel counts to this EXR (needs --heatmap)")
       ->group(gs);
-  app.add_flag("--hide-ui", o.hide_ui, "Hide the ImGui panels (reproducible screenshots)")->group(gs);
+  app.add_flag("--hide-ui", o.hide_ui, "Hide the ImGui panels (reproducible screenshots)")
+      ->group(gs);
   app.add_option("--hold", o.hold,
                  "Keep the window open and interactive for up to this many seconds (for input "
                  "driven by xdotool); Ctrl+Q or closing the window ends it sooner. Then finish "
                  "the image and write --screenshot / --stats-json")
       ->group(gs)
       ->check(CLI::Range(0.001, 86400.0));
-  app.add_option("--stats-json", o.stats_json,
-                 "Write the run's statistics (every frame, pass and build; window, framebuffer, "
-                 "content scale) and its final state (scene, camera, mode, speed, pick) as JSON at exit")
+  app.add_option(
+         "--stats-json", o.stats_json,
+         "Write the run's statistics (every frame, pass and build; window, framebuffer, "
+         "content scale) and its final state (scene, camera, mode, speed, pick) as JSON at exit")
       ->group(gs);
   app.add_option("--drop", o.drop,
                  "Once the first image is shown, load this file through the drag-and-drop handler")
@@ -141,8 +154,9 @@ int main(int argc, char** argv) {
     o.cell_size_given = app.get_option("--cell-size")->count() > 0;
     if (o.scene.empty()) o.scene = kdgrid::find_asset("cornell.gltf");
     if (o.scene.empty())
-      throw kdgrid::ParamError("no scene given and assets/cornell.gltf was found neither under "
-                               "the current directory nor beside the executable: give a scene file");
+      throw kdgrid::ParamError(
+          "no scene given and assets/cornell.gltf was found neither under "
+          "the current directory nor beside the executable: give a scene file");
     o.scene = kdgrid::resolve_scene_path(o.scene);
     // Validate everything that can be validated before a window opens.
     (void)o.accel.resolve();
@@ -150,14 +164,17 @@ int main(int argc, char** argv) {
     if (!o.rebuild_cell_size.empty()) (void)kdgrid::cli::parse_cell_size(o.rebuild_cell_size);
     if (!o.supersede_cell_size.empty()) {
       if (o.rebuild_cell_size.empty())
-        throw kdgrid::ParamError("--supersede-cell-size supersedes the --rebuild-cell-size build: give --rebuild-cell-size too");
+        throw kdgrid::ParamError(
+            "--supersede-cell-size supersedes the --rebuild-cell-size build: give "
+            "--rebuild-cell-size too");
       (void)kdgrid::viewer::CellChoice::parse(o.supersede_cell_size, "--supersede-cell-size");
     }
     if (!pick.empty()) {
       int x = 0, y = 0;
       char extra = 0;
       if (std::sscanf(pick.c_str(), "%d,%d%c", &x, &y, &extra) != 2 || x < 0 || y < 0)
-        throw kdgrid::ParamError("--pick '" + pick + "' must be X,Y image pixel coordinates, e.g. 320,240");
+        throw kdgrid::ParamError("--pick '" + pick +
+                                 "' must be X,Y image pixel coordinates, e.g. 320,240");
       o.pick = std::array<int, 2>{x, y};
     }
     if (o.frame_pick && !o.pick)
@@ -165,7 +182,8 @@ int main(int argc, char** argv) {
     if (o.frames > 0 && o.hold > 0)
       throw kdgrid::ParamError("--frames and --hold both end a scripted run; give one of them");
     if (!o.screenshot.empty() && !o.scripted())
-      throw kdgrid::ParamError("--screenshot needs --frames N (the number of frames to run first) or --hold SECONDS");
+      throw kdgrid::ParamError(
+          "--screenshot needs --frames N (the number of frames to run first) or --hold SECONDS");
     if (!o.export_heatmap.empty() && (o.heatmap.empty() || !o.scripted()))
       throw kdgrid::ParamError("--export-heatmap needs --heatmap steps|tests and --frames N");
     if (!o.export_heatmap.empty()) kdgrid::check_image_extension(o.export_heatmap);
@@ -180,8 +198,8 @@ int main(int argc, char** argv) {
   o.threads = threads;
   std::unique_ptr<tbb::global_control> thread_limit;
   if (threads > 0)
-    thread_limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                         size_t(threads));
+    thread_limit = std::make_unique<tbb::global_control>(
+        tbb::global_control::max_allowed_parallelism, size_t(threads));
   glfwSetErrorCallback(glfw_error);
   if (!env_set("DISPLAY") && !env_set("WAYLAND_DISPLAY")) {
     print_no_display("neither DISPLAY nor WAYLAND_DISPLAY is set");

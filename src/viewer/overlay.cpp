@@ -10,9 +10,11 @@ namespace kdgrid::viewer {
 
 Color ramp(float t, float alpha) {
   // Five stops, evenly spaced; chosen to stay distinguishable over grey renders.
-  static constexpr float kStops[5][3] = {
-      {0.10f, 0.20f, 1.00f}, {0.00f, 0.85f, 1.00f}, {0.10f, 0.95f, 0.20f},
-      {1.00f, 0.90f, 0.00f}, {1.00f, 0.10f, 0.05f}};
+  static constexpr float kStops[5][3] = {{0.10f, 0.20f, 1.00f},
+                                         {0.00f, 0.85f, 1.00f},
+                                         {0.10f, 0.95f, 0.20f},
+                                         {1.00f, 0.90f, 0.00f},
+                                         {1.00f, 0.10f, 0.05f}};
   if (!(t >= 0.0f)) t = 0.0f;  // also catches NaN
   t = std::min(t, 1.0f) * 4.0f;
   const int i = std::min(int(t), 3);
@@ -97,13 +99,15 @@ bool crosses_split(const RaySegment& seg, const SplitPlane& s) {
   // tolerance keeps those.
   for (int k = 1; k <= 2; ++k) {
     const int a = (ax + k) % 3;
-    const float tol = 1e-5f * std::max(1.0f, std::fabs(s.node_box.hi[a] - s.node_box.lo[a]) + std::fabs(p[a]));
+    const float tol =
+        1e-5f * std::max(1.0f, std::fabs(s.node_box.hi[a] - s.node_box.lo[a]) + std::fabs(p[a]));
     if (p[a] < s.node_box.lo[a] - tol || p[a] > s.node_box.hi[a] + tol) return false;
   }
   return true;
 }
 
-size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out, const RaySegment* crossed_by) {
+size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out,
+                           const RaySegment* crossed_by) {
   int max_depth = 1;
   a.for_each_split([&](const SplitPlane& s) { max_depth = std::max(max_depth, s.depth); });
   // Colours span the depths shown (the legend's ramp from lo to hi), not the whole tree.
@@ -112,7 +116,8 @@ size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out,
   a.for_each_split([&](const SplitPlane& s) {
     if (s.depth < lo || s.depth > hi || out.segments() >= kMaxOverlaySegments) return;
     if (crossed_by && !crosses_split(*crossed_by, s)) return;
-    out.split(s.axis, s.position, s.node_box, ramp((float(s.depth) - float(lo)) / (top - float(lo)), 0.8f));
+    out.split(s.axis, s.position, s.node_box,
+              ramp((float(s.depth) - float(lo)) / (top - float(lo)), 0.8f));
     ++n;
   });
   return n;

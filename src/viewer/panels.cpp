@@ -45,10 +45,13 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
   bool auto_cs = cell_choice_.kind == CellChoice::Kind::Auto;
   const auto chk = [this](const char* label) { audit_.item(label); };
   if (ImGui::Checkbox("auto cell size", &auto_cs))
-    request_cell_choice(auto_cs ? CellChoice{} : CellChoice{CellChoice::Kind::Units, double(cell_size_slider_)});
-  const float lo = std::min(r * 1e-3f, cell_size_slider_), hi = std::max(r * 2.0f, cell_size_slider_);
+    request_cell_choice(auto_cs ? CellChoice{}
+                                : CellChoice{CellChoice::Kind::Units, double(cell_size_slider_)});
+  const float lo = std::min(r * 1e-3f, cell_size_slider_),
+              hi = std::max(r * 2.0f, cell_size_slider_);
   ImGui::SliderFloat("cell", &cell_size_slider_, lo, hi, "%.4g", ImGuiSliderFlags_Logarithmic);
-  if (ImGui::IsItemDeactivatedAfterEdit()) request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  if (ImGui::IsItemDeactivatedAfterEdit())
+    request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
   chk("cell");
   ImGui::InputFloat("units", &cell_size_slider_, 0, 0, "%.6g");
   chk("units");
@@ -67,7 +70,8 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
   if (cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 && world_) {
     try {
       cell_estimate_ =
-          Hybrid::estimate(world_->scene->mesh, params_with_cell_size("hybrid", cell_size_slider_)).describe();
+          Hybrid::estimate(world_->scene->mesh, params_with_cell_size("hybrid", cell_size_slider_))
+              .describe();
     } catch (const ParamError& e) {
       cell_estimate_ = e.what();
     }
@@ -97,8 +101,9 @@ void Viewer::draw_panels() {
   const ImGuiStyle& style = ImGui::GetStyle();
   const float margin = 8 * ui_scale_;
   const float pw = std::min(kPanelWidth * ui_scale_, io.DisplaySize.x * 0.5f);
-  const float ph = std::max(std::min(io.DisplaySize.y - 2 * margin, io.DisplaySize.x * io.DisplaySize.y * 0.25f / pw),
-                            ImGui::GetFrameHeight() * 4);
+  const float ph = std::max(
+      std::min(io.DisplaySize.y - 2 * margin, io.DisplaySize.x * io.DisplaySize.y * 0.25f / pw),
+      ImGui::GetFrameHeight() * 4);
   ImGui::SetNextWindowPos(ImVec2(margin, margin), ImGuiCond_FirstUseEver);
   ImGui::SetNextWindowSize(ImVec2(pw, ph), ImGuiCond_FirstUseEver);
   ImGui::Begin("kdgrid");
@@ -109,9 +114,9 @@ void Viewer::draw_panels() {
   panel_rect_[3] = panel_size.y;
   // Widgets leave room on their right for the widest label, so no label is cut.
   float label_w = 0;
-  for (const char* l : {"structure", "max leaf size", "test/step cost", "cell", "units", "x auto", "cell size",
-                        "max samples", "resolution", "Mrays/s", "frame work", "split depths", "box depths",
-                        "opacity", "min", "max"})
+  for (const char* l : {"structure", "max leaf size", "test/step cost", "cell", "units", "x auto",
+                        "cell size", "max samples", "resolution", "Mrays/s", "frame work",
+                        "split depths", "box depths", "opacity", "min", "max"})
     label_w = std::max(label_w, ImGui::CalcTextSize(l).x);
   ImGui::PushItemWidth(-(label_w + style.ItemInnerSpacing.x + 1));
   const auto chk = [this](const char* label) { audit_.item(label); };
@@ -144,14 +149,17 @@ void Viewer::draw_panels() {
     ImGui::PopStyleColor();
     if (ImGui::SmallButton("dismiss")) task_error_.clear();
   }
-  if (!render_error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", render_error.c_str());
-  if (!brute_refusal_.empty()) ImGui::TextColored(kRefusalColor, "not rendered: %s", brute_refusal_.c_str());
+  if (!render_error.empty())
+    ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "render: %s", render_error.c_str());
+  if (!brute_refusal_.empty())
+    ImGui::TextColored(kRefusalColor, "not rendered: %s", brute_refusal_.c_str());
   ImGui::PopTextWrapPos();
   ImGui::EndChild();
   ImGui::Separator();
   audit_.below_status_y = ImGui::GetCursorPosY();
   auto& ys = below_status_y_by_state_[task_ ? "build" : (!task_error_.empty() ? "error" : "idle")];
-  if (std::find(ys.begin(), ys.end(), audit_.below_status_y) == ys.end()) ys.push_back(audit_.below_status_y);
+  if (std::find(ys.begin(), ys.end(), audit_.below_status_y) == ys.end())
+    ys.push_back(audit_.below_status_y);
 
   if (!world_ && !task_) {
     ImGui::PushTextWrapPos(0.0f);
@@ -161,11 +169,13 @@ void Viewer::draw_panels() {
   if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
     const Scene& s = *world_->scene;
     ImGui::TextWrapped("%s", s.source.c_str());
-    ImGui::TextWrapped("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
-    ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
-                       s.textures.size());
+    ImGui::TextWrapped("%zu triangles, %zu vertices", s.mesh.num_triangles(),
+                       s.mesh.num_vertices());
+    ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(),
+                       s.lights.size(), s.textures.size());
     const Box3 b = s.mesh.bounds();
-    ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x, b.hi.y, b.hi.z);
+    ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x,
+                       b.hi.y, b.hi.z);
     ImGui::PushTextWrapPos(0.0f);
     ImGui::TextDisabled("drop a .gltf/.glb/.ply/.obj file to load it");
     ImGui::PopTextWrapPos();
@@ -203,7 +213,8 @@ void Viewer::draw_panels() {
     } else if (accel_name_ == "hybrid") {
       draw_cell_size_controls(p, rebuild);
     } else if (accel_name_ != "brute" && accel_name_ != "embree") {
-      if (cell_size_slider_ <= 0) cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
+      if (cell_size_slider_ <= 0)
+        cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
       bool auto_cs = params_.cell_size <= 0 && accel_name_ != "grid";
       if (accel_name_ != "grid" && ImGui::Checkbox("auto cell size", &auto_cs)) {
         p = params_with_cell_size(accel_name_, auto_cs ? 0.0f : cell_size_slider_);
@@ -263,9 +274,10 @@ void Viewer::draw_panels() {
     ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
     mode_ = RenderMode(m);
     chk("tri tests");
-    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_, have_image_ ? image_.samples : 0,
-                       last_mrays_);
-    ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d", ImGuiSliderFlags_Logarithmic);
+    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_,
+                       have_image_ ? image_.samples : 0, last_mrays_);
+    ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d",
+                     ImGuiSliderFlags_Logarithmic);
     chk("max samples");
     if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
       opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
@@ -277,26 +289,30 @@ void Viewer::draw_panels() {
       std::vector<float> v(hist.begin(), hist.end());
       const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
       char overlay[64];
-      std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(), unit, hi);
-      ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f, ImVec2(0, 40));
+      std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(),
+                    unit, hi);
+      ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f,
+                       ImVec2(0, 40));
       chk(name);
     };
     plot("Mrays/s", mrays_hist_, "");
     // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
     plot("frame work", frame_ms_hist_, " ms");
-    ImGui::TextWrapped("camera: %s (Tab), speed x%.2f (+/-)", cam_.mode() == CameraMode::Fly ? "fly" : "orbit",
-                       cam_.speed_scale());
+    ImGui::TextWrapped("camera: %s (Tab), speed x%.2f (+/-)",
+                       cam_.mode() == CameraMode::Fly ? "fly" : "orbit", cam_.speed_scale());
     if (ImGui::Button("print camera (C)")) print_camera();
     chk("print camera (C)");
     same_line_if_fits("frame scene (Home)");
     if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
     chk("frame scene (Home)");
     same_line_if_fits("screenshot (P)");
-    if (ImGui::Button("screenshot (P)")) save_screenshot(default_output_name("kdgrid-screenshot", "png"));
+    if (ImGui::Button("screenshot (P)"))
+      save_screenshot(default_output_name("kdgrid-screenshot", "png"));
     chk("screenshot (P)");
   }
 
-  if (mode_ != RenderMode::Shaded && ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
+  if (mode_ != RenderMode::Shaded &&
+      ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
     int s = int(settings_.heat_scale);
     bool changed = ImGui::RadioButton("auto", &s, int(HeatScale::Auto));
     ImGui::SameLine();
@@ -311,9 +327,11 @@ void Viewer::draw_panels() {
     }
     if (changed) recolor_ = true;
     if (ImGui::Button("export EXR") && have_image_ && image_.mode != RenderMode::Shaded) {
-      const std::string path = default_output_name(image_.mode == RenderMode::HeatSteps ? "kdgrid-steps" : "kdgrid-tests", "exr");
-      const std::string err = write_counts_exr(path, image_, std::string("kdgrid ") + mode_name(image_.mode) +
-                                                                  " per pixel, " + accel_name_);
+      const std::string path = default_output_name(
+          image_.mode == RenderMode::HeatSteps ? "kdgrid-steps" : "kdgrid-tests", "exr");
+      const std::string err = write_counts_exr(
+          path, image_,
+          std::string("kdgrid ") + mode_name(image_.mode) + " per pixel, " + accel_name_);
       message_ = err.empty() ? "wrote " + path : err;
       std::printf("kdgrid-viewer: %s\n", message_.c_str());
     }
@@ -351,8 +369,9 @@ void Viewer::draw_panels() {
     ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
     chk("opacity");
     if (dirty) overlay_dirty_ = true;
-    ImGui::TextWrapped("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
-                       structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
+    ImGui::TextWrapped(
+        "%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
+        structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
   }
 
   if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
@@ -367,25 +386,30 @@ void Viewer::draw_panels() {
 void Viewer::draw_heat_legend() {
   const ImGuiIO& io = ImGui::GetIO();
   const float s = ui_scale_;
-  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - 8, io.DisplaySize.y - 8), ImGuiCond_Always, ImVec2(1, 1));
+  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - 8, io.DisplaySize.y - 8), ImGuiCond_Always,
+                          ImVec2(1, 1));
   ImGui::SetNextWindowBgAlpha(0.7f);
   ImGui::Begin("legend", nullptr,
-               ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings |
-                   ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
+               ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize |
+                   ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoFocusOnAppearing |
+                   ImGuiWindowFlags_NoNav);
   if (world_ && !world_->accel->has_counters()) {
     // Embree counts nothing: a ramp with a 0..1 scale would read as "no work at all".
-    ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f), "%s keeps no traversal counters: no %s heat map",
-                       world_->name.c_str(), image_.mode == RenderMode::HeatSteps ? "step" : "test");
+    ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f),
+                       "%s keeps no traversal counters: no %s heat map", world_->name.c_str(),
+                       image_.mode == RenderMode::HeatSteps ? "step" : "test");
     ImGui::TextDisabled("choose a kdgrid structure to see its work per pixel");
     ImGui::End();
     return;
   }
-  ImGui::Text("%s per pixel (%s scale)", image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
+  ImGui::Text("%s per pixel (%s scale)",
+              image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
               to_string(settings_.heat_scale));
   // The value at the middle of the bar differs between linear and log scales.
-  const float mid = settings_.heat_scale == HeatScale::Log
-                        ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
-                        : 0.5f * (heat_range_.lo + heat_range_.hi);
+  const float mid =
+      settings_.heat_scale == HeatScale::Log
+          ? heat_range_.lo + std::expm1(0.5f * std::log1p(heat_range_.hi - heat_range_.lo))
+          : 0.5f * (heat_range_.lo + heat_range_.hi);
   char l0[32], l1[32], l2[32];
   std::snprintf(l0, sizeof l0, "%.4g", heat_range_.lo);
   std::snprintf(l1, sizeof l1, "%.4g", mid);
@@ -402,9 +426,10 @@ void Viewer::draw_ramp_bar(float w, const char* lo, const char* mid, const char*
   constexpr int kSegs = 32;
   for (int i = 0; i < kSegs; ++i) {
     const Color a = ramp(float(i) / kSegs), b = ramp(float(i + 1) / kSegs);
-    const ImU32 ca = ImGui::GetColorU32(ImVec4(a.r, a.g, a.b, 1)), cb = ImGui::GetColorU32(ImVec4(b.r, b.g, b.b, 1));
-    dl->AddRectFilledMultiColor(ImVec2(p.x + w * i / kSegs, p.y), ImVec2(p.x + w * (i + 1) / kSegs, p.y + h), ca, cb,
-                                cb, ca);
+    const ImU32 ca = ImGui::GetColorU32(ImVec4(a.r, a.g, a.b, 1)),
+                cb = ImGui::GetColorU32(ImVec4(b.r, b.g, b.b, 1));
+    dl->AddRectFilledMultiColor(ImVec2(p.x + w * i / kSegs, p.y),
+                                ImVec2(p.x + w * (i + 1) / kSegs, p.y + h), ca, cb, cb, ca);
   }
   ImGui::Dummy(ImVec2(w, h));
   const float x0 = ImGui::GetCursorPosX();
@@ -418,9 +443,10 @@ void Viewer::draw_ramp_bar(float w, const char* lo, const char* mid, const char*
 void Viewer::draw_key_list() {
   if (!show_keys_) return;
   const ImGuiIO& io = ImGui::GetIO();
-  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x * 0.5f, io.DisplaySize.y * 0.5f), ImGuiCond_Appearing,
-                          ImVec2(0.5f, 0.5f));
-  if (!ImGui::Begin("keys (F1)", &show_keys_, ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings)) {
+  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x * 0.5f, io.DisplaySize.y * 0.5f),
+                          ImGuiCond_Appearing, ImVec2(0.5f, 0.5f));
+  if (!ImGui::Begin("keys (F1)", &show_keys_,
+                    ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoSavedSettings)) {
     ImGui::End();
     return;
   }

@@ -14,9 +14,12 @@ namespace kdgrid::viewer {
 
 const char* kind_name(StepKind k) {
   switch (k) {
-    case StepKind::Inner: return "inner";
-    case StepKind::Leaf: return "leaf";
-    case StepKind::Cell: return "cell";
+    case StepKind::Inner:
+      return "inner";
+    case StepKind::Leaf:
+      return "leaf";
+    case StepKind::Cell:
+      return "cell";
   }
   return "?";
 }
@@ -74,9 +77,12 @@ std::vector<Vec3> pick_frame_points(const Trace& t, const RaySegment& seg) {
     pts.push_back(seg.ray.at(seg.t1));
   }
   // A box or segment reaching infinity (a structure's unbounded step) cannot be framed.
-  pts.erase(std::remove_if(pts.begin(), pts.end(),
-                           [](const Vec3& p) { return !(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)); }),
-            pts.end());
+  pts.erase(
+      std::remove_if(pts.begin(), pts.end(),
+                     [](const Vec3& p) {
+                       return !(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z));
+                     }),
+      pts.end());
   return pts;
 }
 
@@ -162,14 +168,17 @@ struct Projector {
   }
 };
 
-ImU32 to_u32(const Color& c) { return ImGui::ColorConvertFloat4ToU32(ImVec4(c.r, c.g, c.b, c.a)); }
+ImU32 to_u32(const Color& c) {
+  return ImGui::ColorConvertFloat4ToU32(ImVec4(c.r, c.g, c.b, c.a));
+}
 
 }  // namespace
 
-void draw_trace(ImDrawList* dl, const CameraFrame& f, float dw, float dh, const Trace& t, const RaySegment& seg,
-                const Mesh& mesh, float s, float miss_length) {
+void draw_trace(ImDrawList* dl, const CameraFrame& f, float dw, float dh, const Trace& t,
+                const RaySegment& seg, const Mesh& mesh, float s, float miss_length) {
   const float ray_t0 = std::max(seg.ray.tmin, 0.0f);
-  const float ray_t1 = seg.t1 >= seg.t0 ? seg.t1 : ray_t0 + miss_length / std::max(length(seg.ray.dir), 1e-30f);
+  const float ray_t1 =
+      seg.t1 >= seg.t0 ? seg.t1 : ray_t0 + miss_length / std::max(length(seg.ray.dir), 1e-30f);
   // The near plane: a small fraction of the distance to the segment's far end, so that a
   // camera close to the boxes (a framed pick) clips only what lies behind it.
   const float far_z = std::fabs(dot(seg.ray.at(ray_t1) - f.eye, f.fwd));
@@ -282,8 +291,8 @@ void Viewer::draw_pick_overlay() {
   const ImGuiIO& io = ImGui::GetIO();
   // The live camera (not the displayed image's) so the overlay follows the mouse at once.
   const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
-  draw_trace(ImGui::GetBackgroundDrawList(), f, io.DisplaySize.x, io.DisplaySize.y, pick_->trace, pick_->segment,
-             world_->scene->mesh, ui_scale_, scene_radius() * 4.0f);
+  draw_trace(ImGui::GetBackgroundDrawList(), f, io.DisplaySize.x, io.DisplaySize.y, pick_->trace,
+             pick_->segment, world_->scene->mesh, ui_scale_, scene_radius() * 4.0f);
 }
 
 void Viewer::draw_pick_panel() {
@@ -345,8 +354,8 @@ void Viewer::draw_pick_steps() {
       r[0] = std::to_string(i);
       std::snprintf(buf, sizeof buf, "%s d%d", kind_name(s.kind), s.depth);
       r[1] = buf;
-      std::snprintf(buf, sizeof buf, "(%.5g %.5g %.5g)-(%.5g %.5g %.5g)", s.box.lo.x, s.box.lo.y, s.box.lo.z,
-                    s.box.hi.x, s.box.hi.y, s.box.hi.z);
+      std::snprintf(buf, sizeof buf, "(%.5g %.5g %.5g)-(%.5g %.5g %.5g)", s.box.lo.x, s.box.lo.y,
+                    s.box.lo.z, s.box.hi.x, s.box.hi.y, s.box.hi.z);
       r[2] = buf;
       std::snprintf(buf, sizeof buf, "%.6g", s.t_in);
       r[3] = buf;
@@ -367,7 +376,8 @@ void Viewer::draw_pick_steps() {
   const float m = 8 * ui_scale_, left = panel_rect_[0] + panel_rect_[2] + m;
   ImGui::SetNextWindowPos(ImVec2(left, io.DisplaySize.y - m), ImGuiCond_FirstUseEver, ImVec2(0, 1));
   // Up to 720 wide, leaving the heat map's legend (bottom right, about 260 wide) uncovered.
-  const float room = io.DisplaySize.x - left - m - (mode_ != RenderMode::Shaded ? 270 * ui_scale_ : 0.0f);
+  const float room =
+      io.DisplaySize.x - left - m - (mode_ != RenderMode::Shaded ? 270 * ui_scale_ : 0.0f);
   ImGui::SetNextWindowSize(ImVec2(std::max(160 * ui_scale_, std::min(720 * ui_scale_, room)),
                                   std::min(220 * ui_scale_, io.DisplaySize.y * 0.4f)),
                            ImGuiCond_FirstUseEver);
@@ -377,13 +387,15 @@ void Viewer::draw_pick_steps() {
     ImGui::End();
     return;
   }
-  const ImGuiTableFlags flags = ImGuiTableFlags_Resizable | ImGuiTableFlags_ScrollX | ImGuiTableFlags_ScrollY |
-                                ImGuiTableFlags_SizingFixedFit | ImGuiTableFlags_RowBg | ImGuiTableFlags_Borders;
+  const ImGuiTableFlags flags = ImGuiTableFlags_Resizable | ImGuiTableFlags_ScrollX |
+                                ImGuiTableFlags_ScrollY | ImGuiTableFlags_SizingFixedFit |
+                                ImGuiTableFlags_RowBg | ImGuiTableFlags_Borders;
   // A table per pick: its columns take their initial widths from this pick's values.
   ImGui::PushID(int(p.serial));
   if (ImGui::BeginTable("steps", 6, flags, ImVec2(0, ImGui::GetContentRegionAvail().y))) {
     ImGui::TableSetupScrollFreeze(1, 1);
-    for (int c = 0; c < 6; ++c) ImGui::TableSetupColumn(kHeads[c], ImGuiTableColumnFlags_WidthFixed, p.widths[c]);
+    for (int c = 0; c < 6; ++c)
+      ImGui::TableSetupColumn(kHeads[c], ImGuiTableColumnFlags_WidthFixed, p.widths[c]);
     ImGui::TableHeadersRow();
     ImGuiListClipper clip;
     clip.Begin(int(n));

@@ -42,8 +42,9 @@ Camera fit_points(const Camera& cam, const std::vector<Vec3>& pts, int w, int h,
 /// (white), the ray (cyan) and a ring around the hit point. `f` is the live camera's frame
 /// over the image, which covers `display_w` x `display_h` window units; `ui_scale` scales the
 /// line widths like the panels. A ray that misses the scene is drawn `miss_length` long.
-void draw_trace(ImDrawList* dl, const CameraFrame& f, float display_w, float display_h, const Trace& t,
-                const RaySegment& seg, const Mesh& mesh, float ui_scale, float miss_length);
+void draw_trace(ImDrawList* dl, const CameraFrame& f, float display_w, float display_h,
+                const Trace& t, const RaySegment& seg, const Mesh& mesh, float ui_scale,
+                float miss_length);
 
 /// Puts the next button on the current line when it fits there, else leaves it for the next
 /// line, so that a row of buttons wraps instead of being cut at the window's edge.
@@ -53,10 +54,10 @@ void same_line_if_fits(const char* next_label);
 /// labels and values cut by their window or column, legends drawn, and the layout's anchors.
 struct UiAudit {
   std::vector<std::string> clipped;  ///< "text (needs W, has A)" for each cut label or value
-  std::vector<std::string> legends; ///< each legend drawn: "<name>: <lo> .. <hi>"
-  float status_top = -1;            ///< the panel's y (window units) of the status area
-  float below_status_y = -1;        ///< the panel's y of the first widget under the status area
-  int table_cells = 0;              ///< step-table cells checked
+  std::vector<std::string> legends;  ///< each legend drawn: "<name>: <lo> .. <hi>"
+  float status_top = -1;             ///< the panel's y (window units) of the status area
+  float below_status_y = -1;         ///< the panel's y of the first widget under the status area
+  int table_cells = 0;               ///< step-table cells checked
 
   void clear() { *this = UiAudit{}; }
   /// After an item: records `label` when the item reaches past the window's visible content

@@ -104,7 +104,8 @@ void RenderWorker::loop() {
       }
       const auto t0 = std::chrono::steady_clock::now();
       if (!renderer->render_pass(&cancel_)) continue;  // cancelled: a new job is waiting
-      const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double secs =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
       renderer->resolve(local.rgb);
       local.width = job.settings.width;
       local.height = job.settings.height;

@@ -29,9 +29,9 @@ namespace kdgrid::viewer {
 /// is destroyed first (it references the scene's mesh).
 struct World {
   std::shared_ptr<const Scene> scene;
-  std::string name;       ///< structure name as given to make_accelerator
+  std::string name;  ///< structure name as given to make_accelerator
   std::unique_ptr<Accelerator> accel;
-  BuildParams params;     ///< what accel was built with
+  BuildParams params;  ///< what accel was built with
   double build_seconds = 0;
 };
 
@@ -48,14 +48,14 @@ struct RenderJob {
 
 /// One completed, resolved image.
 struct RenderedImage {
-  std::vector<float> rgb;     ///< linear RGB or raw counts (heat modes), row 0 at the top
+  std::vector<float> rgb;  ///< linear RGB or raw counts (heat modes), row 0 at the top
   int width = 0, height = 0;
   int samples = 0;
   RenderMode mode = RenderMode::Shaded;
-  uint64_t job_id = 0;        ///< which post() produced it
-  bool preview = false;       ///< RenderJob::preview of that job
-  double pass_seconds = 0;    ///< wall time of the pass that completed it
-  uint64_t pass_rays = 0;     ///< rays traced by that pass
+  uint64_t job_id = 0;           ///< which post() produced it
+  bool preview = false;          ///< RenderJob::preview of that job
+  double pass_seconds = 0;       ///< wall time of the pass that completed it
+  uint64_t pass_rays = 0;        ///< rays traced by that pass
   RenderCounters pass_counters;  ///< the same, by kind (primary, shadow, ...)
 };
 
@@ -86,22 +86,22 @@ class RenderWorker {
 
   mutable std::mutex job_mutex_;
   std::condition_variable job_cv_;
-  RenderJob job_;           // guarded by job_mutex_
-  uint64_t job_id_ = 0;     // guarded by job_mutex_
+  RenderJob job_;        // guarded by job_mutex_
+  uint64_t job_id_ = 0;  // guarded by job_mutex_
   bool job_changed_ = false;
   bool quit_ = false;
-  std::string error_;       // guarded by job_mutex_
+  std::string error_;  // guarded by job_mutex_
 
   std::atomic<bool> cancel_{false};
   bool running_preview_ = false;  // guarded by job_mutex_: the job being rendered is a preview
   std::atomic<bool> busy_{false};
 
   std::mutex image_mutex_;
-  RenderedImage ready_;     // guarded by image_mutex_
-  bool fresh_ = false;      // guarded by image_mutex_
+  RenderedImage ready_;  // guarded by image_mutex_
+  bool fresh_ = false;   // guarded by image_mutex_
 
   const std::function<void()> on_image_;  // set before the thread starts, then only read
-  std::thread thread_;      // last: started after every member above exists
+  std::thread thread_;                    // last: started after every member above exists
 };
 
 }  // namespace kdgrid::viewer

@@ -16,9 +16,12 @@ namespace fs = std::filesystem;
 
 const char* to_string(HeatScale s) {
   switch (s) {
-    case HeatScale::Auto: return "auto";
-    case HeatScale::Fixed: return "fixed";
-    case HeatScale::Log: return "log";
+    case HeatScale::Auto:
+      return "auto";
+    case HeatScale::Fixed:
+      return "fixed";
+    case HeatScale::Log:
+      return "log";
   }
   return "auto";
 }
@@ -109,7 +112,8 @@ CellChoice CellChoice::parse(const std::string& s, const std::string& what) {
   char* end = nullptr;
   const double v = std::strtod(num.c_str(), &end);
   if (num.empty() || end != num.c_str() + num.size() || !std::isfinite(v) || !(v > 0.0))
-    throw ParamError(what + " '" + s + "' must be 'auto', a multiple of the auto size such as '0.5x', "
+    throw ParamError(what + " '" + s +
+                     "' must be 'auto', a multiple of the auto size such as '0.5x', "
                      "or a positive size in scene units such as 0.01");
   c.kind = multiple ? Kind::Multiple : Kind::Units;
   c.value = v;
@@ -119,18 +123,26 @@ CellChoice CellChoice::parse(const std::string& s, const std::string& what) {
 std::string CellChoice::text() const {
   char buf[64];
   switch (kind) {
-    case Kind::Auto: return "auto";
-    case Kind::Multiple: std::snprintf(buf, sizeof buf, "%.6gx", value); return buf;
-    case Kind::Units: std::snprintf(buf, sizeof buf, "%.6g", value); return buf;
+    case Kind::Auto:
+      return "auto";
+    case Kind::Multiple:
+      std::snprintf(buf, sizeof buf, "%.6gx", value);
+      return buf;
+    case Kind::Units:
+      std::snprintf(buf, sizeof buf, "%.6g", value);
+      return buf;
   }
   return "auto";
 }
 
 float CellChoice::resolve(double auto_cell) const {
   switch (kind) {
-    case Kind::Auto: return 0.0f;
-    case Kind::Multiple: return float(value * auto_cell);
-    case Kind::Units: return float(value);
+    case Kind::Auto:
+      return 0.0f;
+    case Kind::Multiple:
+      return float(value * auto_cell);
+    case Kind::Units:
+      return float(value);
   }
   return 0.0f;
 }

@@ -10,7 +10,7 @@ namespace kdgrid::viewer {
 enum class HeatScale { Auto, Fixed, Log };
 
 struct Settings {
-  std::string accel;             ///< last structure; empty = the command line's default
+  std::string accel;  ///< last structure; empty = the command line's default
   /// The hybrid's cell size for any scene: "auto" or a multiple of the auto size ("0.5x").
   /// A size in scene units is remembered per scene only (cell_size_by_scene): one scene's
   /// 0.0008 is a 43526x20701x19501 grid on another. A bare number here (an older file) is

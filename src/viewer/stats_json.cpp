@@ -10,8 +10,8 @@
 #include <cstdio>
 #include <fstream>
 
-#include <nlohmann/json.hpp>
 #include <tbb/global_control.h>
+#include <nlohmann/json.hpp>
 
 #include "accel/hybrid/hybrid.h"
 #include "viewer/viewer_internal.h"
@@ -20,10 +20,15 @@ namespace kdgrid::viewer {
 
 namespace {
 
-nlohmann::json vec_json(const Vec3& v) { return {v.x, v.y, v.z}; }
+nlohmann::json vec_json(const Vec3& v) {
+  return {v.x, v.y, v.z};
+}
 
 nlohmann::json camera_json(const Camera& c) {
-  return {{"eye", vec_json(c.eye)}, {"target", vec_json(c.target)}, {"up", vec_json(c.up)}, {"fov", c.fov_deg}};
+  return {{"eye", vec_json(c.eye)},
+          {"target", vec_json(c.target)},
+          {"up", vec_json(c.up)},
+          {"fov", c.fov_deg}};
 }
 
 }  // namespace
@@ -36,27 +41,32 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   json j;
   j["exit_code"] = exit_code;
   j["end"] = end_reason_;
-  j["display"] = {{"window", {ww, wh}},
-                  {"framebuffer", {fw, fh}},
-                  {"content_scale", {content_scale_[0], content_scale_[1]}},
-                  {"ui_scale", ui_scale_},
-                  {"font_size", ImGui::GetIO().Fonts->Fonts.empty() ? 0.0f : ImGui::GetIO().Fonts->Fonts[0]->FontSize},
-                  {"image", {posted_w_, posted_h_}},
-                  {"panel", opts_.hide_ui ? json(nullptr)
-                                          : json{{"x", panel_rect_[0]}, {"y", panel_rect_[1]},
-                                                 {"w", panel_rect_[2]}, {"h", panel_rect_[3]}}},
-                  {"gl_renderer", gl_renderer_},
-                  {"gl_version", gl_version_}};
+  j["display"] = {
+      {"window", {ww, wh}},
+      {"framebuffer", {fw, fh}},
+      {"content_scale", {content_scale_[0], content_scale_[1]}},
+      {"ui_scale", ui_scale_},
+      {"font_size",
+       ImGui::GetIO().Fonts->Fonts.empty() ? 0.0f : ImGui::GetIO().Fonts->Fonts[0]->FontSize},
+      {"image", {posted_w_, posted_h_}},
+      {"panel", opts_.hide_ui ? json(nullptr)
+                              : json{{"x", panel_rect_[0]},
+                                     {"y", panel_rect_[1]},
+                                     {"w", panel_rect_[2]},
+                                     {"h", panel_rect_[3]}}},
+      {"gl_renderer", gl_renderer_},
+      {"gl_version", gl_version_}};
   const RenderSettings rs;  // what sync_render_job leaves at its defaults
-  j["settings"] = {{"threads", tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)},
-                   {"threads_option", opts_.threads},
-                   {"max_samples", opts_.max_samples},
-                   {"samples_per_pass", 1},
-                   {"shadows", rs.shadows},
-                   {"max_depth", rs.max_depth},
-                   {"resolution_scale", opts_.resolution_scale},
-                   {"max_fps", opts_.max_fps},
-                   {"mode", mode_name(mode_)}};
+  j["settings"] = {
+      {"threads", tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)},
+      {"threads_option", opts_.threads},
+      {"max_samples", opts_.max_samples},
+      {"samples_per_pass", 1},
+      {"shadows", rs.shadows},
+      {"max_depth", rs.max_depth},
+      {"resolution_scale", opts_.resolution_scale},
+      {"max_fps", opts_.max_fps},
+      {"mode", mode_name(mode_)}};
   json st;
   if (world_) {
     st["scene"] = world_->scene->source;
@@ -83,14 +93,22 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   st["speed"] = cam_.speed();
   st["camera_flags"] = cam_.cli_flags();
   if (pick_)
-    st["pick"] = {{"x", pick_->x}, {"y", pick_->y}, {"steps", pick_->trace.steps.size()},
-                  {"hit", pick_->trace.hit.valid()}, {"command", pick_->command}, {"framed", pick_->framed},
+    st["pick"] = {{"x", pick_->x},
+                  {"y", pick_->y},
+                  {"steps", pick_->trace.steps.size()},
+                  {"hit", pick_->trace.hit.valid()},
+                  {"command", pick_->command},
+                  {"framed", pick_->framed},
                   {"segment", {pick_->segment.t0, pick_->segment.t1}}};
   else
     st["pick"] = nullptr;
-  st["overlay"] = {{"splits", show_splits_}, {"cells", show_cells_}, {"boxes", show_boxes_},
-                   {"splits_of_pick", splits_of_pick_}, {"split_depths", {split_depth_[0], split_depth_[1]}},
-                   {"items", overlay_items_}, {"lines", structure_lines_.vertex_count() / 2}};
+  st["overlay"] = {{"splits", show_splits_},
+                   {"cells", show_cells_},
+                   {"boxes", show_boxes_},
+                   {"splits_of_pick", splits_of_pick_},
+                   {"split_depths", {split_depth_[0], split_depth_[1]}},
+                   {"items", overlay_items_},
+                   {"lines", structure_lines_.vertex_count() / 2}};
   st["message"] = message_;
   st["error"] = task_error_;
   st["render_error"] = worker_ ? worker_->error() : std::string();
@@ -98,14 +116,14 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   st["samples"] = have_image_ ? image_.samples : 0;
   j["state"] = st;
   // What the last frame's panels showed (empty with the panels hidden).
-  j["ui"] = {{"clipped", audit_.clipped},
-             {"legends", audit_.legends},
-             {"status_top", audit_.status_top},
-             {"below_status_y", audit_.below_status_y},
-             {"table_cells", audit_.table_cells},
-             {"below_status_y_by_state", below_status_y_by_state_}};
+  j["ui"] = {
+      {"clipped", audit_.clipped},         {"legends", audit_.legends},
+      {"status_top", audit_.status_top},   {"below_status_y", audit_.below_status_y},
+      {"table_cells", audit_.table_cells}, {"below_status_y_by_state", below_status_y_by_state_}};
 
-  j["frames"] = {{"count", frame_count_}, {"interval_ms", frame_interval_ms_}, {"work_ms", frame_work_ms_},
+  j["frames"] = {{"count", frame_count_},
+                 {"interval_ms", frame_interval_ms_},
+                 {"work_ms", frame_work_ms_},
                  {"swap_ms", frame_swap_ms_}};
   json passes = json::array();
   for (const PassRecord& p : passes_) {
@@ -130,16 +148,21 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   j["upload_ms"] = upload_ms_;
   json builds = json::array();
   for (const BuildRecord& b : builds_) {
-    json e = {{"kind", b.kind}, {"accel", b.accel}, {"scene", b.scene}, {"build_seconds", b.build_seconds},
-              {"wall_seconds", b.wall_seconds}, {"requested_cell_size", b.cell_size}};
+    json e = {{"kind", b.kind},
+              {"accel", b.accel},
+              {"scene", b.scene},
+              {"build_seconds", b.build_seconds},
+              {"wall_seconds", b.wall_seconds},
+              {"requested_cell_size", b.cell_size}};
     if (b.cancelled) e["cancel_seconds"] = b.cancel_seconds;
     if (!b.error.empty()) {
       e["error"] = b.error;
     } else {
       json extra = json::object();
       for (const auto& [k, v] : b.stats.extra) extra[k] = v;
-      e["stats"] = {{"seconds", b.stats.seconds}, {"bytes", b.stats.bytes}, {"nodes", b.stats.nodes},
-                    {"leaves", b.stats.leaves}, {"max_depth", b.stats.max_depth}, {"extra", extra}};
+      e["stats"] = {{"seconds", b.stats.seconds},     {"bytes", b.stats.bytes},
+                    {"nodes", b.stats.nodes},         {"leaves", b.stats.leaves},
+                    {"max_depth", b.stats.max_depth}, {"extra", extra}};
     }
     builds.push_back(e);
   }

@@ -27,16 +27,21 @@ namespace kdgrid::viewer {
 
 const char* mode_name(RenderMode m) {
   switch (m) {
-    case RenderMode::Shaded: return "shaded";
-    case RenderMode::HeatSteps: return "steps";
-    case RenderMode::HeatTests: return "tests";
+    case RenderMode::Shaded:
+      return "shaded";
+    case RenderMode::HeatSteps:
+      return "steps";
+    case RenderMode::HeatTests:
+      return "tests";
   }
   return "shaded";
 }
 
 namespace {
 
-Viewer* self(GLFWwindow* w) { return static_cast<Viewer*>(glfwGetWindowUserPointer(w)); }
+Viewer* self(GLFWwindow* w) {
+  return static_cast<Viewer*>(glfwGetWindowUserPointer(w));
+}
 
 bool same_camera(const Camera& a, const Camera& b) {
   return a.eye == b.eye && a.target == b.target && a.up == b.up && a.fov_deg == b.fov_deg;
@@ -51,7 +56,9 @@ std::string shell_quote(const std::string& s) {
 }
 
 /// A float as a command-line value that reads back as the same float.
-std::string fmt_float(float v) { return format_double("%.9g", v); }
+std::string fmt_float(float v) {
+  return format_double("%.9g", v);
+}
 
 /// The build flags of `p` that differ from the defaults, as `kdgrid` options, so a printed
 /// command line rebuilds the very same structure.
@@ -59,16 +66,19 @@ std::string accel_flags(const std::string& name, const BuildParams& p) {
   const BuildParams d;
   std::string s = " --accel " + name;
   if (p.cell_size > 0) s += " --cell-size " + fmt_float(p.cell_size);
-  if (p.cell_percentile != d.cell_percentile) s += " --cell-percentile " + fmt_float(p.cell_percentile);
+  if (p.cell_percentile != d.cell_percentile)
+    s += " --cell-percentile " + fmt_float(p.cell_percentile);
   if (p.hybrid_dense_matrix) s += " --dense-matrix";
-  if (p.hybrid_subtree_min != d.hybrid_subtree_min) s += " --hybrid-subtree " + std::to_string(p.hybrid_subtree_min);
+  if (p.hybrid_subtree_min != d.hybrid_subtree_min)
+    s += " --hybrid-subtree " + std::to_string(p.hybrid_subtree_min);
   if (!p.hybrid_expand_empty) s += " --hybrid-no-expand";
   if (!p.hybrid_guess) s += " --hybrid-no-guess";
   if (p.grid_lambda != d.grid_lambda) s += " --grid-lambda " + fmt_float(p.grid_lambda);
   if (p.kd_intersection_cost != d.kd_intersection_cost)
     s += " --kd-cost-ratio " + fmt_float(p.kd_intersection_cost);
   if (p.bvh_max_leaf != d.bvh_max_leaf) s += " --bvh-leaf " + std::to_string(p.bvh_max_leaf);
-  if (p.triangle_test != d.triangle_test) s += std::string(" --triangle-test ") + to_string(p.triangle_test);
+  if (p.triangle_test != d.triangle_test)
+    s += std::string(" --triangle-test ") + to_string(p.triangle_test);
   return s;
 }
 
@@ -110,7 +120,8 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
   } catch (const ParamError&) {
     cell_choice_ = {};  // a bad remembered value falls back to auto
   }
-  params_.cell_size = cell_choice_.kind == CellChoice::Kind::Units ? float(cell_choice_.value) : 0.0f;
+  params_.cell_size =
+      cell_choice_.kind == CellChoice::Kind::Units ? float(cell_choice_.value) : 0.0f;
   if (opts_.heatmap == "steps") mode_ = RenderMode::HeatSteps;
   if (opts_.heatmap == "tests") mode_ = RenderMode::HeatTests;
   for (const auto& o : opts_.overlays) {
@@ -121,7 +132,9 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
   splits_of_pick_ = opts_.splits_of_pick;
 }
 
-Viewer::~Viewer() { shutdown(); }
+Viewer::~Viewer() {
+  shutdown();
+}
 
 bool Viewer::create_window() {
   glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
@@ -171,16 +184,19 @@ void Viewer::init_gl() {
 
   // Our callbacks first; ImGui's backend then chains to them, so ImGui sees input first and
   // we gate on WantCaptureMouse / WantCaptureKeyboard (docs/DESIGN.md, "The viewer").
-  glfwSetKeyCallback(window_, [](GLFWwindow* w, int k, int s, int a, int m) { self(w)->on_key(k, s, a, m); });
-  glfwSetMouseButtonCallback(window_, [](GLFWwindow* w, int b, int a, int m) {
-    self(w)->on_mouse_button(b, a, m);
-  });
-  glfwSetScrollCallback(window_, [](GLFWwindow* w, double dx, double dy) { self(w)->on_scroll(dx, dy); });
+  glfwSetKeyCallback(
+      window_, [](GLFWwindow* w, int k, int s, int a, int m) { self(w)->on_key(k, s, a, m); });
+  glfwSetMouseButtonCallback(
+      window_, [](GLFWwindow* w, int b, int a, int m) { self(w)->on_mouse_button(b, a, m); });
+  glfwSetScrollCallback(window_,
+                        [](GLFWwindow* w, double dx, double dy) { self(w)->on_scroll(dx, dy); });
   // ImGui 1.86's GLFW backend polls the cursor and installs no position callback, so this one
   // stays ours; drags follow every reported position, not one sample per frame.
-  glfwSetCursorPosCallback(window_, [](GLFWwindow* w, double x, double y) { self(w)->on_cursor_pos(x, y); });
+  glfwSetCursorPosCallback(window_,
+                           [](GLFWwindow* w, double x, double y) { self(w)->on_cursor_pos(x, y); });
   glfwGetCursorPos(window_, &cursor_x_, &cursor_y_);
-  glfwSetDropCallback(window_, [](GLFWwindow* w, int n, const char** p) { self(w)->on_drop(n, p); });
+  glfwSetDropCallback(window_,
+                      [](GLFWwindow* w, int n, const char** p) { self(w)->on_drop(n, p); });
   glfwSetFramebufferSizeCallback(window_, [](GLFWwindow* w, int, int) { self(w)->note_input(); });
   glfwSetWindowRefreshCallback(window_, [](GLFWwindow* w) { self(w)->note_input(); });
 
@@ -327,8 +343,7 @@ void Viewer::on_mouse_button(int button, int action, int mods) {
         left_down_ = false;
         int ww, wh;
         glfwGetWindowSize(window_, &ww, &wh);
-        if (ww > 0 && wh > 0)
-          do_pick(int(x / ww * posted_w_), int(y / wh * posted_h_));
+        if (ww > 0 && wh > 0) do_pick(int(x / ww * posted_w_), int(y / wh * posted_h_));
         return;
       }
       left_down_ = true;
@@ -374,7 +389,8 @@ void Viewer::on_cursor_pos(double x, double y) {
       cam_.orbit(-float(x - press_x_) * kRadPerPixel, float(y - press_y_) * kRadPerPixel);
     }
   }
-  if (right_down_ && (dx != 0 || dy != 0)) cam_.look(-float(dx) * kRadPerPixel, -float(dy) * kRadPerPixel);
+  if (right_down_ && (dx != 0 || dy != 0))
+    cam_.look(-float(dx) * kRadPerPixel, -float(dy) * kRadPerPixel);
 }
 
 void Viewer::on_drop(int count, const char** paths) {
@@ -391,7 +407,8 @@ void Viewer::note_input() {
 bool Viewer::wants_continuous_frames() const {
   // A coarse preview is showing: keep drawing until the full resolution has been posted.
   if (settle_frames_ > 0 || glfwWindowShouldClose(window_) || posted_preview_) return true;
-  if (ImGui::GetCurrentContext() && (ImGui::GetIO().WantTextInput || ImGui::IsAnyItemActive())) return true;
+  if (ImGui::GetCurrentContext() && (ImGui::GetIO().WantTextInput || ImGui::IsAnyItemActive()))
+    return true;
   // Held keys move the camera every frame without sending events.
   for (int k : {GLFW_KEY_W, GLFW_KEY_A, GLFW_KEY_S, GLFW_KEY_D, GLFW_KEY_Q, GLFW_KEY_E})
     if (glfwGetKey(window_, k) == GLFW_PRESS) return true;
@@ -432,7 +449,8 @@ void Viewer::sync_render_job() {
   } catch (const ParamError& e) {
     refusal = e.what();
   }
-  if (refusal != brute_refusal_ && !refusal.empty()) std::fprintf(stderr, "kdgrid-viewer: %s\n", refusal.c_str());
+  if (refusal != brute_refusal_ && !refusal.empty())
+    std::fprintf(stderr, "kdgrid-viewer: %s\n", refusal.c_str());
   brute_refusal_ = refusal;
   if (!brute_refusal_.empty()) return;
   const Camera& c = cam_.camera();
@@ -506,7 +524,8 @@ void Viewer::receive_image() {
     // Motion to photon: the job was posted in the frame that handled the input that moved
     // the camera to what this image shows.
     for (const auto& [job, at] : post_times_)
-      if (job == image_.job_id) pr.latency_ms = std::chrono::duration<double, std::milli>(now - at).count();
+      if (job == image_.job_id)
+        pr.latency_ms = std::chrono::duration<double, std::milli>(now - at).count();
     pr.width = image_.width;
     pr.height = image_.height;
     pr.samples = image_.samples;
@@ -517,7 +536,8 @@ void Viewer::receive_image() {
   if (!recolor_ || !have_image_) return;
   recolor_ = false;
   const auto t0 = Clock::now();
-  heat_range_ = heat_range(image_, settings_.heat_scale, settings_.heat_fixed_min, settings_.heat_fixed_max);
+  heat_range_ =
+      heat_range(image_, settings_.heat_scale, settings_.heat_fixed_min, settings_.heat_fixed_max);
   colorize(image_, settings_.heat_scale, heat_range_, rgba_);
   const auto t1 = Clock::now();
   colorize_ms_.push_back(std::chrono::duration<float, std::milli>(t1 - t0).count());
@@ -595,8 +615,8 @@ void Viewer::do_pick(int px, int py) {
   pick_ = std::move(p);
   retrace_pick();
   const Trace& t = pick_->trace;
-  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", pick_->x, pick_->y,
-              t.steps.size(), (unsigned long long)t.counters.tri_tests,
+  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", pick_->x,
+              pick_->y, t.steps.size(), (unsigned long long)t.counters.tri_tests,
               t.hit.valid() ? ("hit triangle " + std::to_string(t.hit.prim)).c_str() : "miss",
               pick_->command.c_str());
   std::fflush(stdout);
@@ -611,9 +631,10 @@ void Viewer::retrace_pick() {
   p.serial = ++pick_serial_;
   CameraControl at_pick;
   at_pick.set_camera(p.camera);
-  p.command = "kdgrid trace " + shell_quote(world_->scene->source) + accel_flags(world_->name, world_->params) +
-              " --pixel " + std::to_string(p.x) + "," + std::to_string(p.y) + " --res " + std::to_string(p.w) +
-              "x" + std::to_string(p.h) + " " + at_pick.cli_flags();
+  p.command = "kdgrid trace " + shell_quote(world_->scene->source) +
+              accel_flags(world_->name, world_->params) + " --pixel " + std::to_string(p.x) + "," +
+              std::to_string(p.y) + " --res " + std::to_string(p.w) + "x" + std::to_string(p.h) +
+              " " + at_pick.cli_flags();
   if (splits_of_pick_) overlay_dirty_ = true;
 }
 
@@ -703,7 +724,8 @@ int Viewer::run() {
     // stays, its panel shows the error and another file can be dropped. The run's exit code
     // says the load failed.
     const bool no_scene = !world_ && !task_;
-    if (no_scene && closing && opts_.hold <= 0) {  // closed during the first build, or after it failed
+    if (no_scene && closing &&
+        opts_.hold <= 0) {  // closed during the first build, or after it failed
       if (!task_error_.empty()) exit_code = 1;
       break;
     }
@@ -728,7 +750,8 @@ int Viewer::run() {
       // ended sooner), through the panel's own path.
       if (!opts_.supersede_cell_size.empty() && scripted_rebuild_started_ && !supersede_started_ &&
           (scripted_rebuild_done_ ||
-           std::chrono::duration<double>(Clock::now() - scripted_rebuild_at_).count() >= opts_.supersede_after)) {
+           std::chrono::duration<double>(Clock::now() - scripted_rebuild_at_).count() >=
+               opts_.supersede_after)) {
         supersede_started_ = true;
         const CellChoice c = CellChoice::parse(opts_.supersede_cell_size, "--supersede-cell-size");
         if (accel_name_ == "hybrid")
@@ -756,7 +779,9 @@ int Viewer::run() {
       const float wrap = std::min(io.DisplaySize.x * 0.6f, 640 * ui_scale_);
       const ImVec2 size = ImGui::CalcTextSize(text.c_str(), nullptr, false, wrap);
       ImGui::GetBackgroundDrawList()->AddText(
-          nullptr, 0.0f, ImVec2(std::max(0.0f, (io.DisplaySize.x - size.x) * 0.5f), std::max(0.0f, (io.DisplaySize.y - size.y) * 0.5f)),
+          nullptr, 0.0f,
+          ImVec2(std::max(0.0f, (io.DisplaySize.x - size.x) * 0.5f),
+                 std::max(0.0f, (io.DisplaySize.y - size.y) * 0.5f)),
           ImGui::GetColorU32(kRefusalColor), text.c_str(), nullptr, wrap);
     }
     audit_.clear();
@@ -804,10 +829,11 @@ int Viewer::run() {
           exit_code = 1;
         }
         if (!opts_.export_heatmap.empty()) {
-          const std::string err = write_counts_exr(opts_.export_heatmap, image_,
-                                                   std::string("kdgrid ") + mode_name(image_.mode) +
-                                                       " per pixel, " + accel_name_);
-          std::printf("kdgrid-viewer: %s\n", err.empty() ? ("wrote " + opts_.export_heatmap).c_str() : err.c_str());
+          const std::string err = write_counts_exr(
+              opts_.export_heatmap, image_,
+              std::string("kdgrid ") + mode_name(image_.mode) + " per pixel, " + accel_name_);
+          std::printf("kdgrid-viewer: %s\n",
+                      err.empty() ? ("wrote " + opts_.export_heatmap).c_str() : err.c_str());
           if (!err.empty()) exit_code = 1;
         }
         if (!opts_.screenshot.empty()) {
@@ -822,7 +848,8 @@ int Viewer::run() {
                      "kdgrid-viewer: scripted run timed out after %.0f s (frames %d/%d, image %s, "
                      "samples %d/%d, task %s); raise --timeout or lower --min-samples\n",
                      limit, frame_count_, opts_.frames, have_image_ ? "yes" : "no",
-                     have_image_ ? image_.samples : 0, opts_.min_samples, task_ ? task_->what.c_str() : "none");
+                     have_image_ ? image_.samples : 0, opts_.min_samples,
+                     task_ ? task_->what.c_str() : "none");
         exit_code = 4;
         end_reason_ = "timeout";
         break;
@@ -831,7 +858,8 @@ int Viewer::run() {
     const auto swap_start = Clock::now();
     glfwSwapBuffers(window_);
     // With a software GL (llvmpipe) the drawing happens here, when the frame is flushed.
-    frame_swap_ms_.push_back(std::chrono::duration<float, std::milli>(Clock::now() - swap_start).count());
+    frame_swap_ms_.push_back(
+        std::chrono::duration<float, std::milli>(Clock::now() - swap_start).count());
     // What the UI thread did this frame: events, hand-over, upload, panels, drawing, swap.
     // The frame plot shows this, not the interval: an idle loop sleeps between frames.
     const float work_ms = std::chrono::duration<float, std::milli>(Clock::now() - now).count();

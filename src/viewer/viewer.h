@@ -30,40 +30,40 @@ namespace kdgrid::viewer {
 
 /// Command-line options (main.cpp parses them).
 struct ViewerOptions {
-  std::string scene;                 ///< scene file (default assets/cornell.gltf)
+  std::string scene;  ///< scene file (default assets/cornell.gltf)
   cli::AccelOptions accel;
   cli::CameraOptions camera;
   bool accel_given = false, cell_size_given = false;
-  int width = 0, height = 0;         ///< window size; 0 = remembered / default
-  float resolution_scale = 1.0f;     ///< render pixels per framebuffer pixel
-  int max_samples = 256;             ///< stop refining at this many samples per pixel
+  int width = 0, height = 0;      ///< window size; 0 = remembered / default
+  float resolution_scale = 1.0f;  ///< render pixels per framebuffer pixel
+  int max_samples = 256;          ///< stop refining at this many samples per pixel
 
   // Scripted runs (tests, reports).
-  int frames = 0;                    ///< > 0: run at least this many frames, then exit
-  std::string screenshot;            ///< PNG written at the end of a scripted run
-  int min_samples = 1;               ///< scripted: wait for this many samples per pixel
-  double timeout = 300;              ///< scripted: give up (exit 4) after this many seconds
+  int frames = 0;          ///< > 0: run at least this many frames, then exit
+  std::string screenshot;  ///< PNG written at the end of a scripted run
+  int min_samples = 1;     ///< scripted: wait for this many samples per pixel
+  double timeout = 300;    ///< scripted: give up (exit 4) after this many seconds
   std::optional<std::array<int, 2>> pick;
-  bool frame_pick = false;           ///< scripted: frame the --pick ray's traversal (key F)
-  bool splits_of_pick = false;       ///< split overlay: only the planes the picked ray crossed
-  std::string heatmap;               ///< "", "steps" or "tests"
-  std::vector<std::string> overlays; ///< "splits", "cells", "boxes"
-  std::string rebuild_cell_size;     ///< scripted live rebuild after start-up
+  bool frame_pick = false;            ///< scripted: frame the --pick ray's traversal (key F)
+  bool splits_of_pick = false;        ///< split overlay: only the planes the picked ray crossed
+  std::string heatmap;                ///< "", "steps" or "tests"
+  std::vector<std::string> overlays;  ///< "splits", "cells", "boxes"
+  std::string rebuild_cell_size;      ///< scripted live rebuild after start-up
   /// Scripted: the cell size requested (as the panel's cell-size box requests it) while the
   /// --rebuild-cell-size build runs, supersede_after seconds into it; "" = none.
   std::string supersede_cell_size;
-  double supersede_after = 2.0;      ///< seconds; 2 s lets the first build get well under way
-  std::string export_heatmap;        ///< scripted: EXR of the heat map's raw counts at the end
-  bool hide_ui = false;              ///< no ImGui panels (reproducible screenshots)
+  double supersede_after = 2.0;  ///< seconds; 2 s lets the first build get well under way
+  std::string export_heatmap;    ///< scripted: EXR of the heat map's raw counts at the end
+  bool hide_ui = false;          ///< no ImGui panels (reproducible screenshots)
   /// > 0: keep the window open and interactive for up to this many seconds (input tests drive
   /// it with xdotool); Ctrl+Q or closing the window ends it sooner.
   double hold = 0;
-  std::string stats_json;            ///< run statistics and final state, written at exit
-  std::string drop;                  ///< scripted: load this file through the drop handler
+  std::string stats_json;  ///< run statistics and final state, written at exit
+  std::string drop;        ///< scripted: load this file through the drop handler
   /// Scripted runs swap without vsync, so this caps their frame rate the way a 60 Hz display
   /// caps an interactive run; 0 = unlimited.
   int max_fps = 60;
-  int threads = 0;                   ///< --threads as given (0 = all), for the statistics
+  int threads = 0;  ///< --threads as given (0 = all), for the statistics
   bool scripted() const { return frames > 0 || hold > 0; }
 };
 
@@ -147,14 +147,14 @@ class Viewer {
   std::string accel_name_;
   BuildParams params_;
   std::string cell_size_text_ = "auto";
-  float cell_size_slider_ = 0;      ///< the built cell size, or the one being dragged
-  CellChoice cell_choice_;          ///< the current scene's choice (remembered at exit)
-  CellChoice loading_choice_;       ///< the choice the scene being loaded is built with
-  double auto_cell_ = 0;            ///< the auto rule's size for the current scene (hybrid)
-  std::string cell_estimate_;       ///< the estimate of the last requested or dragged size
-  std::string cell_refusal_;        ///< why the last requested size was refused ("" if not)
-  double cell_suggested_ = 0;       ///< the size the refusal suggests
-  float cell_estimated_for_ = -1;   ///< the slider value cell_estimate_ describes
+  float cell_size_slider_ = 0;     ///< the built cell size, or the one being dragged
+  CellChoice cell_choice_;         ///< the current scene's choice (remembered at exit)
+  CellChoice loading_choice_;      ///< the choice the scene being loaded is built with
+  double auto_cell_ = 0;           ///< the auto rule's size for the current scene (hybrid)
+  std::string cell_estimate_;      ///< the estimate of the last requested or dragged size
+  std::string cell_refusal_;       ///< why the last requested size was refused ("" if not)
+  double cell_suggested_ = 0;      ///< the size the refusal suggests
+  float cell_estimated_for_ = -1;  ///< the slider value cell_estimate_ describes
   std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
   CameraControl cam_;
   RenderMode mode_ = RenderMode::Shaded;
@@ -164,12 +164,12 @@ class Viewer {
   // and waits in pending_* until it has stopped (a load runs to its end first).
   struct Task {
     std::future<std::shared_ptr<World>> result;
-    std::string what;      // shown next to the spinner
-    std::string path;      // the scene file a load reads
-    std::string kind;      // "load", "rebuild" or "build", for the statistics
+    std::string what;  // shown next to the spinner
+    std::string path;  // the scene file a load reads
+    std::string kind;  // "load", "rebuild" or "build", for the statistics
     bool new_scene = false;
     std::chrono::steady_clock::time_point started;
-    std::shared_ptr<CancelToken> cancel;  // the build's BuildParams::cancel
+    std::shared_ptr<CancelToken> cancel;                 // the build's BuildParams::cancel
     std::chrono::steady_clock::time_point cancelled_at;  // when cancel_task() set it
   };
   std::optional<Task> task_;
@@ -209,9 +209,9 @@ class Viewer {
   const World* posted_world_ = nullptr;
   int posted_max_samples_ = 0;
   uint64_t posted_job_ = 0;
-  bool posted_preview_ = false;  ///< the camera moved within the last moment
+  bool posted_preview_ = false;      ///< the camera moved within the last moment
   bool posted_preview_job_ = false;  ///< posted_job_ is a preview
-  double pixels_per_second_ = 0;  ///< smoothed render speed of recent passes (0 = none yet)
+  double pixels_per_second_ = 0;     ///< smoothed render speed of recent passes (0 = none yet)
   /// When each recent job was posted (motion-to-photon figures in --stats-json).
   std::deque<std::pair<uint64_t, std::chrono::steady_clock::time_point>> post_times_;
   std::chrono::steady_clock::time_point run_started_{};  ///< run()'s start, for the statistics
@@ -233,22 +233,22 @@ class Viewer {
   struct PassRecord {
     uint64_t job = 0;
     bool preview = false;
-    double latency_ms = 0;       // the job's post (its camera's input) to its image's upload
-    double shown_at = 0;         // seconds since start-up, for the intervals between pictures
+    double latency_ms = 0;  // the job's post (its camera's input) to its image's upload
+    double shown_at = 0;    // seconds since start-up, for the intervals between pictures
     int width = 0, height = 0, samples = 0;
     double seconds = 0;
     RenderCounters rays;
   };
   struct BuildRecord {
-    std::string kind;            // "load", "rebuild" or "build"
+    std::string kind;  // "load", "rebuild" or "build"
     std::string accel, scene;
-    double build_seconds = 0;    // build() alone
-    double wall_seconds = 0;     // request to result, loading included
+    double build_seconds = 0;  // build() alone
+    double wall_seconds = 0;   // request to result, loading included
     BuildStats stats;
-    float cell_size = 0;         // requested; 0 = auto
+    float cell_size = 0;  // requested; 0 = auto
     std::string error;
     bool cancelled = false;
-    double cancel_seconds = 0;   // cancel request to the build's end
+    double cancel_seconds = 0;  // cancel request to the build's end
   };
   std::vector<float> frame_interval_ms_, frame_work_ms_, frame_swap_ms_, colorize_ms_, upload_ms_;
   std::vector<PassRecord> passes_;
@@ -270,23 +270,23 @@ class Viewer {
   // Pick.
   struct Pick {
     int x = 0, y = 0;
-    int w = 0, h = 0;                 ///< the image the pixel belongs to
-    Camera camera;                    ///< the camera the pixel was picked with
+    int w = 0, h = 0;  ///< the image the pixel belongs to
+    Camera camera;     ///< the camera the pixel was picked with
     Ray ray;
     Trace trace;
-    RaySegment segment;               ///< the part of the ray the traversal covered
+    RaySegment segment;  ///< the part of the ray the traversal covered
     std::string command;
-    bool framed = false;              ///< frame_pick() moved the camera onto it
-    uint64_t serial = 0;              ///< distinguishes picks (the step table's ID)
+    bool framed = false;                           ///< frame_pick() moved the camera onto it
+    uint64_t serial = 0;                           ///< distinguishes picks (the step table's ID)
     std::vector<std::array<std::string, 6>> rows;  ///< the step table's text, per step
-    float widths[6] = {};             ///< its columns' content widths
-    float widths_for_font = 0;        ///< the font size the widths were measured with
+    float widths[6] = {};                          ///< its columns' content widths
+    float widths_for_font = 0;                     ///< the font size the widths were measured with
   };
   std::optional<Pick> pick_;
   uint64_t pick_serial_ = 0;
   /// Space left around the framed pick, as a fraction of the view's half-extent.
   static constexpr float kPickFrameMargin = 0.1f;
-  UiAudit audit_;                     ///< what the last frame's panels showed (--stats-json)
+  UiAudit audit_;  ///< what the last frame's panels showed (--stats-json)
   /// The panel's y of the first widget under the status area in every frame, by what the
   /// status area showed ("idle", "build", "error"): one value each when nothing jumps.
   std::map<std::string, std::vector<float>> below_status_y_by_state_;
@@ -309,12 +309,12 @@ class Viewer {
 
   // Scripted run progress.
   int frame_count_ = 0;
-  bool drop_done_ = true;       // --drop issued and its load finished
+  bool drop_done_ = true;  // --drop issued and its load finished
   bool drop_started_ = false;
-  std::string end_reason_;      // why the run ended, for --stats-json
-  Camera start_camera_;         // the camera when the current scene was installed
+  std::string end_reason_;  // why the run ended, for --stats-json
+  Camera start_camera_;     // the camera when the current scene was installed
   bool show_keys_ = false;  ///< the key list (F1) is open
-  std::string message_;   // last status line (screenshot written, camera printed, ...)
+  std::string message_;     // last status line (screenshot written, camera printed, ...)
 };
 
 }  // namespace kdgrid::viewer

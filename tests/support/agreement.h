@@ -19,16 +19,16 @@
 #include <gtest/gtest.h>
 #include <tbb/parallel_for.h>
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <cstdlib>
-#include <fcntl.h>
-#include <sys/file.h>
-#include <unistd.h>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <mutex>
@@ -50,10 +50,10 @@ namespace kdgrid::test {
 
 /// How strictly a structure must agree with the reference.
 struct AgreementRule {
-  float rel_tol = 1e-5f;          ///< relative tolerance on t
-  float abs_tol_scene = 1e-6f;    ///< absolute tolerance, times the scene diagonal / |dir|
-  double min_fraction = 1.0;      ///< fraction of rays that must agree on every criterion
-  int max_examples = 5;           ///< disagreements printed
+  float rel_tol = 1e-5f;        ///< relative tolerance on t
+  float abs_tol_scene = 1e-6f;  ///< absolute tolerance, times the scene diagonal / |dir|
+  double min_fraction = 1.0;    ///< fraction of rays that must agree on every criterion
+  int max_examples = 5;         ///< disagreements printed
 };
 
 /// Structures that are not held to exact agreement: Embree intersects with its own triangle
@@ -164,12 +164,12 @@ inline std::vector<Hit> brute_reference(const Mesh& mesh, const std::vector<Ray>
 struct AgreementReport {
   std::string structure, set;
   size_t rays = 0;
-  size_t miss_mismatch = 0;   ///< hit vs miss
-  size_t t_mismatch = 0;      ///< both hit, t differs beyond tolerance
-  size_t prim_mismatch = 0;   ///< same t, different triangle that does not tie
-  size_t any_mismatch = 0;    ///< occluded() differs from the reference
-  size_t disagreeing = 0;     ///< rays failing at least one criterion
-  size_t ties = 0;            ///< different triangle accepted as a tie
+  size_t miss_mismatch = 0;  ///< hit vs miss
+  size_t t_mismatch = 0;     ///< both hit, t differs beyond tolerance
+  size_t prim_mismatch = 0;  ///< same t, different triangle that does not tie
+  size_t any_mismatch = 0;   ///< occluded() differs from the reference
+  size_t disagreeing = 0;    ///< rays failing at least one criterion
+  size_t ties = 0;           ///< different triangle accepted as a tie
   double min_fraction = 1.0;
   std::vector<std::string> examples;
 
@@ -189,8 +189,8 @@ struct AgreementReport {
 
 inline std::string describe(const Ray& r) {
   char buf[200];
-  std::snprintf(buf, sizeof buf, "org (%.9g %.9g %.9g) dir (%.9g %.9g %.9g) t [%.9g %.9g]",
-                r.org.x, r.org.y, r.org.z, r.dir.x, r.dir.y, r.dir.z, r.tmin, r.tmax);
+  std::snprintf(buf, sizeof buf, "org (%.9g %.9g %.9g) dir (%.9g %.9g %.9g) t [%.9g %.9g]", r.org.x,
+                r.org.y, r.org.z, r.dir.x, r.dir.y, r.dir.z, r.tmin, r.tmax);
   return buf;
 }
 
@@ -202,16 +202,15 @@ inline bool intersect_one(const Mesh& mesh, const Ray& ray, uint32_t prim, Trian
   if (test == TriangleTestKind::Watertight)
     return WatertightTest::intersect(WatertightTest::prepare(ray), c[0], c[1], c[2], ray.tmin,
                                      ray.tmax, t, u, v);
-  return MollerTest::intersect(MollerTest::prepare(ray), c[0], c[1], c[2], ray.tmin, ray.tmax, t,
-                               u, v);
+  return MollerTest::intersect(MollerTest::prepare(ray), c[0], c[1], c[2], ray.tmin, ray.tmax, t, u,
+                               v);
 }
 
 /// Compares `accel` (built over `mesh`) with the reference hits of `rays`.
-inline AgreementReport compare_with_reference(const Accelerator& accel, const Mesh& mesh,
-                                              const std::vector<Ray>& rays,
-                                              const std::vector<Hit>& ref,
-                                              const AgreementRule& rule, const std::string& set,
-                                              TriangleTestKind test = TriangleTestKind::Watertight) {
+inline AgreementReport compare_with_reference(
+    const Accelerator& accel, const Mesh& mesh, const std::vector<Ray>& rays,
+    const std::vector<Hit>& ref, const AgreementRule& rule, const std::string& set,
+    TriangleTestKind test = TriangleTestKind::Watertight) {
   AgreementReport rep;
   rep.structure = accel.name();
   rep.set = set;
@@ -221,57 +220,58 @@ inline AgreementReport compare_with_reference(const Accelerator& accel, const Me
   std::atomic<size_t> miss{0}, tm{0}, pm{0}, am{0}, dis{0}, ties{0};
   std::mutex mu;
   std::vector<std::pair<size_t, std::string>> examples;
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 256),
-                    [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      const Ray& ray = rays[i];
-      const Hit& want = ref[i];
-      Hit got;
-      const bool hit = accel.intersect(ray, got);
-      const bool occ = accel.occluded(ray);
-      const float dl = length(ray.dir);
-      const float abs_tol = rule.abs_tol_scene * (dl > 0 ? diag / dl : 1.0f);
-      auto close = [&](float a, float b) {
-        return std::fabs(a - b) <= rule.rel_tol * std::fabs(b) + abs_tol;
-      };
-      std::string why;
-      if (hit != want.valid() || (hit && !got.valid())) {
-        ++miss;
-        why = hit ? "structure hits, reference misses" : "structure misses, reference hits";
-      } else if (hit) {
-        if (!close(got.t, want.t)) {
-          ++tm;
-          why = "t differs";
-        } else if (got.prim != want.prim) {
-          float t_own;
-          if (got.prim < mesh.num_triangles() &&
-              intersect_one(mesh, ray, got.prim, test, t_own) && close(t_own, want.t)) {
-            ++ties;
-          } else {
-            ++pm;
-            why = "different triangle, not a tie";
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, rays.size(), 256),
+      [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t i = range.begin(); i < range.end(); ++i) {
+          const Ray& ray = rays[i];
+          const Hit& want = ref[i];
+          Hit got;
+          const bool hit = accel.intersect(ray, got);
+          const bool occ = accel.occluded(ray);
+          const float dl = length(ray.dir);
+          const float abs_tol = rule.abs_tol_scene * (dl > 0 ? diag / dl : 1.0f);
+          auto close = [&](float a, float b) {
+            return std::fabs(a - b) <= rule.rel_tol * std::fabs(b) + abs_tol;
+          };
+          std::string why;
+          if (hit != want.valid() || (hit && !got.valid())) {
+            ++miss;
+            why = hit ? "structure hits, reference misses" : "structure misses, reference hits";
+          } else if (hit) {
+            if (!close(got.t, want.t)) {
+              ++tm;
+              why = "t differs";
+            } else if (got.prim != want.prim) {
+              float t_own;
+              if (got.prim < mesh.num_triangles() &&
+                  intersect_one(mesh, ray, got.prim, test, t_own) && close(t_own, want.t)) {
+                ++ties;
+              } else {
+                ++pm;
+                why = "different triangle, not a tie";
+              }
+            }
+          }
+          if (occ != want.valid()) {
+            ++am;
+            why += why.empty() ? "" : "; ";
+            why += occ ? "occluded() true, reference misses" : "occluded() false, reference hits";
+          }
+          if (!why.empty()) {
+            ++dis;
+            std::lock_guard<std::mutex> lock(mu);
+            if (examples.size() < 64) {
+              char buf[160];
+              std::snprintf(buf, sizeof buf, " | got t %.9g prim %d, want t %.9g prim %d",
+                            hit ? got.t : kInf, hit ? int(got.prim) : -1, want.t,
+                            want.valid() ? int(want.prim) : -1);
+              examples.push_back(
+                  {i, "ray " + std::to_string(i) + ": " + why + buf + " | " + describe(ray)});
+            }
           }
         }
-      }
-      if (occ != want.valid()) {
-        ++am;
-        why += why.empty() ? "" : "; ";
-        why += occ ? "occluded() true, reference misses" : "occluded() false, reference hits";
-      }
-      if (!why.empty()) {
-        ++dis;
-        std::lock_guard<std::mutex> lock(mu);
-        if (examples.size() < 64) {
-          char buf[160];
-          std::snprintf(buf, sizeof buf, " | got t %.9g prim %d, want t %.9g prim %d",
-                        hit ? got.t : kInf, hit ? int(got.prim) : -1, want.t,
-                        want.valid() ? int(want.prim) : -1);
-          examples.push_back({i, "ray " + std::to_string(i) + ": " + why + buf + " | " +
-                                     describe(ray)});
-        }
-      }
-    }
-  });
+      });
   std::sort(examples.begin(), examples.end());
   for (size_t k = 0; k < examples.size() && int(k) < rule.max_examples; ++k)
     rep.examples.push_back(examples[k].second);
@@ -291,33 +291,36 @@ inline size_t compare_instrumented(const Accelerator& accel, const std::vector<R
                                    size_t trace_stride, std::vector<std::string>& examples) {
   std::atomic<size_t> bad{0};
   std::mutex mu;
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 256),
-                    [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      Hit fast, counted;
-      const bool hf = accel.intersect(rays[i], fast);
-      RayCounters c;
-      const bool hc = accel.intersect_counted(rays[i], counted, c);
-      const bool of = accel.occluded(rays[i]);
-      RayCounters c2;
-      const bool oc = accel.occluded_counted(rays[i], c2);
-      bool same = hf == hc && of == oc &&
-                  (!hf || (fast.t == counted.t && fast.prim == counted.prim &&
-                           fast.u == counted.u && fast.v == counted.v));
-      if (same && trace_stride > 0 && i % trace_stride == 0) {
-        const Trace tr = accel.trace(rays[i]);
-        same = tr.hit.valid() == hf && (!hf || (tr.hit.t == fast.t && tr.hit.prim == fast.prim));
-        // The trace counts exactly what the counted traversal counts.
-        same = same && (!accel.has_counters() || tr.counters == c);
-        same = same && tr.tested.size() == tr.counters.tri_tests;
-      }
-      if (!same) {
-        ++bad;
-        std::lock_guard<std::mutex> lock(mu);
-        if (examples.size() < 5) examples.push_back("ray " + std::to_string(i) + ": " + describe(rays[i]));
-      }
-    }
-  });
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, rays.size(), 256),
+      [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t i = range.begin(); i < range.end(); ++i) {
+          Hit fast, counted;
+          const bool hf = accel.intersect(rays[i], fast);
+          RayCounters c;
+          const bool hc = accel.intersect_counted(rays[i], counted, c);
+          const bool of = accel.occluded(rays[i]);
+          RayCounters c2;
+          const bool oc = accel.occluded_counted(rays[i], c2);
+          bool same = hf == hc && of == oc &&
+                      (!hf || (fast.t == counted.t && fast.prim == counted.prim &&
+                               fast.u == counted.u && fast.v == counted.v));
+          if (same && trace_stride > 0 && i % trace_stride == 0) {
+            const Trace tr = accel.trace(rays[i]);
+            same =
+                tr.hit.valid() == hf && (!hf || (tr.hit.t == fast.t && tr.hit.prim == fast.prim));
+            // The trace counts exactly what the counted traversal counts.
+            same = same && (!accel.has_counters() || tr.counters == c);
+            same = same && tr.tested.size() == tr.counters.tri_tests;
+          }
+          if (!same) {
+            ++bad;
+            std::lock_guard<std::mutex> lock(mu);
+            if (examples.size() < 5)
+              examples.push_back("ray " + std::to_string(i) + ": " + describe(rays[i]));
+          }
+        }
+      });
   return bad;
 }
 
@@ -343,8 +346,8 @@ inline Mesh triangle_soup(size_t n, uint32_t seed) {
 inline Mesh subdivided_sphere(int levels, float r = 1.0f, Vec3 c = Vec3(0.0f)) {
   const float t = (1.0f + std::sqrt(5.0f)) / 2.0f;
   Mesh m;
-  m.positions = {{-1, t, 0}, {1, t, 0}, {-1, -t, 0}, {1, -t, 0}, {0, -1, t}, {0, 1, t},
-                 {0, -1, -t}, {0, 1, -t}, {t, 0, -1}, {t, 0, 1}, {-t, 0, -1}, {-t, 0, 1}};
+  m.positions = {{-1, t, 0},  {1, t, 0},  {-1, -t, 0}, {1, -t, 0}, {0, -1, t},  {0, 1, t},
+                 {0, -1, -t}, {0, 1, -t}, {t, 0, -1},  {t, 0, 1},  {-t, 0, -1}, {-t, 0, 1}};
   m.triangles = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
                  {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
                  {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},

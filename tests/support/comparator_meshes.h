@@ -225,7 +225,6 @@ inline std::vector<NamedMesh> test_meshes() {
   return v;
 }
 
-
 /// Rays with +0 and -0 direction components from origins inside, outside and on the box of
 /// the unit sphere: the zero components give +inf / -inf reciprocals in every traversal.
 inline std::vector<Ray> signed_zero_rays() {

@@ -43,8 +43,8 @@ inline std::string load_error(const std::function<void()>& f) {
 }  // namespace kdgrid::test
 
 /// Declares `var` as the path of shared scene `rel`, or skips the test saying what is missing.
-#define KDGRID_REQUIRE_SCENE(var, rel)                                                         \
-  const std::string var = ::kdgrid::test::shared_scene(rel);                                   \
-  if (var.empty())                                                                             \
-  GTEST_SKIP() << "shared scene '" << (rel) << "' not found: set KDGRID_SCENES or place the "  \
+#define KDGRID_REQUIRE_SCENE(var, rel)                                                        \
+  const std::string var = ::kdgrid::test::shared_scene(rel);                                  \
+  if (var.empty())                                                                            \
+  GTEST_SKIP() << "shared scene '" << (rel) << "' not found: set KDGRID_SCENES or place the " \
                << "scenes in ../shared/scenes beside the checkout"

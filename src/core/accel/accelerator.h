@@ -28,9 +28,9 @@ struct BuildStats {
   uint64_t nodes = 0;            ///< all nodes (interior + leaves), or cells for grids
   uint64_t leaves = 0;
   uint64_t empty_leaves = 0;
-  uint64_t references = 0;       ///< triangle references stored in leaves/cells
+  uint64_t references = 0;  ///< triangle references stored in leaves/cells
   uint32_t max_depth = 0;
-  uint64_t bytes = 0;            ///< structure bytes (excludes the Mesh the caller owns)
+  uint64_t bytes = 0;  ///< structure bytes (excludes the Mesh the caller owns)
   /// Peak bytes the build expected to need before it allocated (the memory guard's figure,
   /// accel/guards.h); 0 where a structure makes no estimate.
   uint64_t peak_estimate = 0;
@@ -49,8 +49,11 @@ struct RayCounters {
   uint64_t lookups = 0;        ///< cell-matrix lookups (grids, hybrid)
 
   RayCounters& operator+=(const RayCounters& o) {
-    steps += o.steps; leaves += o.leaves; tri_tests += o.tri_tests;
-    mailbox_skips += o.mailbox_skips; lookups += o.lookups;
+    steps += o.steps;
+    leaves += o.leaves;
+    tri_tests += o.tri_tests;
+    mailbox_skips += o.mailbox_skips;
+    lookups += o.lookups;
     return *this;
   }
   bool operator==(const RayCounters& o) const = default;
@@ -62,10 +65,10 @@ enum class StepKind : uint8_t { Inner, Leaf, Cell };
 struct TraceStep {
   StepKind kind = StepKind::Leaf;
   int depth = 0;
-  uint64_t id = 0;              ///< node index or linear cell index
+  uint64_t id = 0;  ///< node index or linear cell index
   Box3 box;
   float t_in = 0, t_out = 0;
-  uint32_t first_tested = 0;    ///< range into Trace::tested
+  uint32_t first_tested = 0;  ///< range into Trace::tested
   uint32_t num_tested = 0;
 };
 

@@ -1,8 +1,8 @@
 #include "accel/bvh.h"
 
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 #include <tbb/parallel_invoke.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
@@ -146,7 +146,8 @@ class Builder {
           cnt += bins[axis][b].count;
           ++st.sah_evaluations;
           if (cnt == 0 || right_count[b + 1] == 0) continue;
-          const float cost = acc.area() * float(cnt) + right_area[b + 1] * float(right_count[b + 1]);
+          const float cost =
+              acc.area() * float(cnt) + right_area[b + 1] * float(right_count[b + 1]);
           if (cost < best_cost) {
             best_cost = cost;
             best_axis = axis;
@@ -160,8 +161,8 @@ class Builder {
       if (n <= uint32_t(p_.bvh_max_leaf) && !(split_cost < leaf_cost)) return make_leaf();
       if (best_axis >= 0) {
         const float blo = lo[best_axis], bscale = scale[best_axis];
-        const auto it = std::partition(
-            prims_.begin() + begin, prims_.begin() + end, [&](uint32_t prim) {
+        const auto it =
+            std::partition(prims_.begin() + begin, prims_.begin() + end, [&](uint32_t prim) {
               return bin_of(centroids_[prim][best_axis], blo, bscale, k) <= best_bin;
             });
         mid = uint32_t(it - prims_.begin());
@@ -219,8 +220,8 @@ class Builder {
 BuildStats Bvh::build(const Mesh& mesh, const BuildParams& params) {
   const auto t0 = std::chrono::steady_clock::now();
   if (params.bvh_bins < 2 || params.bvh_bins > kMaxBins)
-    throw ParamError("bvh_bins = " + std::to_string(params.bvh_bins) +
-                     " is out of range: use 2.." + std::to_string(kMaxBins) + " (default 16)");
+    throw ParamError("bvh_bins = " + std::to_string(params.bvh_bins) + " is out of range: use 2.." +
+                     std::to_string(kMaxBins) + " (default 16)");
   if (params.bvh_max_leaf < 1)
     throw ParamError("bvh_max_leaf = " + std::to_string(params.bvh_max_leaf) +
                      " must be >= 1 (default 8)");
@@ -238,8 +239,9 @@ BuildStats Bvh::build(const Mesh& mesh, const BuildParams& params) {
       {{"node slots", 2.0 * nt * sizeof(BvhNode)},
        {"triangle boxes and centroids", nt * (sizeof(Box3) + sizeof(Vec3))},
        {"triangle indices", nt * sizeof(uint32_t)}},
-      params, "the BVH needs about 104 bytes per triangle whatever its parameters: split the "
-              "scene");
+      params,
+      "the BVH needs about 104 bytes per triangle whatever its parameters: split the "
+      "scene");
 
   mesh_ = &mesh;
   test_ = params.triangle_test;

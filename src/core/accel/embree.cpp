@@ -7,8 +7,8 @@
 #include <string>
 
 #include "accel/guards.h"
-#include "util/cancel.h"
 #include "accel/triangle.h"
+#include "util/cancel.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -117,8 +117,9 @@ void EmbreeAccel::release() {
 
 BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   if (params.triangle_test == TriangleTestKind::None)
-    throw ParamError("embree: its traversal cannot run without its own triangle tests, so it has "
-                     "no traversal-only timing; drop --traversal-only or choose another --accel");
+    throw ParamError(
+        "embree: its traversal cannot run without its own triangle tests, so it has "
+        "no traversal-only timing; drop --traversal-only or choose another --accel");
   const RTCBuildQuality quality = parse_quality(params.embree_quality);
   const auto t_start = std::chrono::steady_clock::now();
   // Memory guard before anything is allocated: the padded vertex copy plus what Embree's
@@ -126,12 +127,12 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   // triangle for the BVH and its build temporaries at every quality; 110 keeps a margin).
   // The memory monitor enforces the budget during the build as well.
   const double copy_estimate = (3.0 * double(mesh.num_vertices()) + 1.0) * sizeof(float);
-  const uint64_t estimate = check_memory_budget(
-      "embree", mesh.num_triangles(),
-      {{"vertex copy", copy_estimate},
-       {"Embree BVH and build temporaries (~110 bytes per triangle, measured)",
-        110.0 * double(mesh.num_triangles())}},
-      params, "Embree's memory grows with the triangle count: split the scene");
+  const uint64_t estimate =
+      check_memory_budget("embree", mesh.num_triangles(),
+                          {{"vertex copy", copy_estimate},
+                           {"Embree BVH and build temporaries (~110 bytes per triangle, measured)",
+                            110.0 * double(mesh.num_triangles())}},
+                          params, "Embree's memory grows with the triangle count: split the scene");
   release();
   stats_ = {};
   mesh_ = &mesh;
@@ -156,7 +157,8 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   rtcSetSceneFlags(st.scene, RTC_SCENE_FLAG_ROBUST);
   rtcSetSceneBuildQuality(st.scene, quality);
   if (params.cancel)
-    rtcSetSceneProgressMonitorFunction(st.scene, keep_building, const_cast<CancelToken*>(params.cancel));
+    rtcSetSceneProgressMonitorFunction(st.scene, keep_building,
+                                       const_cast<CancelToken*>(params.cancel));
 
   const size_t nv = mesh.num_vertices(), nt = mesh.num_triangles();
   if (nt > 0) {
@@ -206,9 +208,10 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   stats_.bytes = embree_bytes + copy_bytes;
   stats_.bytes_by_part = {{"embree", embree_bytes}, {"vertex_copy", copy_bytes}};
   stats_.references = nt;
-  stats_.extra = {{"quality", params.embree_quality},
-                  {"flags", "robust"},
-                  {"embree build peak", format_bytes_iec(double(std::max<int64_t>(0, st.memory.peak.load())))}};
+  stats_.extra = {
+      {"quality", params.embree_quality},
+      {"flags", "robust"},
+      {"embree build peak", format_bytes_iec(double(std::max<int64_t>(0, st.memory.peak.load())))}};
   stats_.peak_estimate = estimate;
   return stats_;
 }

@@ -48,7 +48,7 @@ class EmbreeAccel final : public Accelerator {
   struct State;  // Embree handles, kept out of this header
   std::unique_ptr<State> state_;
   std::vector<float> vertices_;  ///< xyz per vertex plus one float of padding
-  const Mesh* mesh_ = nullptr;    ///< the built mesh (Embree shares its index buffer)
+  const Mesh* mesh_ = nullptr;   ///< the built mesh (Embree shares its index buffer)
   BuildStats stats_;
 };
 

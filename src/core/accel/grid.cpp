@@ -142,8 +142,8 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   const double cursor_bytes = double(cells) * sizeof(uint32_t);
   {
     const double room = 0.9 * double(budget) - double(n_tris) * sizeof(uint32_t);
-    const double fit = double(params.grid_lambda) *
-                       std::min(room / (cell_bytes + cursor_bytes), 0.9 * 0xFFFFFFFEull / double(cells));
+    const double fit = double(params.grid_lambda) * std::min(room / (cell_bytes + cursor_bytes),
+                                                             0.9 * 0xFFFFFFFEull / double(cells));
     char lam[32];
     std::snprintf(lam, sizeof lam, "%.3g", fit);
     if (cells >= 0xFFFFFFFFull)
@@ -158,10 +158,11 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
          {"fill cursors", cursor_bytes},
          {"references (at least one per triangle)", double(n_tris) * sizeof(uint32_t)}},
         params,
-        fit > 0 ? "resolution " + res_str + " (" + std::to_string(cells) +
-                      " cells): use --grid-lambda " + lam +
-                      " or less, or a lower grid_max_resolution"
-                : std::string("the references alone (4 bytes per triangle) exceed it: split the scene"));
+        fit > 0
+            ? "resolution " + res_str + " (" + std::to_string(cells) +
+                  " cells): use --grid-lambda " + lam + " or less, or a lower grid_max_resolution"
+            : std::string(
+                  "the references alone (4 bytes per triangle) exceed it: split the scene"));
   }
 
   tbb::task_arena arena(effective_threads(params.threads));
@@ -223,14 +224,13 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   }
   counts[cells] = uint32_t(total);
   // Exact now: the references are counted.
-  stats_.peak_estimate = check_memory_budget(
-      "grid", n_tris,
-      {{"cell offsets", cell_bytes},
-       {"fill cursors", cursor_bytes},
-       {"references", double(total) * sizeof(uint32_t)}},
-      params,
-      std::to_string(total) + " references at resolution " + res_str +
-          ": use a smaller --grid-lambda");
+  stats_.peak_estimate = check_memory_budget("grid", n_tris,
+                                             {{"cell offsets", cell_bytes},
+                                              {"fill cursors", cursor_bytes},
+                                              {"references", double(total) * sizeof(uint32_t)}},
+                                             params,
+                                             std::to_string(total) + " references at resolution " +
+                                                 res_str + ": use a smaller --grid-lambda");
   offsets_ = std::move(counts);
 
   // Fill pass: a cursor per cell, then sort each cell's references so the structure (and

@@ -28,8 +28,8 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
     throw ParamError(structure + ": building over " + std::to_string(triangles) +
                      " triangles needs about " + format_bytes_iec(need) + " at its peak (" +
                      detail + "), above the memory budget of " + format_bytes_iec(double(budget)) +
-                     (params.memory_budget > 0 ? "" : " (half of the memory available to kdgrid)") + "; " + fix +
-                     (fix.empty() ? "" : ", or ") +
+                     (params.memory_budget > 0 ? "" : " (half of the memory available to kdgrid)") +
+                     "; " + fix + (fix.empty() ? "" : ", or ") +
                      "raise --memory-budget-mb (BuildParams::memory_budget; 0 = half of the "
                      "memory available) if the machine has the memory");
   }
@@ -54,7 +54,8 @@ void check_brute_force_work(const std::string& accel, uint64_t primary_rays, siz
   if (work <= params.brute_work_limit) return;
   char buf[512];
   // At ~5e7 ray/triangle tests per second per core (measured on the 10M landscape).
-  const int side = int(std::floor(std::sqrt(params.brute_work_limit / std::max(1.0, double(triangles)))));
+  const int side =
+      int(std::floor(std::sqrt(params.brute_work_limit / std::max(1.0, double(triangles)))));
   std::snprintf(buf, sizeof buf,
                 "brute: %llu primary rays x %zu triangles = %.3g ray/triangle tests before any "
                 "shadow ray (about %.0f core-minutes at ~5e7 tests/s), above the brute-force "
@@ -62,10 +63,10 @@ void check_brute_force_work(const std::string& accel, uint64_t primary_rays, siz
                 static_cast<unsigned long long>(primary_rays), triangles, work, work / 5e7 / 60.0,
                 params.brute_work_limit);
   std::string msg = buf;
-  if (side >= 1)
-    msg += "render at --res " + std::to_string(side) + " or smaller, ";
-  msg += "use a structure (--accel bvh, kdtree, hybrid, ...), or raise --brute-work-limit (0 = "
-         "no limit) if you mean to wait";
+  if (side >= 1) msg += "render at --res " + std::to_string(side) + " or smaller, ";
+  msg +=
+      "use a structure (--accel bvh, kdtree, hybrid, ...), or raise --brute-work-limit (0 = "
+      "no limit) if you mean to wait";
   throw ParamError(msg);
 }
 

@@ -111,7 +111,8 @@ struct IrregularGrid::Builder {
   /// Bytes the build holds now in its long-lived arrays (capacity, not size).
   double held_bytes() const {
     return double(valid.capacity() * sizeof(uint32_t) + cells.capacity() * sizeof(BCell) +
-                  refs.capacity() * sizeof(uint32_t) + exit_boxes.capacity() * sizeof(exit_boxes[0]) +
+                  refs.capacity() * sizeof(uint32_t) +
+                  exit_boxes.capacity() * sizeof(exit_boxes[0]) +
                   g.top_.capacity() * sizeof(TopEntry) + g.sub_.capacity() * sizeof(uint32_t));
   }
 
@@ -123,10 +124,9 @@ struct IrregularGrid::Builder {
     if (need > double(budget))
       throw ParamError(std::string("irregular: the ") + phase + " needs " +
                        format_bytes_iec(extra) + " more on top of the " +
-                       format_bytes_iec(held_bytes()) + " held (" +
-                       std::to_string(cells.size()) + " cells, " + std::to_string(refs.size()) +
-                       " references over " + std::to_string(valid.size()) +
-                       " triangles), above the memory budget of " +
+                       format_bytes_iec(held_bytes()) + " held (" + std::to_string(cells.size()) +
+                       " cells, " + std::to_string(refs.size()) + " references over " +
+                       std::to_string(valid.size()) + " triangles), above the memory budget of " +
                        format_bytes_iec(double(budget)) +
                        "; lower --irr-sub-density or --irr-top-density, or raise "
                        "--memory-budget-mb (0 = half of the memory available) if the machine has "
@@ -300,9 +300,9 @@ struct IrregularGrid::Builder {
       for (auto& v : pairs) std::vector<std::pair<uint32_t, uint32_t>>().swap(v);
       throw ParamError("irregular: the top-level cells' references outgrew the memory budget of " +
                        format_bytes(double(budget)) + " (" +
-                       format_bytes(seen * (sizeof(pairs[0][0]) + sizeof(uint32_t))) +
-                       " for the " + std::to_string(uint64_t(seen)) +
-                       " listed before stopping, over " + std::to_string(valid.size()) +
+                       format_bytes(seen * (sizeof(pairs[0][0]) + sizeof(uint32_t))) + " for the " +
+                       std::to_string(uint64_t(seen)) + " listed before stopping, over " +
+                       std::to_string(valid.size()) +
                        " triangles): triangles crossing very many cells; lower "
                        "--irr-top-density, or raise --memory-budget-mb (0 = half of physical "
                        "memory) if the machine has the memory");
@@ -555,9 +555,8 @@ struct IrregularGrid::Builder {
       nc.begin = uint32_t(total);
       total += nc.count;
     }
-    require("merge pass",
-            double(n) * (6 * sizeof(uint32_t) + 1) + double(m) * sizeof(BCell) +
-                double(total) * sizeof(uint32_t));
+    require("merge pass", double(n) * (6 * sizeof(uint32_t) + 1) + double(m) * sizeof(BCell) +
+                              double(total) * sizeof(uint32_t));
     std::vector<uint32_t> new_refs(total);
     tbb::parallel_for(size_t(0), n, [&](size_t i) {
       if (!kept[i]) return;
@@ -672,7 +671,8 @@ struct IrregularGrid::Builder {
 
   void finish() {
     const size_t n = cells.size();
-    require("final cell array", double(n) * (sizeof(IrregularGrid::Cell) + sizeof(g.own_boxes_[0])));
+    require("final cell array",
+            double(n) * (sizeof(IrregularGrid::Cell) + sizeof(g.own_boxes_[0])));
     g.cells_.resize(n);
     g.own_boxes_.resize(n);
     for (size_t i = 0; i < n; ++i) {

@@ -94,7 +94,8 @@ struct KdRay4 {
 /// which kd_clip drops and this reduction may keep in place of another axis's bound, so the
 /// interval can only be wider (KdTree.LaneClipsContainScalarClipWithSubnormalDirections).
 /// `lo` and `hi` hold the box's corners with -inf and +inf in the fourth lane (ClipBox4's layout).
-[[gnu::always_inline]] inline bool kd_clip4(const KdRay4& r, Float4 lo, Float4 hi, float& t0, float& t1) {
+[[gnu::always_inline]] inline bool kd_clip4(const KdRay4& r, Float4 lo, Float4 hi, float& t0,
+                                            float& t1) {
   const Float4 inf = {kInf, kInf, kInf, kInf};
   const Int4 outside = r.fixed & ((r.org < lo) | (r.org > hi));
   const Float4 tn = (lo - r.org) * r.inv, tf = (hi - r.org) * r.inv;
@@ -127,8 +128,8 @@ struct KdRay4 {
 /// (KdTree.BeginMatchesScalarClipBitForBit; a subnormal direction component only widens the
 /// interval, see kd_clip4); false if the ray misses the box. With `r4`, the ray as kd_clip4
 /// reads it is kept for the caller.
-[[gnu::always_inline]] inline bool kd_begin(const Ray& ray, const ClipBox4& box, float max_abs, KdRay& kr, float& t0,
-                                            float& t1, KdRay4* r4 = nullptr) {
+[[gnu::always_inline]] inline bool kd_begin(const Ray& ray, const ClipBox4& box, float max_abs,
+                                            KdRay& kr, float& t0, float& t1, KdRay4* r4 = nullptr) {
   Float4 o, d;  // the fourth lanes (tmin, tmax) are not used
   load_ray4(ray, o, d);
   const Float4 zero = {0.0f, 0.0f, 0.0f, 0.0f};
@@ -166,9 +167,11 @@ struct KdRay4 {
 /// left on the stack. Traced walks call `visit(kind, depth, node, box, t_min, t_max)` for each
 /// node, depth counted from the root.
 template <class S, class LeafFn, class VisitFn>
-[[gnu::always_inline]] inline bool kd_traverse(const KdNode* nodes, uint32_t root, const KdRay& r, float t_min,
-                                               float t_max, [[maybe_unused]] const Box3& root_box, float& best_io,
-                                               bool& found_io, S& s, LeafFn&& leaf, [[maybe_unused]] VisitFn&& visit) {
+[[gnu::always_inline]] inline bool kd_traverse(const KdNode* nodes, uint32_t root, const KdRay& r,
+                                               float t_min, float t_max,
+                                               [[maybe_unused]] const Box3& root_box,
+                                               float& best_io, bool& found_io, S& s, LeafFn&& leaf,
+                                               [[maybe_unused]] VisitFn&& visit) {
   float best = best_io;
   bool found = found_io;
   // Stack of nodes still to visit, front to back. It is kept sorted (top has the smallest

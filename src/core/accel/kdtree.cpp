@@ -122,7 +122,8 @@ class Builder {
   void build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth, Subtree& out);
   /// build() of a subtree limited to `max_depth` levels (at most the builder's own limit):
   /// it starts deeper, which also keeps it sequential (see kParallelDepth).
-  void build_subtree(std::vector<Event>& events, uint32_t n, const Box3& box, int max_depth, Subtree& out) {
+  void build_subtree(std::vector<Event>& events, uint32_t n, const Box3& box, int max_depth,
+                     Subtree& out) {
     build(events, n, box, max_depth_ - std::min(max_depth, max_depth_), out);
   }
   uint64_t sah_evaluations() const { return sah_evals_.load(); }
@@ -390,11 +391,13 @@ struct KdSubtreeBuilder::Impl {
 };
 
 KdSubtreeBuilder::KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth)
-    : impl_(std::make_unique<Impl>(mesh, params)), max_depth_(std::clamp(max_depth, 1, KdTree::kMaxDepth)) {}
+    : impl_(std::make_unique<Impl>(mesh, params)),
+      max_depth_(std::clamp(max_depth, 1, KdTree::kMaxDepth)) {}
 KdSubtreeBuilder::~KdSubtreeBuilder() = default;
 
-void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box, std::vector<KdNode>& nodes,
-                             std::vector<uint32_t>& prims_out, Box3& bounds) const {
+void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box,
+                             std::vector<KdNode>& nodes, std::vector<uint32_t>& prims_out,
+                             Box3& bounds) const {
   const Mesh& mesh = impl_->mesh;
   auto& b = impl_->builders.local();
   if (!b) b = std::make_unique<Builder>(mesh, impl_->params, KdTree::kMaxDepth);
@@ -419,14 +422,17 @@ void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box
   cancellable_sort(events.begin(), events.end(), event_less, impl_->params.cancel);
   // The kd-tree's depth rule (8 + 1.3 log2 n, pbrt) for the subtree's triangles, at most
   // max_depth_.
-  const int depth = std::min(max_depth_, int(std::lround(8.0 + 1.3 * std::log2(double(std::max<size_t>(1, prims.size()))))));
+  const int depth =
+      std::min(max_depth_,
+               int(std::lround(8.0 + 1.3 * std::log2(double(std::max<size_t>(1, prims.size()))))));
   Subtree out;
   b->build_subtree(events, uint32_t(prims.size()), bounds, depth, out);
   if (b->over_budget())
-    throw ParamError("hybrid: the leaf subtrees outgrew the memory budget of " +
-                     format_bytes_iec(double(effective_memory_budget(impl_->params))) +
-                     ": triangles straddling many split planes are copied into every node they cross; "
-                     "a larger --cell-size, a lower --kd-cost-ratio, or raise --memory-budget-mb");
+    throw ParamError(
+        "hybrid: the leaf subtrees outgrew the memory budget of " +
+        format_bytes_iec(double(effective_memory_budget(impl_->params))) +
+        ": triangles straddling many split planes are copied into every node they cross; "
+        "a larger --cell-size, a lower --kd-cost-ratio, or raise --memory-budget-mb");
   nodes = std::move(out.nodes);
   prims_out = std::move(out.prims);
   // One-triangle leaves hold their triangle in the node; the hybrid's leaves index its
@@ -506,13 +512,15 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   });
   auto throw_over_budget = [&](uint64_t nodes) {
     throw ParamError("kdtree: the build outgrew the memory budget of " +
-                     format_bytes_iec(double(effective_memory_budget(params))) + " (its account reached " +
-                     format_bytes_iec(double(builder.peak_bytes())) + " after " +
-                     std::to_string(nodes) + " nodes over " + std::to_string(n) +
+                     format_bytes_iec(double(effective_memory_budget(params))) +
+                     " (its account reached " + format_bytes_iec(double(builder.peak_bytes())) +
+                     " after " + std::to_string(nodes) + " nodes over " + std::to_string(n) +
                      " triangles; the estimate before building was " +
                      format_bytes_iec(double(estimate)) +
                      "): triangles straddling many split planes are copied into every node they "
-                     "cross; " + fix + ", or raise --memory-budget-mb (0 = half of physical "
+                     "cross; " +
+                     fix +
+                     ", or raise --memory-budget-mb (0 = half of physical "
                      "memory) if the machine has the memory");
   };
   if (builder.over_budget()) {
@@ -522,7 +530,8 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
     throw_over_budget(nodes);
   }
   // shrink_to_fit copies the tree once more: count the copy too.
-  builder.charge(int64_t(tree.nodes.size() * sizeof(KdNode) + tree.prims.size() * sizeof(uint32_t)));
+  builder.charge(
+      int64_t(tree.nodes.size() * sizeof(KdNode) + tree.prims.size() * sizeof(uint32_t)));
   if (builder.over_budget()) {
     const uint64_t nodes = builder.nodes_made();
     tree = {};

@@ -127,7 +127,8 @@ bool KdTree::traverse(const Ray& ray, Hit& hit, S& s) const {
     }
     return false;
   };
-  auto visit = [&](StepKind kind, int depth, uint32_t node, const Box3& box, float t_min, float t_max) {
+  auto visit = [&](StepKind kind, int depth, uint32_t node, const Box3& box, float t_min,
+                   float t_max) {
     s.visit(TraceStep{kind, depth, node, box, t_min, t_max});
   };
   float best = ray.tmax;

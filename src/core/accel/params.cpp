@@ -26,9 +26,12 @@ TriangleTestKind parse_triangle_test(const std::string& s) {
 
 const char* to_string(TriangleTestKind k) {
   switch (k) {
-    case TriangleTestKind::Watertight: return "watertight";
-    case TriangleTestKind::Moller: return "moller";
-    case TriangleTestKind::None: return "none";
+    case TriangleTestKind::Watertight:
+      return "watertight";
+    case TriangleTestKind::Moller:
+      return "moller";
+    case TriangleTestKind::None:
+      return "none";
   }
   return "?";
 }

@@ -48,10 +48,14 @@ struct WatertightTest {
   static bool intersect(const RayData& d, const Vec3& v0, const Vec3& v1, const Vec3& v2,
                         float tmin, float tmax, float& t_out, float& u_out, float& v_out) {
     // The corners about the origin, on the permuted axes (A = v0 - org, read as A[kx], ...).
-    const float Az = component(v0, d.kz) - d.oz, Bz = component(v1, d.kz) - d.oz, Cz = component(v2, d.kz) - d.oz;
-    const float ax = (component(v0, d.kx) - d.ox) - d.sx * Az, ay = (component(v0, d.ky) - d.oy) - d.sy * Az;
-    const float bx = (component(v1, d.kx) - d.ox) - d.sx * Bz, by = (component(v1, d.ky) - d.oy) - d.sy * Bz;
-    const float cx = (component(v2, d.kx) - d.ox) - d.sx * Cz, cy = (component(v2, d.ky) - d.oy) - d.sy * Cz;
+    const float Az = component(v0, d.kz) - d.oz, Bz = component(v1, d.kz) - d.oz,
+                Cz = component(v2, d.kz) - d.oz;
+    const float ax = (component(v0, d.kx) - d.ox) - d.sx * Az,
+                ay = (component(v0, d.ky) - d.oy) - d.sy * Az;
+    const float bx = (component(v1, d.kx) - d.ox) - d.sx * Bz,
+                by = (component(v1, d.ky) - d.oy) - d.sy * Bz;
+    const float cx = (component(v2, d.kx) - d.ox) - d.sx * Cz,
+                cy = (component(v2, d.ky) - d.oy) - d.sy * Cz;
     float U = cx * by - cy * bx;
     float V = ax * cy - ay * cx;
     float W = bx * ay - by * ax;

@@ -179,7 +179,8 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
       std::vector<double> ratios, ref_reps;
       auto mrays_of = [&](double sec) { return sec > 0 ? double(rays.size()) / sec * 1e-6 : 0.0; };
       for (int r = 0; r < o.reps; ++r) {
-        if (paired) ref_reps.push_back(mrays_of(trace_rays(*ref->acc, rays, any, &ref_scratch, o.cpu_clock)));
+        if (paired)
+          ref_reps.push_back(mrays_of(trace_rays(*ref->acc, rays, any, &ref_scratch, o.cpu_clock)));
         sf.mrays_reps.push_back(mrays_of(trace_rays(*acc, rays, any, &hits, o.cpu_clock)));
         if (paired && ref_reps.back() > 0) ratios.push_back(sf.mrays_reps.back() / ref_reps.back());
       }
@@ -201,11 +202,13 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
         sf.ratio_to_reference = 1.0;  // this is the reference
         sf.reference_mrays = sf.mrays_median;
       }
-      std::string line = "    " + sf.set + ": " + format_double("%.3g", sf.mrays_median) + " Mrays/s";
-      if (ref && ref->ok) line += " (x" + format_double("%.2f", sf.ratio_to_reference) + " reference)";
+      std::string line =
+          "    " + sf.set + ": " + format_double("%.3g", sf.mrays_median) + " Mrays/s";
+      if (ref && ref->ok)
+        line += " (x" + format_double("%.2f", sf.ratio_to_reference) + " reference)";
       if (sf.counted)
-        line += ", " + format_double("%.1f", sf.steps_per_ray) + " steps, " + format_double("%.1f", sf.tests_per_ray) +
-                " tests per ray";
+        line += ", " + format_double("%.1f", sf.steps_per_ray) + " steps, " +
+                format_double("%.1f", sf.tests_per_ray) + " tests per ray";
       if (sf.agreement >= 0) line += ", agreement " + format_double("%.6f", sf.agreement);
       say(line);
       if (hits_out) (*hits_out)[s] = std::move(hits);

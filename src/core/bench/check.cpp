@@ -68,13 +68,13 @@ struct Candidate {
 };
 
 struct Reference {
-  bool valid = true;       ///< the ray itself is usable (else every answer must be a miss)
-  double t_strict = kInf;  ///< closest robust hit
-  double t_strict_unc = 0;  ///< its t uncertainty
-  bool grazing = false;    ///< a triangle seen edge-on lies along the ray segment
-  bool edge_before = false;  ///< a loose-only (edge/vertex) hit at or before t_strict
+  bool valid = true;             ///< the ray itself is usable (else every answer must be a miss)
+  double t_strict = kInf;        ///< closest robust hit
+  double t_strict_unc = 0;       ///< its t uncertainty
+  bool grazing = false;          ///< a triangle seen edge-on lies along the ray segment
+  bool edge_before = false;      ///< a loose-only (edge/vertex) hit at or before t_strict
   std::vector<Candidate> loose;  ///< loose hits with t <= t_strict + tol, sorted
-  double tol = 0;          ///< absolute t tolerance for this ray
+  double tol = 0;                ///< absolute t tolerance for this ray
 };
 
 double t_tolerance(const Ray& r, double scene_scale) {
@@ -145,8 +145,8 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
     if (u < -margin || v < -margin || w < -margin) continue;
     const double t_unc = ref.tol + delta / (dl * cosn) + 1e-5 * std::fabs(t);
     if (t < r.tmin - t_unc || t > double(r.tmax) + t_unc) continue;
-    const bool strict = u > margin && v > margin && w > margin && t > r.tmin + t_unc &&
-                        t < double(r.tmax) - t_unc;
+    const bool strict =
+        u > margin && v > margin && w > margin && t > r.tmin + t_unc && t < double(r.tmax) - t_unc;
     if (strict && t < ref.t_strict) {
       ref.t_strict = t;
       ref.t_strict_unc = t_unc;
@@ -301,7 +301,10 @@ void add_generic_rays(CheckCase& c, int n, uint64_t seed) {
     prim = uint32_t(rng.below(m.num_triangles()));
     const auto cr = m.corners(prim);
     float u = rng.uniform(0, 1), v = rng.uniform(0, 1);
-    if (u + v > 1) { u = 1 - u; v = 1 - v; }
+    if (u + v > 1) {
+      u = 1 - u;
+      v = 1 - v;
+    }
     return cr[0] * (1 - u - v) + cr[1] * u + cr[2] * v;
   };
   for (int i = 0; i < n; ++i) {
@@ -371,14 +374,31 @@ void add_generic_rays(CheckCase& c, int n, uint64_t seed) {
   for (int i = 0; i < std::max(8, n / 20); ++i) {
     Ray r{rng.in_box(around), 0.0f, rng.direction(), kInf};
     switch (i % 8) {
-      case 0: r.org.x = nan; break;
-      case 1: r.dir.y = nan; break;
-      case 2: r.org.z = kInf; break;
-      case 3: r.dir.x = -kInf; break;
-      case 4: r.tmin = nan; break;
-      case 5: r.tmax = nan; break;
-      case 6: r.dir = Vec3(0.0f, -0.0f, 0.0f); break;
-      default: r.tmin = 5; r.tmax = 1; break;
+      case 0:
+        r.org.x = nan;
+        break;
+      case 1:
+        r.dir.y = nan;
+        break;
+      case 2:
+        r.org.z = kInf;
+        break;
+      case 3:
+        r.dir.x = -kInf;
+        break;
+      case 4:
+        r.tmin = nan;
+        break;
+      case 5:
+        r.tmax = nan;
+        break;
+      case 6:
+        r.dir = Vec3(0.0f, -0.0f, 0.0f);
+        break;
+      default:
+        r.tmin = 5;
+        r.tmax = 1;
+        break;
     }
     add_ray(c, r, kNanInf);
   }
@@ -524,9 +544,9 @@ CheckResult judge_accelerator(const Accelerator& accel, const CheckCase& base) {
         const Ray& r = c.rays[i];
         std::ostringstream s;
         s.precision(9);
-        s << check_ray_families()[c.family[i]] << " ray org (" << r.org.x << "," << r.org.y
-          << "," << r.org.z << ") dir (" << r.dir.x << "," << r.dir.y << "," << r.dir.z << ") ["
-          << r.tmin << "," << r.tmax << "]: " << why[i];
+        s << check_ray_families()[c.family[i]] << " ray org (" << r.org.x << "," << r.org.y << ","
+          << r.org.z << ") dir (" << r.dir.x << "," << r.dir.y << "," << r.dir.z << ") [" << r.tmin
+          << "," << r.tmax << "]: " << why[i];
         res.examples.push_back(s.str());
       }
     }
@@ -562,11 +582,17 @@ std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float 
         if (length(ng) == 0 || !is_finite(ng)) continue;
         ng = normalize(ng);
         float u = rng.uniform(0, 1), v = rng.uniform(0, 1);
-        if (u + v > 1) { u = 1 - u; v = 1 - v; }
+        if (u + v > 1) {
+          u = 1 - u;
+          v = 1 - v;
+        }
         const Vec3 p = cr[0] * (1 - u - v) + cr[1] * u + cr[2] * v;
         Vec3 d = rng.direction();
         if (dot(d, ng) < 0) d = -d;  // leave on the front side
-        if (rng.below(2)) { ng = -ng; d = -d; }  // and on the back side
+        if (rng.below(2)) {
+          ng = -ng;
+          d = -d;
+        }  // and on the back side
         samples.push_back({p, ng, d, prim});
       }
       // The two policies: the robust offset moves the origin off the surface along the

@@ -42,12 +42,12 @@ struct CheckResult {
   std::string case_name;
   uint64_t rays = 0;
   uint64_t agree = 0;
-  uint64_t ambiguous = 0;      ///< the reference itself cannot decide (edge, tie, near tmin)
-  uint64_t disagree = 0;       ///< unambiguous disagreements: failures
-  uint64_t any_disagree = 0;   ///< occluded() contradicting an unambiguous reference
-  uint64_t max_steps = 0;      ///< largest per-ray traversal step count seen
+  uint64_t ambiguous = 0;     ///< the reference itself cannot decide (edge, tie, near tmin)
+  uint64_t disagree = 0;      ///< unambiguous disagreements: failures
+  uint64_t any_disagree = 0;  ///< occluded() contradicting an unambiguous reference
+  uint64_t max_steps = 0;     ///< largest per-ray traversal step count seen
   double seconds = 0;
-  std::string error;           ///< build or traversal exception, if any
+  std::string error;                  ///< build or traversal exception, if any
   std::vector<std::string> examples;  ///< first few disagreements, printable
   std::vector<uint64_t> disagree_by_family;
 };

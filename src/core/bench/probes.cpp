@@ -9,9 +9,9 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <cstdio>
 #include <ctime>
-#include <cmath>
 #include <fstream>
 
 #include "accel/triangle.h"
@@ -117,11 +117,14 @@ double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool a
                         if (dst) dst[i] = h;
                       }
                       if (cpu_clock)
-                        cpu_ns.fetch_add(int64_t((thread_cpu_seconds() - c0) * 1e9), std::memory_order_relaxed);
+                        cpu_ns.fetch_add(int64_t((thread_cpu_seconds() - c0) * 1e9),
+                                         std::memory_order_relaxed);
                     });
   if (!cpu_clock) return seconds_since(t0);
-  const size_t threads = tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
-  return double(cpu_ns.load()) * 1e-9 / double(std::max<size_t>(1, std::min(threads, rays.size() / kTraceChunk + 1)));
+  const size_t threads =
+      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  return double(cpu_ns.load()) * 1e-9 /
+         double(std::max<size_t>(1, std::min(threads, rays.size() / kTraceChunk + 1)));
 }
 
 RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit) {

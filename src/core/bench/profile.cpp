@@ -34,7 +34,8 @@ bool crosses_box(const Ray& r, const Box3& box) {
 }
 
 /// Seconds to trace every ray `times` times in a row (1: cold order, 2: each ray twice).
-double time_pass(const Accelerator& accel, const std::vector<Ray>& rays, int times, uint64_t& hits) {
+double time_pass(const Accelerator& accel, const std::vector<Ray>& rays, int times,
+                 uint64_t& hits) {
   hits = 0;
   const auto t0 = std::chrono::steady_clock::now();
   for (const Ray& r : rays)
@@ -63,7 +64,8 @@ uint64_t cache_sim_pass(const Accelerator& accel, const std::vector<Ray>& rays) 
   return hits;
 }
 
-RayClasses classify_rays(const Accelerator& reference, const Box3& box, const std::vector<Ray>& rays) {
+RayClasses classify_rays(const Accelerator& reference, const Box3& box,
+                         const std::vector<Ray>& rays) {
   RayClasses c;
   for (const Ray& r : rays) {
     Hit h;

@@ -28,7 +28,8 @@ struct RayClasses {
 };
 
 /// Splits `rays` by `reference`'s closest-hit answer and by `box` (slab test in double).
-RayClasses classify_rays(const Accelerator& reference, const Box3& box, const std::vector<Ray>& rays);
+RayClasses classify_rays(const Accelerator& reference, const Box3& box,
+                         const std::vector<Ray>& rays);
 
 struct ProfileFigures {
   uint64_t rays = 0;

@@ -19,7 +19,8 @@ std::vector<Ray> parse_rays(const void* data, size_t size, const std::string& na
     throw LoadError(name + ": only " + std::to_string(size) +
                     " bytes, shorter than the 16-byte .rays header: not a ray file");
   if (std::memcmp(p, "RAYS", 4) != 0)
-    throw LoadError(name + ": does not start with the magic 'RAYS': not a .rays file "
+    throw LoadError(name +
+                    ": does not start with the magic 'RAYS': not a .rays file "
                     "(see docs/RAYSETS.md for the format)");
   uint32_t version;
   uint64_t n;
@@ -35,11 +36,11 @@ std::vector<Ray> parse_rays(const void* data, size_t size, const std::string& na
                     ": the header is corrupt");
   const uint64_t expected = kRayFileHeaderBytes + n * kRayRecordBytes;
   if (size != expected)
-    throw LoadError(name + ": header says " + std::to_string(n) + " rays (" +
-                    std::to_string(expected) + " bytes) but the file has " +
-                    std::to_string(size) + " bytes: " +
-                    (size < expected ? "the file is truncated" : "trailing bytes after the rays") +
-                    "; regenerate it with `kdgrid rays`");
+    throw LoadError(
+        name + ": header says " + std::to_string(n) + " rays (" + std::to_string(expected) +
+        " bytes) but the file has " + std::to_string(size) +
+        " bytes: " + (size < expected ? "the file is truncated" : "trailing bytes after the rays") +
+        "; regenerate it with `kdgrid rays`");
   std::vector<Ray> rays(n);
   const uint8_t* q = p + kRayFileHeaderBytes;
   for (uint64_t i = 0; i < n; ++i, q += kRayRecordBytes) {

@@ -64,18 +64,22 @@ RaySetKind parse_ray_set(const std::string& s) {
 
 const char* to_string(RaySetKind k) {
   switch (k) {
-    case RaySetKind::Primary: return "primary";
-    case RaySetKind::Shadow: return "shadow";
-    case RaySetKind::Diffuse: return "diffuse";
-    case RaySetKind::Random: return "random";
+    case RaySetKind::Primary:
+      return "primary";
+    case RaySetKind::Shadow:
+      return "shadow";
+    case RaySetKind::Diffuse:
+      return "diffuse";
+    case RaySetKind::Random:
+      return "random";
   }
   return "?";
 }
 
 std::vector<Ray> primary_rays(const Camera& cam, int width, int height) {
   if (width < 1 || height < 1)
-    throw ParamError("ray set resolution " + std::to_string(width) + "x" +
-                     std::to_string(height) + " must be at least 1x1");
+    throw ParamError("ray set resolution " + std::to_string(width) + "x" + std::to_string(height) +
+                     " must be at least 1x1");
   const CameraFrame f = CameraFrame::make(cam, width, height);
   std::vector<Ray> rays(size_t(width) * size_t(height));
   tbb::parallel_for(0, height, [&](int j) {
@@ -102,8 +106,8 @@ std::vector<Ray> shadow_rays(const Mesh& mesh, const std::vector<Ray>& primary,
   std::vector<Ray> out;
   for (size_t i = 0; i < primary.size() && i < hits.size(); ++i) {
     if (!hits[i].valid()) continue;
-    const Vec3 o = offset_ray_origin(hit_point(mesh, hits[i]),
-                                     facing_normal(mesh, hits[i], primary[i].dir));
+    const Vec3 o =
+        offset_ray_origin(hit_point(mesh, hits[i]), facing_normal(mesh, hits[i], primary[i].dir));
     out.push_back({o, 0.0f, light - o, 1.0f});
   }
   return out;

@@ -153,8 +153,9 @@ std::string bench_to_markdown(const BenchReport& r) {
           md << " - | - |";
           continue;
         }
-        md << " " << format_double("%.3g", x->mrays_median) << " (" << format_double("%.3g", x->mrays_min) << "-"
-           << format_double("%.3g", x->mrays_max) << ") | " << format_double("%.2f", x->ratio_to_reference) << " |";
+        md << " " << format_double("%.3g", x->mrays_median) << " ("
+           << format_double("%.3g", x->mrays_min) << "-" << format_double("%.3g", x->mrays_max)
+           << ") | " << format_double("%.2f", x->ratio_to_reference) << " |";
       }
       md << "\n";
     }
@@ -169,11 +170,13 @@ std::string bench_to_markdown(const BenchReport& r) {
       for (const auto& x : a.sets) {
         md << "| " << s.name << " | " << a.accel << " | " << x.set << " | " << x.rays << " | ";
         if (x.counted)
-          md << format_double("%.1f", x.steps_per_ray) << " | " << format_double("%.1f", x.leaves_per_ray) << " | "
+          md << format_double("%.1f", x.steps_per_ray) << " | "
+             << format_double("%.1f", x.leaves_per_ray) << " | "
              << format_double("%.1f", x.tests_per_ray) << " | ";
         else
           md << "n/a | n/a | n/a | ";
-        md << (x.agreement >= 0 ? format_double("%.6f", x.agreement) : std::string("reference")) << " |\n";
+        md << (x.agreement >= 0 ? format_double("%.6f", x.agreement) : std::string("reference"))
+           << " |\n";
       }
     }
   }
@@ -192,8 +195,8 @@ std::string bench_to_markdown(const BenchReport& r) {
       for (const auto& [k, v] : a.stats.bytes_by_part)
         parts += (parts.empty() ? "" : ", ") + k + " " + mib(v);
       md << "| " << s.name << " | " << s.triangles << " | " << a.accel << " | "
-         << (a.error.empty() ? format_double("%.3f", a.build_seconds) : std::string("failed")) << " | "
-         << format_double("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
+         << (a.error.empty() ? format_double("%.3f", a.build_seconds) : std::string("failed"))
+         << " | " << format_double("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
          << format_double("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " ("
          << mib(a.peak_rss_bytes > a.rss_before_bytes ? a.peak_rss_bytes - a.rss_before_bytes : 0)
          << ") | " << parts << " |\n";

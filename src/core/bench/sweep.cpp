@@ -145,7 +145,8 @@ Setup load_setup(const SweepOptions& o, SweepTable& t) {
     const Measured e = measure_primary("embree", mesh, p, s.rays, o.reps, nullptr, &s.embree);
     if (e.error.empty()) {
       t.notes.emplace_back("embree_mrays", format_double("%.4g", e.mrays));
-      if (o.progress) o.progress("  embree baseline: " + format_double("%.3g", e.mrays) + " Mrays/s");
+      if (o.progress)
+        o.progress("  embree baseline: " + format_double("%.3g", e.mrays) + " Mrays/s");
     }
   }
   return s;
@@ -158,9 +159,9 @@ void say_row(const SweepOptions& o, const std::string& label, const Measured& m)
     return;
   }
   o.progress("  " + label + ": build " + format_double("%.3f", m.build_seconds) + " s, " +
-             format_double("%.1f", double(m.stats.bytes) / 1048576.0) + " MiB, " + format_double("%.3g", m.mrays) +
-             " Mrays/s, " + format_double("%.1f", m.steps) + " steps, " + format_double("%.1f", m.tests) +
-             " tests per ray");
+             format_double("%.1f", double(m.stats.bytes) / 1048576.0) + " MiB, " +
+             format_double("%.3g", m.mrays) + " Mrays/s, " + format_double("%.1f", m.steps) +
+             " steps, " + format_double("%.1f", m.tests) + " tests per ray");
 }
 
 // ---- cellsize, lambda, kdcost --------------------------------------------------------------
@@ -192,7 +193,8 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
   for (double mult : o.values) {
     BuildParams q = o.params;
     q.cell_size = float(mult * auto_cell);
-    add(format_double("%gx", mult), mult, measure_primary("hybrid", mesh, q, s.rays, o.reps, s.embree.get()));
+    add(format_double("%gx", mult), mult,
+        measure_primary("hybrid", mesh, q, s.rays, o.reps, s.embree.get()));
   }
 }
 
@@ -204,8 +206,8 @@ void sweep_param(const SweepOptions& o, SweepTable& t, const std::string& accel,
     BuildParams q = o.params;
     set(q, v);
     const Measured m = measure_primary(accel, mesh, q, s.rays, o.reps, s.embree.get());
-    auto cells =
-        std::vector<std::pair<std::string, SweepValue>>{{"label", format_double("%g", v)}, {column, v}};
+    auto cells = std::vector<std::pair<std::string, SweepValue>>{{"label", format_double("%g", v)},
+                                                                 {column, v}};
     for (auto& c : measured_cells(m, mesh.num_triangles())) cells.push_back(c);
     for (const auto& [k, x] : m.stats.extra)
       if (k == "resolution" || k == "grid") cells.emplace_back(k, x);
@@ -333,7 +335,9 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
 
 // ---- spp ---------------------------------------------------------------------------------------
 
-std::string find_cornell() { return find_asset("cornell.gltf"); }
+std::string find_cornell() {
+  return find_asset("cornell.gltf");
+}
 
 /// The image as a display shows it: linear values clamped to [0, 1]. The emissive panel's
 /// radiance is far above 1, so the plain RMSE is dominated by its jittered edges.
@@ -400,7 +404,8 @@ void sweep_spp(const SweepOptions& o, SweepTable& t) {
                    {"mrays", r.seconds() > 0 ? rays * 1e-6 / r.seconds() : 0.0}});
         if (o.progress)
           o.progress("  " + std::to_string(spp) + " spp: " + format_double("%.2f", r.seconds()) +
-                     " s, rmse " + format_double("%.5f", e) + ", display rmse " + format_double("%.5f", e_display));
+                     " s, rmse " + format_double("%.5f", e) + ", display rmse " +
+                     format_double("%.5f", e_display));
       }
       ++next;
     }
@@ -469,7 +474,8 @@ SweepTable run_sweep(const SweepOptions& in) {
   }
   for (double v : o.values)
     if (!(v > 0) || !std::isfinite(v))
-      throw ParamError("sweep value " + format_double("%g", v) + " must be a positive finite number");
+      throw ParamError("sweep value " + format_double("%g", v) +
+                       " must be a positive finite number");
   if (o.kind == "spp" && o.spp_reference < 1) throw ParamError("--spp-reference must be >= 1");
   for (const auto& a : o.accels) make_accelerator(a);
   const int threads = effective_threads(o.threads);

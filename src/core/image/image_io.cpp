@@ -36,8 +36,8 @@ void verify_encoded_image(const std::string& path, const std::string& format_nam
   OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
   auto in = OIIO::ImageInput::open(format_name, nullptr, &reader);
   if (!in || in->spec().width != width || in->spec().height != height)
-    throw Error(path + ": the encoded image does not read back as " + std::to_string(width) +
-                "x" + std::to_string(height) + (in ? "" : " (" + OIIO::geterror() + ")") +
+    throw Error(path + ": the encoded image does not read back as " + std::to_string(width) + "x" +
+                std::to_string(height) + (in ? "" : " (" + OIIO::geterror() + ")") +
                 "; the file was not changed");
   in->close();
 }
@@ -90,8 +90,8 @@ void write_image(const std::string& path, int width, int height, const std::vect
   }
   if (!ok) throw Error(path + ": encoding the image failed: " + err + "; the file was not changed");
   verify_encoded_image(path, format_name, encoded, width, height);
-  write_file_atomically(path, std::string_view(reinterpret_cast<const char*>(encoded.data()),
-                                               encoded.size()));
+  write_file_atomically(
+      path, std::string_view(reinterpret_cast<const char*>(encoded.data()), encoded.size()));
 }
 
 ImageRGB read_image(const std::string& path) {
@@ -158,8 +158,7 @@ bool texture_fits_budget(int width, int height, int channels, std::string& why) 
   if (bytes <= double(budget)) return true;
   why = std::to_string(width) + "x" + std::to_string(height) + " pixels would take " +
         format_bytes_iec(bytes) + " to decode, above the memory budget of " +
-        format_bytes_iec(double(budget)) +
-        " (half of the memory available); scale the image down";
+        format_bytes_iec(double(budget)) + " (half of the memory available); scale the image down";
   return false;
 }
 

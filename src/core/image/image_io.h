@@ -43,7 +43,6 @@ double rmse(const ImageRGB& a, const ImageRGB& b);
 
 // ---- textures -------------------------------------------------------------------------
 
-
 /// Reads an image file (PNG, JPEG, TGA, EXR, ... whatever OpenImageIO reads) as an RGB8
 /// texture. 8-bit images are taken as sRGB, float images as linear. Returns nullopt and sets
 /// `why` when the file cannot be read, so callers can warn and go on untextured: also when it

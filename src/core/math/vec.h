@@ -29,20 +29,46 @@ struct Vec3 {
   constexpr Vec3 operator*(float s) const { return {x * s, y * s, z * s}; }
   constexpr Vec3 operator/(float s) const { return {x / s, y / s, z / s}; }
   constexpr Vec3 operator-() const { return {-x, -y, -z}; }
-  constexpr Vec3& operator+=(const Vec3& o) { x += o.x; y += o.y; z += o.z; return *this; }
-  constexpr Vec3& operator-=(const Vec3& o) { x -= o.x; y -= o.y; z -= o.z; return *this; }
-  constexpr Vec3& operator*=(float s) { x *= s; y *= s; z *= s; return *this; }
-  constexpr Vec3& operator*=(const Vec3& o) { x *= o.x; y *= o.y; z *= o.z; return *this; }
+  constexpr Vec3& operator+=(const Vec3& o) {
+    x += o.x;
+    y += o.y;
+    z += o.z;
+    return *this;
+  }
+  constexpr Vec3& operator-=(const Vec3& o) {
+    x -= o.x;
+    y -= o.y;
+    z -= o.z;
+    return *this;
+  }
+  constexpr Vec3& operator*=(float s) {
+    x *= s;
+    y *= s;
+    z *= s;
+    return *this;
+  }
+  constexpr Vec3& operator*=(const Vec3& o) {
+    x *= o.x;
+    y *= o.y;
+    z *= o.z;
+    return *this;
+  }
   constexpr bool operator==(const Vec3& o) const { return x == o.x && y == o.y && z == o.z; }
   constexpr bool operator!=(const Vec3& o) const { return !(*this == o); }
 };
 
-constexpr Vec3 operator*(float s, const Vec3& v) { return v * s; }
-constexpr float dot(const Vec3& a, const Vec3& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+constexpr Vec3 operator*(float s, const Vec3& v) {
+  return v * s;
+}
+constexpr float dot(const Vec3& a, const Vec3& b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
 constexpr Vec3 cross(const Vec3& a, const Vec3& b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
-inline float length(const Vec3& v) { return std::sqrt(dot(v, v)); }
+inline float length(const Vec3& v) {
+  return std::sqrt(dot(v, v));
+}
 inline Vec3 normalize(const Vec3& v) {
   const float l = length(v);
   return l > 0 ? v / l : v;
@@ -53,9 +79,15 @@ inline Vec3 min(const Vec3& a, const Vec3& b) {
 inline Vec3 max(const Vec3& a, const Vec3& b) {
   return {std::max(a.x, b.x), std::max(a.y, b.y), std::max(a.z, b.z)};
 }
-inline Vec3 abs(const Vec3& v) { return {std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)}; }
-inline float max_component(const Vec3& v) { return std::max(v.x, std::max(v.y, v.z)); }
-inline float min_component(const Vec3& v) { return std::min(v.x, std::min(v.y, v.z)); }
+inline Vec3 abs(const Vec3& v) {
+  return {std::fabs(v.x), std::fabs(v.y), std::fabs(v.z)};
+}
+inline float max_component(const Vec3& v) {
+  return std::max(v.x, std::max(v.y, v.z));
+}
+inline float min_component(const Vec3& v) {
+  return std::min(v.x, std::min(v.y, v.z));
+}
 /// v's coordinate on axis k (0..2) for a k known only at run time, as one indexed load from
 /// memory: its bytes are copied (a defined read of the object's representation; Vec3 is three
 /// packed floats). Vec3::operator[] compiles to a chain of selects instead, which in the
@@ -63,7 +95,8 @@ inline float min_component(const Vec3& v) { return std::min(v.x, std::min(v.y, v
 [[gnu::always_inline]] inline float component(const Vec3& v, int k) {
   static_assert(std::is_standard_layout_v<Vec3> && sizeof(Vec3) == 3 * sizeof(float));
   float f;
-  std::memcpy(&f, reinterpret_cast<const unsigned char*>(&v) + sizeof(float) * unsigned(k), sizeof f);
+  std::memcpy(&f, reinterpret_cast<const unsigned char*>(&v) + sizeof(float) * unsigned(k),
+              sizeof f);
   return f;
 }
 inline int max_dimension(const Vec3& v) {
@@ -72,8 +105,12 @@ inline int max_dimension(const Vec3& v) {
 inline bool is_finite(const Vec3& v) {
   return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z);
 }
-inline Vec3 lerp(const Vec3& a, const Vec3& b, float t) { return a * (1 - t) + b * t; }
-inline Vec3 reflect(const Vec3& d, const Vec3& n) { return d - n * (2 * dot(d, n)); }
+inline Vec3 lerp(const Vec3& a, const Vec3& b, float t) {
+  return a * (1 - t) + b * t;
+}
+inline Vec3 reflect(const Vec3& d, const Vec3& n) {
+  return d - n * (2 * dot(d, n));
+}
 
 /// Double-precision vector, used by reference computations and camera set-up.
 struct Vec3d {
@@ -87,7 +124,9 @@ struct Vec3d {
   constexpr Vec3d operator*(double s) const { return {x * s, y * s, z * s}; }
   constexpr Vec3 to_float() const { return {float(x), float(y), float(z)}; }
 };
-constexpr double dot(const Vec3d& a, const Vec3d& b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+constexpr double dot(const Vec3d& a, const Vec3d& b) {
+  return a.x * b.x + a.y * b.y + a.z * b.z;
+}
 constexpr Vec3d cross(const Vec3d& a, const Vec3d& b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
@@ -100,8 +139,14 @@ struct Box3 {
   constexpr Box3() = default;
   constexpr Box3(const Vec3& lo_, const Vec3& hi_) : lo(lo_), hi(hi_) {}
 
-  void grow(const Vec3& p) { lo = min(lo, p); hi = max(hi, p); }
-  void grow(const Box3& b) { lo = min(lo, b.lo); hi = max(hi, b.hi); }
+  void grow(const Vec3& p) {
+    lo = min(lo, p);
+    hi = max(hi, p);
+  }
+  void grow(const Box3& b) {
+    lo = min(lo, b.lo);
+    hi = max(hi, b.hi);
+  }
   bool empty() const { return lo.x > hi.x || lo.y > hi.y || lo.z > hi.z; }
   Vec3 extent() const { return hi - lo; }
   Vec3 center() const { return (lo + hi) * 0.5f; }
@@ -126,7 +171,11 @@ inline Box3 merge(Box3 a, const Box3& b) {
 constexpr float kInf = std::numeric_limits<float>::infinity();
 
 /// Next representable float towards +inf / -inf (used to widen intervals conservatively).
-inline float next_float_up(float v) { return std::nextafter(v, kInf); }
-inline float next_float_down(float v) { return std::nextafter(v, -kInf); }
+inline float next_float_up(float v) {
+  return std::nextafter(v, kInf);
+}
+inline float next_float_down(float v) {
+  return std::nextafter(v, -kInf);
+}
 
 }  // namespace kdgrid

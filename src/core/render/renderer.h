@@ -16,9 +16,9 @@
 namespace kdgrid {
 
 enum class RenderMode {
-  Shaded,      ///< Whitted shading
-  HeatSteps,   ///< per-pixel traversal steps of the primary ray (counted traversal)
-  HeatTests,   ///< per-pixel triangle tests of the primary ray
+  Shaded,     ///< Whitted shading
+  HeatSteps,  ///< per-pixel traversal steps of the primary ray (counted traversal)
+  HeatTests,  ///< per-pixel triangle tests of the primary ray
 };
 
 /// Highest RenderSettings::max_depth (`--max-depth`) accepted. Shading recurses once per
@@ -36,13 +36,13 @@ constexpr int kMaxRenderDepth = 256;
 constexpr uint32_t kMaxSecondaryRaysPerSample = 1024;
 
 struct RenderSettings {
-  int width = 640;            ///< pixels, >= 1
-  int height = 480;           ///< pixels, >= 1
-  int max_depth = 5;          ///< reflection/refraction bounces after the primary hit, 0..kMaxRenderDepth
-  uint64_t seed = 1;          ///< sample pattern seed
-  int tile_size = 16;         ///< pixels per tile edge (the unit of work of a thread)
-  bool shadows = true;        ///< trace shadow rays to lights
-  bool jitter = true;         ///< jitter samples inside the pixel (false: pixel centres)
+  int width = 640;      ///< pixels, >= 1
+  int height = 480;     ///< pixels, >= 1
+  int max_depth = 5;    ///< reflection/refraction bounces after the primary hit, 0..kMaxRenderDepth
+  uint64_t seed = 1;    ///< sample pattern seed
+  int tile_size = 16;   ///< pixels per tile edge (the unit of work of a thread)
+  bool shadows = true;  ///< trace shadow rays to lights
+  bool jitter = true;   ///< jitter samples inside the pixel (false: pixel centres)
   RenderMode mode = RenderMode::Shaded;
 };
 

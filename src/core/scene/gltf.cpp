@@ -384,7 +384,8 @@ class GltfBuilder {
       if (acc < 0 || size_t(acc) >= model_.accessors.size()) continue;
       const double n = double(model_.accessors[size_t(acc)].count);
       const int mode = prim.mode < 0 ? TINYGLTF_MODE_TRIANGLES : prim.mode;
-      if (mode == TINYGLTF_MODE_TRIANGLES) tris += std::floor(n / 3);
+      if (mode == TINYGLTF_MODE_TRIANGLES)
+        tris += std::floor(n / 3);
       else if (mode == TINYGLTF_MODE_TRIANGLE_STRIP || mode == TINYGLTF_MODE_TRIANGLE_FAN)
         tris += std::max(0.0, n - 2);
     }
@@ -433,16 +434,17 @@ class GltfBuilder {
       std::snprintf(buf, sizeof buf, "%.4g", total.instances);
       throw LoadError(path_ + ": the node hierarchy expands to " + buf +
                       " node instances (nodes listed more than once are expanded once per "
-                      "listing), above the limit of " + std::to_string(uint64_t(kMaxNodeInstances)) +
+                      "listing), above the limit of " +
+                      std::to_string(uint64_t(kMaxNodeInstances)) +
                       "; list each child once or use fewer instances");
     }
     const double bytes = total.triangles * kMeshBytesPerTriangle;
     const uint64_t budget = default_memory_budget_bytes();
     if (bytes > double(budget)) {
       std::snprintf(buf, sizeof buf, "%.4g", total.triangles);
-      throw LoadError(path_ + ": the node hierarchy expands to " + buf +
-                      " triangles, about " + format_bytes_iec(bytes) +
-                      " as a mesh, above the memory budget of " + format_bytes_iec(double(budget)) +
+      throw LoadError(path_ + ": the node hierarchy expands to " + buf + " triangles, about " +
+                      format_bytes_iec(bytes) + " as a mesh, above the memory budget of " +
+                      format_bytes_iec(double(budget)) +
                       " (half of the memory available); use fewer instances or a smaller mesh");
     }
   }
@@ -673,8 +675,8 @@ void check_glb_header(const std::string& d, const std::string& path) {
            std::to_string(size - at) + " remain");
     const uint64_t len = le32(d, at), type = le32(d, at + 4);
     if (len > size - at - 8)
-      fail(which + " length (bytes " + std::to_string(at) + "-" + std::to_string(at + 3) +
-           ") is " + std::to_string(len) + " but only " + std::to_string(size - at - 8) +
+      fail(which + " length (bytes " + std::to_string(at) + "-" + std::to_string(at + 3) + ") is " +
+           std::to_string(len) + " but only " + std::to_string(size - at - 8) +
            " bytes follow its header");
     if (chunk == 0 && type != 0x4E4F534Au)
       fail(which + " type (bytes 16-19) is '" + printable(std::string_view(d).substr(16, 4)) +
@@ -728,8 +730,8 @@ bool refuse_write(std::string* err, const std::string&, const std::vector<unsign
 /// OpenImageIO: the header is read first and an image whose pixels would not fit the memory
 /// budget is refused before decoding (stb_image, tinygltf's default, has neither check nor a
 /// useful message for large images).
-bool decode_image(tinygltf::Image* image, const int index, std::string* err, std::string* warn,
-                  int, int, const unsigned char* bytes, int size, void*) {
+bool decode_image(tinygltf::Image* image, const int index, std::string* err, std::string* warn, int,
+                  int, const unsigned char* bytes, int size, void*) {
   const bool png = size >= 8 && std::memcmp(bytes, "\x89PNG", 4) == 0;
   const bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8;
   const std::string name = "image " + std::to_string(index);
@@ -741,7 +743,8 @@ bool decode_image(tinygltf::Image* image, const int index, std::string* err, std
   OIIO::Filesystem::IOMemReader reader(bytes, size_t(size));
   auto in = OIIO::ImageInput::open(format, nullptr, &reader);
   if (!in) {
-    if (warn) *warn += name + ": cannot decode (" + OIIO::geterror() + "); material left untextured\n";
+    if (warn)
+      *warn += name + ": cannot decode (" + OIIO::geterror() + "); material left untextured\n";
     return true;
   }
   const OIIO::ImageSpec& spec = in->spec();
@@ -794,8 +797,8 @@ Scene load_gltf(const std::string& path) {
   std::error_code ec;
   files.folder = fs::weakly_canonical(fs::absolute(fs::path(path)).parent_path(), ec);
   tinygltf::TinyGLTF loader;
-  loader.SetFsCallbacks({&tinygltf::FileExists, &tinygltf::ExpandFilePath, &read_scene_file,
-                         &refuse_write, &files});
+  loader.SetFsCallbacks(
+      {&tinygltf::FileExists, &tinygltf::ExpandFilePath, &read_scene_file, &refuse_write, &files});
   loader.SetImageLoader(&decode_image, &files);
   tinygltf::Model model;
   std::string err, warn;

@@ -60,13 +60,15 @@ Scene load_scene(const std::string& given) {
   namespace fs = std::filesystem;
   std::error_code ec;
   if (!fs::exists(path, ec))
-    throw LoadError(path + ": no such file; check the path (shared scenes are found relative to "
-                           "$KDGRID_SCENES or ../shared/scenes)");
+    throw LoadError(path +
+                    ": no such file; check the path (shared scenes are found relative to "
+                    "$KDGRID_SCENES or ../shared/scenes)");
   if (fs::is_directory(path, ec))
     throw LoadError(path + ": is a directory; give a scene file (.gltf .glb .ply .obj)");
   check_input_file(path);  // a FIFO or device blocks or never ends; a huge file cannot fit
   std::string ext = fs::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   Scene s;
   if (ext == ".ply")
     s = load_ply(path);

@@ -34,7 +34,8 @@ void Mesh::append(const Mesh& other, uint32_t mat_offset) {
     else
       uvs.insert(uvs.end(), other.uvs.begin(), other.uvs.end());
   }
-  for (const auto& t : other.triangles) triangles.push_back({t[0] + base, t[1] + base, t[2] + base});
+  for (const auto& t : other.triangles)
+    triangles.push_back({t[0] + base, t[1] + base, t[2] + base});
   if (!other.material_ids.empty() || mat_offset != 0 || !material_ids.empty()) {
     material_ids.resize(old_tris, 0);
     for (size_t i = 0; i < other.triangles.size(); ++i)
@@ -44,8 +45,9 @@ void Mesh::append(const Mesh& other, uint32_t mat_offset) {
 
 void Mesh::validate(const std::string& source) const {
   if (triangles.empty())
-    throw LoadError(source + ": the scene has no triangles (nothing to render); check that the "
-                             "file holds faces and not only points or lines");
+    throw LoadError(source +
+                    ": the scene has no triangles (nothing to render); check that the "
+                    "file holds faces and not only points or lines");
   for (size_t i = 0; i < positions.size(); ++i) {
     const Vec3& p = positions[i];
     if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z))

@@ -83,8 +83,9 @@ void write_scene(const Scene& scene, const std::string& path) {
   else if (ext == ".obj")
     write_obj(scene.mesh, path);
   else
-    throw ParamError(path + ": unsupported output format '" + ext +
-                     "'; kdgrid gen writes .gltf or .glb (with materials, camera, lights), .ply or .obj");
+    throw ParamError(
+        path + ": unsupported output format '" + ext +
+        "'; kdgrid gen writes .gltf or .glb (with materials, camera, lights), .ply or .obj");
 }
 
 }  // namespace kdgrid

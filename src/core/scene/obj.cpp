@@ -70,8 +70,7 @@ class CheckedMaterialReader : public tinyobj::MaterialReader {
  public:
   explicit CheckedMaterialReader(std::string base_dir) : base_dir_(std::move(base_dir)) {}
   bool operator()(const std::string& name, std::vector<tinyobj::material_t>* materials,
-                  std::map<std::string, int>* names, std::string* warn,
-                  std::string* err) override {
+                  std::map<std::string, int>* names, std::string* warn, std::string* err) override {
     const std::string path =
         base_dir_.empty() ? name : (std::filesystem::path(base_dir_) / name).string();
     std::string text;
@@ -102,9 +101,8 @@ void validate_obj_text(std::string_view text, const std::string& path) {
     int64_t max_index = 0;  // largest positive index used, checked at the end
     size_t max_line = 0;
   };
-  Kind kinds[3] = {{"vertex", "vertices"},
-                   {"texture coordinate", "texture coordinates"},
-                   {"normal", "normals"}};
+  Kind kinds[3] = {
+      {"vertex", "vertices"}, {"texture coordinate", "texture coordinates"}, {"normal", "normals"}};
   size_t line_no = 0, pos = 0;
   auto fail = [&](const std::string& problem) {
     throw LoadError(path + ": line " + std::to_string(line_no) + ": " + problem);
@@ -124,8 +122,8 @@ void validate_obj_text(std::string_view text, const std::string& path) {
       if (w.size() < need + 1) {
         std::string msg = kinds[vk].name;  // built stepwise: GCC 12 warns falsely on "'" + ...
         msg += " line '" + printable(line, 80);
-        msg += "' has " + std::to_string(w.size() - 1) + " numbers; it needs " +
-               std::to_string(need);
+        msg +=
+            "' has " + std::to_string(w.size() - 1) + " numbers; it needs " + std::to_string(need);
         fail(msg);
       }
       for (size_t i = 1; i < w.size(); ++i) {
@@ -134,8 +132,8 @@ void validate_obj_text(std::string_view text, const std::string& path) {
         double v = 0;
         const auto [ptr, ec] = std::from_chars(t.data(), t.data() + t.size(), v);
         if (ec != std::errc() || ptr != t.data() + t.size() || !std::isfinite(v))
-          fail(std::string(kinds[vk].name) + " '" + printable(line, 80) + "': '" +
-               printable(w[i]) + "' is not a finite number; fix or remove the line");
+          fail(std::string(kinds[vk].name) + " '" + printable(line, 80) + "': '" + printable(w[i]) +
+               "' is not a finite number; fix or remove the line");
       }
       ++kinds[vk].defined;
     } else if (w[0] == "f") {
@@ -158,8 +156,8 @@ void validate_obj_text(std::string_view text, const std::string& path) {
           Kind& kd = kinds[k];
           if (idx < 0 && uint64_t(-idx) > kd.defined)
             fail(std::string("face ") + kinds[k].name + " index " + std::to_string(idx) +
-                 " counts back past the first " + kd.name + ": only " +
-                 std::to_string(kd.defined) + " are defined above this line (-1 is the last)");
+                 " counts back past the first " + kd.name + ": only " + std::to_string(kd.defined) +
+                 " are defined above this line (-1 is the last)");
           if (idx > kd.max_index) {
             kd.max_index = idx;
             kd.max_line = line_no;

@@ -99,7 +99,8 @@ class Reader {
   [[noreturn]] void fail(const std::string& problem) const {
     std::string msg = name_ + ": ";
     if (elem_)
-      msg += printable(elem_->name) + " " + std::to_string(index_) + " of " + std::to_string(elem_->count);
+      msg += printable(elem_->name) + " " + std::to_string(index_) + " of " +
+             std::to_string(elem_->count);
     if (fmt_ == Format::Ascii)
       msg += std::string(elem_ ? " (" : "(") + "line " + std::to_string(line_) + ")";
     throw LoadError(msg + ": " + problem);
@@ -265,7 +266,8 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
   const bool cr_only = size > 4 && std::memcmp(data, "ply\r", 4) == 0 && data[4] != '\n';
   auto next_line = [&](std::string_view& line) -> bool {
     if (p >= end) return false;
-    const char* nl = static_cast<const char*>(std::memchr(p, cr_only ? '\r' : '\n', size_t(end - p)));
+    const char* nl =
+        static_cast<const char*>(std::memchr(p, cr_only ? '\r' : '\n', size_t(end - p)));
     const char* stop = nl ? nl : end;
     line = std::string_view(p, size_t(stop - p));
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
@@ -310,8 +312,8 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
       e.name = std::string(w[1]);
       auto [ptr, ec] = std::from_chars(w[2].data(), w[2].data() + w[2].size(), e.count);
       if (ec != std::errc() || ptr != w[2].data() + w[2].size())
-        throw header_error("element '" + printable(e.name) + "' has malformed count '" + printable(w[2]) +
-                           "'");
+        throw header_error("element '" + printable(e.name) + "' has malformed count '" +
+                           printable(w[2]) + "'");
       elements.push_back(std::move(e));
     } else if (w[0] == "property") {
       if (elements.empty()) throw header_error("'property' before any 'element'");

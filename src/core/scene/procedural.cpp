@@ -385,9 +385,9 @@ Scene landscape(const ProceduralParams& p) {
                            rng.uniform() < 0.5f ? kFoliage : kStone});
       } else {
         const auto [major, minor] = torus_segments(per_object);
-        objects.push_back({make_torus(major, minor, size, size * 0.35f,
-                                      base + Vec3(0.0f, size * 0.5f, 0.0f)),
-                           kMetal});
+        objects.push_back(
+            {make_torus(major, minor, size, size * 0.35f, base + Vec3(0.0f, size * 0.5f, 0.0f)),
+             kMetal});
       }
       object_tris += objects.back().first.num_triangles();
     }

@@ -42,13 +42,13 @@ Vec3 Material::reflectance() const {
 }
 
 void check_scene_range(const Box3& b, const std::string& who) {
-  if (b.empty() || (within(b.lo, kMaxSceneCoordinate) && within(b.hi, kMaxSceneCoordinate)))
-    return;
+  if (b.empty() || (within(b.lo, kMaxSceneCoordinate) && within(b.hi, kMaxSceneCoordinate))) return;
   char buf[200];
-  std::snprintf(buf, sizeof buf, "the scene's bounds (%g, %g, %g) to (%g, %g, %g) reach beyond the "
-                "supported range +-%g of scene coordinates", double(b.lo.x), double(b.lo.y),
-                double(b.lo.z), double(b.hi.x), double(b.hi.y), double(b.hi.z),
-                double(kMaxSceneCoordinate));
+  std::snprintf(buf, sizeof buf,
+                "the scene's bounds (%g, %g, %g) to (%g, %g, %g) reach beyond the "
+                "supported range +-%g of scene coordinates",
+                double(b.lo.x), double(b.lo.y), double(b.lo.z), double(b.hi.x), double(b.hi.y),
+                double(b.hi.z), double(kMaxSceneCoordinate));
   throw ParamError(who + ": " + buf + " (docs/LIMITS.md); scale the scene down or translate it");
 }
 
@@ -81,9 +81,10 @@ void Scene::finalize() {
     const Vec3& p = mesh.positions[i];
     if (within(p, kMaxSceneCoordinate)) continue;
     char buf[160];
-    std::snprintf(buf, sizeof buf, "vertex %zu at (%g, %g, %g) is outside the supported range "
-                  "+-%g of scene coordinates", i, double(p.x), double(p.y), double(p.z),
-                  double(kMaxSceneCoordinate));
+    std::snprintf(buf, sizeof buf,
+                  "vertex %zu at (%g, %g, %g) is outside the supported range "
+                  "+-%g of scene coordinates",
+                  i, double(p.x), double(p.y), double(p.z), double(kMaxSceneCoordinate));
     throw LoadError(source + ": " + buf +
                     " (docs/LIMITS.md); scale the scene down or translate it near the origin");
   }

@@ -28,15 +28,15 @@ struct Texture {
 struct Material {
   std::string name;
   Vec3 base_color{0.8f, 0.8f, 0.8f};  ///< diffuse albedo (glTF baseColorFactor, MTL Kd)
-  int base_color_texture = -1;         ///< index into Scene::textures, or -1
-  float metallic = 0.0f;               ///< 0..1; > 0 makes the surface a (tinted) mirror
-  float roughness = 1.0f;              ///< 0..1; sets the highlight exponent
-  Vec3 specular{0.0f};                 ///< Phong specular colour (MTL Ks)
-  float shininess = 0.0f;              ///< Phong exponent (MTL Ns); 0 = derive from roughness
-  Vec3 mirror{0.0f};                   ///< explicit mirror reflectance (MTL illum 3/5/7)
-  Vec3 emission{0.0f};                 ///< emitted radiance (glTF emissive*strength, MTL Ke)
-  float transmission = 0.0f;           ///< 0..1 (KHR_materials_transmission, MTL 1-d/illum 7)
-  float ior = 1.5f;                    ///< index of refraction (KHR_materials_ior, MTL Ni)
+  int base_color_texture = -1;        ///< index into Scene::textures, or -1
+  float metallic = 0.0f;              ///< 0..1; > 0 makes the surface a (tinted) mirror
+  float roughness = 1.0f;             ///< 0..1; sets the highlight exponent
+  Vec3 specular{0.0f};                ///< Phong specular colour (MTL Ks)
+  float shininess = 0.0f;             ///< Phong exponent (MTL Ns); 0 = derive from roughness
+  Vec3 mirror{0.0f};                  ///< explicit mirror reflectance (MTL illum 3/5/7)
+  Vec3 emission{0.0f};                ///< emitted radiance (glTF emissive*strength, MTL Ke)
+  float transmission = 0.0f;          ///< 0..1 (KHR_materials_transmission, MTL 1-d/illum 7)
+  float ior = 1.5f;                   ///< index of refraction (KHR_materials_ior, MTL Ni)
 
   /// Reflectance of perfect mirror reflection spawned by the Whitted shader.
   Vec3 reflectance() const;
@@ -51,8 +51,8 @@ struct Light {
   Vec3 position{0.0f};
   Vec3 direction{0, -1, 0};  ///< direction the light travels (directional, spot)
   Vec3 color{1.0f};
-  float intensity = 1.0f;    ///< point/spot: candela-like (W/sr); directional: irradiance
-  float inner_cone = 0.0f;   ///< spot: radians
+  float intensity = 1.0f;   ///< point/spot: candela-like (W/sr); directional: irradiance
+  float inner_cone = 0.0f;  ///< spot: radians
   float outer_cone = 0.7853982f;
   std::string name;
 };
@@ -70,10 +70,10 @@ struct Scene {
   Mesh mesh;
   std::vector<Material> materials;  ///< never empty after finalize()
   std::vector<Texture> textures;
-  std::vector<Light> lights;        ///< never empty after finalize()
-  std::optional<Camera> camera;     ///< set after finalize() (canonical if the file had none)
-  std::string source;               ///< file it came from, or generator name
-  Vec3 background{0.0f};            ///< radiance of rays that escape
+  std::vector<Light> lights;     ///< never empty after finalize()
+  std::optional<Camera> camera;  ///< set after finalize() (canonical if the file had none)
+  std::string source;            ///< file it came from, or generator name
+  Vec3 background{0.0f};         ///< radiance of rays that escape
 
   /// Fills what the file did not give: a grey diffuse material, the canonical camera
   /// (docs/RAYSETS.md), a default light; then validates the mesh. Throws LoadError.

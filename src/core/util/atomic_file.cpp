@@ -27,8 +27,8 @@ constexpr int kSlots = 16;
 constexpr size_t kMaxTempPath = 4096;
 char g_temp_names[kSlots][kMaxTempPath];
 std::atomic<bool> g_slot_used[kSlots];
-std::mutex g_slots_mutex;   // guards registration and the handler installation below
-int g_registered = 0;       // slots in use
+std::mutex g_slots_mutex;  // guards registration and the handler installation below
+int g_registered = 0;      // slots in use
 constexpr int kSignals[] = {SIGINT, SIGTERM, SIGHUP};
 struct sigaction g_old_actions[3];
 bool g_installed[3] = {false, false, false};
@@ -136,8 +136,9 @@ void AtomicFile::fail(const std::string& what, int err) {
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
   ::unlink(temp_.c_str());
-  throw Error(path_ + ": " + what + " failed after " + std::to_string(written_) + " bytes: " +
-              errno_text(err) + "; the file was not changed (free space or raise the limit, "
+  throw Error(path_ + ": " + what + " failed after " + std::to_string(written_) +
+              " bytes: " + errno_text(err) +
+              "; the file was not changed (free space or raise the limit, "
               "then run again)");
 }
 
@@ -219,11 +220,12 @@ void check_output_path(const std::string& path, const std::string& option,
   std::error_code ec;
   const fs::file_status st = fs::status(path, ec);
   if (fs::is_directory(st))
-    throw ParamError(name + ": is a directory; give a file name inside it, e.g. " +
-                     (fs::path(path) / ("out" + (extensions.empty() ? "" : extensions[0])))
-                         .string());
+    throw ParamError(
+        name + ": is a directory; give a file name inside it, e.g. " +
+        (fs::path(path) / ("out" + (extensions.empty() ? "" : extensions[0]))).string());
   if (fs::exists(st) && !fs::is_regular_file(st))
-    throw ParamError(name + ": exists and is not a regular file (a device, FIFO or socket); "
+    throw ParamError(name +
+                     ": exists and is not a regular file (a device, FIFO or socket); "
                      "kdgrid replaces outputs as a whole, give a regular file name");
   if (!extensions.empty()) {
     const std::string ext = lower_extension(path);

@@ -42,7 +42,8 @@ void cancellable_sort(It first, It last, Less less, const CancelToken* cancel,
     const size_t pairs = (n + 2 * width - 1) / (2 * width);
     tbb::parallel_for(size_t(0), pairs, [&](size_t p) {
       check_cancel(cancel);
-      const size_t lo = p * 2 * width, mid = std::min(n, lo + width), hi = std::min(n, lo + 2 * width);
+      const size_t lo = p * 2 * width, mid = std::min(n, lo + width),
+                   hi = std::min(n, lo + 2 * width);
       if (mid < hi)
         std::inplace_merge(first + std::ptrdiff_t(lo), first + std::ptrdiff_t(mid),
                            first + std::ptrdiff_t(hi), less);

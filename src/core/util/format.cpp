@@ -12,7 +12,8 @@ std::string format_double(const char* printf_format, double v) {
 }
 
 std::string format_bytes_iec(double b) {
-  if (b >= double(uint64_t(1) << 30)) return format_double("%.3g GiB", b / double(uint64_t(1) << 30));
+  if (b >= double(uint64_t(1) << 30))
+    return format_double("%.3g GiB", b / double(uint64_t(1) << 30));
   if (b >= double(1 << 20)) return format_double("%.3g MiB", b / double(1 << 20));
   if (b >= 1024.0) return format_double("%.3g KiB", b / 1024.0);
   return format_double("%.0f bytes", b);

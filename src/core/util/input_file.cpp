@@ -24,7 +24,8 @@ uint64_t check_input_file(const std::string& path, const std::string& what, uint
     throw LoadError(name + ": cannot read it (" + std::strerror(errno) + "); check the path");
   if (S_ISDIR(st.st_mode)) throw LoadError(name + ": is a directory; give a file");
   if (!S_ISREG(st.st_mode))
-    throw LoadError(name + ": is not a regular file (a FIFO, device or socket); kdgrid reads "
+    throw LoadError(name +
+                    ": is not a regular file (a FIFO, device or socket); kdgrid reads "
                     "regular files only, copy the data into a file first");
   if (uint64_t(st.st_size) > max_bytes)
     throw LoadError(name + ": " + format_bytes_iec(double(st.st_size)) +

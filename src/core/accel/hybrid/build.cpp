@@ -37,8 +37,8 @@ void scene_box(const Mesh& mesh, double origin[3], double ext[3]) {
   }
 }
 
-double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
-                 std::string& rule) {
+double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3],
+                      uint64_t budget, std::string& rule) {
   const size_t ntri = mesh.num_triangles();
   const double max_ext = std::max({ext[0], ext[1], ext[2]});
   double c = 0.0;
@@ -67,8 +67,8 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
         std::pow(vol / (kHybridAutoCellsPerTriangle * double(ntri)), 1.0 / double(3 - flat_axes));
     if (cd < c || !(c > 0.0)) {
       c = cd;
-      rule += "; lowered to " + format_double("%.6g", c) + " for >= " + format_double("%g", kHybridAutoCellsPerTriangle) +
-              " cells per triangle";
+      rule += "; lowered to " + format_double("%.6g", c) +
+              " for >= " + format_double("%g", kHybridAutoCellsPerTriangle) + " cells per triangle";
     }
   }
   if (!(c > 0.0)) {
@@ -78,8 +78,8 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
   const double axis_floor = max_ext / double(kHybridAutoMaxAxisCells);
   if (c < axis_floor) {
     c = axis_floor;
-    rule += "; raised to " + format_double("%.6g", c) + " for <= " + std::to_string(kHybridAutoMaxAxisCells) +
-            " cells per axis";
+    rule += "; raised to " + format_double("%.6g", c) +
+            " for <= " + std::to_string(kHybridAutoMaxAxisCells) + " cells per axis";
   }
   // Plain leaves (no subtrees) need cells about a triangle wide: only the binning and the
   // matrix bound them.
@@ -94,12 +94,14 @@ double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double 
     c *= std::max(1.0001, std::cbrt(cells / limit));
     raised = true;
   }
-  if (raised) rule += "; raised to " + format_double("%.6g", c) + " for <= " + format_double("%.0f", limit) + " cells";
+  if (raised)
+    rule += "; raised to " + format_double("%.6g", c) + " for <= " + format_double("%.0f", limit) +
+            " cells";
   return c;
 }
 
-double choose_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
-                    std::string& rule) {
+double choose_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3],
+                        uint64_t budget, std::string& rule) {
   if (params.cell_size > 0.0f) {
     rule = "explicit";
     // A cell larger than the scene is one cell of the scene's size: the same single cell,
@@ -120,7 +122,6 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
 
 }  // namespace hybrid
 
-
 // ---- build ------------------------------------------------------------------------------
 
 BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
@@ -135,8 +136,9 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                      " is out of range: give a value in (0, 100], e.g. 90");
   if (!(params.hybrid_traversal_cost > 0.0f) || !std::isfinite(params.hybrid_traversal_cost) ||
       !(params.hybrid_intersection_cost > 0.0f) || !std::isfinite(params.hybrid_intersection_cost))
-    throw ParamError("hybrid: hybrid_traversal_cost and hybrid_intersection_cost must be positive "
-                     "finite numbers, e.g. 1 and 1.5");
+    throw ParamError(
+        "hybrid: hybrid_traversal_cost and hybrid_intersection_cost must be positive "
+        "finite numbers, e.g. 1 and 1.5");
   const size_t ntri = mesh.num_triangles();
   for (size_t i = 0; i < ntri; ++i)
     for (uint32_t v : mesh.triangles[i])
@@ -208,15 +210,21 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   hybrid::dims_for(ext, cell, d);
   const double cells = d[0] * d[1] * d[2];
   const double max_axis = std::max({d[0], d[1], d[2]});
-  auto dims_text = [&] { return format_double("%.0f", d[0]) + "x" + format_double("%.0f", d[1]) + "x" + format_double("%.0f", d[2]); };
+  auto dims_text = [&] {
+    return format_double("%.0f", d[0]) + "x" + format_double("%.0f", d[1]) + "x" +
+           format_double("%.0f", d[2]);
+  };
   const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 4 * sizeof(uint32_t));
   if (map_.dense()) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
-      const double fit = cell * std::max(std::cbrt(need / double(budget)), max_axis / double(kHybridMaxAxisCells)) * 1.05;
-      throw ParamError("hybrid: cell size " + format_double("%g", cell) + " gives a " + dims_text() +
-                       " grid whose dense matrix needs " + format_bytes_iec(need) + ", above the memory budget of " +
-                       format_bytes_iec(double(budget)) + ": use a cell size of at least " + format_double("%.3g", fit) +
+      const double fit =
+          cell *
+          std::max(std::cbrt(need / double(budget)), max_axis / double(kHybridMaxAxisCells)) * 1.05;
+      throw ParamError("hybrid: cell size " + format_double("%g", cell) + " gives a " +
+                       dims_text() + " grid whose dense matrix needs " + format_bytes_iec(need) +
+                       ", above the memory budget of " + format_bytes_iec(double(budget)) +
+                       ": use a cell size of at least " + format_double("%.3g", fit) +
                        ", 'auto', or the default bricked storage");
     }
   } else {
@@ -226,11 +234,12 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
       const double fit =
           cell * std::max(need / double(budget), max_axis / double(kHybridMaxAxisCells)) * 1.05;
-      throw ParamError("hybrid: cell size " + format_double("%g", cell) + " gives a " + dims_text() +
-                       " grid; building it needs at least " + format_bytes_iec(need) +
-                       " (per-cell binning arrays) and at most " + std::to_string(kHybridMaxAxisCells) +
-                       " cells per axis are supported (memory budget " + format_bytes_iec(double(budget)) +
-                       "): use a cell size of at least " + format_double("%.3g", fit) + " or 'auto'");
+      throw ParamError(
+          "hybrid: cell size " + format_double("%g", cell) + " gives a " + dims_text() +
+          " grid; building it needs at least " + format_bytes_iec(need) +
+          " (per-cell binning arrays) and at most " + std::to_string(kHybridMaxAxisCells) +
+          " cells per axis are supported (memory budget " + format_bytes_iec(double(budget)) +
+          "): use a cell size of at least " + format_double("%.3g", fit) + " or 'auto'");
     }
   }
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
@@ -281,8 +290,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       tris_[i] = {c[0], c[1], c[2]};
     });
     uint64_t other = 0;
-    other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(CellBox)) + leaf_depth_.size() +
-             refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
+    other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(CellBox)) +
+             leaf_depth_.size() + refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
@@ -301,7 +310,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       kd_boxes_[i].hi[3] = std::numeric_limits<int32_t>::max();
     }
     expand_text = params.hybrid_expand_empty
-                      ? hybrid::widen_empty_leaves(leaves_, dims_, left > matrix ? left - matrix : 0, params.cancel)
+                      ? hybrid::widen_empty_leaves(leaves_, dims_,
+                                                   left > matrix ? left - matrix : 0, params.cancel)
                       : std::string("off (the paper's kd leaf boxes)");
     t_expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();
     t_tree = std::chrono::duration<double>(t1 - t0).count();
@@ -326,7 +336,8 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
   const uint64_t b_tris = tris_.size() * (sizeof(TriVerts) + sizeof(uint32_t));
   const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);
-  stats_.bytes = b_tree + b_leaves + b_kd_boxes + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
+  stats_.bytes =
+      b_tree + b_leaves + b_kd_boxes + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
                           {"leaf kd boxes", b_kd_boxes},
@@ -335,21 +346,24 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
                           {"triangles (corners + ids)", b_tris},
                           {map_.dense() ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
-  stats_.extra = {{"cell_size", format_double("%.6g", cell_)},
-                  {"auto rule", rule},
-                  {"grid", std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" +
-                               std::to_string(dims_[2])},
-                  {"matrix", map_.dense() ? "dense" : map_.bricked().describe()},
-                  {"leaf subtrees", params.hybrid_subtree_min == 0
-                                        ? std::string("off (plain leaves)")
-                                        : std::to_string(subtree_leaves) + " leaves with more than " +
-                                              std::to_string(params.hybrid_subtree_min) + " triangles, " +
-                                              std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
-                                              std::to_string(largest_leaf) + " triangles"},
-                  {"empty-leaf boxes", expand_text},
-                  {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " + format_double("%.3f", t_matrix) +
-                                       " s, empty-leaf boxes " + format_double("%.3f", t_expand) + " s"}};
-  stats_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  stats_.extra = {
+      {"cell_size", format_double("%.6g", cell_)},
+      {"auto rule", rule},
+      {"grid",
+       std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" + std::to_string(dims_[2])},
+      {"matrix", map_.dense() ? "dense" : map_.bricked().describe()},
+      {"leaf subtrees", params.hybrid_subtree_min == 0
+                            ? std::string("off (plain leaves)")
+                            : std::to_string(subtree_leaves) + " leaves with more than " +
+                                  std::to_string(params.hybrid_subtree_min) + " triangles, " +
+                                  std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
+                                  std::to_string(largest_leaf) + " triangles"},
+      {"empty-leaf boxes", expand_text},
+      {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " +
+                           format_double("%.3f", t_matrix) + " s, empty-leaf boxes " +
+                           format_double("%.3f", t_expand) + " s"}};
+  stats_.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;
 }
 

@@ -26,12 +26,12 @@ void dims_for(const double ext[3], double cell, double out[3]);
 /// triangles).
 void scene_box(const Mesh& mesh, double origin[3], double ext[3]);
 /// The auto rule (hybrid.h; docs/HYBRID.md, "The cell size"); `rule` describes each step taken.
-double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
-                      std::string& rule);
+double auto_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3],
+                      uint64_t budget, std::string& rule);
 /// The cell size a build uses: params.cell_size (at most the scene's extent), or the auto rule;
 /// `rule` says which (BuildStats::extra "auto rule").
-double choose_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3], uint64_t budget,
-                        std::string& rule);
+double choose_cell_size(const Mesh& mesh, const BuildParams& params, const double ext[3],
+                        uint64_t budget, std::string& rule);
 
 /// Widens every empty leaf's box over the empty cells around it (docs/HYBRID.md, "Widened
 /// empty leaves"), in a grid of dims cells; returns the BuildStats text. Skipped when its

@@ -46,7 +46,8 @@ class BrickBuilder {
 
   /// The entry for the region of 4^level cells at (x0, y0, z0), appending bricks to `out`
   /// (nullptr: only count their bytes in the budget). Brick indices are local to `out`.
-  uint32_t entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node, std::vector<uint32_t>* out) const {
+  uint32_t entry(int32_t x0, int32_t y0, int32_t z0, int level, uint32_t node,
+                 std::vector<uint32_t>* out) const {
     static_assert(B::kMaxNodeEntryLeaves >= 2 && B::kMaxNodeEntryDepth >= 1);
     const int64_t side = int64_t(1) << (B::kBrickLog * level);
     const int32_t r0[3] = {x0, y0, z0};
@@ -68,15 +69,17 @@ class BrickBuilder {
     // Crossed by a few splits only, in a region coarser than one brick of cells: keep the node,
     // resolved by a short descent at lookup. Regions of 4^3 cells always refine, so lookups
     // near the geometry end in a leaf entry.
-    if (level > 1 && count_region_leaves(node, r0, r1, B::kMaxNodeEntryLeaves + 1, 0) <= B::kMaxNodeEntryLeaves)
+    if (level > 1 &&
+        count_region_leaves(node, r0, r1, B::kMaxNodeEntryLeaves + 1, 0) <= B::kMaxNodeEntryLeaves)
       return B::kNodeTag | node;
     // Crossed by many: refine into a brick (level >= 1 here, a single cell is never split).
-    const uint64_t bytes =
-        budget_.bytes.fetch_add(B::kBrickEntries * sizeof(uint32_t)) + B::kBrickEntries * sizeof(uint32_t);
+    const uint64_t bytes = budget_.bytes.fetch_add(B::kBrickEntries * sizeof(uint32_t)) +
+                           B::kBrickEntries * sizeof(uint32_t);
     if (out && bytes > budget_.limit)
       throw ParamError("hybrid: the bricked cell matrix of the " + std::to_string(dims_[0]) + "x" +
                        std::to_string(dims_[1]) + "x" + std::to_string(dims_[2]) +
-                       " grid exceeds the memory budget of " + format_bytes_iec(double(budget_.limit)) +
+                       " grid exceeds the memory budget of " +
+                       format_bytes_iec(double(budget_.limit)) +
                        ": use a larger cell size or 'auto'");
     const int32_t sub = int32_t(side >> B::kBrickLog);
     uint64_t b = 0;
@@ -88,7 +91,9 @@ class BrickBuilder {
       for (int j = 0; j < B::kBrickSide; ++j)
         for (int i = 0; i < B::kBrickSide; ++i) {
           const uint32_t e = entry(x0 + i * sub, y0 + j * sub, z0 + k * sub, level - 1, node, out);
-          if (out) (*out)[b * B::kBrickEntries + uint64_t(i + B::kBrickSide * (j + B::kBrickSide * k))] = e;
+          if (out)
+            (*out)[b * B::kBrickEntries + uint64_t(i + B::kBrickSide * (j + B::kBrickSide * k))] =
+                e;
         }
     return uint32_t(b);
   }
@@ -96,7 +101,8 @@ class BrickBuilder {
  private:
   /// Leaves of the subtree at `node` that intersect the region [r0, r1), counting up to `limit`;
   /// a path longer than kMaxNodeEntryDepth counts as `limit` (too deep for a node entry).
-  int count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit, int depth) const {
+  int count_region_leaves(uint32_t node, const int32_t r0[3], const int32_t r1[3], int limit,
+                          int depth) const {
     if (depth > B::kMaxNodeEntryDepth) return limit;
     const Node& n = nodes_[node];
     if (n.axis == 3) return 1;
@@ -120,17 +126,20 @@ void BrickedCellMap::set_grid(const int32_t dims[3]) {
   int top_level = 1;
   auto top_count = [&](int k) {
     double c = 1;
-    for (int a = 0; a < 3; ++a) c *= std::ceil(double(dims[a]) / double(int64_t(1) << (kBrickLog * k)));
+    for (int a = 0; a < 3; ++a)
+      c *= std::ceil(double(dims[a]) / double(int64_t(1) << (kBrickLog * k)));
     return c;
   };
   while (top_count(top_level) > double(kMaxTopEntries)) ++top_level;
   top_shift_ = kBrickLog * top_level;
-  for (int a = 0; a < 3; ++a) top_dims_[a] = int32_t((int64_t(dims[a]) + (int64_t(1) << top_shift_) - 1) >> top_shift_);
+  for (int a = 0; a < 3; ++a)
+    top_dims_[a] = int32_t((int64_t(dims[a]) + (int64_t(1) << top_shift_) - 1) >> top_shift_);
   top_stride_[0] = uint64_t(top_dims_[0]);
   top_stride_[1] = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]);
 }
 
-void BrickedCellMap::build(const std::vector<Node>& nodes, uint64_t budget, const CancelToken* cancel) {
+void BrickedCellMap::build(const std::vector<Node>& nodes, uint64_t budget,
+                           const CancelToken* cancel) {
   // Each top entry's bricks are built independently (in parallel) into their own arrays,
   // then concatenated in top-entry order with brick indices relocated: deterministic.
   const uint64_t ntop = uint64_t(top_dims_[0]) * uint64_t(top_dims_[1]) * uint64_t(top_dims_[2]);
@@ -145,7 +154,8 @@ void BrickedCellMap::build(const std::vector<Node>& nodes, uint64_t budget, cons
     const int32_t tx = int32_t(i % uint64_t(top_dims_[0]));
     const int32_t ty = int32_t((i / uint64_t(top_dims_[0])) % uint64_t(top_dims_[1]));
     const int32_t tz = int32_t(i / (uint64_t(top_dims_[0]) * uint64_t(top_dims_[1])));
-    top_[i] = builder.entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_level, 0, &parts[i]);
+    top_[i] = builder.entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_level, 0,
+                            &parts[i]);
   });
   uint64_t total = 0;
   std::vector<uint64_t> first(ntop);
@@ -154,7 +164,8 @@ void BrickedCellMap::build(const std::vector<Node>& nodes, uint64_t budget, cons
     total += parts[i].size();
   }
   if (total / kBrickEntries >= kNodeTag)
-    throw ParamError("hybrid: the bricked cell matrix needs more than 2^30 bricks: use a larger cell size");
+    throw ParamError(
+        "hybrid: the bricked cell matrix needs more than 2^30 bricks: use a larger cell size");
   bricks_.resize(total);
   tbb::parallel_for(uint64_t(0), ntop, [&](uint64_t i) {
     const uint32_t off = uint32_t(first[i]);
@@ -174,15 +185,16 @@ uint64_t BrickedCellMap::bytes(const std::vector<Node>& nodes) const {
     const int32_t tx = int32_t(i % uint64_t(top_dims_[0]));
     const int32_t ty = int32_t((i / uint64_t(top_dims_[0])) % uint64_t(top_dims_[1]));
     const int32_t tz = int32_t(i / (uint64_t(top_dims_[0]) * uint64_t(top_dims_[1])));
-    builder.entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_shift_ / kBrickLog, 0, nullptr);
+    builder.entry(tx << top_shift_, ty << top_shift_, tz << top_shift_, top_shift_ / kBrickLog, 0,
+                  nullptr);
   }
   return bb.bytes.load() + ntop * sizeof(uint32_t);
 }
 
 std::string BrickedCellMap::describe() const {
-  return "bricked 4x4x4: top " + std::to_string(top_dims_[0]) + "x" + std::to_string(top_dims_[1]) + "x" +
-         std::to_string(top_dims_[2]) + " blocks of " + std::to_string(1 << top_shift_) + "^3 cells, " +
-         std::to_string(bricks_.size() / kBrickEntries) + " bricks";
+  return "bricked 4x4x4: top " + std::to_string(top_dims_[0]) + "x" + std::to_string(top_dims_[1]) +
+         "x" + std::to_string(top_dims_[2]) + " blocks of " + std::to_string(1 << top_shift_) +
+         "^3 cells, " + std::to_string(bricks_.size() / kBrickEntries) + " bricks";
 }
 
 }  // namespace kdgrid::hybrid

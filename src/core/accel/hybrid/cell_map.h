@@ -57,7 +57,7 @@ class BrickedCellMap {
   /// blocks (1 MiB), so a lookup skips the upper levels (the dragon's lookups read one brick
   /// level instead of two; docs/HYBRID.md, "The cell map").
   static constexpr int kMaxTopEntries = 262144;
-  static constexpr int kBrickLog = 2;                          ///< 4 cells per brick axis
+  static constexpr int kBrickLog = 2;  ///< 4 cells per brick axis
   static constexpr int kBrickSide = 1 << kBrickLog;
   static constexpr int kBrickEntries = kBrickSide * kBrickSide * kBrickSide;
 
@@ -79,7 +79,8 @@ class BrickedCellMap {
 
   [[gnu::always_inline]] uint32_t lookup(int32_t x, int32_t y, int32_t z, const Node* nodes) const {
     // Strides instead of nested products: the two multiplies run in parallel.
-    uint32_t e = top_[uint64_t(uint32_t(x) >> top_shift_) + top_stride_[0] * uint64_t(uint32_t(y) >> top_shift_) +
+    uint32_t e = top_[uint64_t(uint32_t(x) >> top_shift_) +
+                      top_stride_[0] * uint64_t(uint32_t(y) >> top_shift_) +
                       top_stride_[1] * uint64_t(uint32_t(z) >> top_shift_)];
     int shift = top_shift_ - kBrickLog;
     while (!(e & kTagMask)) {
@@ -98,7 +99,7 @@ class BrickedCellMap {
   }
 
  private:
-  int top_shift_ = kBrickLog;        ///< log2 of the top blocks' side in cells
+  int top_shift_ = kBrickLog;  ///< log2 of the top blocks' side in cells
   int32_t top_dims_[3] = {1, 1, 1};
   uint64_t top_stride_[2] = {1, 1};  ///< top array strides of y and z
   int32_t dims_[3] = {1, 1, 1};      ///< the grid's cells per axis

@@ -14,7 +14,6 @@
 
 namespace kdgrid {
 
-
 namespace {
 
 /// The estimate's figures at cell size `c` (HybridEstimate's fields but the cell choice);
@@ -25,8 +24,8 @@ struct EstimateAt {
   bool fits;
 };
 
-EstimateAt estimate_at(double c, const double ext[3], double ntri, double area, const BuildParams& p,
-                       uint64_t budget, int threads) {
+EstimateAt estimate_at(double c, const double ext[3], double ntri, double area,
+                       const BuildParams& p, uint64_t budget, int threads) {
   EstimateAt e{};
   hybrid::dims_for(ext, c, e.dims);
   e.cells = e.dims[0] * e.dims[1] * e.dims[2];
@@ -39,7 +38,8 @@ EstimateAt estimate_at(double c, const double ext[3], double ntri, double area, 
     // Bricks refine where leaves meet, along the surface: about kHybridBricksPerArea per
     // (4 cells)^2 of triangle area, and never more than the grid's 4^3-cell blocks (and their
     // parents, 1/63 more).
-    const double bricks = std::min(kHybridBricksPerArea * area / (16.0 * c * c), e.cells / 64.0 * 64.0 / 63.0);
+    const double bricks =
+        std::min(kHybridBricksPerArea * area / (16.0 * c * c), e.cells / 64.0 * 64.0 / 63.0);
     double top = 1;
     for (int level = 1;; ++level) {
       top = 1;
@@ -53,7 +53,8 @@ EstimateAt estimate_at(double c, const double ext[3], double ntri, double area, 
   // every three levels, so the sum over the tree's ~n leaves is ~2.7 n^(2/3) times the root's.
   const double bins = 2.0 * axis_sum * 2.7 * std::pow(std::max(1.0, ntri), 2.0 / 3.0);
   const double sat = (e.dims[0] + 1) * (e.dims[1] + 1) * (e.dims[2] + 1);
-  const double expand = p.hybrid_expand_empty && sat <= double(Hybrid::kMaxExpandEntries) ? sat * 4.0 : 0.0;
+  const double expand =
+      p.hybrid_expand_empty && sat <= double(Hybrid::kMaxExpandEntries) ? sat * 4.0 : 0.0;
   e.structure_bytes = matrix + ntri * kHybridBytesPerTriangle;
   e.bytes = e.structure_bytes + 8.0 * axis_sum * threads + expand;
   e.cell_seconds = (matrix_ops + bins) * kHybridSecondsPerBinOp / threads;
@@ -85,34 +86,39 @@ std::string seconds_str(double s) {
 std::string HybridEstimate::refusal() const {
   const HybridEstimate& e = *this;
   std::string why;
-  if (e.bytes > double(e.budget)) why = "above the memory budget of " + format_bytes_iec(double(e.budget));
+  if (e.bytes > double(e.budget))
+    why = "above the memory budget of " + format_bytes_iec(double(e.budget));
   const double max_axis = std::max({e.dims[0], e.dims[1], e.dims[2]});
   if (max_axis > double(kHybridMaxAxisCells))
-    why += std::string(why.empty() ? "" : ", and ") + "more than " + std::to_string(kHybridMaxAxisCells) +
-           " cells per axis";
+    why += std::string(why.empty() ? "" : ", and ") + "more than " +
+           std::to_string(kHybridMaxAxisCells) + " cells per axis";
   if (why.empty())
     why = "longer than the limit of " + format_double("%g", e.seconds_limit) +
-          " s (--hybrid-max-build-seconds; the memory budget is " + format_bytes_iec(double(e.budget)) + ")";
+          " s (--hybrid-max-build-seconds; the memory budget is " +
+          format_bytes_iec(double(e.budget)) + ")";
   std::string fix;
   if (e.suggested_cell > 0.0) {
-    fix = "use a cell size of at least " + format_double("%.2g", e.suggested_cell) + " (" + format_double("%.3g", e.suggested_cell / e.auto_cell) +
-          "x auto)";
+    fix = "use a cell size of at least " + format_double("%.2g", e.suggested_cell) + " (" +
+          format_double("%.3g", e.suggested_cell / e.auto_cell) + "x auto)";
   } else {
     fix = "even one cell does not fit: raise --memory-budget-mb";
   }
-  return "hybrid: cell size " + format_double("%g", e.cell) + " gives " + e.describe() + ", " + why + ": " + fix +
-         ", or 'auto' (" + format_double("%.4g", e.auto_cell) + ")";
+  return "hybrid: cell size " + format_double("%g", e.cell) + " gives " + e.describe() + ", " +
+         why + ": " + fix + ", or 'auto' (" + format_double("%.4g", e.auto_cell) + ")";
 }
 
 std::string HybridEstimate::describe() const {
   char grid[96];
-  std::snprintf(grid, sizeof grid, "a %.0fx%.0fx%.0f grid (%.3g cells)", dims[0], dims[1], dims[2], cells);
-  return std::string(grid) + ", about " + format_bytes_iec(bytes) + " and " + seconds_str(seconds) + " to build";
+  std::snprintf(grid, sizeof grid, "a %.0fx%.0fx%.0f grid (%.3g cells)", dims[0], dims[1], dims[2],
+                cells);
+  return std::string(grid) + ", about " + format_bytes_iec(bytes) + " and " + seconds_str(seconds) +
+         " to build";
 }
 
 HybridEstimate Hybrid::estimate(const Mesh& mesh, const BuildParams& params) {
   if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
-    throw ParamError("hybrid: cell_size " + format_double("%g", params.cell_size) + " is not a finite number");
+    throw ParamError("hybrid: cell_size " + format_double("%g", params.cell_size) +
+                     " is not a finite number");
   HybridEstimate e;
   e.budget = effective_memory_budget(params);
   e.seconds_limit = params.hybrid_max_build_seconds;
@@ -139,7 +145,8 @@ HybridEstimate Hybrid::estimate(const Mesh& mesh, const BuildParams& params) {
     for (size_t i = 0; i < n; ++i) {
       const auto c = mesh.corners(i);
       const Vec3 nv = cross(c[1] - c[0], c[2] - c[0]);
-      area += std::min(cap, 0.5 * std::sqrt(double(nv.x) * nv.x + double(nv.y) * nv.y + double(nv.z) * nv.z));
+      area += std::min(
+          cap, 0.5 * std::sqrt(double(nv.x) * nv.x + double(nv.y) * nv.y + double(nv.z) * nv.z));
     }
   }
   const EstimateAt at = estimate_at(e.cell, ext, ntri, area, params, e.budget, threads);
@@ -156,7 +163,8 @@ HybridEstimate Hybrid::estimate(const Mesh& mesh, const BuildParams& params) {
       double lo = std::log(e.cell), hi = std::log(one);
       for (int i = 0; i < 60; ++i) {
         const double mid = 0.5 * (lo + hi);
-        (estimate_at(std::exp(mid), ext, ntri, area, params, e.budget, threads).fits ? hi : lo) = mid;
+        (estimate_at(std::exp(mid), ext, ntri, area, params, e.budget, threads).fits ? hi : lo) =
+            mid;
       }
       e.suggested_cell = round_up_2(std::exp(hi));
     }

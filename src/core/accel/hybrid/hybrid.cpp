@@ -57,7 +57,8 @@ void Hybrid::for_each_split(const std::function<void(const SplitPlane&)>& fn) co
 
 void Hybrid::for_each_box(const std::function<void(const StructureBox&)>& fn) const {
   for (uint32_t i = 0; i < leaves_.size(); ++i)
-    if (leaves_[i].count) fn({leaf_box(i), int(leaf_depth_[i]), true, leaves_[i].count & ~kSubtreeFlag});
+    if (leaves_[i].count)
+      fn({leaf_box(i), int(leaf_depth_[i]), true, leaves_[i].count & ~kSubtreeFlag});
 }
 
 }  // namespace kdgrid

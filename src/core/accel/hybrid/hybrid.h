@@ -55,7 +55,8 @@ constexpr double kHybridAutoCellsPerTriangle = 16.0;
 /// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
 constexpr int64_t kHybridAutoMaxAxisCells = 2048;
 /// Auto rule cap on the total cell count with leaf subtrees: the subtrees resolve the geometry,
-/// and a small grid keeps lookups in the caches and references few (docs/HYBRID.md, "The cell size").
+/// and a small grid keeps lookups in the caches and references few (docs/HYBRID.md, "The cell
+/// size").
 constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 19);
 /// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
 /// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
@@ -86,9 +87,9 @@ struct HybridEstimate {
   /// (measured on a shared 2-core machine): an order of magnitude, for the refusal and the
   /// viewer.
   double seconds = 0;
-  uint64_t budget = 0;         ///< the memory budget it was checked against
-  double seconds_limit = 0;    ///< BuildParams::hybrid_max_build_seconds (0 = none)
-  bool fits = true;            ///< bytes within the budget and seconds within the limit
+  uint64_t budget = 0;       ///< the memory budget it was checked against
+  double seconds_limit = 0;  ///< BuildParams::hybrid_max_build_seconds (0 = none)
+  bool fits = true;          ///< bytes within the budget and seconds within the limit
   /// When !fits: the smallest cell size (two significant digits, rounded up) whose estimate
   /// fits; 0 when even one cell does not.
   double suggested_cell = 0;
@@ -104,11 +105,11 @@ struct HybridEstimate {
 /// 6.7x finer cells than auto (174K and 716K bricks, 4.4 and 4.5 bricks per (4-cell)^2 of
 /// area); the tree took 16 (Sponza) and 26 (the dragon) us a triangle at the auto size, and
 /// 220-580 bytes a triangle (the bunny, auto to 18x finer).
-constexpr double kHybridBricksPerArea = 4.5;       ///< bricks per (4-cell)^2 of triangle area
-constexpr double kHybridBytesPerTriangle = 600;    ///< tree, leaves, subtrees, references
-constexpr double kHybridSecondsPerBrick = 10e-6;   ///< matrix construction, one thread
+constexpr double kHybridBricksPerArea = 4.5;         ///< bricks per (4-cell)^2 of triangle area
+constexpr double kHybridBytesPerTriangle = 600;      ///< tree, leaves, subtrees, references
+constexpr double kHybridSecondsPerBrick = 10e-6;     ///< matrix construction, one thread
 constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
-constexpr double kHybridSecondsPerBinOp = 1e-9;    ///< one per-cell binning entry
+constexpr double kHybridSecondsPerBinOp = 1e-9;      ///< one per-cell binning entry
 
 class Hybrid final : public AcceleratorBase<Hybrid> {
  public:
@@ -124,13 +125,14 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// a ray is clipped to first (kd_clip4), then the kd-tree's nodes.
   static constexpr uint32_t kSubBoxNodes = 4;
   /// Leaf subtrees are at most this many levels deep (64 leaves): deeper ones test fewer
-  /// triangles but build longer and take more memory for no speed (docs/HYBRID.md, "Leaf subtrees").
+  /// triangles but build longer and take more memory for no speed (docs/HYBRID.md, "Leaf
+  /// subtrees").
   static constexpr int kSubMaxDepth = 6;
   /// A leaf with more references than this gets the kd-tree's whole depth rule (8 + 1.3
   /// log2 n) instead of kSubMaxDepth levels: 64 leaves of 16 triangles or more would be
   /// tested in bulk. Only a grid much coarser than the auto rule's makes such leaves (the auto
-  /// grid's largest leaves hold 22, 310 and 187 references on the bunny, the dragon and Sponza); with
-  /// one cell the whole scene is one leaf, whose subtree is then the kd-tree itself.
+  /// grid's largest leaves hold 22, 310 and 187 references on the bunny, the dragon and Sponza);
+  /// with one cell the whole scene is one leaf, whose subtree is then the kd-tree itself.
   static constexpr uint32_t kSubDeepMin = 1024;
   /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
   /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
@@ -240,17 +242,17 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   ClipBox4 wclip_;        ///< wbox_ as kd_begin reads it
   float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
   bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_guess
-  uint64_t uid_ = 0;  ///< unique per build, never 0 (NextLeafCache::owner)
+  uint64_t uid_ = 0;             ///< unique per build, never 0 (NextLeafCache::owner)
   uint64_t max_steps_ = 0;
 
   std::vector<Node> nodes_;
   std::vector<Leaf> leaves_;
-  std::vector<CellBox> kd_boxes_;   ///< each leaf's kd box; kept only for the next-leaf cache
+  std::vector<CellBox> kd_boxes_;  ///< each leaf's kd box; kept only for the next-leaf cache
   std::vector<uint8_t> leaf_depth_;
-  std::vector<KdNode> sub_nodes_;   ///< leaf subtrees (world space, KdNode layout)
-  std::vector<uint32_t> refs_;      ///< per leaf, indices into tris_ (local triangle ids)
-  std::vector<TriVerts> tris_;      ///< corners by local id (first-reference order)
-  std::vector<uint32_t> prim_of_;   ///< local id -> the mesh's triangle index
+  std::vector<KdNode> sub_nodes_;  ///< leaf subtrees (world space, KdNode layout)
+  std::vector<uint32_t> refs_;     ///< per leaf, indices into tris_ (local triangle ids)
+  std::vector<TriVerts> tris_;     ///< corners by local id (first-reference order)
+  std::vector<uint32_t> prim_of_;  ///< local id -> the mesh's triangle index
   mutable std::atomic<uint64_t> step_errors_{0};
 };
 

@@ -8,12 +8,12 @@
 
 namespace kdgrid::hybrid {
 
-/// Tree node, kept for the cell map's node entries, its construction and split walks (for_each_split);
-/// leaves point into the leaf array.
+/// Tree node, kept for the cell map's node entries, its construction and split walks
+/// (for_each_split); leaves point into the leaf array.
 struct Node {
-  int32_t split;      ///< interior: the split boundary (cell index); leaf: leaf id
-  uint32_t right;     ///< interior: index of the right child (left child = this + 1)
-  uint32_t axis;      ///< 0..2 interior, 3 leaf
+  int32_t split;   ///< interior: the split boundary (cell index); leaf: leaf id
+  uint32_t right;  ///< interior: index of the right child (left child = this + 1)
+  uint32_t axis;   ///< 0..2 interior, 3 leaf
 };
 
 /// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.

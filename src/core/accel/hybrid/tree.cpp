@@ -34,7 +34,7 @@ struct BuildNode {
   int depth = 0;
   std::unique_ptr<BuildNode> kid[2];
   std::vector<uint32_t> prims;
-  std::vector<KdNode> sub_nodes;  ///< leaf subtree: its box (Hybrid::kSubBoxNodes), then its nodes
+  std::vector<KdNode> sub_nodes;   ///< leaf subtree: its box (Hybrid::kSubBoxNodes), then its nodes
   std::vector<uint32_t> sub_refs;  ///< its references (mesh triangle ids)
 };
 
@@ -46,8 +46,12 @@ class TreeBuilder {
  public:
   TreeBuilder(const Mesh& mesh, const double origin[3], double cell, const int32_t dims[3],
               const BuildParams& p)
-      : mesh_(mesh), inv_cell_(1.0 / cell), cell_(cell), kd_(mesh, p, Hybrid::kSubMaxDepth),
-        kd_deep_(mesh, p, KdTree::kMaxDepth), cancel_(p.cancel) {
+      : mesh_(mesh),
+        inv_cell_(1.0 / cell),
+        cell_(cell),
+        kd_(mesh, p, Hybrid::kSubMaxDepth),
+        kd_deep_(mesh, p, KdTree::kMaxDepth),
+        cancel_(p.cancel) {
     for (int a = 0; a < 3; ++a) {
       origin_[a] = origin[a];
       dims_[a] = dims[a];
@@ -84,9 +88,11 @@ class TreeBuilder {
     charge(int64_t(n * sizeof(Ref)));
     std::vector<Ref> refs(n);
     const int32_t lo[3] = {0, 0, 0};
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& r) {
-      for (size_t i = r.begin(); i < r.end(); ++i) clip_range(uint32_t(i), lo, dims_, refs[i]);
-    });
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096),
+                      [&](const tbb::blocked_range<size_t>& r) {
+                        for (size_t i = r.begin(); i < r.end(); ++i)
+                          clip_range(uint32_t(i), lo, dims_, refs[i]);
+                      });
     return build(std::move(refs), lo, dims_, 0);
   }
 
@@ -101,7 +107,8 @@ class TreeBuilder {
 
   /// Bounds (grid space) of the triangle clipped to the box [lo, hi] (Sutherland-Hodgman).
   /// False if the triangle misses the box.
-  bool clip_bounds(uint32_t prim, const double lo[3], const double hi[3], double bl[3], double bh[3]) const {
+  bool clip_bounds(uint32_t prim, const double lo[3], const double hi[3], double bl[3],
+                   double bh[3]) const {
     P3 buf[2][16];
     P3* poly = buf[0];
     P3* tmp = buf[1];
@@ -175,7 +182,8 @@ class TreeBuilder {
   void build_subtree(BuildNode& node) {
     Box3 box;
     for (int a = 0; a < 3; ++a) {
-      const double l = origin_[a] + double(node.lo[a]) * cell_, h = origin_[a] + double(node.hi[a]) * cell_;
+      const double l = origin_[a] + double(node.lo[a]) * cell_,
+                   h = origin_[a] + double(node.hi[a]) * cell_;
       float fl = float(l), fh = float(h);
       if (double(fl) > l) fl = next_float_down(fl);
       if (double(fh) < h) fh = next_float_up(fh);
@@ -195,13 +203,15 @@ class TreeBuilder {
     node.sub_nodes.resize(Hybrid::kSubBoxNodes + nodes.size());
     std::memcpy(node.sub_nodes.data(), f, sizeof f);
     std::copy(nodes.begin(), nodes.end(), node.sub_nodes.begin() + Hybrid::kSubBoxNodes);
-    charge(int64_t(node.sub_nodes.size() * sizeof(KdNode) + node.sub_refs.size() * sizeof(uint32_t)));
+    charge(
+        int64_t(node.sub_nodes.size() * sizeof(KdNode) + node.sub_refs.size() * sizeof(uint32_t)));
     // The leaf's references are the subtree's (leaf_refs() counts what flattening copies).
-    leaf_refs_.fetch_add(uint64_t(node.sub_refs.size()) - uint64_t(node.prims.size()), std::memory_order_relaxed);
+    leaf_refs_.fetch_add(uint64_t(node.sub_refs.size()) - uint64_t(node.prims.size()),
+                         std::memory_order_relaxed);
   }
 
-  std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3], const int32_t hi[3],
-                                   int depth) {
+  std::unique_ptr<BuildNode> build(std::vector<Ref>&& refs, const int32_t lo[3],
+                                   const int32_t hi[3], int depth) {
     check_cancel(cancel_);
     auto node = std::make_unique<BuildNode>();
     charge(int64_t(sizeof(BuildNode)));
@@ -227,7 +237,8 @@ class TreeBuilder {
       }
       charge(-int64_t(refs.capacity() * sizeof(Ref)));
       std::vector<Ref>().swap(refs);
-      if (subtree_min_ > 0 && node->prims.size() > subtree_min_ && !over_budget()) build_subtree(*node);
+      if (subtree_min_ > 0 && node->prims.size() > subtree_min_ && !over_budget())
+        build_subtree(*node);
       return node;
     }
     node->axis = best_axis;
@@ -268,8 +279,8 @@ class TreeBuilder {
   }
 
   /// Exact per-cell SAH binning over every interior cell boundary of the node.
-  void find_split(const std::vector<Ref>& refs, const int32_t lo[3], const int32_t hi[3], int& best_axis,
-                  int32_t& best_split, size_t& best_nl, size_t& best_nr) {
+  void find_split(const std::vector<Ref>& refs, const int32_t lo[3], const int32_t hi[3],
+                  int& best_axis, int32_t& best_split, size_t& best_nl, size_t& best_nr) {
     thread_local std::vector<uint32_t> starts, ends;
     const size_t n = refs.size();
     const double w[3] = {double(hi[0] - lo[0]), double(hi[1] - lo[1]), double(hi[2] - lo[2])};
@@ -312,7 +323,7 @@ class TreeBuilder {
   double origin_[3];
   double inv_cell_, cell_;
   KdSubtreeBuilder kd_, kd_deep_;  ///< leaf subtrees of kSubMaxDepth levels, and above kSubDeepMin
-  const CancelToken* cancel_;       ///< polled once per node
+  const CancelToken* cancel_;      ///< polled once per node
   int32_t dims_[3];
   double kt_, ki_, bonus_;
   uint32_t subtree_min_ = 0;
@@ -338,10 +349,14 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
                      format_bytes_iec(double(effective_memory_budget(params))) +
                      " (its account reached " + format_bytes_iec(double(tb.peak_bytes())) +
                      " after " + std::to_string(tb.nodes_made()) + " nodes over " +
-                     std::to_string(mesh.num_triangles()) + " triangles; the estimate before "
-                     "building was " + format_bytes_iec(double(stats_.peak_estimate)) +
+                     std::to_string(mesh.num_triangles()) +
+                     " triangles; the estimate before "
+                     "building was " +
+                     format_bytes_iec(double(stats_.peak_estimate)) +
                      "): triangles straddling many cells are referenced by every leaf they "
-                     "cross; " + fix + ", or raise --memory-budget-mb (0 = half of physical "
+                     "cross; " +
+                     fix +
+                     ", or raise --memory-budget-mb (0 = half of physical "
                      "memory) if the machine has the memory");
   // Exact now: the references are counted (leaf subtrees add a few). Flattening copies them
   // while the build tree is alive, then the triangle corners replace the build tree.
@@ -352,11 +367,12 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
                        {"references", refs * sizeof(uint32_t)},
                        {"nodes and leaves", flat}},
                       params, fix);
-  check_memory_budget("hybrid", mesh.num_triangles(),
-                      {{"references", refs * sizeof(uint32_t)},
-                       {"triangle corners and ids", double(mesh.num_triangles()) * (sizeof(TriVerts) + 4)},
-                       {"nodes and leaves", flat}},
-                      params, fix);
+  check_memory_budget(
+      "hybrid", mesh.num_triangles(),
+      {{"references", refs * sizeof(uint32_t)},
+       {"triangle corners and ids", double(mesh.num_triangles()) * (sizeof(TriVerts) + 4)},
+       {"nodes and leaves", flat}},
+      params, fix);
   nodes_.reserve(size_t(nodes));
   leaves_.reserve(size_t(nodes + 1) / 2);
   leaf_depth_.reserve(size_t(nodes + 1) / 2);
@@ -380,8 +396,9 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
         const uint32_t base = uint32_t(sub_nodes_.size()), ref_base = uint32_t(refs_.size());
         if (refs_.size() + n->sub_refs.size() >= (uint64_t(1) << 30) ||
             sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
-          throw ParamError("hybrid: more than 2^30 subtree references or 2^29 nodes: use a larger cell size "
-                           "or --hybrid-subtree 0");
+          throw ParamError(
+              "hybrid: more than 2^30 subtree references or 2^29 nodes: use a larger cell size "
+              "or --hybrid-subtree 0");
         for (size_t k = 0; k < n->sub_nodes.size(); ++k) {
           KdNode kn = n->sub_nodes[k];
           if (k < kSubBoxNodes) {

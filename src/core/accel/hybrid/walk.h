@@ -94,8 +94,8 @@ struct WalkState {
   Hit hit;
   typename Tri::RayData rd;
   uint32_t mailbox[Hybrid::kMailbox];
-  uint32_t evicted_count;                ///< triangles pushed out of the mailbox so far
-  uint32_t evicted[Hybrid::kEvicted];    ///< those triangles
+  uint32_t evicted_count;              ///< triangles pushed out of the mailbox so far
+  uint32_t evicted[Hybrid::kEvicted];  ///< those triangles
 };
 
 /// True when triangle `local` was tested before on this ray, so the test is skipped; else
@@ -130,7 +130,9 @@ struct Exit {
 
 namespace kdgrid {
 
-inline uint64_t Hybrid::next_leaves_from_cache() { return hybrid::thread_next_leaf_cache.taken; }
+inline uint64_t Hybrid::next_leaves_from_cache() {
+  return hybrid::thread_next_leaf_cache.taken;
+}
 
 inline uint32_t Hybrid::next_leaf(const Int4& n, uint32_t from, int axis) const {
   if (!next_leaf_cache_) return lookup(n[0], n[1], n[2]);
@@ -297,8 +299,8 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
   // axis is a constant in each branch (exit_through<A>). (The scalar form that computed all
   // three exit cells and then overrode the exit axis's compiled to selects, whose chain the
   // lookup had to wait for: Sponza's primary rays were 7% slower.)
-  static_assert(offsetof(Leaf, first) == 24 && offsetof(Leaf, hi) == 32 && offsetof(Leaf, pad) == 56 &&
-                sizeof(Leaf) == 64);
+  static_assert(offsetof(Leaf, first) == 24 && offsetof(Leaf, hi) == 32 &&
+                offsetof(Leaf, pad) == 56 && sizeof(Leaf) == 64);
   Double4 lo, hi;
   const char* bytes = reinterpret_cast<const char*>(&L);  // the record's two halves
   std::memcpy(&lo, bytes, sizeof lo);
@@ -442,11 +444,13 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
       auto visit = [&](StepKind kind, int depth, uint32_t, const Box3& box, float tn, float tf) {
         trace_in = std::max(trace_in, tn);
         const float out = std::max(trace_in, std::min(tf, float(std::min(t_exit, double(w.tmax)))));
-        s.visit(TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
+        s.visit(
+            TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
       };
       float best = w.best;
       bool found = w.found;
-      if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found, s, leaf, visit))
+      if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found,
+                      s, leaf, visit))
         return StepResult::Answered;
       if constexpr (!kAny)
         if (hit_local != kInvalidPrim) {
