@@ -188,9 +188,10 @@ class Viewer {
   /// Frame-time target of a preview pass while the camera moves, in seconds: the preview's
   /// pixel count is chosen from the measured pixels per second of recent passes so that one
   /// pass takes about this long, as a viewport lowers its pixel size to hold a frame rate.
-  /// 0.06 s gives 10+ pictures per second with the motion-to-photon time about two passes
-  /// (the pass in flight finishes, then the newest camera's).
-  static constexpr double kPreviewPassSeconds = 0.06;
+  /// 0.045 s gives about 15 pictures per second (a pass plus the frame and hand-over around it,
+  /// docs/VIEWER.md) with the motion-to-photon time about two passes (the pass in flight
+  /// finishes, then the newest camera's).
+  static constexpr double kPreviewPassSeconds = 0.045;
   /// Bounds of the preview's resolution factor (per axis, times --resolution-scale): below
   /// 0.05 a 1280-wide window gets under 64 pixels across, too coarse to steer by.
   static constexpr float kMinPreviewScale = 0.05f;
