@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Measures the hybrid's variants side by side with the SAH kd-tree and Embree on the shared
 # suite's primary rays, for docs/RESULTS.md ("The hybrid's variants"): the default (leaf
-# subtrees, empty-leaf boxes, bricked matrix), plain leaves (--hybrid-subtree 0), the paper's
-# hybrid (plain leaves stepping over kd leaf boxes: --hybrid-subtree 0 --hybrid-no-expand) and
-# the dense matrix of the paper, and the default without guessed next leaves (--hybrid-no-guess).
+# subtrees, empty-leaf boxes, bricked matrix), plain leaves (--hybrid-subtree-min 0), the paper's
+# hybrid (plain leaves stepping over kd leaf boxes: --hybrid-subtree-min 0
+# --hybrid-no-expand-empty), the dense matrix of the paper (--hybrid-dense-matrix), and the
+# default without the next-leaf cache (--hybrid-no-next-leaf-cache).
 # Tracing is timed with the threads' CPU clocks (--clock cpu) because this machine is shared;
 # every figure is also given as a ratio to Embree and to the kd-tree measured in the same run.
 #
@@ -27,8 +28,8 @@ variant() {
   "$kdgrid" "${common[@]}" "$@" --json "$results/hybrid-$name.json" -q
 }
 variant default
-variant plain --hybrid-subtree 0
-variant paper --hybrid-subtree 0 --hybrid-no-expand
-variant dense --dense-matrix
-variant noguess --hybrid-no-guess
-echo "hybrid-variants: wrote $results/hybrid-{default,plain,paper,dense,noguess}.json" >&2
+variant plain --hybrid-subtree-min 0
+variant paper --hybrid-subtree-min 0 --hybrid-no-expand-empty
+variant dense --hybrid-dense-matrix
+variant nocache --hybrid-no-next-leaf-cache
+echo "hybrid-variants: wrote $results/hybrid-{default,plain,paper,dense,nocache}.json" >&2

@@ -720,21 +720,30 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   ASSERT_EQ(run_cli(base + "--accel hybrid --traversal-only", log), 0) << slurp(log);
   EXPECT_NE(slurp(log).find("hit fraction 0.0000"), std::string::npos) << slurp(log);
   EXPECT_NE(slurp(log).find("ns per lookup"), std::string::npos) << slurp(log);
-  // The guessed next leaves, counted: neighbouring rays of a finer image take some.
+  // The next leaves taken from the next-leaf cache, counted: neighbouring rays of a finer
+  // image take some, and none without the cache.
   const fs::path fine = dir / "fine.rays";
   write_rays(fine.string(), primary_rays(cam, 128, 128));
   const std::string fine_base =
       "trace \"" + ply.string() + "\" --rays \"" + fine.string() + "\" --repeat 1 ";
   ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1", log), 0) << slurp(log);
-  EXPECT_NE(slurp(log).find("of the lookups per ray answered by the guessed next leaf"),
+  EXPECT_NE(slurp(log).find("of the lookups per ray answered by the next-leaf cache"),
             std::string::npos)
       << slurp(log);
-  EXPECT_EQ(slurp(log).find("guesses      0.00 "), std::string::npos)
-      << "coherent rays take guesses\n"
+  EXPECT_EQ(slurp(log).find("leaf cache   0.00 "), std::string::npos)
+      << "coherent rays take cached leaves\n"
       << slurp(log);
-  ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1 --hybrid-no-guess", log), 0)
+  ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1 --json", log), 0) << slurp(log);
+  EXPECT_GT(json::parse(slurp(log))["per_ray"]["next_leaves_from_cache"].get<double>(), 0.0)
       << slurp(log);
-  EXPECT_NE(slurp(log).find("guesses      0.00 "), std::string::npos) << slurp(log);
+  ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1 --hybrid-no-next-leaf-cache", log), 0)
+      << slurp(log);
+  EXPECT_NE(slurp(log).find("leaf cache   0.00 "), std::string::npos) << slurp(log);
+  ASSERT_EQ(
+      run_cli(fine_base + "--accel hybrid --threads 1 --hybrid-no-next-leaf-cache --json", log), 0)
+      << slurp(log);
+  EXPECT_EQ(json::parse(slurp(log))["per_ray"]["next_leaves_from_cache"].get<double>(), 0.0)
+      << slurp(log);
   ASSERT_EQ(run_cli(base + "--accel kdtree --traversal-only --json", log), 0) << slurp(log);
   const json j = json::parse(slurp(log));
   EXPECT_TRUE(j["traversal_only"].get<bool>());

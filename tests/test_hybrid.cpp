@@ -868,14 +868,15 @@ TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   EXPECT_GT(Hybrid::next_leaves_from_cache(), taken_in_turn) << "coherent rays take cached leaves";
 }
 
-// BuildParams::hybrid_guess = false (`--hybrid-no-guess`), the paper's walk: no leaf taken from
-// the next-leaf cache, and the same hits and counters as the walk with it, ray by ray.
+// BuildParams::hybrid_next_leaf_cache = false (`--hybrid-no-next-leaf-cache`), the paper's walk:
+// no leaf taken from the next-leaf cache, and the same hits and counters as the walk with it,
+// ray by ray.
 TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
   const Mesh m = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
   BuildParams p = params_with(0.0f, false);
   Hybrid cached, plain;
   cached.build(m, p);
-  p.hybrid_guess = false;
+  p.hybrid_next_leaf_cache = false;
   plain.build(m, p);
   const std::vector<Ray> rays = coherent_rays(48);
   const uint64_t before = Hybrid::next_leaves_from_cache();
@@ -889,7 +890,7 @@ TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
   for (size_t i = 0; i < rays.size(); ++i)
     found_without[i] = plain.intersect_counted(rays[i], hits_without[i], without);
   EXPECT_EQ(Hybrid::next_leaves_from_cache(), between)
-      << "hybrid_guess = false takes no cached leaf";
+      << "hybrid_next_leaf_cache = false takes no cached leaf";
   for (size_t i = 0; i < rays.size(); ++i) {
     ASSERT_EQ(found_with[i], found_without[i]) << "ray " << i;
     if (found_with[i]) {

@@ -9,7 +9,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <regex>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <fstream>
@@ -221,6 +223,48 @@ TEST(Viewer, PickDrawsTraversalAtThePickedPixel) {
   const RunResult again = run_viewer(dir, base + "--screenshot again.png");
   ASSERT_EQ(again.code, 0) << again.output;
   EXPECT_EQ(changed_pixels_near(a, read_image(dir + "/again.png"), px, py, 10), 0);
+}
+
+TEST(Viewer, PickPrintsTheBuildFlagsUnderTheirFieldNamesAndTraceReplaysIt) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // Every knob through its earlier flag name, which the viewer still accepts.
+  const std::vector<std::pair<std::string, std::string>> renamed = {
+      {"--dense-matrix", "--hybrid-dense-matrix"},
+      {"--hybrid-subtree 2", "--hybrid-subtree-min 2"},
+      {"--hybrid-no-expand", "--hybrid-no-expand-empty"},
+      {"--hybrid-no-guess", "--hybrid-no-next-leaf-cache"},
+      {"--hybrid-cost-ratio 2", "--hybrid-intersection-cost 2"},
+      {"--kd-cost-ratio 3", "--kd-intersection-cost 3"},
+      {"--bvh-leaf 4", "--bvh-max-leaf 4"},
+      {"--irr-top-density 0.5", "--irregular-top-density 0.5"},
+      {"--irr-sub-density 3", "--irregular-sub-density 3"}};
+  std::string args = "'" + kDefaultScene + "' --accel hybrid" + kSmall + "--hide-ui --pick 170,130";
+  for (const auto& [earlier, name] : renamed) args += " " + earlier;
+  const RunResult picked = run_viewer(dir, args);
+  ASSERT_EQ(picked.code, 0) << picked.output;
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(picked.output, m,
+                                std::regex(R"(pick 170,130: \d+ steps, (\d+) triangle tests, )"
+                                           R"((hit triangle \d+|miss)\n  kdgrid trace ([^\n]*))")))
+      << picked.output;
+  const std::string tests = m[1], hit = m[2], command = m[3];
+  // The printed command names each flag after the field it sets.
+  for (const auto& [earlier, name] : renamed) {
+    EXPECT_NE((command + " ").find(" " + name + " "), std::string::npos) << name << ": " << command;
+    EXPECT_EQ((command + " ").find(" " + earlier + " "), std::string::npos)
+        << earlier << ": " << command;
+  }
+  // And `kdgrid trace` with it walks the same structure to the same answer.
+  const RunResult trace = run_command("'" + std::string(KDGRID_CLI_PATH) + "' trace " + command);
+  ASSERT_EQ(trace.code, 0) << command << "\n" << trace.output;
+  EXPECT_NE(trace.output.find(hit + (hit == "miss" ? "\n" : " at t")), std::string::npos)
+      << "viewer: " << hit << "\n"
+      << trace.output;
+  EXPECT_NE(trace.output.find("triangle tests " + tests + ","), std::string::npos)
+      << "viewer: " << tests << " triangle tests\n"
+      << trace.output;
 }
 
 TEST(Viewer, HeatMapExportsRawCountsAsExr) {

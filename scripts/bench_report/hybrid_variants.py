@@ -5,16 +5,27 @@ from .common import g, load, prose, table
 
 
 HYBRID_VARIANTS = [("default", "default: leaf subtrees, empty-leaf boxes"),
-                   ("plain", "plain leaves (`--hybrid-subtree 0`)"),
-                   ("paper", "the paper's: plain leaves, kd leaf boxes (`--hybrid-subtree 0 --hybrid-no-expand`)"),
-                   ("dense", "dense matrix (`--dense-matrix`)"),
-                   ("noguess", "no guessed next leaf (`--hybrid-no-guess`)")]
+                   ("plain", "plain leaves (`--hybrid-subtree-min 0`)"),
+                   ("paper", "the paper's: plain leaves, kd leaf boxes "
+                    "(`--hybrid-subtree-min 0 --hybrid-no-expand-empty`)"),
+                   ("dense", "dense matrix (`--hybrid-dense-matrix`)"),
+                   ("nocache", "no next-leaf cache (`--hybrid-no-next-leaf-cache`)")]
+# Earlier names of the variants' files, read when a results directory has only those.
+EARLIER_NAMES = {"nocache": "noguess"}
+
+
+def load_variant(results_dir, name):
+    """hybrid-NAME.json, else the file under the variant's earlier name, else None."""
+    for n in (name, EARLIER_NAMES.get(name)):
+        b = n and load(os.path.join(results_dir, "hybrid-%s.json" % n))
+        if b:
+            return b
+    return None
 
 
 def hybrid_variants_section(results_dir):
     """The hybrid's variants against the kd-tree and Embree (scripts/hybrid-variants.sh)."""
-    runs = [(name, what, load(os.path.join(results_dir, "hybrid-%s.json" % name)))
-            for name, what in HYBRID_VARIANTS]
+    runs = [(name, what, load_variant(results_dir, name)) for name, what in HYBRID_VARIANTS]
     runs = [r for r in runs if r[2]]
     if not runs:
         return prose("hybrid_variants", "not-measured")

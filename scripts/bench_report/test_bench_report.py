@@ -20,6 +20,7 @@ ROOT = os.path.dirname(SCRIPTS)
 sys.dont_write_bytecode = True
 sys.path.insert(0, SCRIPTS)
 
+from bench_report.hybrid_variants import hybrid_variants_section  # noqa: E402
 from bench_report.page import build_page  # noqa: E402
 
 RESULTS = os.path.join(ROOT, "docs", "results")
@@ -50,6 +51,18 @@ class Page(unittest.TestCase):
         self.assertNotIn("-triangle scene (`", page)
         self.assertTrue(page.endswith("(VmHWM/VmRSS) and `getrusage`.\n"))
 
+    def test_variant_file_under_its_earlier_name_gives_the_same_section(self):
+        # hybrid-nocache.json was hybrid-noguess.json: a results directory written before the
+        # rename gives the same section.
+        with tempfile.TemporaryDirectory() as tmp:
+            res = os.path.join(tmp, "results")
+            shutil.copytree(RESULTS, res)
+            os.rename(os.path.join(res, "hybrid-nocache.json"),
+                      os.path.join(res, "hybrid-noguess.json"))
+            old = hybrid_variants_section(res)
+        new = hybrid_variants_section(RESULTS)
+        self.assertIn("no next-leaf cache (`--hybrid-no-next-leaf-cache`)", new)
+        self.assertTrue(old == new, "the section differs when the variant's file has its old name")
 
 class Templates(unittest.TestCase):
     """Each test breaks one template in a copy of templates/ and runs the real entry point."""

@@ -43,7 +43,7 @@ struct TraceArgs {
 struct Counted {
   RayCounters c;
   uint64_t hits = 0;
-  uint64_t guessed = 0;  ///< the hybrid's next leaves taken from its next-leaf cache
+  uint64_t from_cache = 0;  ///< the hybrid's next leaves taken from its next-leaf cache
 };
 
 void print_box(const Box3& b) {
@@ -165,20 +165,20 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
       all, Counted{},
       [&](const tbb::blocked_range<size_t>& br, Counted acc) {
         // The cached leaves taken are counted per thread: this chunk's runs on one.
-        const uint64_t guessed0 = Hybrid::next_leaves_from_cache();
+        const uint64_t from_cache0 = Hybrid::next_leaves_from_cache();
         for (size_t i = br.begin(); i < br.end(); ++i) {
           Hit h;
           const bool hit = a.any ? accel.occluded_counted(rays[i], acc.c)
                                  : accel.intersect_counted(rays[i], h, acc.c);
           acc.hits += hit;
         }
-        acc.guessed += Hybrid::next_leaves_from_cache() - guessed0;
+        acc.from_cache += Hybrid::next_leaves_from_cache() - from_cache0;
         return acc;
       },
       [](Counted x, const Counted& y) {
         x.c += y.c;
         x.hits += y.hits;
-        x.guessed += y.guessed;
+        x.from_cache += y.from_cache;
         return x;
       });
 
@@ -231,7 +231,7 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
                     {"tri_tests", double(counted.c.tri_tests) * per},
                     {"mailbox_skips", double(counted.c.mailbox_skips) * per},
                     {"lookups", double(counted.c.lookups) * per},
-                    {"guessed", double(counted.guessed) * per}};
+                    {"next_leaves_from_cache", double(counted.from_cache) * per}};
     j["build"] = build_json(st, tris);
     std::printf("%s\n", j.dump(2).c_str());
     return;
@@ -253,9 +253,9 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
     std::printf("per ray      (this structure cannot count its traversal)\n");
   if (accel.name() == "hybrid")
     std::printf(
-        "guesses      %.2f of the lookups per ray answered by the guessed next leaf (counted "
+        "leaf cache   %.2f of the lookups per ray answered by the next-leaf cache (counted "
         "pass)\n",
-        double(counted.guessed) * per);
+        double(counted.from_cache) * per);
   if (a.traversal_only) {
     std::printf(
         "traversal    alone (no triangle tested, every ray misses): %.1f ns per ray, %.2f ns "

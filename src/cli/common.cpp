@@ -12,12 +12,15 @@
 #include "render/camera.h"
 #include "util/cancel.h"
 #include "util/error.h"
+#include "util/format.h"
 
 namespace kdgrid::cli {
 
 void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
   accel = default_accel;
   const std::string g = "Acceleration structure";
+  // Each flag is named after the BuildParams field it sets (accel/params.h documents them);
+  // the second name of a renamed flag is its earlier name, still accepted.
   cmd->add_option("--accel", accel,
                   "Structure: brute, bvh, grid, kdtree, hybrid, irregular, embree")
       ->group(g)
@@ -30,7 +33,7 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "Auto cell size: percentile of triangle extents that fit one cell (0-100]")
       ->group(g)
       ->capture_default_str();
-  cmd->add_flag("--dense-matrix", params.hybrid_dense_matrix,
+  cmd->add_flag("--hybrid-dense-matrix,--dense-matrix", params.hybrid_dense_matrix,
                 "Hybrid: dense cell matrix of the paper instead of bricked storage")
       ->group(g);
   cmd->add_option("--triangle-test", triangle_test, "watertight (default) or moller")
@@ -39,16 +42,16 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
   cmd->add_option("--grid-lambda", params.grid_lambda, "Uniform grid: cells per triangle")
       ->group(g)
       ->capture_default_str();
-  cmd->add_option("--kd-cost-ratio", params.kd_intersection_cost,
-                  "kd-tree: triangle test cost relative to a traversal step")
+  cmd->add_option("--kd-intersection-cost,--kd-cost-ratio", params.kd_intersection_cost,
+                  "kd-tree SAH: cost of a triangle test, in traversal steps")
       ->group(g)
       ->capture_default_str();
-  cmd->add_option("--hybrid-cost-ratio", params.hybrid_intersection_cost,
-                  "Hybrid: triangle test cost relative to a leaf step (SAH leaf termination)")
+  cmd->add_option("--hybrid-intersection-cost,--hybrid-cost-ratio", params.hybrid_intersection_cost,
+                  "Hybrid SAH (leaf termination): cost of a triangle test, in leaf steps")
       ->group(g)
       ->capture_default_str();
   cmd->add_option(
-         "--hybrid-subtree", params.hybrid_subtree_min,
+         "--hybrid-subtree-min,--hybrid-subtree", params.hybrid_subtree_min,
          "Hybrid: leaves with more triangles than this get a kd subtree built and walked as "
          "the kd-tree is (default 4); 0 = the paper's plain leaves")
       ->group(g)
@@ -58,22 +61,29 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "this (seconds), naming a size that fits; 0 = no limit")
       ->group(g)
       ->capture_default_str();
-  cmd->add_flag("--hybrid-no-expand{false}", params.hybrid_expand_empty,
-                "Hybrid: step over the kd leaf boxes of the paper, without widening empty "
-                "leaves over the empty cells around them")
+  // Switches that turn a knob off set it to false through a callback, so --help lists their
+  // names without CLI11's "{false}" default-value syntax.
+  bool& expand_empty = params.hybrid_expand_empty;
+  cmd->add_flag_callback(
+         "--hybrid-no-expand-empty,--hybrid-no-expand", [&expand_empty] { expand_empty = false; },
+         "Hybrid: step over the kd leaf boxes of the paper, without widening empty leaves over "
+         "the empty cells around them")
       ->group(g);
-  cmd->add_flag("--hybrid-no-guess{false}", params.hybrid_guess,
-                "Hybrid: look every next leaf up in the matrix, as the paper does, instead of "
-                "first checking the leaf this thread last reached across the same face")
+  bool& next_leaf_cache = params.hybrid_next_leaf_cache;
+  cmd->add_flag_callback(
+         "--hybrid-no-next-leaf-cache,--hybrid-no-guess",
+         [&next_leaf_cache] { next_leaf_cache = false; },
+         "Hybrid: look every next leaf up in the matrix, as the paper does, instead of first "
+         "checking the leaf this thread last reached across the same face")
       ->group(g);
-  cmd->add_option("--bvh-leaf", params.bvh_max_leaf, "BVH: max triangles per leaf")
+  cmd->add_option("--bvh-max-leaf,--bvh-leaf", params.bvh_max_leaf, "BVH: max triangles per leaf")
       ->group(g)
       ->capture_default_str();
-  cmd->add_option("--irr-top-density", params.irregular_top_density,
+  cmd->add_option("--irregular-top-density,--irr-top-density", params.irregular_top_density,
                   "Irregular grid: top-level cells per triangle")
       ->group(g)
       ->capture_default_str();
-  cmd->add_option("--irr-sub-density", params.irregular_sub_density,
+  cmd->add_option("--irregular-sub-density,--irr-sub-density", params.irregular_sub_density,
                   "Irregular grid: second-level cells per reference")
       ->group(g)
       ->capture_default_str();
@@ -102,11 +112,11 @@ BuildParams AccelOptions::resolve() const {
   if (!(p.grid_lambda > 0.0f) || !std::isfinite(p.grid_lambda))
     throw ParamError("--grid-lambda must be a positive number (cells per triangle), e.g. 4");
   if (!(p.kd_intersection_cost > 0.0f) || !std::isfinite(p.kd_intersection_cost))
-    throw ParamError("--kd-cost-ratio must be a positive number, e.g. 1.5");
+    throw ParamError("--kd-intersection-cost must be a positive number, e.g. 1.5");
   if (p.bvh_max_leaf < 1 || p.bvh_max_leaf > 255)
-    throw ParamError("--bvh-leaf must be between 1 and 255");
+    throw ParamError("--bvh-max-leaf must be between 1 and 255");
   if (!(p.irregular_top_density > 0.0f) || !(p.irregular_sub_density > 0.0f))
-    throw ParamError("--irr-top-density and --irr-sub-density must be positive");
+    throw ParamError("--irregular-top-density and --irregular-sub-density must be positive");
   if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
   if (!(p.hybrid_max_build_seconds >= 0.0))
     throw ParamError("--hybrid-max-build-seconds must be >= 0 (0 = no limit), e.g. 10");
@@ -120,6 +130,40 @@ BuildParams AccelOptions::resolve() const {
                      " MiB (0 = half of the memory available)");
   if (budget_mb_ > 0) p.memory_budget = uint64_t(budget_mb_) << 20;
   return p;
+}
+
+std::string accel_flags(const std::string& accel, const BuildParams& p) {
+  const BuildParams d;
+  const auto num = [](double v) { return format_double("%.9g", v); };
+  std::string s = " --accel " + accel;
+  if (p.cell_size > 0) s += " --cell-size " + num(p.cell_size);
+  if (p.cell_percentile != d.cell_percentile) s += " --cell-percentile " + num(p.cell_percentile);
+  if (p.hybrid_dense_matrix) s += " --hybrid-dense-matrix";
+  if (p.hybrid_subtree_min != d.hybrid_subtree_min)
+    s += " --hybrid-subtree-min " + std::to_string(p.hybrid_subtree_min);
+  if (!p.hybrid_expand_empty) s += " --hybrid-no-expand-empty";
+  if (!p.hybrid_next_leaf_cache) s += " --hybrid-no-next-leaf-cache";
+  if (p.hybrid_intersection_cost != d.hybrid_intersection_cost)
+    s += " --hybrid-intersection-cost " + num(p.hybrid_intersection_cost);
+  if (p.hybrid_max_build_seconds != d.hybrid_max_build_seconds)
+    s += " --hybrid-max-build-seconds " + num(p.hybrid_max_build_seconds);
+  if (p.grid_lambda != d.grid_lambda) s += " --grid-lambda " + num(p.grid_lambda);
+  if (p.kd_intersection_cost != d.kd_intersection_cost)
+    s += " --kd-intersection-cost " + num(p.kd_intersection_cost);
+  if (p.bvh_max_leaf != d.bvh_max_leaf) s += " --bvh-max-leaf " + std::to_string(p.bvh_max_leaf);
+  if (p.irregular_top_density != d.irregular_top_density)
+    s += " --irregular-top-density " + num(p.irregular_top_density);
+  if (p.irregular_sub_density != d.irregular_sub_density)
+    s += " --irregular-sub-density " + num(p.irregular_sub_density);
+  if (p.embree_quality != d.embree_quality) s += " --embree-quality " + p.embree_quality;
+  // The flag is in MiB; a budget set through it is a whole number of them.
+  if (p.memory_budget != d.memory_budget)
+    s += " --memory-budget-mb " + std::to_string((p.memory_budget + (1u << 20) - 1) >> 20);
+  if (p.brute_work_limit != d.brute_work_limit)
+    s += " --brute-work-limit " + num(p.brute_work_limit);
+  if (p.triangle_test != d.triangle_test)
+    s += std::string(" --triangle-test ") + to_string(p.triangle_test);
+  return s;
 }
 
 void CameraOptions::add_to(CLI::App* cmd) {

@@ -30,6 +30,11 @@ struct AccelOptions {
   BuildParams resolve() const;
 };
 
+/// " --accel NAME" and the AccelOptions flags of every knob of `p` that differs from
+/// BuildParams' defaults, each under its primary name, so a printed command line (the viewer's
+/// pick) builds the very same structure. Floats are written so they read back unchanged.
+std::string accel_flags(const std::string& accel, const BuildParams& p);
+
 /// --eye x,y,z --target x,y,z --fov DEG overriding the scene's camera.
 struct CameraOptions {
   std::string eye, target;

@@ -18,7 +18,6 @@
 
 #include "accel/guards.h"
 #include "util/error.h"
-#include "util/format.h"
 #include "viewer/gl_util.h"
 #include "viewer/viewer_internal.h"
 #include "viewer_shaders.h"
@@ -53,33 +52,6 @@ std::string shell_quote(const std::string& s) {
   std::string q = "'";
   for (char c : s) q += (c == '\'') ? std::string("'\\''") : std::string(1, c);
   return q + "'";
-}
-
-/// A float as a command-line value that reads back as the same float.
-std::string fmt_float(float v) {
-  return format_double("%.9g", v);
-}
-
-/// The build flags of `p` that differ from the defaults, as `kdgrid` options, so a printed
-/// command line rebuilds the very same structure.
-std::string accel_flags(const std::string& name, const BuildParams& p) {
-  const BuildParams d;
-  std::string s = " --accel " + name;
-  if (p.cell_size > 0) s += " --cell-size " + fmt_float(p.cell_size);
-  if (p.cell_percentile != d.cell_percentile)
-    s += " --cell-percentile " + fmt_float(p.cell_percentile);
-  if (p.hybrid_dense_matrix) s += " --dense-matrix";
-  if (p.hybrid_subtree_min != d.hybrid_subtree_min)
-    s += " --hybrid-subtree " + std::to_string(p.hybrid_subtree_min);
-  if (!p.hybrid_expand_empty) s += " --hybrid-no-expand";
-  if (!p.hybrid_guess) s += " --hybrid-no-guess";
-  if (p.grid_lambda != d.grid_lambda) s += " --grid-lambda " + fmt_float(p.grid_lambda);
-  if (p.kd_intersection_cost != d.kd_intersection_cost)
-    s += " --kd-cost-ratio " + fmt_float(p.kd_intersection_cost);
-  if (p.bvh_max_leaf != d.bvh_max_leaf) s += " --bvh-leaf " + std::to_string(p.bvh_max_leaf);
-  if (p.triangle_test != d.triangle_test)
-    s += std::string(" --triangle-test ") + to_string(p.triangle_test);
-  return s;
 }
 
 /// Appends `v` to a plot's history, which keeps the last 120 values.
@@ -632,9 +604,9 @@ void Viewer::retrace_pick() {
   CameraControl at_pick;
   at_pick.set_camera(p.camera);
   p.command = "kdgrid trace " + shell_quote(world_->scene->source) +
-              accel_flags(world_->name, world_->params) + " --pixel " + std::to_string(p.x) + "," +
-              std::to_string(p.y) + " --res " + std::to_string(p.w) + "x" + std::to_string(p.h) +
-              " " + at_pick.cli_flags();
+              cli::accel_flags(world_->name, world_->params) + " --pixel " + std::to_string(p.x) +
+              "," + std::to_string(p.y) + " --res " + std::to_string(p.w) + "x" +
+              std::to_string(p.h) + " " + at_pick.cli_flags();
   if (splits_of_pick_) overlay_dirty_ = true;
 }
 

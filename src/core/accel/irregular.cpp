@@ -128,7 +128,7 @@ struct IrregularGrid::Builder {
                        " cells, " + std::to_string(refs.size()) + " references over " +
                        std::to_string(valid.size()) + " triangles), above the memory budget of " +
                        format_bytes_iec(double(budget)) +
-                       "; lower --irr-sub-density or --irr-top-density, or raise "
+                       "; lower --irregular-sub-density or --irregular-top-density, or raise "
                        "--memory-budget-mb (0 = half of the memory available) if the machine has "
                        "the memory");
   }
@@ -215,13 +215,13 @@ struct IrregularGrid::Builder {
     // Every top cell costs at least its voxel-map entry and one build cell.
     const double need = top_cells * double(sizeof(TopEntry) + sizeof(BCell) + sizeof(Cell));
     if (need > double(budget) || std::max({r[0], r[1], r[2]}) > double(1 << 24))
-      throw ParamError("irregular_top_density = " + std::to_string(params.irregular_top_density) +
-                       " asks for " + std::to_string(uint64_t(std::min(top_cells, 1e19))) +
-                       " top-level cells (about " + format_bytes(need) +
-                       "), beyond the memory budget of " + format_bytes(double(budget)) +
-                       " or the lattice limit of 2^24 cells per axis: lower --irr-top-density "
-                       "(default 0.12), or raise --memory-budget-mb (0 = half of physical "
-                       "memory) if the machine has the memory");
+      throw ParamError(
+          "irregular_top_density = " + std::to_string(params.irregular_top_density) + " asks for " +
+          std::to_string(uint64_t(std::min(top_cells, 1e19))) + " top-level cells (about " +
+          format_bytes(need) + "), beyond the memory budget of " + format_bytes(double(budget)) +
+          " or the lattice limit of 2^24 cells per axis: lower --irregular-top-density "
+          "(default 0.12), or raise --memory-budget-mb (0 = half of physical "
+          "memory) if the machine has the memory");
     for (int a = 0; a < 3; ++a) {
       g.top_res_[a] = int32_t(r[a]);
       top_vs[a] = ext[a] / r[a];
@@ -304,7 +304,7 @@ struct IrregularGrid::Builder {
                        std::to_string(uint64_t(seen)) + " listed before stopping, over " +
                        std::to_string(valid.size()) +
                        " triangles): triangles crossing very many cells; lower "
-                       "--irr-top-density, or raise --memory-budget-mb (0 = half of physical "
+                       "--irregular-top-density, or raise --memory-budget-mb (0 = half of physical "
                        "memory) if the machine has the memory");
     }
     count.assign(num_top, 0);
@@ -354,12 +354,13 @@ struct IrregularGrid::Builder {
     const double need = sub_cells * double(sizeof(uint32_t) + sizeof(BCell) + sizeof(Cell) + 24) +
                         double(top_refs.size()) * 3.0 * sizeof(uint32_t);
     if (need > double(budget) || sub_cells >= double(kNone))
-      throw ParamError("irregular_sub_density = " + std::to_string(params.irregular_sub_density) +
-                       " asks for " + std::to_string(uint64_t(sub_cells)) + " cells (about " +
-                       format_bytes(need) + ") over " + std::to_string(valid.size()) +
-                       " triangles, beyond the memory budget of " + format_bytes(double(budget)) +
-                       ": lower --irr-sub-density (default 2.4), or raise --memory-budget-mb (0 "
-                       "= half of the memory available) if the machine has the memory");
+      throw ParamError(
+          "irregular_sub_density = " + std::to_string(params.irregular_sub_density) + " asks for " +
+          std::to_string(uint64_t(sub_cells)) + " cells (about " + format_bytes(need) + ") over " +
+          std::to_string(valid.size()) + " triangles, beyond the memory budget of " +
+          format_bytes(double(budget)) +
+          ": lower --irregular-sub-density (default 2.4), or raise --memory-budget-mb (0 "
+          "= half of the memory available) if the machine has the memory");
     g.shift_ = shift;
     for (int a = 0; a < 3; ++a) {
       g.res_[a] = r[a] << shift;
@@ -711,8 +712,8 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
         "measured)",
         300.0 * double(mesh.num_triangles())}},
       params,
-      "the grid's memory grows with the triangle count (lower --irr-sub-density or "
-      "--irr-top-density only trims it): split the scene");
+      "the grid's memory grows with the triangle count (lower --irregular-sub-density or "
+      "--irregular-top-density only trims it): split the scene");
   mesh_ = &mesh;
   test_ = params.triangle_test;
   top_.clear();

@@ -432,7 +432,7 @@ void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box
         "hybrid: the leaf subtrees outgrew the memory budget of " +
         format_bytes_iec(double(effective_memory_budget(impl_->params))) +
         ": triangles straddling many split planes are copied into every node they cross; "
-        "a larger --cell-size, a lower --kd-cost-ratio, or raise --memory-budget-mb");
+        "a larger --cell-size, a lower --kd-intersection-cost, or raise --memory-budget-mb");
   nodes = std::move(out.nodes);
   prims_out = std::move(out.prims);
   // One-triangle leaves hold their triangle in the node; the hybrid's leaves index its
@@ -451,7 +451,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
       !std::isfinite(params.kd_intersection_cost) || !std::isfinite(params.kd_traversal_cost))
     throw ParamError(
         "kdtree: kd_traversal_cost must be >= 0 and kd_intersection_cost > 0 "
-        "(--kd-cost-ratio), e.g. 1 and 1.5");
+        "(--kd-intersection-cost), e.g. 1 and 1.5");
   if (!(params.kd_empty_bonus >= 0.0f && params.kd_empty_bonus < 1.0f))
     throw ParamError("kdtree: kd_empty_bonus must be in [0, 1), e.g. 0.2; got " +
                      std::to_string(params.kd_empty_bonus));
@@ -467,7 +467,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   const int threads = effective_threads(params.threads);
   const double nt = double(n);
   const std::string fix =
-      "fewer splits need less: lower --kd-cost-ratio (kd_intersection_cost, e.g. 0.75) or set "
+      "fewer splits need less: lower --kd-intersection-cost (e.g. 0.75) or set "
       "kd_max_depth";
   const uint64_t estimate = check_memory_budget(
       "kdtree", n,

@@ -84,11 +84,11 @@ struct BuildParams {
   /// (primary rays on Sponza: 9.2 -> 6.8 steps; the dragon: 2.8 -> 2.4). The leaves, the
   /// matrix and the triangle tests are unchanged. false = the paper's kd leaf boxes.
   bool hybrid_expand_empty = true;
-  /// Guessed next leaf (an extension of the paper): each thread remembers the leaf reached
+  /// Next-leaf cache (an extension of the paper): each thread remembers the leaf reached
   /// across each leaf face, and the walk takes it when the exit cell lies in that leaf's kd
   /// box, else looks the cell up. The same leaves, hits and counters either way. false = every
   /// next leaf looked up in the matrix, as in the paper.
-  bool hybrid_guess = true;
+  bool hybrid_next_leaf_cache = true;
 
   // ---- irregular grid (Pérard-Gayot et al. 2017) -----------------------------------------
   /// Top-level density: top cells per triangle, shaped by the scene box (resolution per axis

@@ -170,7 +170,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   }
   mesh_ = &mesh;
   test_ = params.triangle_test;
-  next_leaf_cache_ = params.hybrid_guess;
+  next_leaf_cache_ = params.hybrid_next_leaf_cache;
   nodes_.clear();
   leaves_.clear();
   kd_boxes_.clear();

@@ -241,7 +241,7 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   Box3 wbox_;             ///< the grid's world box, widened beyond rounding (walk_begin)
   ClipBox4 wclip_;        ///< wbox_ as kd_begin reads it
   float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
-  bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_guess
+  bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_next_leaf_cache
   uint64_t uid_ = 0;             ///< unique per build, never 0 (NextLeafCache::owner)
   uint64_t max_steps_ = 0;
 

@@ -398,7 +398,7 @@ void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
             sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
           throw ParamError(
               "hybrid: more than 2^30 subtree references or 2^29 nodes: use a larger cell size "
-              "or --hybrid-subtree 0");
+              "or --hybrid-subtree-min 0");
         for (size_t k = 0; k < n->sub_nodes.size(); ++k) {
           KdNode kn = n->sub_nodes[k];
           if (k < kSubBoxNodes) {
