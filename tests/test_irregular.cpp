@@ -12,6 +12,7 @@
 
 #include "accel/brute.h"
 #include "accel/irregular.h"
+#include "comparator_meshes.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -19,16 +20,8 @@ namespace {
 
 // ---- procedural meshes --------------------------------------------------------------------
 
-void add_tri(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c) {
-  const uint32_t base = uint32_t(m.positions.size());
-  m.positions.insert(m.positions.end(), {a, b, c});
-  m.triangles.push_back({base, base + 1, base + 2});
-}
-
-void add_quad(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
-  add_tri(m, a, b, c);
-  add_tri(m, a, c, d);
-}
+using test::add_quad;
+using test::add_tri;
 
 /// n random triangles in [-1, 1]^3 with edge lengths up to `size`.
 Mesh random_soup(int n, uint32_t seed, float size) {
@@ -42,28 +35,8 @@ Mesh random_soup(int n, uint32_t seed, float size) {
   return m;
 }
 
-/// Sphere of radius r around c: an octahedron subdivided `levels` times (8 * 4^levels
-/// triangles). Shared edges get bit-identical vertices (midpoints are computed symmetrically).
-Mesh sphere(int levels, float r = 1.0f, Vec3 c = Vec3(0.0f)) {
-  std::vector<std::array<Vec3, 3>> tris;
-  const Vec3 px(1, 0, 0), nx(-1, 0, 0), py(0, 1, 0), ny(0, -1, 0), pz(0, 0, 1), nz(0, 0, -1);
-  tris = {{px, py, pz}, {py, nx, pz}, {nx, ny, pz}, {ny, px, pz},
-          {py, px, nz}, {nx, py, nz}, {ny, nx, nz}, {px, ny, nz}};
-  for (int l = 0; l < levels; ++l) {
-    std::vector<std::array<Vec3, 3>> next;
-    for (const auto& t : tris) {
-      const Vec3 ab = normalize(t[0] + t[1]), bc = normalize(t[1] + t[2]),
-                 ca = normalize(t[2] + t[0]);
-      next.push_back({t[0], ab, ca});
-      next.push_back({ab, t[1], bc});
-      next.push_back({ca, bc, t[2]});
-      next.push_back({ab, bc, ca});
-    }
-    tris.swap(next);
-  }
-  Mesh m;
-  for (const auto& t : tris) add_tri(m, c + t[0] * r, c + t[1] * r, c + t[2] * r);
-  return m;
+Mesh sphere(int levels) {
+  return test::octahedron_sphere(levels);
 }
 
 /// Axis-aligned quads on the planes a = -1, -0.5, 0, 0.5, 1 of each axis, each plane a 4x4
@@ -105,7 +78,7 @@ Mesh thin_triangles(int n, uint32_t seed) {
 /// Teapot in a stadium: a dense sphere (the teapot) of radius 1 at the origin inside a
 /// 1000-unit arena of a few large quads.
 Mesh teapot_in_stadium(int levels) {
-  Mesh m = sphere(levels, 1.0f);  // 8 * 4^levels triangles
+  Mesh m = sphere(levels);  // 8 * 4^levels triangles
   const float s = 500.0f, h = 100.0f;
   for (int i = 0; i < 10; ++i)
     for (int j = 0; j < 10; ++j) {

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <random>
 #include <string>
@@ -18,6 +19,36 @@ inline void add_tri(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c) {
   const uint32_t base = uint32_t(m.positions.size());
   m.positions.insert(m.positions.end(), {a, b, c});
   m.triangles.push_back({base, base + 1, base + 2});
+}
+
+/// The quad a, b, c, d (in order around it) as the triangles abc and acd.
+inline void add_quad(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
+  add_tri(m, a, b, c);
+  add_tri(m, a, c, d);
+}
+
+/// A sphere of radius `r` about `c`: an octahedron subdivided `levels` times (8 * 4^levels
+/// triangles), its first vertices on the axes. Each triangle has its own three vertices;
+/// midpoints are computed symmetrically, so shared edges get bit-identical vertices.
+inline Mesh octahedron_sphere(int levels, float r = 1.0f, Vec3 c = Vec3(0.0f)) {
+  const Vec3 px(1, 0, 0), nx(-1, 0, 0), py(0, 1, 0), ny(0, -1, 0), pz(0, 0, 1), nz(0, 0, -1);
+  std::vector<std::array<Vec3, 3>> tris = {{px, py, pz}, {py, nx, pz}, {nx, ny, pz}, {ny, px, pz},
+                                           {py, px, nz}, {nx, py, nz}, {ny, nx, nz}, {px, ny, nz}};
+  for (int l = 0; l < levels; ++l) {
+    std::vector<std::array<Vec3, 3>> next;
+    for (const auto& t : tris) {
+      const Vec3 ab = normalize(t[0] + t[1]), bc = normalize(t[1] + t[2]),
+                 ca = normalize(t[2] + t[0]);
+      next.push_back({t[0], ab, ca});
+      next.push_back({ab, t[1], bc});
+      next.push_back({ca, bc, t[2]});
+      next.push_back({ab, bc, ca});
+    }
+    tris.swap(next);
+  }
+  Mesh m;
+  for (const auto& t : tris) add_tri(m, c + t[0] * r, c + t[1] * r, c + t[2] * r);
+  return m;
 }
 
 /// Random triangles in [-1,1]^3 with edge lengths from tiny to large.

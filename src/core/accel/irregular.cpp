@@ -715,7 +715,7 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
       "the grid's memory grows with the triangle count (lower --irregular-sub-density or "
       "--irregular-top-density only trims it): split the scene");
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   top_.clear();
   sub_.clear();
   cells_.clear();

@@ -14,6 +14,7 @@
 #include "util/cancel.h"
 #include "util/cancellable_sort.h"
 #include "util/error.h"
+#include "util/memory.h"
 
 namespace kdgrid {
 namespace {
@@ -117,7 +118,7 @@ class Builder {
         empty_mult_(1.0f - p.kd_empty_bonus),
         max_depth_(max_depth),
         cancel_(p.cancel),
-        budget_(int64_t(std::min<uint64_t>(effective_memory_budget(p), uint64_t(INT64_MAX)))) {}
+        account_(effective_memory_budget(p)) {}
 
   void build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth, Subtree& out);
   /// build() of a subtree limited to `max_depth` levels (at most the builder's own limit):
@@ -133,15 +134,9 @@ class Builder {
   /// children, so on long thin or overlapping triangles the events multiply with depth; once
   /// the account passes the memory budget every pending node becomes an empty leaf at once
   /// and build() of KdTree throws, instead of the process running out of memory.
-  void charge(int64_t bytes) {
-    const int64_t now = live_.fetch_add(bytes, std::memory_order_relaxed) + bytes;
-    int64_t peak = peak_.load(std::memory_order_relaxed);
-    while (now > peak && !peak_.compare_exchange_weak(peak, now, std::memory_order_relaxed)) {
-    }
-    if (bytes > 0 && now > budget_) over_.store(true, std::memory_order_relaxed);
-  }
-  bool over_budget() const { return over_.load(std::memory_order_relaxed); }
-  int64_t peak_bytes() const { return peak_.load(); }
+  void charge(int64_t bytes) { account_.charge(bytes); }
+  bool over_budget() const { return account_.over_budget(); }
+  int64_t peak_bytes() const { return account_.peak_bytes(); }
   uint64_t nodes_made() const { return nodes_made_.load(); }
 
  private:
@@ -172,9 +167,7 @@ class Builder {
   int max_depth_;
   const CancelToken* cancel_;  // polled once per node
   std::atomic<uint64_t> sah_evals_{0};
-  const int64_t budget_;
-  std::atomic<int64_t> live_{0}, peak_{0};
-  std::atomic<bool> over_{false};
+  MemoryAccount account_;
   std::atomic<uint64_t> nodes_made_{0};
   // Per-thread classification flags indexed by triangle: a node writes and reads them within
   // one task, so concurrent subtrees never see each other's flags.
@@ -478,7 +471,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
       params, fix);
 
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   stats_ = {};
   nodes_.clear();
   prims_.clear();

@@ -1,6 +1,6 @@
 // The hybrid's tree: an SAH kd-tree whose split planes lie on cell boundaries (docs/HYBRID.md,
 // "The structure"), built over clipped triangle references, then flattened into the
-// structure's nodes, leaves and references (Hybrid::build_tree).
+// structure's nodes, leaves and references (GridKdHybrid::build_tree).
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 
@@ -17,6 +17,7 @@
 #include "accel/kdtree.h"
 #include "util/cancel.h"
 #include "util/error.h"
+#include "util/memory.h"
 
 namespace kdgrid {
 
@@ -34,7 +35,8 @@ struct BuildNode {
   int depth = 0;
   std::unique_ptr<BuildNode> kid[2];
   std::vector<uint32_t> prims;
-  std::vector<KdNode> sub_nodes;   ///< leaf subtree: its box (Hybrid::kSubBoxNodes), then its nodes
+  std::vector<KdNode>
+      sub_nodes;  ///< leaf subtree: its box (GridKdHybrid::kSubBoxNodes), then its nodes
   std::vector<uint32_t> sub_refs;  ///< its references (mesh triangle ids)
 };
 
@@ -49,9 +51,10 @@ class TreeBuilder {
       : mesh_(mesh),
         inv_cell_(1.0 / cell),
         cell_(cell),
-        kd_(mesh, p, Hybrid::kSubMaxDepth),
+        kd_(mesh, p, GridKdHybrid::kSubMaxDepth),
         kd_deep_(mesh, p, KdTree::kMaxDepth),
-        cancel_(p.cancel) {
+        cancel_(p.cancel),
+        account_(effective_memory_budget(p)) {
     for (int a = 0; a < 3; ++a) {
       origin_[a] = origin[a];
       dims_[a] = dims[a];
@@ -63,23 +66,16 @@ class TreeBuilder {
     const double n = double(std::max<size_t>(1, mesh.num_triangles()));
     max_depth_ = p.kd_max_depth > 0 ? p.kd_max_depth : int(8.0 + 1.3 * std::log2(n));
     max_depth_ = std::clamp(max_depth_, 1, 64);
-    budget_ = int64_t(std::min<uint64_t>(effective_memory_budget(p), uint64_t(INT64_MAX)));
   }
 
   /// Running account of the build's memory (reference lists alive in the recursion, build
   /// nodes and their leaf lists). Straddling triangles are clipped into both children, so
   /// scenes of long thin triangles multiply references with depth; past the budget every
-  /// pending node becomes an empty leaf and Hybrid::build throws instead of exhausting RAM.
-  void charge(int64_t bytes) {
-    const int64_t now = live_.fetch_add(bytes, std::memory_order_relaxed) + bytes;
-    int64_t peak = peak_.load(std::memory_order_relaxed);
-    while (now > peak && !peak_.compare_exchange_weak(peak, now, std::memory_order_relaxed)) {
-    }
-    if (bytes > 0 && now > budget_) over_.store(true, std::memory_order_relaxed);
-  }
-  bool over_budget() const { return over_.load(std::memory_order_relaxed); }
-  int64_t live_bytes() const { return live_.load(); }
-  int64_t peak_bytes() const { return peak_.load(); }
+  /// pending node becomes an empty leaf and GridKdHybrid::build throws instead of exhausting RAM.
+  void charge(int64_t bytes) { account_.charge(bytes); }
+  bool over_budget() const { return account_.over_budget(); }
+  int64_t live_bytes() const { return account_.live_bytes(); }
+  int64_t peak_bytes() const { return account_.peak_bytes(); }
   uint64_t leaf_refs() const { return leaf_refs_.load(); }
   uint64_t nodes_made() const { return nodes_made_.load(); }
 
@@ -160,7 +156,7 @@ class TreeBuilder {
   /// The triangle clipped to the node box [lo, hi) widened by kRangeEps, as an inclusive
   /// integer cell range. False if the triangle misses the box.
   bool clip_range(uint32_t prim, const int32_t lo[3], const int32_t hi[3], Ref& out) const {
-    constexpr double eps = Hybrid::kRangeEps;
+    constexpr double eps = GridKdHybrid::kRangeEps;
     double blo[3], bhi[3], bl[3], bh[3];
     for (int a = 0; a < 3; ++a) {
       blo[a] = double(lo[a]) - eps;
@@ -195,14 +191,14 @@ class TreeBuilder {
     // A leaf far larger than the auto grid's (a coarse explicit cell, one cell for the whole
     // scene) gets the kd-tree's whole depth rule: 6 levels would leave thousands of triangles
     // per subtree leaf.
-    const KdSubtreeBuilder& kd = node.prims.size() > Hybrid::kSubDeepMin ? kd_deep_ : kd_;
+    const KdSubtreeBuilder& kd = node.prims.size() > GridKdHybrid::kSubDeepMin ? kd_deep_ : kd_;
     kd.build(node.prims, box, nodes, node.sub_refs, bounds);
     const float f[8] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, -kInf,
                         bounds.hi.x, bounds.hi.y, bounds.hi.z, kInf};
-    static_assert(sizeof f == Hybrid::kSubBoxNodes * sizeof(KdNode));
-    node.sub_nodes.resize(Hybrid::kSubBoxNodes + nodes.size());
+    static_assert(sizeof f == GridKdHybrid::kSubBoxNodes * sizeof(KdNode));
+    node.sub_nodes.resize(GridKdHybrid::kSubBoxNodes + nodes.size());
     std::memcpy(node.sub_nodes.data(), f, sizeof f);
-    std::copy(nodes.begin(), nodes.end(), node.sub_nodes.begin() + Hybrid::kSubBoxNodes);
+    std::copy(nodes.begin(), nodes.end(), node.sub_nodes.begin() + GridKdHybrid::kSubBoxNodes);
     charge(
         int64_t(node.sub_nodes.size() * sizeof(KdNode) + node.sub_refs.size() * sizeof(uint32_t)));
     // The leaf's references are the subtree's (leaf_refs() counts what flattening copies).
@@ -329,15 +325,13 @@ class TreeBuilder {
   uint32_t subtree_min_ = 0;
   int max_depth_;
   std::atomic<uint64_t> evals_{0};
-  int64_t budget_ = 0;
-  std::atomic<int64_t> live_{0}, peak_{0};
-  std::atomic<bool> over_{false};
+  MemoryAccount account_;
   std::atomic<uint64_t> leaf_refs_{0}, nodes_made_{0};
 };
 
 }  // namespace
 
-void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
+void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
   TreeBuilder tb(mesh, origin_, cell_, dims_, params);
   std::unique_ptr<BuildNode> root = tb.build_root();
   stats_.sah_evaluations = tb.sah_evaluations();
