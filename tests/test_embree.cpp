@@ -8,6 +8,7 @@
 
 #include "accel/embree.h"
 #include "comparator_meshes.h"
+#include "test_util.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -42,25 +43,32 @@ std::string extra(const BuildStats& st, const std::string& key) {
 }
 
 // Every configuration is held to the allowances above, the default flags to their own on the
-// edge-aimed quads.
-TEST(Embree, AgreesWithBruteForceOnProceduralMeshes) {
-  for (const EmbreeConfig& config : embree_configs()) {
-    for (const auto& [name, mesh] : test::test_meshes()) {
-      SCOPED_TRACE(config.name + " on " + name);
-      EmbreeAccel e(config);
-      const BuildStats st = e.build(mesh, BuildParams{});
-      EXPECT_GT(st.bytes, 0u);
-      const auto rays = test::random_rays(mesh, 17, 20000);
-      int hits = 0;
-      const int bad = test::count_disagreements(mesh, e, rays, 0, &hits, kTol);
-      std::printf("%s vs brute on %s: %d of %zu rays disagree\n", config.name.c_str(), name.c_str(),
-                  bad, rays.size());
-      EXPECT_LE(double(bad), allowed_fraction(name, config.robust) * double(rays.size()))
-          << bad << " of " << rays.size() << " rays disagree";
-      EXPECT_GT(hits, 2000);
-    }
+// edge-aimed quads. One test per configuration, so ctest runs them side by side.
+class EmbreeConfigs : public ::testing::TestWithParam<size_t> {};  // index in embree_configs()
+
+TEST_P(EmbreeConfigs, AgreesWithBruteForceOnProceduralMeshes) {
+  const EmbreeConfig& config = embree_configs().at(GetParam());
+  for (const auto& [name, mesh] : test::test_meshes()) {
+    SCOPED_TRACE(config.name + " on " + name);
+    EmbreeAccel e(config);
+    const BuildStats st = e.build(mesh, BuildParams{});
+    EXPECT_GT(st.bytes, 0u);
+    const auto rays = test::random_rays(mesh, 17, 20000);
+    int hits = 0;
+    const int bad = test::count_disagreements(mesh, e, rays, 0, &hits, kTol);
+    std::printf("%s vs brute on %s: %d of %zu rays disagree\n", config.name.c_str(), name.c_str(),
+                bad, rays.size());
+    EXPECT_LE(double(bad), allowed_fraction(name, config.robust) * double(rays.size()))
+        << bad << " of " << rays.size() << " rays disagree";
+    EXPECT_GT(hits, 2000);
   }
 }
+
+INSTANTIATE_TEST_SUITE_P(Embree, EmbreeConfigs,
+                         ::testing::Range(size_t(0), embree_configs().size()),
+                         [](const ::testing::TestParamInfo<size_t>& p) {
+                           return test::test_name(embree_configs().at(p.param).name);
+                         });
 
 // The benchmark's reference is Embree as a user runs it: `embree` is built with the default
 // scene flags at medium quality (Embree's defaults); the robust and high-quality
