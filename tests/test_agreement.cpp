@@ -169,7 +169,7 @@ INSTANTIATE_TEST_SUITE_P(AllStructures, Agreement,
                          ::testing::Combine(::testing::ValuesIn(structures_under_test()),
                                             ::testing::ValuesIn(scene_indices())),
                          [](const ::testing::TestParamInfo<Param>& p) {
-                           return std::get<0>(p.param) + "_" +
+                           return test::test_name(std::get<0>(p.param)) + "_" +
                                   scene_cases()[std::get<1>(p.param)].name;
                          });
 
@@ -294,6 +294,35 @@ TEST(AgreementHarness, AcceptsTiesOnlyAtTheSameT) {
   const auto lie = test::compare_with_reference(ReportsPrim(2, 1.0f), mesh, rays, ref, {}, "t");
   EXPECT_FALSE(lie.ok());
   EXPECT_EQ(lie.prim_mismatch, 1u);
+}
+
+// Hits at a ray's start: a structure that skips them (here DropHalf, which has no triangle 0)
+// disagrees, unless the rule leaves such rays unjudged; a hit it skips further along the ray
+// is still a disagreement under that rule. Embree's configurations get the rule by robustness.
+TEST(AgreementHarness, StartHitsAreUnjudgedOnlyWhenTheRuleSaysSo) {
+  // DropHalf tests triangles 0, 2, ... only: triangle 0 is degenerate, so it misses everything,
+  // and the reference's hits are on triangle 1.
+  Mesh mesh;
+  mesh.positions = {{-1, -1, 0}, {1, -1, 0}, {0, 1, 0}};
+  mesh.triangles = {{0, 0, 0}, {0, 1, 2}};
+  DropHalf skips;
+  skips.build(mesh, BuildParams{});
+  const std::vector<Ray> at_start = {{{0, 0, 0}, 0.0f, {0, 0, 1}, kInf}};
+  const std::vector<Ray> further = {{{0, 0, -1}, 0.0f, {0, 0, 1}, kInf}};
+  const std::vector<Hit> ref_start = {{0.0f, 1, 0, 0}}, ref_further = {{1.0f, 1, 0, 0}};
+  test::AgreementRule strict, lenient;
+  lenient.start_hits_ambiguous = true;
+  EXPECT_FALSE(test::compare_with_reference(skips, mesh, at_start, ref_start, strict, "s").ok());
+  const auto start = test::compare_with_reference(skips, mesh, at_start, ref_start, lenient, "s");
+  EXPECT_TRUE(start.ok()) << start.summary();
+  EXPECT_EQ(start.start_hits, 1u);
+  const auto far = test::compare_with_reference(skips, mesh, further, ref_further, lenient, "f");
+  EXPECT_FALSE(far.ok());
+  EXPECT_EQ(far.start_hits, 0u);
+  EXPECT_TRUE(test::rule_for("embree", "shadow").start_hits_ambiguous);
+  EXPECT_TRUE(test::rule_for("embree-high", "shadow").start_hits_ambiguous);
+  EXPECT_FALSE(test::rule_for("embree-robust", "shadow").start_hits_ambiguous);
+  EXPECT_FALSE(test::rule_for("hybrid", "shadow").start_hits_ambiguous);
 }
 
 }  // namespace

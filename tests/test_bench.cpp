@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -23,6 +24,7 @@
 #include "bench/raysets.h"
 #include "bench/suite.h"
 #include "bench/sweep.h"
+#include "math/simd.h"
 #include "scene/procedural.h"
 #include "temp_dir.h"
 #include "test_util.h"
@@ -310,14 +312,14 @@ void expect_every_field(const BenchReport& rep, const std::vector<std::string>& 
         if (x.set != "shadow") {
           EXPECT_GT(x.hits, 0u);
         }
-        EXPECT_EQ(x.counted, a.accel != "embree") << "only Embree cannot count";
+        EXPECT_EQ(x.counted, !is_embree(a.accel)) << "only Embree cannot count";
         if (x.counted) {
           EXPECT_GT(x.steps_per_ray, 0.0);
           EXPECT_GT(x.tests_per_ray, 0.0);
         }
         if (a.accel == s.reference) {
           EXPECT_LT(x.agreement, 0.0) << "the reference is not compared with itself";
-        } else if (a.accel == "embree") {
+        } else if (is_embree(a.accel)) {
           // Embree's own triangle test may decide grazing silhouette rays differently.
           EXPECT_GE(x.agreement, 0.999);
         } else {
@@ -393,7 +395,7 @@ TEST(Bench, ExactStructuresAgreeWithEmbree) {
   for (const auto& s : rep.scenes)
     for (const auto& a : s.structures)
       for (const auto& x : a.sets)
-        if (a.accel != "embree") {
+        if (!is_embree(a.accel)) {
           EXPECT_GE(x.agreement, 0.999) << s.name << " " << a.accel << " " << x.set;
         }
 }
@@ -554,6 +556,34 @@ TEST(BenchCli, SmokeRunWritesJsonWithEveryField) {
   }
   EXPECT_NE(slurp(md).find("Throughput"), std::string::npos);
   EXPECT_NE(slurp(log).find("[2/2] box2"), std::string::npos) << "progress on stderr";
+
+  // The reference is Embree as a user runs it (default flags, medium quality), beside its
+  // robust and high-quality configurations; every row says which Embree it is.
+  for (const auto& s : j["scenes"]) EXPECT_EQ(s["reference"], "embree");
+  std::map<std::string, std::pair<std::string, std::string>> embree;  // flags, quality
+  for (const auto& b : j["builds"])
+    if (is_embree(b["accel"].get<std::string>()))
+      embree[b["accel"]] = {b["extra"]["flags"], b["extra"]["quality"]};
+  EXPECT_EQ(embree["embree"], std::make_pair(std::string("default"), std::string("medium")));
+  EXPECT_EQ(embree["embree-robust"], std::make_pair(std::string("robust"), std::string("medium")));
+  EXPECT_EQ(embree["embree-high"], std::make_pair(std::string("default"), std::string("high")));
+  EXPECT_NE(slurp(md).find("| box | embree (default flags, medium quality) (ref) |"),
+            std::string::npos)
+      << slurp(md);
+  EXPECT_NE(slurp(md).find("| box | embree-high (default flags, high quality) |"),
+            std::string::npos);
+  // The SIMD each side used: kdgrid's from the build, Embree's as it reports it.
+  const json& simd = j["meta"]["simd"];
+  EXPECT_EQ(simd["kdgrid"]["isa"], kBuildIsa);
+  EXPECT_EQ(simd["kdgrid"]["lanes"], kTraversalLanes);
+  EXPECT_EQ(simd["embree"]["isa"], embree_isa().isa);
+  EXPECT_EQ(simd["embree"]["native_packet"], embree_isa().native_packet);
+  EXPECT_EQ(simd["embree"]["version"], embree_isa().version);
+  EXPECT_NE(embree_isa().isa, "unknown");
+  EXPECT_NE(slurp(md).find("SIMD: kdgrid built for " + std::string(kBuildIsa)), std::string::npos);
+  EXPECT_NE(slurp(md).find("Embree " + embree_isa().version + " with its " + embree_isa().isa +
+                           " kernels"),
+            std::string::npos);
 }
 
 TEST(BenchCli, MalformedSuiteFailsAtTheEndAfterTheOthersRan) {

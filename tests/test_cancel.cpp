@@ -44,7 +44,7 @@ BuildParams slow_params(const std::string& name) {
     p.hybrid_max_build_seconds = 0.0;  // a long build is the point: not refused up front
   }
   if (name == "grid") p.grid_lambda = 64.0f;
-  if (name == "embree") p.embree_quality = "high";
+  if (is_embree(name)) p.embree_quality = "high";  // embree-high is high whatever this says
   if (name == "irregular") p.irregular_sub_density = 8.0f;
   return p;
 }

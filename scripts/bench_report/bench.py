@@ -2,6 +2,37 @@
 from .common import g, img, mib, ordered_unique, prose, rel_to_suite, table
 
 
+def simd_text(meta):
+    """The SIMD each side used, from bench.json's meta.simd (kdgrid bench records it)."""
+    simd = meta.get("simd")
+    if not simd:
+        return "SIMD: not recorded in this bench.json."
+    k, e = simd["kdgrid"], simd["embree"]
+    return prose("bench", "simd", kdgrid_isa=k["isa"], kdgrid_lanes="%d" % k["lanes"],
+                 embree_version=e["version"], embree_isa=e["isa"],
+                 embree_packet="%d" % e["native_packet"])
+
+
+def labels(builds):
+    """Row labels: the structure's name, and for Embree's configurations the scene flags and
+    build quality its builds report (BuildStats::extra)."""
+    out = {}
+    for x in builds:
+        ex = x.get("extra") or {}
+        if x["accel"] not in out or "flags" in ex:
+            out[x["accel"]] = x["accel"] + (" (%s flags, %s quality)" % (ex["flags"], ex["quality"])
+                                            if x["accel"].startswith("embree") and "flags" in ex
+                                            and "quality" in ex else "")
+    return out
+
+
+def geomean_of(vals):
+    gm = 1.0
+    for v in vals:
+        gm *= max(v, 1e-12)
+    return gm ** (1.0 / len(vals))
+
+
 def bench_section(b, run, md_dir, img_dir):
     meta = b["meta"]
     results = b["results"]
@@ -14,6 +45,9 @@ def bench_section(b, run, md_dir, img_dir):
     bld = {(x["scene"], x["accel"]): x for x in builds}
     ref = ordered_unique(r["reference"] for r in results)
     ref = ref[0] if ref else "embree"
+    name = labels(builds)
+    setup = prose("bench", "setup", cpu=run.get("cpu", meta["machine"]),
+                  threads="%d" % meta["threads"], simd=simd_text(meta))
     out = []
 
     rows = []
@@ -30,7 +64,7 @@ def bench_section(b, run, md_dir, img_dir):
     for st in sets:
         rows = []
         for a in accels:
-            row = [a + (" (reference)" if a == ref else "")]
+            row = [name[a] + (" (reference)" if a == ref else "")]
             for s in scenes:
                 r = res.get((s, a, st))
                 row.append("%s (%s)" % (g(r["ratio_to_reference"]), g(r["mrays"])) if r else "-")
@@ -41,25 +75,27 @@ def bench_section(b, run, md_dir, img_dir):
     # Generated observations: best non-reference structure per set, averaged over scenes.
     obs = []
     for st in sets:
-        best = None
+        best = hybrid = None
         for a in accels:
             if a == ref:
                 continue
             vals = [res[(s, a, st)]["ratio_to_reference"] for s in ok_scenes if (s, a, st) in res]
             if len(vals) != len(ok_scenes) or not vals:
                 continue
-            gm = 1.0
-            for v in vals:
-                gm *= max(v, 1e-12)
-            gm **= 1.0 / len(vals)
+            gm = geomean_of(vals)
             if best is None or gm > best[1]:
                 best = (a, gm, min(vals), max(vals))
+            if a == "hybrid":
+                hybrid = (gm, min(vals), max(vals))
         if best:
-            obs.append(prose("bench", "observation", set=st, ref=ref, best=best[0],
+            obs.append(prose("bench", "observation", set=st, ref=ref, best=name[best[0]],
                              mean=g(best[1]), lo=g(best[2]), hi=g(best[3])))
+        if hybrid:
+            obs.append(prose("bench", "hybrid-observation", set=st, ref=name[ref],
+                             mean=g(hybrid[0]), lo=g(hybrid[1]), hi=g(hybrid[2])))
     out.append(prose(
         "bench", "throughput", ref=ref, reps="%d" % meta["reps"], threads="%d" % meta["threads"],
-        tables="".join(tables),
+        setup=setup, tables="".join(tables),
         ratio_plot=img(md_dir, img_dir, "bench_ratio.png", "throughput ratio to " + ref),
         mrays_plot=img(md_dir, img_dir, "bench_mrays.png", "throughput in Mrays/s"),
         observations="\n" + "\n".join(obs) + "\n" if obs else ""))
@@ -68,7 +104,7 @@ def bench_section(b, run, md_dir, img_dir):
     for st in sets:
         rows = []
         for a in accels:
-            row = [a]
+            row = [name[a]]
             for s in scenes:
                 r = res.get((s, a, st))
                 row.append("%s / %s / %s" % (g(r["steps_per_ray"]), g(r["leaves_per_ray"]),
@@ -78,7 +114,8 @@ def bench_section(b, run, md_dir, img_dir):
         tables.append(prose("bench", "work-set", set=st,
                             table=table(["structure"] + scenes, rows)))
     out.append(prose("bench", "work", tables="".join(tables),
-                     uncounted="Embree" if "embree" in accels else "Some structures",
+                     uncounted="Embree" if any(a.startswith("embree") for a in accels)
+                     else "Some structures",
                      counts_plot=img(md_dir, img_dir, "bench_counts.png",
                                      "steps and tests per ray")))
 
@@ -87,7 +124,7 @@ def bench_section(b, run, md_dir, img_dir):
         if a == ref:
             continue
         for st in sets:
-            row = [a, st]
+            row = [name[a], st]
             for s in scenes:
                 r = res.get((s, a, st))
                 if not r or r.get("agreement") is None:
@@ -106,10 +143,10 @@ def bench_section(b, run, md_dir, img_dir):
             if not x:
                 continue
             if not x.get("ok", True):
-                rows.append([s, a, "**failed**: " + x.get("error", "")] + [""] * 7)
+                rows.append([s, name[a], "**failed**: " + x.get("error", "")] + [""] * 7)
                 continue
             parts = ", ".join("%s %s" % (k, mib(v)) for k, v in x.get("bytes_by_part", {}).items())
-            rows.append([s, a, g(x["build_seconds"]), g(x["build_mtris_per_s"]), mib(x["bytes"]),
+            rows.append([s, name[a], g(x["build_seconds"]), g(x["build_mtris_per_s"]), mib(x["bytes"]),
                          g(x["bytes_per_triangle"]), mib(x["peak_rss_bytes"]),
                          mib(x.get("rss_growth_bytes", 0)), mib(x["process_peak_rss_bytes"]),
                          parts])
@@ -118,7 +155,7 @@ def bench_section(b, run, md_dir, img_dir):
     errors = "".join("- %s%s: %s\n" % (e.get("scene", ""), " / " + e["accel"] if "accel" in e
                                         else "", e["error"]) for e in b.get("errors") or [])
     out.append(prose(
-        "bench", "build",
+        "bench", "build", setup=setup,
         table=table(["scene", "structure", "build s", "build Mtris/s", "MiB", "bytes/tri",
                      "peak RSS MiB", "growth MiB", "process peak MiB", "parts (MiB)"], rows,
                     ["---", "---"] + ["---:"] * 7 + ["---"]),

@@ -1,7 +1,8 @@
 """The hybrid's variants section, from hybrid-*.json (scripts/hybrid-variants.sh)."""
 import os
 
-from .common import g, load, prose, table
+from .bench import labels
+from .common import g, load, ordered_unique, prose, table
 
 
 HYBRID_VARIANTS = [("default", "default: leaf subtrees, empty-leaf boxes"),
@@ -47,7 +48,10 @@ def hybrid_variants_section(results_dir):
                          g(kds.get("ratio_to_reference")) if kds else "-", g(vs_kd),
                          g(hs.get("steps_per_ray")), g(hs.get("tests_per_ray")),
                          g(hb.get("bytes_per_triangle")), g(hb.get("build_seconds"))])
-    return prose("hybrid_variants", "section", width="%d" % meta["width"],
+    # Which Embree the ratios refer to (its scene flags and build quality), from the runs.
+    embree = ordered_unique(labels(b["builds"]).get("embree", "embree") for _, _, b in runs)
+    return prose("hybrid_variants", "section", embree=" and ".join("`%s`" % e for e in embree),
+                 width="%d" % meta["width"],
                  height="%d" % meta["height"], threads="%d" % meta["threads"],
                  reps="%d" % meta["reps"], clock=meta.get("clock", "wall"),
                  table=table(["variant", "scene", "hybrid / Embree", "kd-tree / Embree",

@@ -18,7 +18,14 @@ def build_page(results_dir, md_dir, img_dir, root):
     run = load(os.path.join(results_dir, "run.json")) or {}
     facts = []
     if b:
+        simd = b["meta"].get("simd")
         facts += [("CPU", run.get("cpu", b["meta"]["machine"])),
+                  ("SIMD, kdgrid", "%s build; one ray at a time, the hybrid's walk in %d-lane "
+                   "vectors" % (simd["kdgrid"]["isa"], simd["kdgrid"]["lanes"])
+                   if simd else "not recorded"),
+                  ("SIMD, Embree", "Embree %s, %s kernels (native ray packets of %d)" % (
+                      simd["embree"]["version"], simd["embree"]["isa"],
+                      simd["embree"]["native_packet"]) if simd else "not recorded"),
                   ("threads used", "%d of %d hardware threads" % (b["meta"]["threads"],
                                                                   b["meta"]["hardware_threads"])),
                   ("date", b["meta"]["date"]),

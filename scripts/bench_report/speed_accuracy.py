@@ -18,11 +18,47 @@ def pct(n, d):
     return "-" if not d else "%s / %s (%s%%)" % (int(n), int(d), g(100.0 * n / d))
 
 
+def embree_flag_rows(bench, chk):
+    """Embree's scene flags as a speed/accuracy option: its default flags (`embree`, the
+    bench's reference) and RTC_SCENE_FLAG_ROBUST (`embree-robust`), their primary-ray speed
+    from bench.json beside their unambiguous disagreements in the extreme-ray suite."""
+    if not bench:
+        return []
+    prim = [r for r in bench["results"] if r["set"] == "primary" and r.get("mrays")]
+    if not any(r["accel"] == "embree-robust" for r in prim):
+        return []
+    scenes = ordered_unique(r["scene"] for r in prim)
+    rows = []
+    for accel, label in (("embree", "default flags (`embree`)"),
+                         ("embree-robust", "`RTC_SCENE_FLAG_ROBUST` (`embree-robust`)")):
+        mine = {r["scene"]: r for r in prim if r["accel"] == accel}
+        speeds = ", ".join("%s %s" % (s, g(mine[s]["mrays"])) for s in scenes if s in mine)
+        # Paired ratios to the reference; the default flags are the reference when the bench
+        # ran with its default reference.
+        ratios = [mine[s]["ratio_to_reference"] for s in scenes
+                  if s in mine and mine[s].get("reference") == "embree"]
+        gm = geomean(ratios) if len(ratios) == len(scenes) else None
+        vs = "-" if gm is None else (g(gm) if accel == "embree" else "%s (%s to %s)" % (
+            g(gm), g(min(ratios)), g(max(ratios))))
+        rate = "not measured"
+        if chk and chk.get("check"):
+            mc = [r for r in chk["check"] if r["structure"] == accel]
+            if mc:
+                rate = "%s (%d ambiguous)" % (pct(sum(r["disagree"] for r in mc),
+                                                  sum(r["rays"] for r in mc)),
+                                              sum(r["ambiguous"] for r in mc))
+        rows.append(["Embree scene flags", label + (" (default)" if accel == "embree" else ""),
+                     "primary rays of the suite, Mrays/s: " + speeds, vs,
+                     "extreme-ray suite disagreements", rate])
+    return rows
+
+
 def speed_accuracy_section(results_dir):
     """Each option's speed next to its accuracy figure (leaks, acne), from the result files."""
     tri = load(os.path.join(results_dir, "sweep-triangle.json"))
     chk = load(os.path.join(results_dir, "check.json"))
     cell = load(os.path.join(results_dir, "sweep-cellsize.json"))
+    bench = load(os.path.join(results_dir, "bench.json"))
     if not (tri or chk):
         return ""
     rows = []
@@ -77,6 +113,7 @@ def speed_accuracy_section(results_dir):
             rows.append(["secondary-ray offset", label + (" (default)" if default else ""),
                          speed, g(base / secs) if secs and base else "-", "acne",
                          pct(hits, rays) + spread])
+    rows += embree_flag_rows(bench, chk)
     if cell:
         ok = [r for r in cell["rows"] if "error" not in r and r.get("mrays")]
         auto = next((r for r in ok if r.get("label") == "auto"), None)

@@ -37,6 +37,20 @@ class Page(unittest.TestCase):
         self.assertTrue(page == committed, "docs/RESULTS.md differs from what docs/results and "
                         "the templates give; regenerate it: " + REGENERATE)
 
+    def test_tables_state_cpu_simd_and_which_embree(self):
+        # The reference is Embree as a user runs it, beside its robust and high-quality
+        # configurations; the throughput and build tables say the CPU and each side's SIMD.
+        page = build_page(RESULTS, os.path.join(ROOT, "docs"), os.path.join(ROOT, "docs", "img"),
+                          ROOT)
+        for row in ("| embree (default flags, medium quality) (reference) |",
+                    "| embree-robust (robust flags, medium quality) |",
+                    "| embree-high (default flags, high quality) |"):
+            self.assertIn(row, page)
+        self.assertEqual(page.count("SIMD: kdgrid built for "), 2)
+        self.assertIn("| SIMD, Embree | Embree 3.", page)
+        self.assertIn("- primary rays: the hybrid is ", page)
+        self.assertIn("| Embree scene flags | `RTC_SCENE_FLAG_ROBUST` (`embree-robust`) |", page)
+
     def test_absent_files_give_not_measured_sections(self):
         with tempfile.TemporaryDirectory() as tmp:
             res = os.path.join(tmp, "results")

@@ -46,9 +46,10 @@ void add_sweep_command(CLI::App& app) {
   cmd->add_option("--values", a->values,
                   "Comma-separated values of the knob (cellsize: multiples of the auto size; "
                   "spp: sample counts)");
-  cmd->add_option("--structures", a->accel,
-                  "triangle: comma-separated structures (default all but brute and embree); "
-                  "spp: the renderer's structure (default bvh)");
+  cmd->add_option(
+      "--structures", a->accel,
+      "triangle: comma-separated structures (default all but brute and Embree's configurations); "
+      "spp: the renderer's structure (default bvh)");
   cmd->add_option("--threads", a->threads, "Threads; 0 = all")->capture_default_str();
   cmd->add_option("--reps", a->reps, "Timed repetitions per row (median reported)")
       ->capture_default_str();

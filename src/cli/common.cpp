@@ -22,7 +22,8 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
   // Each flag is named after the BuildParams field it sets (accel/params.h documents them);
   // the second name of a renamed flag is its earlier name, still accepted.
   cmd->add_option("--accel", accel,
-                  "Structure: brute, bvh, grid, kdtree, hybrid, irregular, embree")
+                  "Structure: brute, bvh, grid, kdtree, hybrid, irregular, embree (Embree's "
+                  "default flags), embree-robust, embree-high")
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--cell-size", cell_size,
@@ -88,7 +89,7 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--embree-quality", params.embree_quality,
-                  "Embree build quality: low, medium, high")
+                  "Embree build quality of embree and embree-robust: low, medium, high")
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--memory-budget-mb", budget_mb_,

@@ -212,7 +212,7 @@ void Viewer::draw_panels() {
       chk("test/step cost");
     } else if (accel_name_ == "hybrid") {
       draw_cell_size_controls(p, rebuild);
-    } else if (accel_name_ != "brute" && accel_name_ != "embree") {
+    } else if (accel_name_ != "brute" && !is_embree(accel_name_)) {
       if (cell_size_slider_ <= 0)
         cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
       bool auto_cs = params_.cell_size <= 0 && accel_name_ != "grid";

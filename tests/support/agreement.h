@@ -39,6 +39,7 @@
 
 #include "accel/accelerator.h"
 #include "accel/brute.h"
+#include "accel/embree.h"
 #include "bench/rayfile.h"
 #include "scene/mesh.h"
 
@@ -54,6 +55,10 @@ struct AgreementRule {
   float abs_tol_scene = 1e-6f;  ///< absolute tolerance, times the scene diagonal / |dir|
   double min_fraction = 1.0;    ///< fraction of rays that must agree on every criterion
   int max_examples = 5;         ///< disagreements printed
+  /// Rays whose reference hit lies at their start (t within the absolute tolerance of tmin: a
+  /// secondary ray leaving a surface, or an overlapping coplanar neighbour of it) are not
+  /// judged: whether a hit at the very start counts is the triangle test's convention.
+  bool start_hits_ambiguous = false;
 };
 
 /// Structures that are not held to exact agreement: Embree intersects with its own triangle
@@ -61,11 +66,17 @@ struct AgreementRule {
 /// rays must agree on 99.99% of rays. Secondary rays start on surfaces, where Embree
 /// reports t = 0 hits on overlapping coplanar neighbours of the surface the ray leaves (2% of
 /// the diffuse rays of the coplanar-quads scene, measured), so they are held to 97%.
+/// Without RTC_SCENE_FLAG_ROBUST (`embree`, `embree-high`) Embree does not report those t = 0
+/// hits at all, where the reference does: 392 of the 7234 shadow rays of the coplanar-quads
+/// scene (measured), all starting on a surface the reference hits at t = 0. Such rays are not
+/// judged for those configurations (start_hits_ambiguous); `embree-robust` is held to all.
 inline AgreementRule rule_for(const std::string& structure, const std::string& set = "primary") {
   AgreementRule r;
-  if (structure == "embree") {
+  if (is_embree(structure)) {
     r.rel_tol = 1e-4f;
     r.min_fraction = (set == "primary" || set == "random") ? 0.9999 : 0.97;
+    for (const EmbreeConfig& c : embree_configs())
+      if (c.name == structure) r.start_hits_ambiguous = !c.robust;
   }
   return r;
 }
@@ -170,6 +181,7 @@ struct AgreementReport {
   size_t any_mismatch = 0;   ///< occluded() differs from the reference
   size_t disagreeing = 0;    ///< rays failing at least one criterion
   size_t ties = 0;           ///< different triangle accepted as a tie
+  size_t start_hits = 0;     ///< not judged: reference hit at the ray's start (the rule allows)
   double min_fraction = 1.0;
   std::vector<std::string> examples;
 
@@ -180,8 +192,9 @@ struct AgreementReport {
     std::ostringstream o;
     o << structure << " on " << set << ": " << rays << " rays, " << disagreeing
       << " disagree (hit/miss " << miss_mismatch << ", t " << t_mismatch << ", triangle "
-      << prim_mismatch << ", any-hit " << any_mismatch << "; " << ties
-      << " ties accepted); required agreement " << min_fraction * 100.0 << "%";
+      << prim_mismatch << ", any-hit " << any_mismatch << "; " << ties << " ties accepted; "
+      << start_hits << " rays hitting at their start not judged); required agreement "
+      << min_fraction * 100.0 << "%";
     for (const auto& e : examples) o << "\n  " << e;
     return o.str();
   }
@@ -217,7 +230,7 @@ inline AgreementReport compare_with_reference(
   rep.rays = rays.size();
   rep.min_fraction = rule.min_fraction;
   const float diag = length(mesh.bounds().extent());
-  std::atomic<size_t> miss{0}, tm{0}, pm{0}, am{0}, dis{0}, ties{0};
+  std::atomic<size_t> miss{0}, tm{0}, pm{0}, am{0}, dis{0}, ties{0}, starts{0};
   std::mutex mu;
   std::vector<std::pair<size_t, std::string>> examples;
   tbb::parallel_for(
@@ -234,6 +247,10 @@ inline AgreementReport compare_with_reference(
           auto close = [&](float a, float b) {
             return std::fabs(a - b) <= rule.rel_tol * std::fabs(b) + abs_tol;
           };
+          if (rule.start_hits_ambiguous && want.valid() && want.t <= ray.tmin + abs_tol) {
+            ++starts;
+            continue;
+          }
           std::string why;
           if (hit != want.valid() || (hit && !got.valid())) {
             ++miss;
@@ -281,6 +298,7 @@ inline AgreementReport compare_with_reference(
   rep.any_mismatch = am;
   rep.disagreeing = dis;
   rep.ties = ties;
+  rep.start_hits = starts;
   return rep;
 }
 

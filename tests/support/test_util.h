@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cctype>
 #include <exception>
 #include <filesystem>
 #include <functional>
@@ -20,6 +21,14 @@ inline std::string shared_scene(const std::string& rel) {
   if (dir.empty()) return "";
   const auto p = std::filesystem::path(dir) / rel;
   return std::filesystem::exists(p) ? p.string() : "";
+}
+
+/// A GoogleTest parameter name for a structure name: letters, digits and '_' only, so
+/// "embree-robust" becomes "embree_robust".
+inline std::string test_name(std::string s) {
+  for (char& c : s)
+    if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+  return s;
 }
 
 inline std::string source_path(const std::string& rel) {

@@ -253,6 +253,9 @@ class AcceleratorBase : public Accelerator {
 
 /// Names accepted by make_accelerator, in the order tables list them.
 std::vector<std::string> accelerator_names();
+/// Whether `name` is one of Embree's configurations (embree, embree-robust, embree-high;
+/// accel/embree.h): the external reference, with its own triangle test and no counters.
+bool is_embree(const std::string& name);
 /// Creates an (unbuilt) accelerator by name. Throws ParamError naming the valid choices.
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name);
 /// Convenience: create and build, returning the structure (its stats() hold BuildStats).

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <string>
+#include <utility>
 
 #include "accel/guards.h"
 #include "accel/triangle.h"
@@ -100,7 +101,39 @@ float to_rtc(const Ray& r, RTCRay& out) {
 
 }  // namespace
 
-EmbreeAccel::EmbreeAccel() : state_(std::make_unique<State>()) {}
+const std::vector<EmbreeConfig>& embree_configs() {
+  static const std::vector<EmbreeConfig> configs = {
+      {"embree", false, ""}, {"embree-robust", true, ""}, {"embree-high", false, "high"}};
+  return configs;
+}
+
+const EmbreeIsa& embree_isa() {
+  static const EmbreeIsa isa = [] {
+    EmbreeIsa out;
+    out.isa = "unknown";
+    RTCDevice d = rtcNewDevice(nullptr);
+    if (!d) return out;
+    const ssize_t v = rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_VERSION);  // 31305 = 3.13.5
+    out.version = std::to_string(v / 10000) + "." + std::to_string(v / 100 % 100) + "." +
+                  std::to_string(v % 100);
+    if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED)) {
+      out.isa = "AVX-512";
+      out.native_packet = 16;
+    } else if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED)) {
+      out.isa = "AVX or AVX2";
+      out.native_packet = 8;
+    } else if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY4_SUPPORTED)) {
+      out.isa = "SSE";
+      out.native_packet = 4;
+    }
+    rtcReleaseDevice(d);
+    return out;
+  }();
+  return isa;
+}
+
+EmbreeAccel::EmbreeAccel(EmbreeConfig config)
+    : config_(std::move(config)), state_(std::make_unique<State>()) {}
 EmbreeAccel::~EmbreeAccel() {
   release();
 }
@@ -120,7 +153,9 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
     throw ParamError(
         "embree: its traversal cannot run without its own triangle tests, so it has "
         "no traversal-only timing; drop --traversal-only or choose another --accel");
-  const RTCBuildQuality quality = parse_quality(params.embree_quality);
+  const std::string quality_name =
+      config_.quality.empty() ? params.embree_quality : config_.quality;
+  const RTCBuildQuality quality = parse_quality(quality_name);
   const auto t_start = std::chrono::steady_clock::now();
   // Memory guard before anything is allocated: the padded vertex copy plus what Embree's
   // own allocations reached at their peak on the scenes measured (about 70-100 bytes per
@@ -135,6 +170,10 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
                           params, "Embree's memory grows with the triangle count: split the scene");
   release();
   stats_ = {};
+  quality_.clear();
+  // Asked before this build's device exists: the query's own device, created once, would
+  // otherwise reset Embree's thread limit (threads=N) while it lives.
+  const EmbreeIsa& isa = embree_isa();
   mesh_ = &mesh;
 
   const std::string config =
@@ -152,9 +191,9 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   rtcSetDeviceMemoryMonitorFunction(st.device, memory_monitor, &st.memory);
 
   st.scene = rtcNewScene(st.device);
-  // Robust mode avoids Embree's fast-path shortcuts that can miss hits on edges, so that the
-  // reference agrees with kdgrid's watertight test as closely as possible.
-  rtcSetSceneFlags(st.scene, RTC_SCENE_FLAG_ROBUST);
+  // Robust mode avoids Embree's fast-path shortcuts that can miss hits on edges (at some
+  // speed); the default flags are what a user of Embree gets (see embree.h).
+  rtcSetSceneFlags(st.scene, config_.robust ? RTC_SCENE_FLAG_ROBUST : RTC_SCENE_FLAG_NONE);
   rtcSetSceneBuildQuality(st.scene, quality);
   if (params.cancel)
     rtcSetSceneProgressMonitorFunction(st.scene, keep_building,
@@ -201,6 +240,7 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
     throw Error("embree: building the scene failed: " +
                 (st.error.empty() ? std::string("unknown error") : st.error));
 
+  quality_ = quality_name;
   stats_.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   const uint64_t embree_bytes = uint64_t(std::max<int64_t>(0, st.memory.bytes.load()));
@@ -209,11 +249,17 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   stats_.bytes_by_part = {{"embree", embree_bytes}, {"vertex_copy", copy_bytes}};
   stats_.references = nt;
   stats_.extra = {
-      {"quality", params.embree_quality},
-      {"flags", "robust"},
+      {"quality", quality_name},
+      {"flags", robust() ? "robust" : "default"},
+      {"isa", isa.isa},
       {"embree build peak", format_bytes_iec(double(std::max<int64_t>(0, st.memory.peak.load())))}};
   stats_.peak_estimate = estimate;
   return stats_;
+}
+
+bool EmbreeAccel::robust() const {
+  if (!state_->scene) return config_.robust;
+  return (rtcGetSceneFlags(state_->scene) & RTC_SCENE_FLAG_ROBUST) != 0;
 }
 
 bool EmbreeAccel::intersect(const Ray& ray, Hit& hit) const {

@@ -10,24 +10,64 @@
 // kdgrid's rays accept [tmin, tmax), so tfar is set to the float just below tmax, and a
 // negative tmin is handled by moving the origin to org + tmin * dir (t is shifted back).
 // Barycentrics follow the same convention as Hit (u weights v1, v weights v2).
+//
+// Configurations (registered names of the factory, accel/factory.cpp):
+//   embree         Embree's default scene flags (no RTC_SCENE_FLAG_ROBUST) at the build quality
+//                  of BuildParams::embree_quality (default medium, Embree's own default): what a
+//                  user of Embree runs, so the benchmark's reference and every ratio to Embree.
+//   embree-robust  RTC_SCENE_FLAG_ROBUST: Embree's robust traversal and triangle test, fewer
+//                  rays slipping through edges for some speed (a point of the speed/accuracy
+//                  trade, docs/RESULTS.md); same build quality as embree.
+//   embree-high    default flags at RTC_BUILD_QUALITY_HIGH (spatial splits): a slower build for
+//                  faster tracing; --embree-quality does not apply to it.
 #pragma once
 
 #include <atomic>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "accel/accelerator.h"
 
 namespace kdgrid {
 
+/// One Embree configuration: its registered name, scene flags and build quality.
+struct EmbreeConfig {
+  std::string name = "embree";
+  /// RTC_SCENE_FLAG_ROBUST on the scene; false = Embree's default flags.
+  bool robust = false;
+  /// "low", "medium" or "high" for every build; "" = BuildParams::embree_quality.
+  std::string quality;
+};
+
+/// The configurations the factory registers, in the order tables list them (embree first).
+const std::vector<EmbreeConfig>& embree_configs();
+
+/// What Embree's library chose on this CPU, for reports. Embree 3 has no property naming its
+/// ISA: the widest native ray packet (rtcGetDeviceProperty RTC_DEVICE_PROPERTY_NATIVE_RAY16,
+/// RAY8, RAY4_SUPPORTED) tells which kernels its enabled ISA runs: 16 = AVX-512, 8 = AVX or
+/// AVX2, 4 = SSE. rtcIntersect1/rtcOccluded1 trace one ray at a time with those kernels.
+struct EmbreeIsa {
+  std::string version;    ///< RTC_DEVICE_PROPERTY_VERSION as "3.13.5"
+  std::string isa;        ///< "AVX-512", "AVX or AVX2", "SSE" or "unknown"
+  int native_packet = 0;  ///< widest native ray packet: 16, 8, 4 (0 = none)
+};
+/// Creates a device once and asks it (cached; "unknown" if no device can be created).
+const EmbreeIsa& embree_isa();
+
 class EmbreeAccel final : public Accelerator {
  public:
-  EmbreeAccel();
+  explicit EmbreeAccel(EmbreeConfig config = {});
   ~EmbreeAccel() override;
   EmbreeAccel(const EmbreeAccel&) = delete;
   EmbreeAccel& operator=(const EmbreeAccel&) = delete;
 
-  std::string name() const override { return "embree"; }
+  std::string name() const override { return config_.name; }
+  /// Whether the built scene has RTC_SCENE_FLAG_ROBUST, as Embree reports it
+  /// (rtcGetSceneFlags); before a build, whether the configuration asks for it.
+  bool robust() const;
+  /// The build quality of the last build ("" before one), as BuildStats::extra "quality".
+  const std::string& quality() const { return quality_; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
   bool intersect(const Ray& ray, Hit& hit) const override;
@@ -45,6 +85,8 @@ class EmbreeAccel final : public Accelerator {
  private:
   void release();
 
+  EmbreeConfig config_;
+  std::string quality_;
   struct State;  // Embree handles, kept out of this header
   std::unique_ptr<State> state_;
   std::vector<float> vertices_;  ///< xyz per vertex plus one float of padding

@@ -15,7 +15,15 @@
 namespace kdgrid {
 
 std::vector<std::string> accelerator_names() {
-  return {"brute", "bvh", "kdtree", "grid", "hybrid", "irregular", "embree"};
+  std::vector<std::string> names = {"brute", "bvh", "kdtree", "grid", "hybrid", "irregular"};
+  for (const EmbreeConfig& c : embree_configs()) names.push_back(c.name);
+  return names;
+}
+
+bool is_embree(const std::string& name) {
+  for (const EmbreeConfig& c : embree_configs())
+    if (c.name == name) return true;
+  return false;
 }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
@@ -25,7 +33,8 @@ std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "grid") return std::make_unique<UniformGrid>();
   if (name == "hybrid") return std::make_unique<GridKdHybrid>();
   if (name == "irregular") return std::make_unique<IrregularGrid>();
-  if (name == "embree") return std::make_unique<EmbreeAccel>();
+  for (const EmbreeConfig& c : embree_configs())
+    if (name == c.name) return std::make_unique<EmbreeAccel>(c);
   std::string valid;
   for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;
   throw ParamError("unknown accelerator '" + name + "': choose one of " + valid);

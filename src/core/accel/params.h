@@ -106,7 +106,8 @@ struct BuildParams {
   bool irregular_expand = true;
 
   // ---- Embree ----------------------------------------------------------------------------
-  /// "low", "medium" or "high" (RTC_BUILD_QUALITY_*). Medium is Embree's default.
+  /// "low", "medium" or "high" (RTC_BUILD_QUALITY_*) of `embree` and `embree-robust`. Medium
+  /// is Embree's default; `embree-high` always builds at high (accel/embree.h).
   std::string embree_quality = "medium";
 
   // ---- memory guard ----------------------------------------------------------------------

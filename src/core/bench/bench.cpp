@@ -23,6 +23,7 @@
 #include "accel/triangle.h"
 #include "bench/rayfile.h"
 #include "bench/raysets.h"
+#include "math/simd.h"
 #include "scene/load.h"
 #include "util/error.h"
 #include "util/format.h"
@@ -274,6 +275,9 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   rep.suite = suite.path;
   rep.date = now_iso8601();
   rep.machine = cpu_model_name();
+  rep.kdgrid_isa = kBuildIsa;
+  rep.kdgrid_lanes = kTraversalLanes;
+  rep.embree = embree_isa();
   rep.hardware_threads = int(std::thread::hardware_concurrency());
   rep.threads = threads;
   rep.reps = o.reps;

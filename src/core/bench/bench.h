@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "accel/accelerator.h"
+#include "accel/embree.h"
 #include "accel/params.h"
 #include "bench/probes.h"
 #include "bench/suite.h"
@@ -113,6 +114,11 @@ struct BenchReport {
   std::string suite;    ///< suite file
   std::string date;     ///< ISO 8601 local time of the start
   std::string machine;  ///< CPU model name (lscpu / /proc/cpuinfo)
+  /// SIMD of each side: kdgrid's from the build (math/simd.h: the ISA it targets, the lanes
+  /// of its traversal vectors), Embree's as its library chose it on this CPU (embree_isa()).
+  std::string kdgrid_isa;
+  int kdgrid_lanes = 0;
+  EmbreeIsa embree;
   int hardware_threads = 0;
   int threads = 0, reps = 0, width = 0, height = 0;
   std::string clock = "wall";  ///< "wall" or "cpu" (BenchOptions::cpu_clock)

@@ -15,6 +15,23 @@ std::string bench_to_json(const BenchReport& r) {
   j["meta"] = {{"suite", r.suite},
                {"date", r.date},
                {"machine", r.machine},
+               {"simd",
+                {{"kdgrid",
+                  {{"isa", r.kdgrid_isa},
+                   {"lanes", r.kdgrid_lanes},
+                   {"how",
+                    "the ISA the build targets (-march=native unless KDGRID_NATIVE=OFF); every "
+                    "structure traces one ray at a time, the hybrid's walk in vectors of this "
+                    "many lanes (three axes and padding)"}}},
+                 {"embree",
+                  {{"version", r.embree.version},
+                   {"isa", r.embree.isa},
+                   {"native_packet", r.embree.native_packet},
+                   {"how",
+                    "rtcGetDeviceProperty RTC_DEVICE_PROPERTY_NATIVE_RAY16/8/4_SUPPORTED: the "
+                    "widest ray packet Embree's enabled ISA runs natively (16 = AVX-512, 8 = AVX "
+                    "or AVX2, 4 = SSE); rtcIntersect1/rtcOccluded1 trace one ray at a time with "
+                    "those kernels"}}}}},
                {"hardware_threads", r.hardware_threads},
                {"threads", r.threads},
                {"reps", r.reps},
@@ -116,6 +133,26 @@ std::string mib(uint64_t b) {
   return format_double("%.1f", double(b) / (1024.0 * 1024.0));
 }
 
+/// The structure's name, with the scene flags and build quality for Embree's configurations
+/// (from BuildStats::extra), so every table row says which Embree it is.
+std::string structure_label(const StructureFigures& a) {
+  std::string flags, quality;
+  for (const auto& [k, v] : a.stats.extra) {
+    if (k == "flags") flags = v;
+    if (k == "quality") quality = v;
+  }
+  if (!is_embree(a.accel) || flags.empty()) return a.accel;
+  return a.accel + " (" + flags + " flags, " + quality + " quality)";
+}
+
+std::string simd_line(const BenchReport& r) {
+  return "SIMD: kdgrid built for " + r.kdgrid_isa + " (one ray at a time, the hybrid's walk in " +
+         std::to_string(r.kdgrid_lanes) + "-lane vectors); Embree " + r.embree.version +
+         " with its " + r.embree.isa + " kernels (native ray packets of " +
+         std::to_string(r.embree.native_packet) +
+         "; rtcIntersect1/rtcOccluded1 one ray at a time).";
+}
+
 const SetFigures* find_set(const StructureFigures& a, const std::string& set) {
   for (const auto& x : a.sets)
     if (x.set == set) return &x;
@@ -129,7 +166,8 @@ std::string bench_to_markdown(const BenchReport& r) {
   md << "Machine: " << r.machine << ", " << r.threads << " thread(s) of " << r.hardware_threads
      << "; " << r.width << "x" << r.height << " primary rays; median of " << r.reps
      << " repetitions" << (r.clock == "cpu" ? " timed by the tracing threads' CPU clocks" : "")
-     << "; " << r.date << "; whole run " << format_double("%.0f", r.seconds) << " s.\n\n";
+     << "; " << r.date << "; whole run " << format_double("%.0f", r.seconds) << " s.\n"
+     << simd_line(r) << "\n\n";
 
   // Headline: ratio to the reference on each set, one row per scene x structure.
   md << "### Throughput relative to the reference (higher is better)\n\n";
@@ -146,7 +184,8 @@ std::string bench_to_markdown(const BenchReport& r) {
       continue;
     }
     for (const auto& a : s.structures) {
-      md << "| " << s.name << " | " << a.accel << (a.accel == s.reference ? " (ref)" : "") << " |";
+      md << "| " << s.name << " | " << structure_label(a)
+         << (a.accel == s.reference ? " (ref)" : "") << " |";
       for (const auto& set : r.sets) {
         const SetFigures* x = find_set(a, set);
         if (!x) {
@@ -168,7 +207,8 @@ std::string bench_to_markdown(const BenchReport& r) {
   for (const auto& s : r.scenes) {
     for (const auto& a : s.structures) {
       for (const auto& x : a.sets) {
-        md << "| " << s.name << " | " << a.accel << " | " << x.set << " | " << x.rays << " | ";
+        md << "| " << s.name << " | " << structure_label(a) << " | " << x.set << " | " << x.rays
+           << " | ";
         if (x.counted)
           md << format_double("%.1f", x.steps_per_ray) << " | "
              << format_double("%.1f", x.leaves_per_ray) << " | "
@@ -194,7 +234,7 @@ std::string bench_to_markdown(const BenchReport& r) {
       std::string parts;
       for (const auto& [k, v] : a.stats.bytes_by_part)
         parts += (parts.empty() ? "" : ", ") + k + " " + mib(v);
-      md << "| " << s.name << " | " << s.triangles << " | " << a.accel << " | "
+      md << "| " << s.name << " | " << s.triangles << " | " << structure_label(a) << " | "
          << (a.error.empty() ? format_double("%.3f", a.build_seconds) : std::string("failed"))
          << " | " << format_double("%.2f", a.build_mtris_per_s) << " | " << mib(a.bytes) << " | "
          << format_double("%.1f", a.bytes_per_triangle) << " | " << mib(a.peak_rss_bytes) << " ("

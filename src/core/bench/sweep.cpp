@@ -245,7 +245,7 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
   std::vector<std::string> accels = o.accels;
   if (accels.empty())
     for (const auto& n : default_bench_accels())
-      if (n != "embree") accels.push_back(n);
+      if (!is_embree(n)) accels.push_back(n);
   t.notes.emplace_back("leak",
                        "a leak is a ray aimed from outside at a point on a shared edge "
                        "or vertex of a closed mesh that hits nothing");

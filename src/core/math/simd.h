@@ -10,6 +10,26 @@
 
 namespace kdgrid {
 
+/// The widest x86 SIMD extension this build targets (compile time: -march=native unless
+/// KDGRID_NATIVE=OFF), stated beside every speed figure (`kdgrid bench`, docs/RESULTS.md).
+inline constexpr const char* kBuildIsa =
+#if defined(__AVX512F__)
+    "AVX-512";
+#elif defined(__AVX2__)
+    "AVX2";
+#elif defined(__AVX__)
+    "AVX";
+#elif defined(__SSE4_2__)
+    "SSE4.2";
+#elif defined(__SSE2__)
+    "SSE2";
+#else
+    "none";
+#endif
+/// Lanes of the vectors the traversals use: every structure traces one ray at a time, and the
+/// hybrid's walk holds the ray's three axes (and a padding lane) in the 4-lane types below.
+inline constexpr int kTraversalLanes = 4;
+
 /// Four float lanes (GCC's vector extensions, SSE): x, y, z and a fourth that is padding.
 using Float4 = float __attribute__((vector_size(16)));
 using Int4 = int32_t __attribute__((vector_size(16)));
