@@ -174,7 +174,8 @@ template <bool kExact, class W>
 }
 
 /// Where a ray's counts start (counted and traced walks), so that Hybrid::rewalk can take back
-/// an abandoned fast walk's counts: a re-walked ray's counters and trace are its exact walk's.
+/// an abandoned fast walk's counts: a re-walked ray's counters, trace and next-leaf cache takes
+/// (Hybrid::next_leaves_from_cache) are its exact walk's.
 template <class S>
 struct StatsMark {
   explicit StatsMark(const S&) {}
@@ -183,19 +184,25 @@ struct StatsMark {
 template <>
 struct StatsMark<CountStats> {
   RayCounters c;
+  uint64_t taken = thread_next_leaf_cache.taken;
   explicit StatsMark(const CountStats& s) : c(s.c) {}
-  void restore(CountStats& s) const { s.c = c; }
+  void restore(CountStats& s) const {
+    s.c = c;
+    thread_next_leaf_cache.taken = taken;
+  }
 };
 template <>
 struct StatsMark<TraceStats> {
   RayCounters c;
   size_t steps, tested;
+  uint64_t taken = thread_next_leaf_cache.taken;
   explicit StatsMark(const TraceStats& s)
       : c(s.trace->counters), steps(s.trace->steps.size()), tested(s.trace->tested.size()) {}
   void restore(TraceStats& s) const {
     s.trace->counters = c;
     s.trace->steps.resize(steps);
     s.trace->tested.resize(tested);
+    thread_next_leaf_cache.taken = taken;
   }
 };
 
