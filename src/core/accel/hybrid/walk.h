@@ -143,9 +143,10 @@ constexpr uint32_t kAbandoned = uint32_t(Hybrid::kEvicted) + 1;
 /// ends at its next step (steps_left 0, which over_step_bound does not count as an error), and
 /// Hybrid::walk gives the ray to rewalk, which runs it again with the exact walk (kExact), whose
 /// record holds every triangle tested. So no ray tests a triangle twice, and the fast walk keeps
-/// everything inline and its loops without a new exit: a call anywhere in walk_step makes it
-/// save registers on every step (+58 instructions a ray on the dragon), and an exit from the
-/// triangle loop made closest-hit steps spill registers (+6 instructions a ray).
+/// everything inline and its triangle loop with no exit for closest hits: a call anywhere in
+/// walk_step makes it save registers on every step (+58 instructions a ray on the dragon), and
+/// leaving the loop at the abandonment made it spill registers (the dragon's primary rays: +5.7
+/// instructions a ray over a walk that can test twice, against +3.6 this way).
 template <bool kExact, class W>
 [[gnu::always_inline]] inline bool tested_before(W& w, uint32_t local) {
   if constexpr (kExact) {
