@@ -180,18 +180,18 @@ class DropHalf final : public AcceleratorBase<DropHalf> {
   std::string name() const override { return "drop-half"; }
   BuildStats build(const Mesh& mesh, const BuildParams& p) override {
     mesh_ = &mesh;
-    test_ = p.triangle_test;
+    triangle_test_ = p.triangle_test;
     return stats_;
   }
-  template <class Tri, class S>
-  bool closest(const Ray& ray, Hit& hit, S&) const {
-    const auto rd = Tri::prepare(ray);
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray& ray, Hit& hit, Probe&) const {
+    const auto rd = TriangleTest::prepare(ray);
     float tmax = ray.tmax;
     bool found = false;
     for (uint32_t i = 0; i < mesh_->num_triangles(); i += 2) {
       const auto c = mesh_->corners(i);
       float t, u, v;
-      if (Tri::intersect(rd, c[0], c[1], c[2], ray.tmin, tmax, t, u, v)) {
+      if (TriangleTest::intersect(rd, c[0], c[1], c[2], ray.tmin, tmax, t, u, v)) {
         tmax = t;
         hit = {t, i, u, v};
         found = true;
@@ -199,10 +199,10 @@ class DropHalf final : public AcceleratorBase<DropHalf> {
     }
     return found;
   }
-  template <class Tri, class S>
-  bool any(const Ray& ray, S& s) const {
+  template <class TriangleTest, class Probe>
+  bool any(const Ray& ray, Probe& s) const {
     Hit h;
-    return closest<Tri>(ray, h, s);
+    return closest<TriangleTest>(ray, h, s);
   }
 
  private:
@@ -263,13 +263,13 @@ class ReportsPrim final : public AcceleratorBase<ReportsPrim> {
   ReportsPrim(uint32_t p, float t) : p_(p), t_(t) {}
   std::string name() const override { return "fixed"; }
   BuildStats build(const Mesh&, const BuildParams&) override { return stats_; }
-  template <class Tri, class S>
-  bool closest(const Ray&, Hit& h, S&) const {
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray&, Hit& h, Probe&) const {
     h = {t_, p_, 0, 0};
     return true;
   }
-  template <class Tri, class S>
-  bool any(const Ray&, S&) const {
+  template <class TriangleTest, class Probe>
+  bool any(const Ray&, Probe&) const {
     return true;
   }
 

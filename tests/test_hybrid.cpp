@@ -210,8 +210,8 @@ float own_t(const Mesh& m, const Ray& r, uint32_t prim) {
 }
 
 /// Checks every ray; returns the number of failures (and reports the first few).
-int compare(const Hybrid& h, const Mesh& m, const std::vector<Ray>& rays, const Reference& ref,
-            const std::string& label) {
+int compare(const GridKdHybrid& h, const Mesh& m, const std::vector<Ray>& rays,
+            const Reference& ref, const std::string& label) {
   int failures = 0;
   for (size_t i = 0; i < rays.size(); ++i) {
     Hit hh;
@@ -277,7 +277,7 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
     // paper's hybrid (plain leaves stepping over kd leaf boxes).
     for (int variant = 0; variant < 5; ++variant) {
       const bool dense = variant == 1;
-      Hybrid h;
+      GridKdHybrid h;
       BuildParams p = params_with(c.cell, dense);
       p.memory_budget = uint64_t(2) << 30;
       if (variant == 2) p.hybrid_subtree_min = 2;
@@ -343,7 +343,7 @@ TEST(Hybrid, NonCubicGrid7x3x11) {
   const auto rays = random_rays(m, 20000, 77);
   const Reference ref = brute_reference(m, rays);
   for (bool dense : {false, true}) {
-    Hybrid h;
+    GridKdHybrid h;
     h.build(m, params_with(1.0f, dense));
     ASSERT_EQ(h.dims()[0], 7);
     ASSERT_EQ(h.dims()[1], 3);
@@ -354,7 +354,7 @@ TEST(Hybrid, NonCubicGrid7x3x11) {
 
 TEST(Hybrid, DenseAndBrickedMapEveryCellToTheSameCoveringLeaf) {
   const Mesh m = random_soup(4, 1500, Vec3(-1), Vec3(1), 0.1f);
-  Hybrid d, b;
+  GridKdHybrid d, b;
   d.build(m, params_with(0.05f, true));
   b.build(m, params_with(0.05f, false));
   ASSERT_EQ(d.leaves().size(), b.leaves().size());
@@ -383,7 +383,7 @@ void check_rays(const Mesh& m, const std::vector<Ray>& rays, float cell, const s
   const Reference ref = brute_reference(m, rays);
   for (int variant = 0; variant < 5; ++variant) {
     const bool dense = variant == 1;
-    Hybrid h;
+    GridKdHybrid h;
     BuildParams p = params_with(cell, dense);
     if (variant == 2) p.hybrid_subtree_min = 2;
     if (variant >= 3) p.hybrid_subtree_min = 0;
@@ -465,7 +465,7 @@ TEST(HybridExtremeRays, RaysInCellPlanes) {
 
 TEST(HybridExtremeRays, RaysInSplitPlanes) {
   const Mesh m = extreme_scene();
-  Hybrid h;
+  GridKdHybrid h;
   h.build(m, params_with(0.25f, false));
   std::vector<SplitPlane> splits;
   h.for_each_split([&](const SplitPlane& sp) { splits.push_back(sp); });
@@ -525,7 +525,7 @@ TEST(HybridExtremeRays, OriginsInsideAndOutsideRootBox) {
 
 TEST(HybridExtremeRays, RaysMissingTheBox) {
   const Mesh m = extreme_scene();
-  Hybrid h;
+  GridKdHybrid h;
   h.build(m, params_with(0.25f, false));
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> s(-1.0f, 1.0f);
@@ -597,7 +597,7 @@ TEST(HybridExtremeRays, RaysGrazingTheSceneBoxEdgesAndCorners) {
     const std::string what = "cube at offset " + std::to_string(offset) + ", origins " +
                              std::to_string(cs.distance) + " away";
     EXPECT_GT(hits, 1000) << what;
-    Hybrid h;
+    GridKdHybrid h;
     h.build(m, params_with(0.0f, false));
     EXPECT_EQ(compare(h, m, rays, ref, what), 0);
   }
@@ -630,7 +630,7 @@ TEST(HybridExtremeRays, Scales1eMinus6And1e6AndTranslation1e5) {
     check_rays(m, rays, 0.25f * c.scale, c.what);
     // And with the auto cell size.
     const Reference ref = brute_reference(m, rays);
-    Hybrid h;
+    GridKdHybrid h;
     h.build(m, params_with(0.0f, false));
     EXPECT_EQ(compare(h, m, rays, ref, std::string(c.what) + " auto"), 0);
   }
@@ -647,7 +647,7 @@ std::string extra_value(const BuildStats& st, const std::string& key) {
 TEST(HybridEmptyBoxes, CoverOnlyEmptyCellsAndTheirOwnLeaf) {
   for (const Mesh& m : {random_soup(11, 1500, Vec3(-1), Vec3(1), 0.08f),
                         subdivided_sphere(Vec3(0.1f), 1.0f, 4), lattice_quads(0.25f, 6, 3)}) {
-    Hybrid h;
+    GridKdHybrid h;
     const BuildStats st = h.build(m, params_with(0.0f, false));
     const std::string text = extra_value(st, "empty-leaf boxes");
     ASSERT_NE(text.find("widened"), std::string::npos) << text;
@@ -692,7 +692,7 @@ TEST(HybridEmptyBoxes, SameHitsInFewerSteps) {
       add_tri(m, c[0], c[1], c[2]);
     }
   // Plain leaves, so that steps count leaf steps only (no subtree nodes).
-  Hybrid wide, kd;
+  GridKdHybrid wide, kd;
   BuildParams p = params_with(0.0f, false);
   p.hybrid_subtree_min = 0;
   wide.build(m, p);
@@ -722,7 +722,7 @@ TEST(HybridEmptyBoxes, SameHitsInFewerSteps) {
 TEST(HybridMemory, TeapotInStadiumBrickedStaysSmall) {
   // Sphere of radius 1 with 32768 triangles (edges ~0.02-0.03) inside a stadium of side 2000.
   const Mesh m = teapot_in_stadium(1000.0f, 6);
-  Hybrid h;
+  GridKdHybrid h;
   BuildParams p = params_with(0.05f, false);  // 40000 cells per axis: 6.4e13 cells
   const BuildStats st = h.build(m, p);
   const double cells = double(h.dims()[0]) * h.dims()[1] * h.dims()[2];
@@ -740,7 +740,7 @@ TEST(HybridMemory, TeapotInStadiumBrickedStaysSmall) {
   EXPECT_NE(extra_value(st, "empty-leaf boxes").find("skipped"), std::string::npos)
       << extra_value(st, "empty-leaf boxes");
   // The dense storage at this size is refused by the memory guard instead of allocated.
-  Hybrid d;
+  GridKdHybrid d;
   BuildParams pd = p;
   pd.hybrid_dense_matrix = true;
   EXPECT_THROW(d.build(m, pd), ParamError);
@@ -751,7 +751,7 @@ TEST(HybridMemory, TeapotInStadiumBrickedStaysSmall) {
 
 TEST(HybridMemory, DenseVersusBrickedWhereDenseStillFits) {
   const Mesh m = teapot_in_stadium(100.0f, 5);
-  Hybrid d, b;
+  GridKdHybrid d, b;
   const BuildStats sd = d.build(m, params_with(0.5f, true));  // 400^3 = 64M cells = 256 MB
   const BuildStats sb = b.build(m, params_with(0.5f, false));
   EXPECT_GT(sd.bytes, 100 * sb.bytes) << "dense " << sd.bytes << " bricked " << sb.bytes;
@@ -760,7 +760,7 @@ TEST(HybridMemory, DenseVersusBrickedWhereDenseStillFits) {
 TEST(HybridMemory, GuardRejectsAbsurdCellSize) {
   const Mesh m = random_soup(2, 500, Vec3(-1), Vec3(1), 0.1f);
   for (bool dense : {false, true}) {
-    Hybrid h;
+    GridKdHybrid h;
     try {
       h.build(m, params_with(2e-9f, dense));
       ADD_FAILURE() << "expected ParamError";
@@ -772,7 +772,7 @@ TEST(HybridMemory, GuardRejectsAbsurdCellSize) {
     }
   }
   // A small explicit budget also trips the dense guard at a size that would otherwise work.
-  Hybrid h;
+  GridKdHybrid h;
   BuildParams p = params_with(0.001f, true);  // 2000^3 cells = 32 GB dense
   p.memory_budget = uint64_t(64) << 20;
   EXPECT_THROW(h.build(m, p), ParamError);
@@ -782,7 +782,7 @@ TEST(HybridMemory, GuardRejectsAbsurdCellSize) {
 
 TEST(Hybrid, CountedAndFastTraversalAgree) {
   const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 4);
-  Hybrid h;
+  GridKdHybrid h;
   BuildParams p = params_with(0.0f, false);
   p.hybrid_subtree_min = 0;  // plain leaves: every step is a leaf step (no subtree nodes)
   h.build(m, p);
@@ -829,7 +829,7 @@ std::vector<Ray> coherent_rays(int n) {
 TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   const Mesh ma = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
   const Mesh mb = random_soup(5, 3000, Vec3(-1), Vec3(1), 0.08f);
-  Hybrid ha, hb;
+  GridKdHybrid ha, hb;
   ha.build(ma, params_with(0.0f, false));
   hb.build(mb, params_with(0.13f, true));
   // Coherent rays from one eye (neighbours cross the same leaves), then incoherent ones.
@@ -840,7 +840,7 @@ TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   const Reference refa = brute_reference(ma, ra), refb = brute_reference(mb, rb);
   int failures = 0;
   uint64_t steps = 0;
-  const uint64_t taken_before = Hybrid::next_leaves_from_cache();
+  const uint64_t taken_before = GridKdHybrid::next_leaves_from_cache();
   // The two structures in turn on one thread: each finds the other's leaves in the cache.
   for (size_t i = 0; i < ra.size(); ++i) {
     failures +=
@@ -862,34 +862,35 @@ TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   EXPECT_EQ(failures, 0);
   EXPECT_GT(steps, 4 * ra.size()) << "the rays cross several leaves, so the cache is used";
   // Alone again: the coherent rays with their own cache entries warm.
-  const uint64_t taken_in_turn = Hybrid::next_leaves_from_cache();
+  const uint64_t taken_in_turn = GridKdHybrid::next_leaves_from_cache();
   EXPECT_EQ(compare(ha, ma, ra, refa, "sphere, alone"), 0);
   EXPECT_GT(taken_in_turn, taken_before)
       << "a ray traced right after itself takes its cached leaves";
-  EXPECT_GT(Hybrid::next_leaves_from_cache(), taken_in_turn) << "coherent rays take cached leaves";
+  EXPECT_GT(GridKdHybrid::next_leaves_from_cache(), taken_in_turn)
+      << "coherent rays take cached leaves";
 }
 
-// BuildParams::hybrid_guess = false (`--hybrid-no-guess`), the paper's walk: no leaf taken from
-// the next-leaf cache, and the same hits and counters as the walk with it, ray by ray.
+// BuildParams::hybrid_next_leaf_cache = false (`--hybrid-no-guess`), the paper's walk: no leaf
+// taken from the next-leaf cache, and the same hits and counters as the walk with it, ray by ray.
 TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
   const Mesh m = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
   BuildParams p = params_with(0.0f, false);
-  Hybrid cached, plain;
+  GridKdHybrid cached, plain;
   cached.build(m, p);
   p.hybrid_guess = false;
   plain.build(m, p);
   const std::vector<Ray> rays = coherent_rays(48);
-  const uint64_t before = Hybrid::next_leaves_from_cache();
+  const uint64_t before = GridKdHybrid::next_leaves_from_cache();
   RayCounters with_cache, without;
   std::vector<Hit> hits_with(rays.size()), hits_without(rays.size());
   std::vector<char> found_with(rays.size()), found_without(rays.size());
   for (size_t i = 0; i < rays.size(); ++i)
     found_with[i] = cached.intersect_counted(rays[i], hits_with[i], with_cache);
-  const uint64_t between = Hybrid::next_leaves_from_cache();
+  const uint64_t between = GridKdHybrid::next_leaves_from_cache();
   EXPECT_GT(between, before) << "coherent rays take cached leaves";
   for (size_t i = 0; i < rays.size(); ++i)
     found_without[i] = plain.intersect_counted(rays[i], hits_without[i], without);
-  EXPECT_EQ(Hybrid::next_leaves_from_cache(), between)
+  EXPECT_EQ(GridKdHybrid::next_leaves_from_cache(), between)
       << "hybrid_guess = false takes no cached leaf";
   for (size_t i = 0; i < rays.size(); ++i) {
     ASSERT_EQ(found_with[i], found_without[i]) << "ray " << i;
@@ -903,7 +904,7 @@ TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
 
 void check_trace_order(uint32_t subtree_min) {
   const Mesh m = random_soup(8, 2000, Vec3(-1), Vec3(1), 0.08f);
-  Hybrid h;
+  GridKdHybrid h;
   BuildParams p = params_with(0.0f, false);
   p.hybrid_subtree_min = subtree_min;
   h.build(m, p);
@@ -954,7 +955,7 @@ TEST(Hybrid, TraceVisitsLeafSubtreesInRayOrder) {
 
 TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
   const Mesh m = random_soup(6, 1000, Vec3(-1), Vec3(1), 0.1f);
-  Hybrid h;
+  GridKdHybrid h;
   BuildParams p = params_with(0.0f, false);
   p.hybrid_subtree_min = 0;  // plain leaves: references are exactly the leaves' lists
   const BuildStats st = h.build(m, p);
@@ -985,25 +986,25 @@ TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
 
 TEST(HybridParams, CellSizeValidation) {
   const Mesh m = random_soup(3, 300, Vec3(-1), Vec3(1), 0.1f);
-  Hybrid ref;
+  GridKdHybrid ref;
   ref.build(m, params_with(0.0f, false));
   for (float bad : {std::nanf(""), kInf, -kInf}) {
-    Hybrid h;
+    GridKdHybrid h;
     EXPECT_THROW(h.build(m, params_with(bad, false)), ParamError) << bad;
   }
   // 0 and negative sizes mean auto.
   for (float autoish : {0.0f, -1.0f}) {
-    Hybrid h;
+    GridKdHybrid h;
     h.build(m, params_with(autoish, false));
     EXPECT_EQ(h.cell_size(), ref.cell_size());
   }
   for (float pct : {0.0f, -5.0f, 150.0f, std::nanf("")}) {
-    Hybrid h;
+    GridKdHybrid h;
     BuildParams p = params_with(0.0f, false);
     p.cell_percentile = pct;
     EXPECT_THROW(h.build(m, p), ParamError) << pct;
   }
-  Hybrid h;
+  GridKdHybrid h;
   BuildParams p;
   p.hybrid_intersection_cost = 0.0f;
   EXPECT_THROW(h.build(m, p), ParamError);
@@ -1011,7 +1012,7 @@ TEST(HybridParams, CellSizeValidation) {
 
 TEST(HybridParams, AutoRuleIsReported) {
   const Mesh m = random_soup(3, 3000, Vec3(-1), Vec3(1), 0.05f);
-  Hybrid h;
+  GridKdHybrid h;
   const BuildStats st = h.build(m, params_with(0.0f, false));
   ASSERT_GE(st.extra.size(), 3u);
   EXPECT_EQ(st.extra[0].first, "cell_size");
@@ -1033,7 +1034,7 @@ TEST(HybridParams, AutoRuleIsReported) {
   // in a handful of cells; the density floor gives at least 16 cells per triangle.
   Mesh mixed = random_soup(4, 200, Vec3(-1), Vec3(1), 0.9f);
   mixed.append(random_soup(5, 20, Vec3(-1), Vec3(1), 0.002f));
-  Hybrid hm;
+  GridKdHybrid hm;
   hm.build(mixed, params_with(0.0f, false));
   EXPECT_GE(double(hm.dims()[0]) * hm.dims()[1] * hm.dims()[2], 16.0 * 220.0);
   EXPECT_NE(hm.stats().extra[1].second.find("lowered"), std::string::npos)
@@ -1045,7 +1046,7 @@ TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
   // until the grid has at most kHybridAutoMaxCells (the leaf subtrees resolve the geometry
   // below a cell), and says so.
   const Mesh m = random_soup(6, 100000, Vec3(-1), Vec3(1), 0.004f);
-  Hybrid h;
+  GridKdHybrid h;
   h.build(m, params_with(0.0f, false));
   const double cells = double(h.dims()[0]) * h.dims()[1] * h.dims()[2];
   EXPECT_LE(cells, kHybridAutoMaxCells);
@@ -1055,7 +1056,7 @@ TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
   // Plain leaves keep cells about a triangle wide, up to the larger kHybridAutoMaxCellsPlain.
   BuildParams plain = params_with(0.0f, false);
   plain.hybrid_subtree_min = 0;
-  Hybrid hp;
+  GridKdHybrid hp;
   hp.build(m, plain);
   const double plain_cells = double(hp.dims()[0]) * hp.dims()[1] * hp.dims()[2];
   EXPECT_GT(plain_cells, 8.0 * kHybridAutoMaxCells);
@@ -1071,20 +1072,20 @@ TEST(HybridParams, FlatScenesAndOversizedCells) {
     const Vec3 c(u(rng), u(rng), 3.0f);
     add_tri(flat, c, c + Vec3(0.05f, 0.0f, 0.0f), c + Vec3(0.0f, 0.05f, 0.0f));
   }
-  Hybrid h;
+  GridKdHybrid h;
   h.build(flat, params_with(0.0f, false));
   EXPECT_EQ(h.dims()[2], 1);
   EXPECT_GT(h.dims()[0], 1);
   const auto rays = random_rays(flat, 5000, 2);
   EXPECT_EQ(compare(h, flat, rays, brute_reference(flat, rays), "flat"), 0);
   // A cell larger than the scene gives one cell.
-  Hybrid one;
+  GridKdHybrid one;
   one.build(flat, params_with(100.0f, true));
   EXPECT_EQ(one.dims()[0] * one.dims()[1] * one.dims()[2], 1);
   EXPECT_EQ(compare(one, flat, rays, brute_reference(flat, rays), "flat one cell"), 0);
   // An empty mesh builds and misses everything.
   Mesh empty;
-  Hybrid e;
+  GridKdHybrid e;
   e.build(empty, params_with(0.0f, false));
   Hit hit;
   EXPECT_FALSE(e.intersect(Ray{Vec3(0.0f), 0.0f, Vec3(1, 0, 0), kInf}, hit));
@@ -1092,19 +1093,19 @@ TEST(HybridParams, FlatScenesAndOversizedCells) {
 
 TEST(HybridParams, RejectsNonFiniteGeometryAndInvalidRays) {
   Mesh m = random_soup(3, 10, Vec3(-1), Vec3(1), 0.1f);
-  Hybrid ok;
+  GridKdHybrid ok;
   ok.build(m, params_with(0.0f, false));
   Hit hit;
   EXPECT_FALSE(ok.intersect(Ray{Vec3(std::nanf("")), 0.0f, Vec3(1, 0, 0), kInf}, hit));
   EXPECT_FALSE(ok.intersect(Ray{Vec3(0.0f), 0.0f, Vec3(0.0f), kInf}, hit));
   m.positions[4].y = std::nanf("");
-  Hybrid h;
+  GridKdHybrid h;
   EXPECT_THROW(h.build(m, params_with(0.0f, false)), ParamError);
 }
 
 TEST(Hybrid, BuildIsDeterministic) {
   const Mesh m = random_soup(12, 20000, Vec3(-1), Vec3(1), 0.03f);
-  Hybrid a, b;
+  GridKdHybrid a, b;
   BuildParams p = params_with(0.0f, false);
   const BuildStats sa = a.build(m, p);
   p.threads = 1;
@@ -1123,9 +1124,9 @@ TEST(Hybrid, BuildIsDeterministic) {
 
 TEST(HybridEstimate, MatchesTheBuildAtAutoAndFinerSizes) {
   const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 6);  // 32768 triangles, edges ~0.02-0.03
-  Hybrid a;
+  GridKdHybrid a;
   const BuildStats sa = a.build(m, params_with(0.0f, false));
-  const HybridEstimate ea = Hybrid::estimate(m, params_with(0.0f, false));
+  const HybridEstimate ea = GridKdHybrid::estimate(m, params_with(0.0f, false));
   EXPECT_EQ(ea.cell, a.cell_size());
   EXPECT_EQ(ea.auto_cell, a.cell_size());
   for (int k = 0; k < 3; ++k) EXPECT_EQ(ea.dims[k], double(a.dims()[k]));
@@ -1135,9 +1136,9 @@ TEST(HybridEstimate, MatchesTheBuildAtAutoAndFinerSizes) {
   // within a factor of 3 (the matrix dominates at the finer sizes), and the peak is above them.
   for (double f : {1.0, 4.0, 8.0}) {
     const float c = float(a.cell_size() / f);
-    Hybrid h;
+    GridKdHybrid h;
     const BuildStats st = h.build(m, params_with(c, false));
-    const HybridEstimate e = Hybrid::estimate(m, params_with(c, false));
+    const HybridEstimate e = GridKdHybrid::estimate(m, params_with(c, false));
     EXPECT_TRUE(e.fits) << f;
     EXPECT_GT(e.structure_bytes, double(st.bytes) / 3.0)
         << "cells " << f << "x finer than auto: " << e.describe();
@@ -1149,7 +1150,7 @@ TEST(HybridEstimate, MatchesTheBuildAtAutoAndFinerSizes) {
 
 /// The size suggested by an explicit size's refusal; 0 if the build was not refused.
 double refused_and_suggested(const Mesh& m, float cell, std::string* msg) {
-  Hybrid h;
+  GridKdHybrid h;
   try {
     h.build(m, params_with(cell, false));
   } catch (const ParamError& e) {
@@ -1177,11 +1178,11 @@ TEST(HybridEstimate, TinyCellIsRefusedUpFrontWithASizeThatBuildsQuickly) {
     EXPECT_NE(msg.find("budget"), std::string::npos) << msg;
     // The suggestion fits its own estimate, and builds within a bound (on a loaded 2-core
     // machine; the limit it was chosen for is 10 estimated seconds).
-    EXPECT_TRUE(Hybrid::estimate(m, params_with(float(suggested), false)).fits) << suggested;
+    EXPECT_TRUE(GridKdHybrid::estimate(m, params_with(float(suggested), false)).fits) << suggested;
     std::printf("cell %g refused; suggested %g\n", double(tiny), suggested);
     if (std::find(built.begin(), built.end(), suggested) != built.end()) continue;
     built.push_back(suggested);
-    Hybrid h;
+    GridKdHybrid h;
     const auto t1 = std::chrono::steady_clock::now();
     ASSERT_NO_THROW(h.build(m, params_with(float(suggested), false))) << suggested;
     const double build_s =
@@ -1198,12 +1199,12 @@ TEST(HybridEstimate, BunnySuggestedSizeBuildsWithinABound) {
   std::string msg;
   const double suggested = refused_and_suggested(m, 1e-8f, &msg);
   ASSERT_GT(suggested, 0.0) << msg;
-  Hybrid h;
+  GridKdHybrid h;
   const auto t0 = std::chrono::steady_clock::now();
   const BuildStats st = h.build(m, params_with(float(suggested), false));
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_LT(s, 90.0) << msg;
-  const HybridEstimate e = Hybrid::estimate(m, params_with(float(suggested), false));
+  const HybridEstimate e = GridKdHybrid::estimate(m, params_with(float(suggested), false));
   EXPECT_LT(double(st.bytes), e.bytes * 3.0) << e.describe();
   std::printf("bunny: %s\nsuggested %g built in %.1f s, %.0f MiB (estimate: %s)\n", msg.c_str(),
               suggested, s, double(st.bytes) / 1048576.0, e.describe().c_str());
@@ -1211,7 +1212,7 @@ TEST(HybridEstimate, BunnySuggestedSizeBuildsWithinABound) {
 
 TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
   const Mesh m = subdivided_sphere(Vec3(0.0f), 1.0f, 6);
-  Hybrid one;
+  GridKdHybrid one;
   const BuildStats st = one.build(m, params_with(1e9f, false));
   EXPECT_EQ(one.dims()[0] * one.dims()[1] * one.dims()[2], 1);
   EXPECT_LE(one.cell_size(), 2.0 + 1e-6) << "one cell of the scene's extent, not 1e9";
@@ -1221,7 +1222,7 @@ TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
   // Tests per ray as the auto grid's (the subtree of the one leaf splits as the kd-tree does),
   // and no ray tests a triangle twice, although the one leaf's subtree holds each straddling
   // triangle in several leaves and a 32-entry mailbox alone lost 12 of these 4000 rays' repeats.
-  Hybrid grid;
+  GridKdHybrid grid;
   grid.build(m, params_with(0.0f, false));
   double tests_one = 0, tests_grid = 0;
   int twice = 0;
@@ -1246,7 +1247,7 @@ TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
 /// traced ray's distinct triangles (a ray that the fast walk gave up to the exact walk counts
 /// only the exact walk's tests and next-leaf cache takes). Returns the closest-hit and the any-hit
 /// queries re-walked.
-std::pair<uint64_t, uint64_t> check_exact(const Hybrid& h, const Mesh& m,
+std::pair<uint64_t, uint64_t> check_exact(const GridKdHybrid& h, const Mesh& m,
                                           const std::vector<Ray>& rays, const std::string& label) {
   uint64_t before = h.rewalked_rays();
   for (const Ray& r : rays) {
@@ -1266,10 +1267,10 @@ std::pair<uint64_t, uint64_t> check_exact(const Hybrid& h, const Mesh& m,
     Hit fast, counted;
     RayCounters c;
     const bool got = h.intersect(r, fast);
-    const uint64_t taken0 = Hybrid::next_leaves_from_cache();
+    const uint64_t taken0 = GridKdHybrid::next_leaves_from_cache();
     const bool got_counted = h.intersect_counted(r, counted, c);
     // Each leaf taken from the next-leaf cache is one of the counted lookups.
-    const uint64_t taken = Hybrid::next_leaves_from_cache() - taken0;
+    const uint64_t taken = GridKdHybrid::next_leaves_from_cache() - taken0;
     miscounted += c.tri_tests != tested.size() || c.tri_tests != t.counters.tri_tests ||
                   c.mailbox_skips != t.counters.mailbox_skips || c.steps != t.counters.steps ||
                   taken > c.lookups;
@@ -1297,7 +1298,7 @@ TEST(HybridMailbox, RaysEvictingMoreThanTheListTestEachTriangleOnce) {
   for (const float cell : {0.2f, 0.4f}) {
     BuildParams p = params_with(cell, false);
     p.hybrid_subtree_min = 0;
-    Hybrid h;
+    GridKdHybrid h;
     h.build(m, p);
     const auto [closest, any] = check_exact(h, m, random_rays(m, 3000, 17),
                                             "slivers, plain leaves, cell " + std::to_string(cell));
@@ -1313,7 +1314,7 @@ TEST(HybridMailbox, OneCellOfTheWholeSceneTestsEachTriangleOnce) {
   for (const uint32_t subtree_min : {4u, 0u}) {
     BuildParams p = params_with(1e9f, false);
     p.hybrid_subtree_min = subtree_min;
-    Hybrid h;
+    GridKdHybrid h;
     h.build(m, p);
     ASSERT_EQ(h.dims()[0] * h.dims()[1] * h.dims()[2], 1);
     check_exact(h, m, random_rays(m, 2000, 18),
@@ -1328,7 +1329,7 @@ TEST(HybridMailbox, BunnyInCoarsePlainLeavesTestsEachTriangleOnce) {
   const Mesh m = load_scene(path).mesh;
   BuildParams p = params_with(0.02f, false);
   p.hybrid_subtree_min = 0;
-  Hybrid h;
+  GridKdHybrid h;
   h.build(m, p);
   const auto [closest, any] =
       check_exact(h, m, random_rays(m, 1000, 19), "bunny, cell 0.02, plain");

@@ -211,8 +211,8 @@ KdRay scalar_kd_ray(const Ray& ray, float max_abs) {
 
 // kd_begin, the traversals' set-up computed for three axes at once, gives what the scalar form
 // (reciprocal, err, kd_clip per axis) gives, bit for bit: reciprocals, err, hit or miss and the
-// clipped interval; and kd_clip4 (the hybrid's clip to a leaf subtree's box, from kd_begin's
-// KdRay4) what kd_clip gives on a second box. The rays include zero and negative-zero direction
+// clipped interval; and kd_clip_x4 (the hybrid's clip to a leaf subtree's box, from kd_begin's
+// KdRayX4) what kd_clip gives on a second box. The rays include zero and negative-zero direction
 // components (inside and outside their slab), origins on the box's faces, far origins and
 // finite tmin/tmax.
 TEST(KdTree, BeginMatchesScalarClipBitForBit) {
@@ -227,8 +227,8 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
   ClipBox4 cb;
   cb.set(box);
   const float max_abs = std::max(max_component(abs(box.lo)), max_component(abs(box.hi)));
-  // A second, smaller box for kd_clip4 (the hybrid's clip to a leaf subtree's box), with faces
-  // that some origins lie on; its corners as kd_clip4 reads them.
+  // A second, smaller box for kd_clip_x4 (the hybrid's clip to a leaf subtree's box), with faces
+  // that some origins lie on; its corners as kd_clip_x4 reads them.
   const Box3 sub(Vec3(0.25f, 0.55f, 400.0f), Vec3(2.0f, 0.7f, 600.0f));
   const Float4 sub_lo = {sub.lo.x, sub.lo.y, sub.lo.z, -kInf},
                sub_hi = {sub.hi.x, sub.hi.y, sub.hi.z, kInf};
@@ -254,7 +254,7 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
     float r0 = ray.tmin, r1 = ray.tmax;
     const bool ref_hit = kd_clip(ref, box, r0, r1);
     KdRay kr;
-    KdRay4 r4;
+    KdRayX4 r4;
     float t0 = 0.0f, t1 = 0.0f;
     const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1, &r4);
     // The same answer and, for a hit, the same interval bit for bit; counts the outcomes.
@@ -275,10 +275,10 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
       ASSERT_EQ(bits(kr.err[a]), bits(ref.err[a])) << "ray " << i << " axis " << a;
     }
     if (hit) {
-      // kd_clip4 against kd_clip on the smaller box, over an interval within [t0, t1].
+      // kd_clip_x4 against kd_clip on the smaller box, over an interval within [t0, t1].
       float s0 = t0 + 0.25f * (t1 - t0), s1 = t1, q0 = s0, q1 = s1;
       const bool sub_ref = kd_clip(ref, sub, s0, s1);
-      const bool sub_hit = kd_clip4(r4, sub_lo, sub_hi, q0, q1);
+      const bool sub_hit = kd_clip_x4(r4, sub_lo, sub_hi, q0, q1);
       same_clip(sub_hit, q0, q1, sub_ref, s0, s1, sub_hits, sub_misses);
     }
     if (HasFatalFailure()) return;
@@ -292,7 +292,7 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
 
 // A subnormal direction component has an infinite reciprocal and an infinite err, so its slab
 // gives NaN t's (inf - inf, or 0 * inf with the origin on a face). kd_clip's loop over the axes
-// drops a NaN; the lane reductions of kd_begin and kd_clip4 may instead keep it in place of
+// drops a NaN; the lane reductions of kd_begin and kd_clip_x4 may instead keep it in place of
 // another axis's bound. Either way the interval only widens: the traversals then visit more,
 // never less. So the lane forms must hit whenever kd_clip hits, with an interval that contains
 // kd_clip's (and bit for bit the same reciprocals and err).
@@ -321,7 +321,7 @@ TEST(KdTree, LaneClipsContainScalarClipWithSubnormalDirections) {
     float r0 = ray.tmin, r1 = ray.tmax;
     const bool ref_hit = kd_clip(ref, box, r0, r1);
     KdRay kr;
-    KdRay4 r4;
+    KdRayX4 r4;
     float t0 = 0.0f, t1 = 0.0f;
     const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1, &r4);
     for (int a = 0; a < 3; ++a) {
@@ -334,7 +334,7 @@ TEST(KdTree, LaneClipsContainScalarClipWithSubnormalDirections) {
     EXPECT_LE(t0, r0) << "ray " << i;
     EXPECT_GE(t1, r1) << "ray " << i;
     float q0 = ray.tmin, q1 = ray.tmax;
-    ASSERT_TRUE(kd_clip4(r4, lo, hi, q0, q1)) << "ray " << i;
+    ASSERT_TRUE(kd_clip_x4(r4, lo, hi, q0, q1)) << "ray " << i;
     EXPECT_LE(q0, r0) << "ray " << i;
     EXPECT_GE(q1, r1) << "ray " << i;
     if (HasFailure()) return;

@@ -37,7 +37,7 @@ using test::TempDir;
   EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
       << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
 
-using Tri = std::array<uint32_t, 3>;
+using TriangleTest = std::array<uint32_t, 3>;
 
 void expect_near(const Vec3& a, const Vec3& b, float eps = 1e-5f) {
   EXPECT_NEAR(a.x, b.x, eps);
@@ -88,7 +88,8 @@ TEST(PlyLoader, AsciiFanTriangulationInFileOrder) {
   const Scene s = parse_ply(kAsciiPly, std::strlen(kAsciiPly), "fan.ply");
   ASSERT_EQ(s.mesh.num_vertices(), 7u);
   // triangle -> 1, quad -> 2, pentagon -> 3 triangles (v0, v_{i-1}, v_i), in file order.
-  const std::vector<Tri> want = {{0, 1, 2}, {0, 1, 2}, {0, 2, 3}, {6, 5, 4}, {6, 4, 3}, {6, 3, 2}};
+  const std::vector<TriangleTest> want = {{0, 1, 2}, {0, 1, 2}, {0, 2, 3},
+                                          {6, 5, 4}, {6, 4, 3}, {6, 3, 2}};
   ASSERT_EQ(s.mesh.triangles.size(), want.size());
   for (size_t i = 0; i < want.size(); ++i)
     EXPECT_EQ(s.mesh.triangles[i], want[i]) << "triangle " << i;
@@ -215,7 +216,8 @@ void check_binary_scene(const Scene& s) {
   for (size_t i = 0; i < 5; ++i)
     expect_near(s.mesh.positions[i],
                 {float(kBinVerts[i].x), float(kBinVerts[i].y), float(kBinVerts[i].z)});
-  const std::vector<Tri> want = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4}, {4, 3, 2}, {4, 2, 1}, {0, 2, 4}};
+  const std::vector<TriangleTest> want = {{0, 1, 2}, {0, 2, 3}, {0, 3, 4},
+                                          {4, 3, 2}, {4, 2, 1}, {0, 2, 4}};
   ASSERT_EQ(s.mesh.triangles.size(), want.size());
   for (size_t i = 0; i < want.size(); ++i)
     EXPECT_EQ(s.mesh.triangles[i], want[i]) << "triangle " << i;

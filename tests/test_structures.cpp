@@ -2,7 +2,7 @@
 // factory knows (accelerator_names()): agreement with brute force on the procedural meshes,
 // the Möller-Trumbore variant against brute-force Möller, +0/-0 direction components,
 // counted and traced traversal against the fast path, and registration in the factory. What
-// is particular to one structure stays in its own test_<structure>.cpp.
+// is particular to one structure stays in its own triangle_test_<structure>.cpp.
 #include <gtest/gtest.h>
 
 #include <algorithm>

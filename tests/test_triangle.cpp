@@ -16,15 +16,15 @@ Vec3 random_point(std::mt19937& rng, float scale) {
   return {u(rng), u(rng), u(rng)};
 }
 
-template <class Tri>
+template <class TriangleTest>
 bool hit_tri(const Ray& r, const Vec3& a, const Vec3& b, const Vec3& c, float& t, float& u,
              float& v) {
-  return Tri::intersect(Tri::prepare(r), a, b, c, r.tmin, r.tmax, t, u, v);
+  return TriangleTest::intersect(TriangleTest::prepare(r), a, b, c, r.tmin, r.tmax, t, u, v);
 }
 
 // A ray aimed at a random barycentric point inside a random triangle hits it at the right t,
 // and the reported barycentrics reproduce the hit point.
-template <class Tri>
+template <class TriangleTest>
 void check_interior_hits(uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> unit(0.05f, 0.9f);
@@ -42,14 +42,14 @@ void check_interior_hits(uint32_t seed) {
     const Vec3 org = target + normalize(random_point(rng, 1) + n * 0.0f) * 3.0f;
     Ray r{org, 0.0f, target - org, kInf};
     float t, u, v;
-    ASSERT_TRUE(hit_tri<Tri>(r, a, b, c, t, u, v)) << "ray " << i;
+    ASSERT_TRUE(hit_tri<TriangleTest>(r, a, b, c, t, u, v)) << "ray " << i;
     EXPECT_NEAR(t, 1.0f, 1e-3f);
     const Vec3 p = a * (1 - u - v) + b * u + c * v;
     EXPECT_LT(length(p - target), 1e-3f);
     // The same ray limited to before the triangle misses it.
     Ray short_ray = r;
     short_ray.tmax = 0.9f;
-    EXPECT_FALSE(hit_tri<Tri>(short_ray, a, b, c, t, u, v));
+    EXPECT_FALSE(hit_tri<TriangleTest>(short_ray, a, b, c, t, u, v));
     ++hits;
   }
   EXPECT_GT(hits, 4000);

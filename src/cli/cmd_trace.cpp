@@ -165,14 +165,14 @@ void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel
       all, Counted{},
       [&](const tbb::blocked_range<size_t>& br, Counted acc) {
         // The cached leaves taken are counted per thread: this chunk's runs on one.
-        const uint64_t guessed0 = Hybrid::next_leaves_from_cache();
+        const uint64_t guessed0 = GridKdHybrid::next_leaves_from_cache();
         for (size_t i = br.begin(); i < br.end(); ++i) {
           Hit h;
           const bool hit = a.any ? accel.occluded_counted(rays[i], acc.c)
                                  : accel.intersect_counted(rays[i], h, acc.c);
           acc.hits += hit;
         }
-        acc.guessed += Hybrid::next_leaves_from_cache() - guessed0;
+        acc.guessed += GridKdHybrid::next_leaves_from_cache() - guessed0;
         return acc;
       },
       [](Counted x, const Counted& y) {

@@ -105,7 +105,7 @@ void Viewer::start_load(const std::string& path) {
     auto scene = std::make_shared<Scene>(load_scene(path));
     BuildParams p = params;
     p.cell_size = choice.resolve(choice.kind == CellChoice::Kind::Multiple
-                                     ? Hybrid::estimate(scene->mesh, params).auto_cell
+                                     ? GridKdHybrid::estimate(scene->mesh, params).auto_cell
                                      : 0.0);
     return build_world(std::move(scene), name, p, *cancel);
   });
@@ -216,7 +216,7 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
     cell_choice_ = loading_choice_;
     BuildParams a = w->params;
     a.cell_size = 0.0f;
-    auto_cell_ = Hybrid::estimate(w->scene->mesh, a).auto_cell;
+    auto_cell_ = GridKdHybrid::estimate(w->scene->mesh, a).auto_cell;
     cell_refusal_.clear();
   }
   // The choice follows what was built (a scripted rebuild, a build from the panel), and the
@@ -228,7 +228,7 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
     else if (cell_choice_.kind != CellChoice::Kind::Multiple ||
              std::fabs(cell_choice_.resolve(auto_cell_) - cs) > 1e-6f * cs)
       cell_choice_ = {CellChoice::Kind::Units, double(cs)};
-    if (const auto* h = dynamic_cast<const Hybrid*>(w->accel.get()))
+    if (const auto* h = dynamic_cast<const GridKdHybrid*>(w->accel.get()))
       cell_size_slider_ = float(h->cell_size());
     cell_estimated_for_ = -1;
   }

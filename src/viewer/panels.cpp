@@ -19,7 +19,7 @@ void Viewer::request_cell_choice(const CellChoice& c) {
   if (!world_) return;
   const BuildParams p = params_with_cell_size("hybrid", c.resolve(auto_cell_));
   try {
-    const HybridEstimate e = Hybrid::estimate(world_->scene->mesh, p);
+    const HybridEstimate e = GridKdHybrid::estimate(world_->scene->mesh, p);
     cell_estimate_ = e.describe();
     cell_estimated_for_ = float(e.cell);
     if (!e.fits) {
@@ -69,9 +69,9 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
   // The estimate of the size on the slider, updated while it moves (O(triangles)).
   if (cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 && world_) {
     try {
-      cell_estimate_ =
-          Hybrid::estimate(world_->scene->mesh, params_with_cell_size("hybrid", cell_size_slider_))
-              .describe();
+      cell_estimate_ = GridKdHybrid::estimate(world_->scene->mesh,
+                                              params_with_cell_size("hybrid", cell_size_slider_))
+                           .describe();
     } catch (const ParamError& e) {
       cell_estimate_ = e.what();
     }

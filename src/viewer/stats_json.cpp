@@ -73,7 +73,7 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
     st["triangles"] = world_->scene->mesh.num_triangles();
     st["accel"] = world_->name;
     st["cell_size"] = world_->params.cell_size;
-    if (const auto* h = dynamic_cast<const Hybrid*>(world_->accel.get())) {
+    if (const auto* h = dynamic_cast<const GridKdHybrid*>(world_->accel.get())) {
       st["built_cell_size"] = h->cell_size();
       st["auto_cell_size"] = auto_cell_;
       st["cell_size_shown"] = cell_size_slider_;

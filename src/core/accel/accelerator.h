@@ -3,8 +3,8 @@
 // implements this interface, so the renderer, benchmark, tests and viewer treat them alike.
 //
 // Counting and tracing are compile-time policies of one traversal template: the fast path
-// is instantiated with NoStats whose hooks are empty inline functions, so it pays nothing;
-// CountStats and TraceStats instantiate the very same code with the hooks live.
+// is instantiated with NoProbe whose hooks are empty inline functions, so it pays nothing;
+// CountProbe and TraceProbe instantiate the very same code with the hooks live.
 #pragma once
 
 #include <cstdint>
@@ -99,7 +99,7 @@ struct StructureBox {
 // ---- traversal policies ---------------------------------------------------------------
 
 /// Fast path: every hook is empty and compiles away.
-struct NoStats {
+struct NoProbe {
   static constexpr bool kCount = false;
   static constexpr bool kTrace = false;
   void step() {}
@@ -111,7 +111,7 @@ struct NoStats {
 };
 
 /// Counts per ray.
-struct CountStats {
+struct CountProbe {
   static constexpr bool kCount = true;
   static constexpr bool kTrace = false;
   RayCounters c;
@@ -124,13 +124,13 @@ struct CountStats {
 };
 
 /// Counts and records the ordered list of visited nodes and tested triangles. Traversals
-/// call visit() (guarded by `if constexpr (S::kTrace)`) for each node/cell they enter,
+/// call visit() (guarded by `if constexpr (Probe::kTrace)`) for each node/cell they enter,
 /// before the tri_test() calls of that node.
-struct TraceStats {
+struct TraceProbe {
   static constexpr bool kCount = true;
   static constexpr bool kTrace = true;
   Trace* trace = nullptr;
-  explicit TraceStats(Trace* t) : trace(t) {}
+  explicit TraceProbe(Trace* t) : trace(t) {}
   void step() { ++trace->counters.steps; }
   void leaf() { ++trace->counters.leaves; }
   void tri_test(uint32_t prim) {
@@ -186,38 +186,38 @@ class Accelerator {
 
 /// Implements the virtual entry points from one templated traversal in Derived:
 ///
-///   template <class Tri, class S> bool closest(const Ray&, Hit&, S&) const;
-///   template <class Tri, class S> bool any(const Ray&, S&) const;
+///   template <class TriangleTest, class Probe> bool closest(const Ray&, Hit&, Probe&) const;
+///   template <class TriangleTest, class Probe> bool any(const Ray&, Probe&) const;
 ///
-/// Tri is WatertightTest, MollerTest or NullTest (chosen by BuildParams::triangle_test at build
-/// time), S is NoStats / CountStats / TraceStats. Derived stores its BuildStats in stats_
-/// and the chosen triangle test in test_.
+/// TriangleTest is WatertightTest, MollerTest or NullTest (chosen by BuildParams::triangle_test at
+/// build time), Probe is NoProbe / CountProbe / TraceProbe. Derived stores its BuildStats in stats_
+/// and the chosen triangle test in triangle_test_.
 template <class Derived>
 class AcceleratorBase : public Accelerator {
  public:
   bool intersect(const Ray& ray, Hit& hit) const final {
-    NoStats s;
+    NoProbe s;
     return dispatch_closest(ray, hit, s);
   }
   bool occluded(const Ray& ray) const final {
-    NoStats s;
+    NoProbe s;
     return dispatch_any(ray, s);
   }
   bool intersect_counted(const Ray& ray, Hit& hit, RayCounters& counters) const final {
-    CountStats s;
+    CountProbe s;
     const bool r = dispatch_closest(ray, hit, s);
     counters += s.c;
     return r;
   }
   bool occluded_counted(const Ray& ray, RayCounters& counters) const final {
-    CountStats s;
+    CountProbe s;
     const bool r = dispatch_any(ray, s);
     counters += s.c;
     return r;
   }
   Trace trace(const Ray& ray) const final {
     Trace t;
-    TraceStats s(&t);
+    TraceProbe s(&t);
     Hit h;
     dispatch_closest(ray, h, s);
     t.hit = h;
@@ -228,23 +228,25 @@ class AcceleratorBase : public Accelerator {
 
  protected:
   BuildStats stats_;
-  TriangleTestKind test_ = TriangleTestKind::Watertight;
+  TriangleTestKind triangle_test_ = TriangleTestKind::Watertight;
 
  private:
   const Derived& self() const { return static_cast<const Derived&>(*this); }
-  template <class S>
-  bool dispatch_closest(const Ray& ray, Hit& hit, S& s) const {
+  template <class Probe>
+  bool dispatch_closest(const Ray& ray, Hit& hit, Probe& s) const {
     if (!ray_is_valid(ray)) return false;
-    if (test_ == TriangleTestKind::Watertight)
+    if (triangle_test_ == TriangleTestKind::Watertight)
       return self().template closest<WatertightTest>(ray, hit, s);
-    if (test_ == TriangleTestKind::Moller) return self().template closest<MollerTest>(ray, hit, s);
+    if (triangle_test_ == TriangleTestKind::Moller)
+      return self().template closest<MollerTest>(ray, hit, s);
     return self().template closest<NullTest>(ray, hit, s);
   }
-  template <class S>
-  bool dispatch_any(const Ray& ray, S& s) const {
+  template <class Probe>
+  bool dispatch_any(const Ray& ray, Probe& s) const {
     if (!ray_is_valid(ray)) return false;
-    if (test_ == TriangleTestKind::Watertight) return self().template any<WatertightTest>(ray, s);
-    if (test_ == TriangleTestKind::Moller) return self().template any<MollerTest>(ray, s);
+    if (triangle_test_ == TriangleTestKind::Watertight)
+      return self().template any<WatertightTest>(ray, s);
+    if (triangle_test_ == TriangleTestKind::Moller) return self().template any<MollerTest>(ray, s);
     return self().template any<NullTest>(ray, s);
   }
 };

@@ -7,7 +7,7 @@ namespace kdgrid {
 BuildStats BruteForce::build(const Mesh& mesh, const BuildParams& params) {
   const auto t0 = std::chrono::steady_clock::now();
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   bounds_ = mesh.bounds();
   stats_ = {};
   stats_.nodes = 1;

@@ -11,20 +11,21 @@ class BruteForce final : public AcceleratorBase<BruteForce> {
   std::string name() const override { return "brute"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class Tri, class S>
-  bool closest(const Ray& ray, Hit& hit, S& s) const {
-    const auto rd = Tri::prepare(ray);
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
+    const auto rd = TriangleTest::prepare(ray);
     float tmax = ray.tmax;
     bool found = false;
     s.step();
     s.leaf();
-    if constexpr (S::kTrace) s.visit({StepKind::Leaf, 0, 0, bounds_, ray.tmin, ray.tmax});
+    if constexpr (Probe::kTrace) s.visit({StepKind::Leaf, 0, 0, bounds_, ray.tmin, ray.tmax});
     const auto& pos = mesh_->positions;
     for (uint32_t i = 0; i < static_cast<uint32_t>(mesh_->triangles.size()); ++i) {
       const auto& tri = mesh_->triangles[i];
       s.tri_test(i);
       float t, u, v;
-      if (Tri::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, tmax, t, u, v)) {
+      if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, tmax, t, u,
+                                  v)) {
         tmax = t;
         hit = {t, i, u, v};
         found = true;
@@ -33,9 +34,9 @@ class BruteForce final : public AcceleratorBase<BruteForce> {
     return found;
   }
 
-  template <class Tri, class S>
-  bool any(const Ray& ray, S& s) const {
-    const auto rd = Tri::prepare(ray);
+  template <class TriangleTest, class Probe>
+  bool any(const Ray& ray, Probe& s) const {
+    const auto rd = TriangleTest::prepare(ray);
     s.step();
     s.leaf();
     const auto& pos = mesh_->positions;
@@ -43,7 +44,8 @@ class BruteForce final : public AcceleratorBase<BruteForce> {
       const auto& tri = mesh_->triangles[i];
       s.tri_test(i);
       float t, u, v;
-      if (Tri::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, ray.tmax, t, u, v))
+      if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, ray.tmax, t,
+                                  u, v))
         return true;
     }
     return false;

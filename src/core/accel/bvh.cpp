@@ -244,7 +244,7 @@ BuildStats Bvh::build(const Mesh& mesh, const BuildParams& params) {
       "scene");
 
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   stats_ = {};
   stats_.peak_estimate = estimate;
   nodes_.clear();

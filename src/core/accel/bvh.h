@@ -46,10 +46,10 @@ class Bvh final : public AcceleratorBase<Bvh> {
   std::string name() const override { return "bvh"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class Tri, class S>
-  bool closest(const Ray& ray, Hit& hit, S& s) const;
-  template <class Tri, class S>
-  bool any(const Ray& ray, S& s) const;
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray& ray, Hit& hit, Probe& s) const;
+  template <class TriangleTest, class Probe>
+  bool any(const Ray& ray, Probe& s) const;
 
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
 
@@ -67,8 +67,8 @@ class Bvh final : public AcceleratorBase<Bvh> {
   static bool slab(const RayBox& rb, const BvhNode& n, float tmin, float tmax, float& t_in,
                    float& t_out);
 
-  template <class Tri, bool kAny, class S>
-  bool traverse(const Ray& ray, Hit* hit, S& s) const;
+  template <class TriangleTest, bool kAny, class Probe>
+  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
   const Mesh* mesh_ = nullptr;
   std::vector<BvhNode> nodes_;
@@ -107,11 +107,11 @@ inline bool Bvh::slab(const RayBox& rb, const BvhNode& n, float tmin, float tmax
   return tn <= tf;
 }
 
-template <class Tri, bool kAny, class S>
-bool Bvh::traverse(const Ray& ray, Hit* hit, S& s) const {
+template <class TriangleTest, bool kAny, class Probe>
+bool Bvh::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (nodes_.empty()) return false;
   const RayBox rb = prepare_box(ray);
-  const auto rd = Tri::prepare(ray);
+  const auto rd = TriangleTest::prepare(ray);
   const auto& pos = mesh_->positions;
   const auto& tris = mesh_->triangles;
   float tmax = ray.tmax;
@@ -132,7 +132,7 @@ bool Bvh::traverse(const Ray& ray, Hit* hit, S& s) const {
   for (;;) {
     const BvhNode& n = nodes_[cur];
     s.step();
-    if constexpr (S::kTrace) {
+    if constexpr (Probe::kTrace) {
       TraceStep st;
       st.kind = n.leaf() ? StepKind::Leaf : StepKind::Inner;
       st.depth = depth;
@@ -148,7 +148,8 @@ bool Bvh::traverse(const Ray& ray, Hit* hit, S& s) const {
         const auto& tri = tris[p];
         s.tri_test(p);
         float t, u, v;
-        if (Tri::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, tmax, t, u, v)) {
+        if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, tmax, t, u,
+                                    v)) {
           if constexpr (kAny) return true;
           tmax = t;
           *hit = {t, p, u, v};
@@ -163,15 +164,15 @@ bool Bvh::traverse(const Ray& ray, Hit* hit, S& s) const {
       if (hl && hr) {
         const bool left_first = tl_in <= tr_in;
         stack[sp] = left_first ? Entry{r, tr_in} : Entry{l, tl_in};
-        if constexpr (S::kTrace) depth_stack[sp] = depth + 1;
+        if constexpr (Probe::kTrace) depth_stack[sp] = depth + 1;
         ++sp;
         cur = left_first ? l : r;
-        if constexpr (S::kTrace) ++depth;
+        if constexpr (Probe::kTrace) ++depth;
         continue;
       }
       if (hl || hr) {
         cur = hl ? l : r;
-        if constexpr (S::kTrace) ++depth;
+        if constexpr (Probe::kTrace) ++depth;
         continue;
       }
     }
@@ -182,18 +183,18 @@ bool Bvh::traverse(const Ray& ray, Hit* hit, S& s) const {
       if (stack[sp].t_in <= tmax) break;
     }
     cur = stack[sp].node;
-    if constexpr (S::kTrace) depth = depth_stack[sp];
+    if constexpr (Probe::kTrace) depth = depth_stack[sp];
   }
 }
 
-template <class Tri, class S>
-bool Bvh::closest(const Ray& ray, Hit& hit, S& s) const {
-  return traverse<Tri, false>(ray, &hit, s);
+template <class TriangleTest, class Probe>
+bool Bvh::closest(const Ray& ray, Hit& hit, Probe& s) const {
+  return traverse<TriangleTest, false>(ray, &hit, s);
 }
 
-template <class Tri, class S>
-bool Bvh::any(const Ray& ray, S& s) const {
-  return traverse<Tri, true>(ray, nullptr, s);
+template <class TriangleTest, class Probe>
+bool Bvh::any(const Ray& ray, Probe& s) const {
+  return traverse<TriangleTest, true>(ray, nullptr, s);
 }
 
 }  // namespace kdgrid

@@ -23,7 +23,7 @@ std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "bvh") return std::make_unique<Bvh>();
   if (name == "kdtree") return std::make_unique<KdTree>();
   if (name == "grid") return std::make_unique<UniformGrid>();
-  if (name == "hybrid") return std::make_unique<Hybrid>();
+  if (name == "hybrid") return std::make_unique<GridKdHybrid>();
   if (name == "irregular") return std::make_unique<IrregularGrid>();
   if (name == "embree") return std::make_unique<EmbreeAccel>();
   std::string valid;

@@ -84,7 +84,7 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
     throw ParamError("grid: grid_max_resolution must be >= 1; got " +
                      std::to_string(params.grid_max_resolution));
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   stats_ = {};
   offsets_.clear();
   refs_.clear();

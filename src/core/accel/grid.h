@@ -37,14 +37,14 @@ class UniformGrid final : public AcceleratorBase<UniformGrid> {
   std::string name() const override { return "grid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class Tri, class S>
-  bool closest(const Ray& ray, Hit& hit, S& s) const {
-    return traverse<Tri, S, false>(ray, hit, s);
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
+    return traverse<TriangleTest, Probe, false>(ray, hit, s);
   }
-  template <class Tri, class S>
-  bool any(const Ray& ray, S& s) const {
+  template <class TriangleTest, class Probe>
+  bool any(const Ray& ray, Probe& s) const {
     Hit h;
-    return traverse<Tri, S, true>(ray, h, s);
+    return traverse<TriangleTest, Probe, true>(ray, h, s);
   }
 
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
@@ -66,8 +66,8 @@ class UniformGrid final : public AcceleratorBase<UniformGrid> {
     return b;
   }
 
-  template <class Tri, class S, bool kAny>
-  bool traverse(const Ray& ray, Hit& hit, S& s) const;
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit& hit, Probe& s) const;
 
   const Mesh* mesh_ = nullptr;
   Box3 box_;
@@ -77,8 +77,8 @@ class UniformGrid final : public AcceleratorBase<UniformGrid> {
   std::vector<uint32_t> refs_;     ///< triangle indices, grouped by cell, ascending per cell
 };
 
-template <class Tri, class S, bool kAny>
-bool UniformGrid::traverse(const Ray& ray, Hit& hit, S& s) const {
+template <class TriangleTest, class Probe, bool kAny>
+bool UniformGrid::traverse(const Ray& ray, Hit& hit, Probe& s) const {
   if (refs_.empty()) return false;
   // Clip the ray to the grid box. Axes with a zero (+0 or -0) direction never bound t and
   // never step; the ray misses unless its origin lies within the slab (boundary included).
@@ -124,7 +124,7 @@ bool UniformGrid::traverse(const Ray& ray, Hit& hit, S& s) const {
   const int64_t stride[3] = {1, int64_t(res_[0]), int64_t(res_[0]) * res_[1]};
   int64_t idx = cell[0] + stride[1] * cell[1] + stride[2] * cell[2];
 
-  const auto rd = Tri::prepare(ray);
+  const auto rd = TriangleTest::prepare(ray);
   const auto& pos = mesh_->positions;
   const auto& tris = mesh_->triangles;
   uint32_t mailbox[16];
@@ -140,7 +140,7 @@ bool UniformGrid::traverse(const Ray& ray, Hit& hit, S& s) const {
     // Rounding can put a boundary a hair before the entry point; keep intervals monotone.
     const float t_exit =
         std::max(t_in, std::min(std::min(std::min(t_next[0], t_next[1]), t_next[2]), t1));
-    if constexpr (S::kTrace)
+    if constexpr (Probe::kTrace)
       s.visit({StepKind::Cell, 0, uint64_t(idx), cell_box(cell), t_in, t_exit});
     const uint32_t begin = offsets_[idx], end = offsets_[idx + 1];
     if (begin != end) {
@@ -156,7 +156,8 @@ bool UniformGrid::traverse(const Ray& ray, Hit& hit, S& s) const {
         s.tri_test(prim);
         const auto& tri = tris[prim];
         float t, u, v;
-        if (Tri::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u, v)) {
+        if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u,
+                                    v)) {
           if constexpr (kAny) return true;
           best = t;
           hit = {t, prim, u, v};

@@ -714,7 +714,7 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
       "the grid's memory grows with the triangle count (lower --irr-sub-density or "
       "--irr-top-density only trims it): split the scene");
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   top_.clear();
   sub_.clear();
   cells_.clear();

@@ -64,13 +64,13 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
   std::string name() const override { return "irregular"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class Tri, class S>
-  bool closest(const Ray& ray, Hit& hit, S& s) const {
-    return walk<Tri, S, false>(ray, &hit, s);
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
+    return walk<TriangleTest, Probe, false>(ray, &hit, s);
   }
-  template <class Tri, class S>
-  bool any(const Ray& ray, S& s) const {
-    return walk<Tri, S, true>(ray, nullptr, s);
+  template <class TriangleTest, class Probe>
+  bool any(const Ray& ray, Probe& s) const {
+    return walk<TriangleTest, Probe, true>(ray, nullptr, s);
   }
 
   /// Cell boxes (their own box, not the expanded exit box) with their reference counts.
@@ -131,8 +131,8 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
                  float(lattice_plane(2, hi[2])))};
   }
 
-  template <class Tri, class S, bool kAny>
-  bool walk(const Ray& ray, Hit* hit, S& s) const;
+  template <class TriangleTest, class Probe, bool kAny>
+  bool walk(const Ray& ray, Hit* hit, Probe& s) const;
 
   const Mesh* mesh_ = nullptr;
   double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0};      ///< grid box (padded scene box)
@@ -151,8 +151,8 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
 
 // ---- traversal ----------------------------------------------------------------------------
 
-template <class Tri, class S, bool kAny>
-bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
+template <class TriangleTest, class Probe, bool kAny>
+bool IrregularGrid::walk(const Ray& ray, Hit* hit, Probe& s) const {
   if (cells_.empty()) return false;
   // Clip to the grid box in double. Zero components (+0 or -0) are handled explicitly so that
   // no 0 * inf NaN can arise: such a ray either lies within the slab for all t or misses.
@@ -177,7 +177,7 @@ bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
   int32_t v[3];
   for (int a = 0; a < 3; ++a) v[a] = voxel_of(a, d[a] == 0.0 ? o[a] : o[a] + d[a] * t0);
 
-  const auto rd = Tri::prepare(ray);
+  const auto rd = TriangleTest::prepare(ray);
   const auto& pos = mesh_->positions;
   const auto& tris = mesh_->triangles;
   float best = ray.tmax;
@@ -211,7 +211,7 @@ bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
       }
     }
     t_exit = std::max(t_exit, t_in);  // rounding must not move the ray backwards
-    if constexpr (S::kTrace)
+    if constexpr (Probe::kTrace)
       s.visit(TraceStep{StepKind::Cell, 0, ci, world_box(c.lo, c.hi), float(t_in), float(t_exit)});
     if (c.end > c.begin) {
       s.leaf();
@@ -226,7 +226,8 @@ bool IrregularGrid::walk(const Ray& ray, Hit* hit, S& s) const {
         const auto& tri = tris[prim];
         s.tri_test(prim);
         float t, u, w;
-        if (Tri::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u, w)) {
+        if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u,
+                                    w)) {
           if constexpr (kAny) {
             return true;
           } else {

@@ -63,7 +63,7 @@ struct KdRay {
 
 /// Clips [t0, t1] to `box` (widened by err); false if the ray misses it. A zero direction
 /// component never bounds t: the origin must lie inside the slab. The scalar form of
-/// kd_begin's clip and of kd_clip4, which its tests hold them to bit for bit.
+/// kd_begin's clip and of kd_clip_x4, which its tests hold them to bit for bit.
 [[gnu::always_inline]] inline bool kd_clip(const KdRay& r, const Box3& box, float& t0, float& t1) {
   for (int a = 0; a < 3; ++a) {
     if (r.dir[a] == 0.0f) {
@@ -80,10 +80,10 @@ struct KdRay {
   return t0 <= t1;
 }
 
-/// The ray as kd_clip4 reads it, an axis per lane: origin, reciprocal direction and err as in
+/// The ray as kd_clip_x4 reads it, an axis per lane: origin, reciprocal direction and err as in
 /// KdRay, and `fixed`, all ones on the axes the ray does not move along. The fourth lane is an
 /// axis that never bounds t (origin, reciprocal and err 0, fixed).
-struct KdRay4 {
+struct KdRayX4 {
   Float4 org, inv, err;
   Int4 fixed;
 };
@@ -94,8 +94,8 @@ struct KdRay4 {
 /// which kd_clip drops and this reduction may keep in place of another axis's bound, so the
 /// interval can only be wider (KdTree.LaneClipsContainScalarClipWithSubnormalDirections).
 /// `lo` and `hi` hold the box's corners with -inf and +inf in the fourth lane (ClipBox4's layout).
-[[gnu::always_inline]] inline bool kd_clip4(const KdRay4& r, Float4 lo, Float4 hi, float& t0,
-                                            float& t1) {
+[[gnu::always_inline]] inline bool kd_clip_x4(const KdRayX4& r, Float4 lo, Float4 hi, float& t0,
+                                              float& t1) {
   const Float4 inf = {kInf, kInf, kInf, kInf};
   const Int4 outside = r.fixed & ((r.org < lo) | (r.org > hi));
   const Float4 tn = (lo - r.org) * r.inv, tf = (hi - r.org) * r.inv;
@@ -124,12 +124,13 @@ struct KdRay4 {
 
 /// The kd traversals' set-up, the three axes at once: `kr` for `ray` (reciprocals, 0 on a zero
 /// component; err from max(|org|, max_abs) as KdRay says) and [t0, t1] = [tmin, tmax] clipped
-/// to `box` by kd_clip4, each slab widened by err: the results of kd_clip bit for bit
+/// to `box` by kd_clip_x4, each slab widened by err: the results of kd_clip bit for bit
 /// (KdTree.BeginMatchesScalarClipBitForBit; a subnormal direction component only widens the
-/// interval, see kd_clip4); false if the ray misses the box. With `r4`, the ray as kd_clip4
+/// interval, see kd_clip_x4); false if the ray misses the box. With `r4`, the ray as kd_clip_x4
 /// reads it is kept for the caller.
 [[gnu::always_inline]] inline bool kd_begin(const Ray& ray, const ClipBox4& box, float max_abs,
-                                            KdRay& kr, float& t0, float& t1, KdRay4* r4 = nullptr) {
+                                            KdRay& kr, float& t0, float& t1,
+                                            KdRayX4* r4 = nullptr) {
   Float4 o, d;  // the fourth lanes (tmin, tmax) are not used
   load_ray4(ray, o, d);
   const Float4 zero = {0.0f, 0.0f, 0.0f, 0.0f};
@@ -141,18 +142,18 @@ struct KdRay4 {
   kr.dir = ray.dir;
   kr.inv_dir = Vec3(inv[0], inv[1], inv[2]);
   kr.err = Vec3(err[0], err[1], err[2]);
-  // The clip itself is kd_clip4's: a zero direction component never bounds t, and the
+  // The clip itself is kd_clip_x4's: a zero direction component never bounds t, and the
   // origin must lie inside its slab.
   const Int4 xyz = {-1, -1, -1, 0};
-  KdRay4 own;
-  KdRay4& k4 = r4 ? *r4 : own;
+  KdRayX4 own;
+  KdRayX4& k4 = r4 ? *r4 : own;
   k4.org = xyz ? o : zero;
   k4.inv = xyz ? inv : zero;
   k4.err = xyz ? err : zero;
   k4.fixed = ~(moving & xyz);
   t0 = ray.tmin;
   t1 = ray.tmax;
-  return kd_clip4(k4, box.lo, box.hi, t0, t1);
+  return kd_clip_x4(k4, box.lo, box.hi, t0, t1);
 }
 
 /// The kd traversal, front to back with a stack of (node, t_min, t_max), pbrt-v3 style: at an
@@ -166,12 +167,12 @@ struct KdRay4 {
 /// walk's own locals. The walk ends after a leaf once the closest hit lies before every node
 /// left on the stack. Traced walks call `visit(kind, depth, node, box, t_min, t_max)` for each
 /// node, depth counted from the root.
-template <class S, class LeafFn, class VisitFn>
+template <class Probe, class LeafFn, class VisitFn>
 [[gnu::always_inline]] inline bool kd_traverse(const KdNode* nodes, uint32_t root, const KdRay& r,
                                                float t_min, float t_max,
                                                [[maybe_unused]] const Box3& root_box,
-                                               float& best_io, bool& found_io, S& s, LeafFn&& leaf,
-                                               [[maybe_unused]] VisitFn&& visit) {
+                                               float& best_io, bool& found_io, Probe& s,
+                                               LeafFn&& leaf, [[maybe_unused]] VisitFn&& visit) {
   float best = best_io;
   bool found = found_io;
   // Stack of nodes still to visit, front to back. It is kept sorted (top has the smallest
@@ -183,18 +184,18 @@ template <class S, class LeafFn, class VisitFn>
   };
   Entry stack[kKdMaxDepth + 4];
   // Traces only: the depth and box of each node, and of each on the stack.
-  [[maybe_unused]] Box3 box_stack[S::kTrace ? kKdMaxDepth + 4 : 1];
-  [[maybe_unused]] int depth_stack[S::kTrace ? kKdMaxDepth + 4 : 1];
+  [[maybe_unused]] Box3 box_stack[Probe::kTrace ? kKdMaxDepth + 4 : 1];
+  [[maybe_unused]] int depth_stack[Probe::kTrace ? kKdMaxDepth + 4 : 1];
   int sp = 0;
   uint32_t node = root;
   [[maybe_unused]] int depth = 0;
   [[maybe_unused]] Box3 box;
-  if constexpr (S::kTrace) box = root_box;
+  if constexpr (Probe::kTrace) box = root_box;
   for (;;) {
     const KdNode& n = nodes[node];
     s.step();
     if (!n.leaf()) {
-      if constexpr (S::kTrace) visit(StepKind::Inner, depth, node, box, t_min, t_max);
+      if constexpr (Probe::kTrace) visit(StepKind::Inner, depth, node, box, t_min, t_max);
       const int a = n.axis();
       const float split = n.split, o = component(r.org, a), d = component(r.dir, a);
       const uint32_t below = node + 1, above = n.above();
@@ -224,37 +225,37 @@ template <class S, class LeafFn, class VisitFn>
         }
       }
       Box3 box_first, box_second;
-      if constexpr (S::kTrace) {
+      if constexpr (Probe::kTrace) {
         Box3 lo_box = box, hi_box = box;
         lo_box.hi[a] = split;
         hi_box.lo[a] = split;
         box_first = first == below ? lo_box : hi_box;
         box_second = first == below ? hi_box : lo_box;
       }
-      if constexpr (S::kTrace) ++depth;
+      if constexpr (Probe::kTrace) ++depth;
       if (visit_first && visit_second) {
         if (sp > 0 && stack[sp - 1].t_min < second_min) second_min = stack[sp - 1].t_min;
         stack[sp] = {second, second_min, t_max};
-        if constexpr (S::kTrace) {
+        if constexpr (Probe::kTrace) {
           box_stack[sp] = box_second;
           depth_stack[sp] = depth;
         }
         ++sp;
         node = first;
         t_max = first_max;
-        if constexpr (S::kTrace) box = box_first;
+        if constexpr (Probe::kTrace) box = box_first;
       } else if (visit_first) {
         node = first;
-        if constexpr (S::kTrace) box = box_first;
+        if constexpr (Probe::kTrace) box = box_first;
       } else {
         node = second;
-        if constexpr (S::kTrace) box = box_second;
+        if constexpr (Probe::kTrace) box = box_second;
       }
       continue;
     }
 
     // Leaf.
-    if constexpr (S::kTrace) visit(StepKind::Leaf, depth, node, box, t_min, t_max);
+    if constexpr (Probe::kTrace) visit(StepKind::Leaf, depth, node, box, t_min, t_max);
     if (leaf(n, best, found)) {
       best_io = best;
       found_io = found;
@@ -268,7 +269,7 @@ template <class S, class LeafFn, class VisitFn>
     node = stack[sp].node;
     t_min = stack[sp].t_min;
     t_max = stack[sp].t_max;
-    if constexpr (S::kTrace) {
+    if constexpr (Probe::kTrace) {
       box = box_stack[sp];
       depth = depth_stack[sp];
     }

@@ -478,7 +478,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
       params, fix);
 
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   stats_ = {};
   nodes_.clear();
   prims_.clear();

@@ -71,14 +71,14 @@ class KdTree final : public AcceleratorBase<KdTree> {
   std::string name() const override { return "kdtree"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class Tri, class S>
-  bool closest(const Ray& ray, Hit& hit, S& s) const {
-    return traverse<Tri, S, false>(ray, hit, s);
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
+    return traverse<TriangleTest, Probe, false>(ray, hit, s);
   }
-  template <class Tri, class S>
-  bool any(const Ray& ray, S& s) const {
+  template <class TriangleTest, class Probe>
+  bool any(const Ray& ray, Probe& s) const {
     Hit h;
-    return traverse<Tri, S, true>(ray, h, s);
+    return traverse<TriangleTest, Probe, true>(ray, h, s);
   }
 
   void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
@@ -88,8 +88,8 @@ class KdTree final : public AcceleratorBase<KdTree> {
   const std::vector<KdNode>& nodes() const { return nodes_; }
 
  private:
-  template <class Tri, class S, bool kAny>
-  bool traverse(const Ray& ray, Hit& hit, S& s) const;
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit& hit, Probe& s) const;
 
   const Mesh* mesh_ = nullptr;
   Box3 bounds_;
@@ -99,14 +99,14 @@ class KdTree final : public AcceleratorBase<KdTree> {
   std::vector<uint32_t> prims_;
 };
 
-template <class Tri, class S, bool kAny>
-bool KdTree::traverse(const Ray& ray, Hit& hit, S& s) const {
+template <class TriangleTest, class Probe, bool kAny>
+bool KdTree::traverse(const Ray& ray, Hit& hit, Probe& s) const {
   if (nodes_.empty()) return false;
   // Clip to the root box (kd_begin); zero direction components never bound t.
   KdRay kr;
   float t0, t1;
   if (!kd_begin(ray, clip_box_, max_abs_, kr, t0, t1)) return false;
-  const auto rd = Tri::prepare(ray);
+  const auto rd = TriangleTest::prepare(ray);
   const auto& pos = mesh_->positions;
   const auto& tris = mesh_->triangles;
   auto leaf = [&](const KdNode& n, float& best, bool& found) __attribute__((always_inline)) {
@@ -118,7 +118,8 @@ bool KdTree::traverse(const Ray& ray, Hit& hit, S& s) const {
       s.tri_test(prim);
       const auto& tri = tris[prim];
       float t, u, v;
-      if (Tri::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u, v)) {
+      if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u,
+                                  v)) {
         if constexpr (kAny) return true;
         best = t;
         hit = {t, prim, u, v};

@@ -74,7 +74,7 @@ struct BuildParams {
   float hybrid_intersection_cost = 1.5f;
   /// Leaves referencing more than this many triangles get a kd subtree built by the
   /// kd-tree's builder over the leaf's triangles (split planes anywhere inside the leaf, the
-  /// kd_* costs, at most Hybrid::kSubMaxDepth levels), walked by the kd-tree's traversal over
+  /// kd_* costs, at most GridKdHybrid::kSubMaxDepth levels), walked by the kd-tree's traversal over
   /// the ray's segment in the leaf. A cell is then not a triangle wide (the auto rule caps the
   /// grid at 2^19 cells), so a plain leaf would test tens of triangles a ray mostly misses.
   /// 0 = the paper's plain leaves (`scripts/hybrid-variants.sh` measures both).

@@ -1,4 +1,4 @@
-// Hybrid::build: validates the parameters, chooses the cell size (choose_cell_size: explicit
+// GridKdHybrid::build: validates the parameters, chooses the cell size (choose_cell_size: explicit
 // or the auto rule), checks the memory budget, then builds the tree (tree.cpp), the cell map
 // (cell_map.cpp) and the widened empty leaves (widen.cpp), and reports the build's figures.
 #include <tbb/parallel_for.h>
@@ -124,7 +124,7 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
 
 // ---- build ------------------------------------------------------------------------------
 
-BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
+BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   const auto t_start = std::chrono::steady_clock::now();
   // Validate parameters before touching any state.
   if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
@@ -169,7 +169,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
         "lower kd_max_depth");
   }
   mesh_ = &mesh;
-  test_ = params.triangle_test;
+  triangle_test_ = params.triangle_test;
   next_leaf_cache_ = params.hybrid_guess;
   nodes_.clear();
   leaves_.clear();
@@ -199,7 +199,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const double cell = hybrid::choose_cell_size(mesh, params, ext, budget, rule);
   if (params.cell_size > 0.0f) {
     // An explicit size: refused before anything is allocated when its estimate does not fit.
-    const HybridEstimate est = Hybrid::estimate(mesh, params);
+    const HybridEstimate est = GridKdHybrid::estimate(mesh, params);
     if (!est.fits) throw ParamError(est.refusal());
   }
   cell_ = cell;
@@ -290,7 +290,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
       tris_[i] = {c[0], c[1], c[2]};
     });
     uint64_t other = 0;
-    other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(CellBox)) +
+    other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
              leaf_depth_.size() + refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
@@ -332,7 +332,7 @@ BuildStats Hybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
-  const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(CellBox);
+  const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(KdBox);
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
   const uint64_t b_tris = tris_.size() * (sizeof(TriVerts) + sizeof(uint32_t));
   const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);

@@ -35,7 +35,7 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
 
 /// Widens every empty leaf's box over the empty cells around it (docs/HYBRID.md, "Widened
 /// empty leaves"), in a grid of dims cells; returns the BuildStats text. Skipped when its
-/// table of occupied cells exceeds `budget` bytes or Hybrid::kMaxExpandEntries entries.
+/// table of occupied cells exceeds `budget` bytes or GridKdHybrid::kMaxExpandEntries entries.
 std::string widen_empty_leaves(std::vector<Leaf>& leaves, const int32_t dims[3], uint64_t budget,
                                const CancelToken* cancel);
 

@@ -1,4 +1,4 @@
-// Hybrid::estimate: what a build at given parameters would make (grid, bytes, seconds), from
+// GridKdHybrid::estimate: what a build at given parameters would make (grid, bytes, seconds), from
 // the mesh alone, and the smallest cell size that fits when it does not (HybridEstimate).
 #include <algorithm>
 #include <cmath>
@@ -54,7 +54,7 @@ EstimateAt estimate_at(double c, const double ext[3], double ntri, double area,
   const double bins = 2.0 * axis_sum * 2.7 * std::pow(std::max(1.0, ntri), 2.0 / 3.0);
   const double sat = (e.dims[0] + 1) * (e.dims[1] + 1) * (e.dims[2] + 1);
   const double expand =
-      p.hybrid_expand_empty && sat <= double(Hybrid::kMaxExpandEntries) ? sat * 4.0 : 0.0;
+      p.hybrid_expand_empty && sat <= double(GridKdHybrid::kMaxExpandEntries) ? sat * 4.0 : 0.0;
   e.structure_bytes = matrix + ntri * kHybridBytesPerTriangle;
   e.bytes = e.structure_bytes + 8.0 * axis_sum * threads + expand;
   e.cell_seconds = (matrix_ops + bins) * kHybridSecondsPerBinOp / threads;
@@ -115,7 +115,7 @@ std::string HybridEstimate::describe() const {
          " to build";
 }
 
-HybridEstimate Hybrid::estimate(const Mesh& mesh, const BuildParams& params) {
+HybridEstimate GridKdHybrid::estimate(const Mesh& mesh, const BuildParams& params) {
   if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
     throw ParamError("hybrid: cell_size " + format_double("%g", params.cell_size) +
                      " is not a finite number");

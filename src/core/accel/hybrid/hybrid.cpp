@@ -6,12 +6,12 @@
 
 namespace kdgrid {
 
-uint64_t Hybrid::matrix_bytes(bool dense) const {
+uint64_t GridKdHybrid::matrix_bytes(bool dense) const {
   if (dense) return hybrid::DenseCellMap::bytes_for(dims_);
   return map_.bricked().bytes(nodes_);
 }
 
-Box3 Hybrid::leaf_box(uint32_t leaf) const {
+Box3 GridKdHybrid::step_box(uint32_t leaf) const {
   const Leaf& l = leaves_[leaf];
   Box3 b;
   for (int a = 0; a < 3; ++a) {
@@ -21,7 +21,7 @@ Box3 Hybrid::leaf_box(uint32_t leaf) const {
   return b;
 }
 
-void Hybrid::for_each_split(const std::function<void(const SplitPlane&)>& fn) const {
+void GridKdHybrid::for_each_split(const std::function<void(const SplitPlane&)>& fn) const {
   if (nodes_.empty()) return;
   struct Item {
     uint32_t node;
@@ -55,10 +55,10 @@ void Hybrid::for_each_split(const std::function<void(const SplitPlane&)>& fn) co
   }
 }
 
-void Hybrid::for_each_box(const std::function<void(const StructureBox&)>& fn) const {
+void GridKdHybrid::for_each_box(const std::function<void(const StructureBox&)>& fn) const {
   for (uint32_t i = 0; i < leaves_.size(); ++i)
     if (leaves_[i].count)
-      fn({leaf_box(i), int(leaf_depth_[i]), true, leaves_[i].count & ~kSubtreeFlag});
+      fn({step_box(i), int(leaf_depth_[i]), true, leaves_[i].count & ~kSubtreeFlag});
 }
 
 }  // namespace kdgrid

@@ -4,14 +4,14 @@
 // uniform grid, instead of descending the tree. The files of accel/hybrid/:
 //
 //   hybrid.h          this class: parameters, records' names, the walk's declarations
-//   records.h         Node, Leaf (the step box), CellBox (the kd box), TriVerts
+//   records.h         Node, Leaf (the step box), KdBox (the kd box), TriVerts
 //   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
 //   walk.h            the ray walk: clip, entry cell, leaf steps with mailboxed tests, and
 //                     the next-leaf cache (NextLeafCache)
-//   build.cpp         Hybrid::build; choose_cell_size (explicit size or the auto rule)
+//   build.cpp         GridKdHybrid::build; choose_cell_size (explicit size or the auto rule)
 //   tree.cpp          the kd-tree on cell boundaries, its leaf subtrees, flattened
 //   widen.cpp         widened empty leaves
-//   estimate.cpp      Hybrid::estimate: grid, bytes and seconds of a build before it runs
+//   estimate.cpp      GridKdHybrid::estimate: grid, bytes and seconds of a build before it runs
 //   hybrid.cpp        leaf boxes, split planes and map sizes for tests and the viewer
 //   build.h           what the build's files share
 //
@@ -43,12 +43,12 @@
 namespace kdgrid {
 
 namespace hybrid {
-template <class Tri>
+template <class TriangleTest>
 struct WalkState;
 struct Exit;
 struct LocalHit;
 enum class StepResult;
-template <class S>
+template <class Probe>
 struct StatsMark;
 }  // namespace hybrid
 
@@ -69,8 +69,8 @@ constexpr double kHybridAutoMaxCellsPlain = double(uint64_t(1) << 24);
 constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
 
 /// What a hybrid build at given parameters would make, from the mesh alone (O(triangles), no
-/// allocation beyond one float per triangle): Hybrid::estimate. The viewer shows it before a
-/// build; Hybrid::build refuses parameters whose estimate does not fit, with the estimate and
+/// allocation beyond one float per triangle): GridKdHybrid::estimate. The viewer shows it before a
+/// build; GridKdHybrid::build refuses parameters whose estimate does not fit, with the estimate and
 /// suggested_cell in the message.
 struct HybridEstimate {
   double cell = 0;       ///< the cell size the build would use (the auto rule resolved)
@@ -114,18 +114,18 @@ constexpr double kHybridSecondsPerBrick = 10e-6;     ///< matrix construction, o
 constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
 constexpr double kHybridSecondsPerBinOp = 1e-9;      ///< one per-cell binning entry
 
-class Hybrid final : public AcceleratorBase<Hybrid> {
+class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
  public:
   /// See HybridEstimate. Throws ParamError for invalid parameters, as build() does.
   static HybridEstimate estimate(const Mesh& mesh, const BuildParams& params);
   using Node = hybrid::Node;
   using Leaf = hybrid::Leaf;
-  using CellBox = hybrid::CellBox;
+  using KdBox = hybrid::KdBox;
   using TriVerts = hybrid::TriVerts;
   static constexpr uint32_t kSubtreeFlag = hybrid::kSubtreeFlag;
   /// A leaf subtree in sub_nodes_ starts with the box of its clipped triangles (its corners
   /// as two ClipBox4 lanes, x, y, z, -inf and x, y, z, +inf, in this many nodes' bytes), which
-  /// a ray is clipped to first (kd_clip4), then the kd-tree's nodes.
+  /// a ray is clipped to first (kd_clip_x4), then the kd-tree's nodes.
   static constexpr uint32_t kSubBoxNodes = 4;
   /// Leaf subtrees are at most this many levels deep (64 leaves): deeper ones test fewer
   /// triangles but build longer and take more memory for no speed (docs/HYBRID.md, "Leaf
@@ -155,13 +155,13 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   std::string name() const override { return "hybrid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class Tri, class S>
-  bool closest(const Ray& ray, Hit& hit, S& s) const {
-    return walk<Tri, S, false>(ray, &hit, s);
+  template <class TriangleTest, class Probe>
+  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
+    return walk<TriangleTest, Probe, false>(ray, &hit, s);
   }
-  template <class Tri, class S>
-  bool any(const Ray& ray, S& s) const {
-    return walk<Tri, S, true>(ray, nullptr, s);
+  template <class TriangleTest, class Probe>
+  bool any(const Ray& ray, Probe& s) const {
+    return walk<TriangleTest, Probe, true>(ray, nullptr, s);
   }
 
   void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
@@ -183,15 +183,15 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// triangles from their mailbox (walk.h, tested_before).
   uint64_t rewalked_rays() const { return rewalks_.load(std::memory_order_relaxed); }
   /// World box of a leaf: the box its steps cross (an empty leaf's widened box).
-  Box3 leaf_box(uint32_t leaf) const;
+  Box3 step_box(uint32_t leaf) const;
   /// Bytes the storage selected by `dense` would take for the current tree (computed, not
   /// allocated; the bricked figure is exact).
   uint64_t matrix_bytes(bool dense) const;
 
  private:
   // ---- the walk (defined in walk.h) ----
-  template <class Tri>
-  using WalkState = hybrid::WalkState<Tri>;
+  template <class TriangleTest>
+  using WalkState = hybrid::WalkState<TriangleTest>;
   using Exit = hybrid::Exit;
   using LocalHit = hybrid::LocalHit;
   using StepResult = hybrid::StepResult;
@@ -214,44 +214,45 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   /// gives the ray to rewalk when the mailbox cannot tell every repeat (tested_before): one
   /// compare a ray. The exact walk, its copy with a record of every triangle tested, runs only
   /// there.
-  template <class Tri, class S, bool kAny, bool kExact = false>
-  bool walk(const Ray& ray, Hit* hit, S& s) const;
+  template <class TriangleTest, class Probe, bool kAny, bool kExact = false>
+  bool walk(const Ray& ray, Hit* hit, Probe& s) const;
   /// Takes back the abandoned fast walk's counts (to `mark`) and walks the ray again exactly:
   /// the same leaves and tests in the same order, each triangle once, so the same closest hit.
   /// Out of line and cold, so that the fast walk only pays the branch to it.
-  template <class Tri, class S, bool kAny>
-  [[gnu::noinline, gnu::cold]] bool rewalk(const Ray& ray, Hit* hit, S& s,
-                                           const hybrid::StatsMark<S>& mark) const;
+  template <class TriangleTest, class Probe, bool kAny>
+  [[gnu::noinline, gnu::cold]] bool rewalk(const Ray& ray, Hit* hit, Probe& s,
+                                           const hybrid::StatsMark<Probe>& mark) const;
   /// Where the ray leaves a leaf's step box (the nearest far plane) and the cell past it.
-  template <class Tri>
-  [[gnu::always_inline]] inline Exit leaf_exit(const WalkState<Tri>& w, const Leaf& L) const;
+  template <class TriangleTest>
+  [[gnu::always_inline]] inline Exit leaf_exit(const WalkState<TriangleTest>& w,
+                                               const Leaf& L) const;
   /// The rest of leaf_exit once the exit axis A is known (a branch per axis: see leaf_exit).
-  template <int A, class Tri>
-  [[gnu::always_inline]] inline void exit_through(const WalkState<Tri>& w, const Double4& lo,
-                                                  const Double4& hi, const Double4& far, double t,
-                                                  Exit& ex) const;
+  template <int A, class TriangleTest>
+  [[gnu::always_inline]] inline void exit_through(const WalkState<TriangleTest>& w,
+                                                  const Double4& lo, const Double4& hi,
+                                                  const Double4& far, double t, Exit& ex) const;
   /// Counts one leaf step; true (and a step-bound error counted) once the ray has taken more
   /// than the nx+ny+nz+1 steps a correct walk can take.
-  template <class Tri>
-  [[gnu::always_inline]] inline bool over_step_bound(WalkState<Tri>& w) const;
+  template <class TriangleTest>
+  [[gnu::always_inline]] inline bool over_step_bound(WalkState<TriangleTest>& w) const;
   /// Clips the ray to the grid and finds its entry cell's leaf; false if it misses the grid.
   /// Inlined into walk(): out of line, every ray pays a call and the stores that build the
   /// walk's state (3% of a dragon ray's instructions; docs/HYBRID.md, "The walk").
-  template <class Tri>
-  [[gnu::always_inline]] inline bool walk_begin(WalkState<Tri>& w, const Ray& ray) const;
+  template <class TriangleTest>
+  [[gnu::always_inline]] inline bool walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const;
   /// One leaf step: tests the leaf's triangles and moves to the next leaf. Out of line on
   /// purpose: as its own function, with the ray's state in memory, the step compiled better
   /// than inlined in the ray's loop (5-8% faster primary rays; docs/HYBRID.md, "The walk").
   /// Empty leaves do not come here (traced walks excepted): walk() steps over them inline,
   /// with nothing to test.
-  template <class Tri, class S, bool kAny, bool kExact>
-  [[gnu::noinline]] StepResult walk_step(WalkState<Tri>& w, S& s) const;
+  template <class TriangleTest, class Probe, bool kAny, bool kExact>
+  [[gnu::noinline]] StepResult walk_step(WalkState<TriangleTest>& w, Probe& s) const;
   /// Tests `count` references of a leaf (or a subtree's leaf) through the ray's mailbox, the one
   /// loop of both; the closest hit goes to best, found and h, which the subtree's walk keeps in
   /// its locals. True: an any-hit query answered.
-  template <class Tri, class S, bool kAny, bool kExact>
-  [[gnu::always_inline]] inline bool test_refs(WalkState<Tri>& w, S& s,
-                                               const typename Tri::RayData& rd, float tmin,
+  template <class TriangleTest, class Probe, bool kAny, bool kExact>
+  [[gnu::always_inline]] inline bool test_refs(WalkState<TriangleTest>& w, Probe& s,
+                                               const typename TriangleTest::RayData& rd, float tmin,
                                                const uint32_t* r, uint32_t count, float& best,
                                                bool& found, LocalHit& h) const;
 
@@ -268,13 +269,13 @@ class Hybrid final : public AcceleratorBase<Hybrid> {
   Box3 wbox_;             ///< the grid's world box, widened beyond rounding (walk_begin)
   ClipBox4 wclip_;        ///< wbox_ as kd_begin reads it
   float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
-  bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_guess
+  bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_next_leaf_cache
   uint64_t uid_ = 0;             ///< unique per build, never 0 (NextLeafCache::owner)
   uint64_t max_steps_ = 0;
 
   std::vector<Node> nodes_;
   std::vector<Leaf> leaves_;
-  std::vector<CellBox> kd_boxes_;  ///< each leaf's kd box; kept only for the next-leaf cache
+  std::vector<KdBox> kd_boxes_;  ///< each leaf's kd box; kept only for the next-leaf cache
   std::vector<uint8_t> leaf_depth_;
   std::vector<KdNode> sub_nodes_;  ///< leaf subtrees (world space, KdNode layout)
   std::vector<uint32_t> refs_;     ///< per leaf, indices into tris_ (local triangle ids)

@@ -36,7 +36,7 @@ constexpr uint32_t kSubtreeFlag = 0x80000000u;
 
 /// A leaf's kd box (an empty leaf's before widening): the kd boxes tile the grid, so a cell
 /// inside one names its leaf (the next-leaf cache's check, walk.h).
-struct CellBox {
+struct KdBox {
   /// x, y, z and a fourth lane that every cell passes (INT32_MIN, INT32_MAX; a walk's lane 3 is 0).
   alignas(16) int32_t lo[4];
   int32_t hi[4];

@@ -1,6 +1,6 @@
 // The hybrid's tree: an SAH kd-tree whose split planes lie on cell boundaries (docs/HYBRID.md,
 // "The structure"), built over clipped triangle references, then flattened into the
-// structure's nodes, leaves and references (Hybrid::build_tree).
+// structure's nodes, leaves and references (GridKdHybrid::build_tree).
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_invoke.h>
 
@@ -34,7 +34,8 @@ struct BuildNode {
   int depth = 0;
   std::unique_ptr<BuildNode> kid[2];
   std::vector<uint32_t> prims;
-  std::vector<KdNode> sub_nodes;   ///< leaf subtree: its box (Hybrid::kSubBoxNodes), then its nodes
+  std::vector<KdNode>
+      sub_nodes;  ///< leaf subtree: its box (GridKdHybrid::kSubBoxNodes), then its nodes
   std::vector<uint32_t> sub_refs;  ///< its references (mesh triangle ids)
 };
 
@@ -49,7 +50,7 @@ class TreeBuilder {
       : mesh_(mesh),
         inv_cell_(1.0 / cell),
         cell_(cell),
-        kd_(mesh, p, Hybrid::kSubMaxDepth),
+        kd_(mesh, p, GridKdHybrid::kSubMaxDepth),
         kd_deep_(mesh, p, KdTree::kMaxDepth),
         cancel_(p.cancel) {
     for (int a = 0; a < 3; ++a) {
@@ -69,7 +70,7 @@ class TreeBuilder {
   /// Running account of the build's memory (reference lists alive in the recursion, build
   /// nodes and their leaf lists). Straddling triangles are clipped into both children, so
   /// scenes of long thin triangles multiply references with depth; past the budget every
-  /// pending node becomes an empty leaf and Hybrid::build throws instead of exhausting RAM.
+  /// pending node becomes an empty leaf and GridKdHybrid::build throws instead of exhausting RAM.
   void charge(int64_t bytes) {
     const int64_t now = live_.fetch_add(bytes, std::memory_order_relaxed) + bytes;
     int64_t peak = peak_.load(std::memory_order_relaxed);
@@ -160,7 +161,7 @@ class TreeBuilder {
   /// The triangle clipped to the node box [lo, hi) widened by kRangeEps, as an inclusive
   /// integer cell range. False if the triangle misses the box.
   bool clip_range(uint32_t prim, const int32_t lo[3], const int32_t hi[3], Ref& out) const {
-    constexpr double eps = Hybrid::kRangeEps;
+    constexpr double eps = GridKdHybrid::kRangeEps;
     double blo[3], bhi[3], bl[3], bh[3];
     for (int a = 0; a < 3; ++a) {
       blo[a] = double(lo[a]) - eps;
@@ -195,14 +196,14 @@ class TreeBuilder {
     // A leaf far larger than the auto grid's (a coarse explicit cell, one cell for the whole
     // scene) gets the kd-tree's whole depth rule: 6 levels would leave thousands of triangles
     // per subtree leaf.
-    const KdSubtreeBuilder& kd = node.prims.size() > Hybrid::kSubDeepMin ? kd_deep_ : kd_;
+    const KdSubtreeBuilder& kd = node.prims.size() > GridKdHybrid::kSubDeepMin ? kd_deep_ : kd_;
     kd.build(node.prims, box, nodes, node.sub_refs, bounds);
     const float f[8] = {bounds.lo.x, bounds.lo.y, bounds.lo.z, -kInf,
                         bounds.hi.x, bounds.hi.y, bounds.hi.z, kInf};
-    static_assert(sizeof f == Hybrid::kSubBoxNodes * sizeof(KdNode));
-    node.sub_nodes.resize(Hybrid::kSubBoxNodes + nodes.size());
+    static_assert(sizeof f == GridKdHybrid::kSubBoxNodes * sizeof(KdNode));
+    node.sub_nodes.resize(GridKdHybrid::kSubBoxNodes + nodes.size());
     std::memcpy(node.sub_nodes.data(), f, sizeof f);
-    std::copy(nodes.begin(), nodes.end(), node.sub_nodes.begin() + Hybrid::kSubBoxNodes);
+    std::copy(nodes.begin(), nodes.end(), node.sub_nodes.begin() + GridKdHybrid::kSubBoxNodes);
     charge(
         int64_t(node.sub_nodes.size() * sizeof(KdNode) + node.sub_refs.size() * sizeof(uint32_t)));
     // The leaf's references are the subtree's (leaf_refs() counts what flattening copies).
@@ -337,7 +338,7 @@ class TreeBuilder {
 
 }  // namespace
 
-void Hybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
+void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
   TreeBuilder tb(mesh, origin_, cell_, dims_, params);
   std::unique_ptr<BuildNode> root = tb.build_root();
   stats_.sah_evaluations = tb.sah_evaluations();

@@ -9,7 +9,7 @@
 // start by the exact walk, the same walk with a record of every triangle tested (rewalk).
 //
 // The next leaf comes from the map (cell_map.h) or from the thread's NextLeafCache, which
-// remembers the leaf last reached across each leaf face (BuildParams::hybrid_guess).
+// remembers the leaf last reached across each leaf face (BuildParams::hybrid_next_leaf_cache).
 #pragma once
 
 #include <algorithm>
@@ -48,8 +48,8 @@ struct NextLeafCache {
   uint32_t leaf[kEntries];
   uint32_t start;  ///< the entry leaf of the thread's previous ray
   int32_t score;
-  uint64_t taken;  ///< leaves taken from the cache (Hybrid::next_leaves_from_cache)
-  uint64_t owner;  ///< Hybrid::uid_ of the structure whose leaf ids the cache holds (0: none)
+  uint64_t taken;  ///< leaves taken from the cache (GridKdHybrid::next_leaves_from_cache)
+  uint64_t owner;  ///< GridKdHybrid::uid_ of the structure whose leaf ids the cache holds (0: none)
 
   /// The entry of leaf `from`'s face on `axis`.
   [[gnu::always_inline]] uint32_t& entry(uint32_t from, int axis) {
@@ -57,7 +57,7 @@ struct NextLeafCache {
   }
   /// Makes the cache structure `uid`'s before a walk: when another structure (or an earlier
   /// build of this one) used it last, its leaf ids are replaced by leaf 0, so every entry names
-  /// a leaf of this structure and Hybrid::in_kd_box needs no bounds check. Structures only
+  /// a leaf of this structure and GridKdHybrid::in_kd_box needs no bounds check. Structures only
   /// alternate ray by ray on one thread in tests; the reset (16 KiB) is paid once per switch.
   [[gnu::always_inline]] void claim(uint64_t uid) {
     if (owner == uid) [[likely]]
@@ -71,7 +71,7 @@ struct NextLeafCache {
 /// The calling thread's next-leaf cache.
 inline thread_local NextLeafCache thread_next_leaf_cache;
 
-/// The exact walk's record of the triangles its ray has tested (Hybrid::rewalk): a bit per
+/// The exact walk's record of the triangles its ray has tested (GridKdHybrid::rewalk): a bit per
 /// triangle of the structure, and the words the ray set, cleared when the thread's next exact
 /// walk starts, so that every bit is clear as a walk starts. One per thread, grown to the
 /// largest structure the thread re-walks a ray in (a bit a triangle: 106 KiB for the dragon's
@@ -102,20 +102,20 @@ inline thread_local TestedSet thread_tested_set;
 
 /// One ray's walk between leaf steps: the ray in grid space, the current cell and leaf,
 /// the closest hit so far and the mailbox.
-template <class Tri>
+template <class TriangleTest>
 struct WalkState {
   /// The ray in grid space, g(t) = o + t dg; inv[a] is t per grid unit along axis a (0 where
   /// the ray does not move) and oc = -o inv (+inf there), so the exit over a far plane p is
   /// p inv + oc. Lanes x, y, z, then a dummy axis that never exits (o, dg, inv 0, oc +inf),
   /// moves "up" and stays in cell 0, so that every step computes the four lanes at once.
   Double4 o, dg, inv, oc;
-  Long4 up_d;  ///< all ones on the axes the ray moves up along (the far plane is hi), and lane 3
-  Int4 up;     ///< the same as int32 lanes
-  Int4 down;   ///< ~up: added to a far plane's coordinate, gives the cell just past it
-  Int4 c;      ///< the current cell (lane 3: 0)
-  KdRay kr;    ///< the ray as the leaf subtrees' kd traversal reads it (world space, float)
-  KdRay4 kr4;  ///< the same, as the clip to a subtree's box reads it
-  float err;   ///< the largest of kr.err: widens the leaf's segment before that clip
+  Long4 up_d;    ///< all ones on the axes the ray moves up along (the far plane is hi), and lane 3
+  Int4 up;       ///< the same as int32 lanes
+  Int4 down;     ///< ~up: added to a far plane's coordinate, gives the cell just past it
+  Int4 c;        ///< the current cell (lane 3: 0)
+  KdRay kr;      ///< the ray as the leaf subtrees' kd traversal reads it (world space, float)
+  KdRayX4 krx4;  ///< the same, as the clip to a subtree's box reads it
+  float err;     ///< the largest of kr.err: widens the leaf's segment before that clip
   double t1, t_cur;
   /// Where the walk over empty leaves stops: t1, or the closest hit's t once one is found.
   double t_stop;
@@ -124,26 +124,26 @@ struct WalkState {
   float tmin, tmax, best;
   bool found;
   Hit hit;
-  typename Tri::RayData rd;
-  uint32_t mailbox[Hybrid::kMailbox];
+  typename TriangleTest::RayData rd;
+  uint32_t mailbox[GridKdHybrid::kMailbox];
   /// Triangles pushed out of the mailbox so far; kAbandoned once one more would not fit.
   uint32_t evicted_count;
-  uint32_t evicted[Hybrid::kEvicted];  ///< those triangles
-  TestedSet* tested;                   ///< the exact walk's record (unset in the fast walk)
+  uint32_t evicted[GridKdHybrid::kEvicted];  ///< those triangles
+  TestedSet* tested;                         ///< the exact walk's record (unset in the fast walk)
 };
 
 /// The value of WalkState::evicted_count once the fast walk is abandoned.
-constexpr uint32_t kAbandoned = uint32_t(Hybrid::kEvicted) + 1;
+constexpr uint32_t kAbandoned = uint32_t(GridKdHybrid::kEvicted) + 1;
 
 /// True when triangle `local` was tested before on this ray, so the test is skipped; else
 /// records it. The fast walk (kExact false) asks the mailbox, which answers almost every repeat;
 /// a triangle that a colliding one pushed out of it is kept among the ray's evicted (up to
-/// Hybrid::kEvicted) and looked up there, on the rays that have evicted any. When one more
+/// GridKdHybrid::kEvicted) and looked up there, on the rays that have evicted any. When one more
 /// would have to be evicted, the fast walk is abandoned: every later test is skipped, the walk
 /// ends at its next step (steps_left 0, which over_step_bound does not count as an error), and
-/// Hybrid::walk gives the ray to rewalk, which runs it again with the exact walk (kExact), whose
-/// record holds every triangle tested. So no ray tests a triangle twice, and the fast walk keeps
-/// everything inline and its triangle loop with no exit for closest hits: a call anywhere in
+/// GridKdHybrid::walk gives the ray to rewalk, which runs it again with the exact walk (kExact),
+/// whose record holds every triangle tested. So no ray tests a triangle twice, and the fast walk
+/// keeps everything inline and its triangle loop with no exit for closest hits: a call anywhere in
 /// walk_step makes it save registers on every step (+58 instructions a ray on the dragon), and
 /// leaving the loop at the abandonment made it spill registers (the dragon's primary rays: +5.7
 /// instructions a ray over a walk that can test twice, against +3.6 this way).
@@ -152,7 +152,7 @@ template <bool kExact, class W>
   if constexpr (kExact) {
     return w.tested->test_and_set(local);
   } else {
-    uint32_t& slot = w.mailbox[local & (Hybrid::kMailbox - 1)];
+    uint32_t& slot = w.mailbox[local & (GridKdHybrid::kMailbox - 1)];
     if (slot == local) return true;
     if ((w.evicted_count | (slot ^ kInvalidPrim)) != 0) [[unlikely]] {
       const uint32_t n = w.evicted_count;
@@ -160,7 +160,7 @@ template <bool kExact, class W>
       for (uint32_t i = 0; i < n; ++i)
         if (w.evicted[i] == local) return true;
       if (slot != kInvalidPrim) {
-        if (n == uint32_t(Hybrid::kEvicted)) {
+        if (n == uint32_t(GridKdHybrid::kEvicted)) {
           w.evicted_count = kAbandoned;
           w.steps_left = 0;
           return true;
@@ -174,32 +174,32 @@ template <bool kExact, class W>
   }
 }
 
-/// Where a ray's counts start (counted and traced walks), so that Hybrid::rewalk can take back
-/// an abandoned fast walk's counts: a re-walked ray's counters, trace and next-leaf cache takes
-/// (Hybrid::next_leaves_from_cache) are its exact walk's.
-template <class S>
+/// Where a ray's counts start (counted and traced walks), so that GridKdHybrid::rewalk can take
+/// back an abandoned fast walk's counts: a re-walked ray's counters, trace and next-leaf cache
+/// takes (GridKdHybrid::next_leaves_from_cache) are its exact walk's.
+template <class Probe>
 struct StatsMark {
-  explicit StatsMark(const S&) {}
-  void restore(S&) const {}
+  explicit StatsMark(const Probe&) {}
+  void restore(Probe&) const {}
 };
 template <>
-struct StatsMark<CountStats> {
+struct StatsMark<CountProbe> {
   RayCounters c;
   uint64_t taken = thread_next_leaf_cache.taken;
-  explicit StatsMark(const CountStats& s) : c(s.c) {}
-  void restore(CountStats& s) const {
+  explicit StatsMark(const CountProbe& s) : c(s.c) {}
+  void restore(CountProbe& s) const {
     s.c = c;
     thread_next_leaf_cache.taken = taken;
   }
 };
 template <>
-struct StatsMark<TraceStats> {
+struct StatsMark<TraceProbe> {
   RayCounters c;
   size_t steps, tested;
   uint64_t taken = thread_next_leaf_cache.taken;
-  explicit StatsMark(const TraceStats& s)
+  explicit StatsMark(const TraceProbe& s)
       : c(s.trace->counters), steps(s.trace->steps.size()), tested(s.trace->tested.size()) {}
-  void restore(TraceStats& s) const {
+  void restore(TraceProbe& s) const {
     s.trace->counters = c;
     s.trace->steps.resize(steps);
     s.trace->tested.resize(tested);
@@ -227,11 +227,11 @@ struct Exit {
 
 namespace kdgrid {
 
-inline uint64_t Hybrid::next_leaves_from_cache() {
+inline uint64_t GridKdHybrid::next_leaves_from_cache() {
   return hybrid::thread_next_leaf_cache.taken;
 }
 
-inline uint32_t Hybrid::next_leaf(const Int4& n, uint32_t from, int axis) const {
+inline uint32_t GridKdHybrid::next_leaf(const Int4& n, uint32_t from, int axis) const {
   if (!next_leaf_cache_) return lookup(n[0], n[1], n[2]);
   using Cache = hybrid::NextLeafCache;
   Cache& cache = hybrid::thread_next_leaf_cache;
@@ -251,7 +251,7 @@ inline uint32_t Hybrid::next_leaf(const Int4& n, uint32_t from, int axis) const 
   return found;
 }
 
-inline uint32_t Hybrid::start_leaf(const Int4& c) const {
+inline uint32_t GridKdHybrid::start_leaf(const Int4& c) const {
   if (!next_leaf_cache_) return lookup(c[0], c[1], c[2]);
   hybrid::NextLeafCache& cache = hybrid::thread_next_leaf_cache;
   cache.claim(uid_);
@@ -263,8 +263,8 @@ inline uint32_t Hybrid::start_leaf(const Int4& c) const {
   return cache.start = lookup(c[0], c[1], c[2]);
 }
 
-inline bool Hybrid::in_kd_box(uint32_t id, const Int4& c) const {
-  const CellBox& b = kd_boxes_[id];
+inline bool GridKdHybrid::in_kd_box(uint32_t id, const Int4& c) const {
+  const KdBox& b = kd_boxes_[id];
   Int4 lo, hi;
   std::memcpy(&lo, b.lo, sizeof lo);
   std::memcpy(&hi, b.hi, sizeof hi);
@@ -272,8 +272,8 @@ inline bool Hybrid::in_kd_box(uint32_t id, const Int4& c) const {
   return all_lanes((c >= lo) & (c < hi));
 }
 
-template <class Tri>
-inline bool Hybrid::over_step_bound(WalkState<Tri>& w) const {
+template <class TriangleTest>
+inline bool GridKdHybrid::over_step_bound(WalkState<TriangleTest>& w) const {
   if (w.steps_left-- == 0) [[unlikely]] {
     // An abandoned fast walk (tested_before) ends here, with no error.
     if (w.evicted_count != hybrid::kAbandoned) step_errors_.fetch_add(1, std::memory_order_relaxed);
@@ -282,11 +282,11 @@ inline bool Hybrid::over_step_bound(WalkState<Tri>& w) const {
   return false;
 }
 
-template <class Tri, class S, bool kAny, bool kExact>
-bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
+template <class TriangleTest, class Probe, bool kAny, bool kExact>
+bool GridKdHybrid::walk(const Ray& ray, Hit* hit, Probe& s) const {
   if (leaves_.empty()) return false;
-  [[maybe_unused]] const hybrid::StatsMark<S> mark(s);
-  WalkState<Tri> w;
+  [[maybe_unused]] const hybrid::StatsMark<Probe> mark(s);
+  WalkState<TriangleTest> w;
   if (!walk_begin(w, ray)) return false;
   if constexpr (kExact) {
     w.tested = &hybrid::thread_tested_set;
@@ -295,7 +295,7 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
   s.lookup();
   StepResult r;
   for (;;) {
-    if constexpr (!S::kTrace) {
+    if constexpr (!Probe::kTrace) {
       // An empty leaf is only stepped over: inline, with the ray's state in registers.
       const Leaf& L = leaves_[w.leaf_id];
       if (L.count == 0) {
@@ -317,28 +317,29 @@ bool Hybrid::walk(const Ray& ray, Hit* hit, S& s) const {
         continue;
       }
     }
-    if ((r = walk_step<Tri, S, kAny, kExact>(w, s)) != StepResult::Next) break;
+    if ((r = walk_step<TriangleTest, Probe, kAny, kExact>(w, s)) != StepResult::Next) break;
   }
   // A walk abandoned by tested_before skipped every test after it (so it is never Answered):
   // the exact walk answers the ray.
   if constexpr (!kExact)
     if (w.evicted_count == hybrid::kAbandoned) [[unlikely]]
-      return rewalk<Tri, S, kAny>(ray, hit, s, mark);
+      return rewalk<TriangleTest, Probe, kAny>(ray, hit, s, mark);
   if (r == StepResult::Answered) return true;
   if constexpr (!kAny)
     if (w.found) *hit = w.hit;
   return w.found;
 }
 
-template <class Tri, class S, bool kAny>
-bool Hybrid::rewalk(const Ray& ray, Hit* hit, S& s, const hybrid::StatsMark<S>& mark) const {
+template <class TriangleTest, class Probe, bool kAny>
+bool GridKdHybrid::rewalk(const Ray& ray, Hit* hit, Probe& s,
+                          const hybrid::StatsMark<Probe>& mark) const {
   rewalks_.fetch_add(1, std::memory_order_relaxed);
   mark.restore(s);
-  return walk<Tri, S, kAny, true>(ray, hit, s);
+  return walk<TriangleTest, Probe, kAny, true>(ray, hit, s);
 }
 
-template <class Tri>
-bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
+template <class TriangleTest>
+bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const {
   // Cheap rejection first, in float as the kd-tree clips (most primary rays of a scanned model
   // miss its box; `kdgrid profile` of the dragon: those rays 17.6 -> 12.9 ns), against the
   // grid's world box (wbox_, widened beyond the grid's rounding) with each slab widened as the
@@ -351,7 +352,7 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   // below does in double (GCC's vector extensions: AVX where the target has it, else SSE2
   // pairs): the set-up is most of a short ray's work.
   float f0, f1;
-  if (!kd_begin(ray, wclip_, max_abs_, w.kr, f0, f1, &w.kr4)) return false;
+  if (!kd_begin(ray, wclip_, max_abs_, w.kr, f0, f1, &w.krx4)) return false;
   w.err = std::max({w.kr.err[0], w.kr.err[1], w.kr.err[2]});
   Float4 of, df;
   load_ray4(ray, of, df);
@@ -389,7 +390,7 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   const Double4 x = o + t0 * w.dg;
   const Double4 xl = x > zero ? x : zero;
   w.c = __builtin_convertvector(xl < top4_ ? xl : top4_, Int4);
-  w.rd = Tri::prepare(ray);
+  w.rd = TriangleTest::prepare(ray);
   w.tmin = ray.tmin;
   w.tmax = ray.tmax;
   w.best = ray.tmax;
@@ -404,8 +405,8 @@ bool Hybrid::walk_begin(WalkState<Tri>& w, const Ray& ray) const {
   return true;
 }
 
-template <class Tri>
-Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
+template <class TriangleTest>
+GridKdHybrid::Exit GridKdHybrid::leaf_exit(const WalkState<TriangleTest>& w, const Leaf& L) const {
   // The leaf's box as four lanes each (lo's fourth holds first/count's bits, hi's the pad, 0:
   // lane 3 always takes hi, so its exit t is 0 * 0 + inf). The exit is the nearest far plane,
   // the first axis winning ties, found by compares on the three lanes that GCC turns into
@@ -434,9 +435,9 @@ Hybrid::Exit Hybrid::leaf_exit(const WalkState<Tri>& w, const Leaf& L) const {
   return ex;
 }
 
-template <int A, class Tri>
-void Hybrid::exit_through(const WalkState<Tri>& w, const Double4& lo, const Double4& hi,
-                          const Double4& far, double t, Exit& ex) const {
+template <int A, class TriangleTest>
+void GridKdHybrid::exit_through(const WalkState<TriangleTest>& w, const Double4& lo,
+                                const Double4& hi, const Double4& far, double t, Exit& ex) const {
   // Next cell: on the other axes the exit point's cell, clamped into the leaf (the point
   // lies on the leaf's face, so this only removes rounding) and never moving against the
   // ray; on the exit axis A the integer cell just past the leaf's face (the far plane, minus
@@ -457,10 +458,11 @@ void Hybrid::exit_through(const WalkState<Tri>& w, const Double4& lo, const Doub
   ex.out = uint32_t(face[A]) >= uint32_t(dims_[A]);
 }
 
-template <class Tri, class S, bool kAny, bool kExact>
-bool Hybrid::test_refs(WalkState<Tri>& w, S& s, const typename Tri::RayData& rd, float tmin,
-                       const uint32_t* r, uint32_t count, float& best, bool& found,
-                       LocalHit& h) const {
+template <class TriangleTest, class Probe, bool kAny, bool kExact>
+bool GridKdHybrid::test_refs(WalkState<TriangleTest>& w, Probe& s,
+                             const typename TriangleTest::RayData& rd, float tmin,
+                             const uint32_t* r, uint32_t count, float& best, bool& found,
+                             LocalHit& h) const {
   s.leaf();
   for (uint32_t i = 0; i < count; ++i) {
     const uint32_t local = r[i];
@@ -468,10 +470,10 @@ bool Hybrid::test_refs(WalkState<Tri>& w, S& s, const typename Tri::RayData& rd,
       s.mailbox_skip();
       continue;
     }
-    if constexpr (S::kCount) s.tri_test(prim_of_[local]);
+    if constexpr (Probe::kCount) s.tri_test(prim_of_[local]);
     const TriVerts& tv = tris_[local];
     float t, u, v;
-    if (Tri::intersect(rd, tv.v0, tv.v1, tv.v2, tmin, best, t, u, v)) {
+    if (TriangleTest::intersect(rd, tv.v0, tv.v1, tv.v2, tmin, best, t, u, v)) {
       if constexpr (kAny) return true;
       best = t;
       found = true;
@@ -481,8 +483,8 @@ bool Hybrid::test_refs(WalkState<Tri>& w, S& s, const typename Tri::RayData& rd,
   return false;
 }
 
-template <class Tri, class S, bool kAny, bool kExact>
-Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
+template <class TriangleTest, class Probe, bool kAny, bool kExact>
+GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Probe& s) const {
   if (over_step_bound(w)) return StepResult::Done;
   const uint32_t leaf_id = w.leaf_id;
   const Leaf& L = leaves_[leaf_id];
@@ -490,9 +492,9 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
   const Exit ex = leaf_exit(w, L);
   const double t_exit = ex.t;
   const bool last = ex.out || t_exit >= w.t1;
-  if constexpr (S::kTrace) {
+  if constexpr (Probe::kTrace) {
     const float tin = float(w.t_cur);
-    s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, leaf_box(leaf_id), tin,
+    s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, step_box(leaf_id), tin,
                       std::max(tin, float(std::min(t_exit, double(w.tmax))))});
   }
   // The next cell's leaf is looked up before this leaf's triangles are tested, so the
@@ -517,20 +519,20 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
     std::memcpy(&sub_lo, sub, sizeof sub_lo);
     std::memcpy(&sub_hi, sub + 2, sizeof sub_hi);
     [[maybe_unused]] Box3 sub_box;
-    if constexpr (S::kTrace)
+    if constexpr (Probe::kTrace)
       sub_box = Box3(Vec3(sub_lo[0], sub_lo[1], sub_lo[2]), Vec3(sub_hi[0], sub_hi[1], sub_hi[2]));
     // The ray in a local: the loop then keeps it in registers (read through w, it was
     // reloaded at every node).
     const KdRay kr = w.kr;
     float ta = float(w.t_cur) - w.err, tb = float(std::min(t_exit, w.t1)) + w.err;
-    if (kd_clip4(w.kr4, sub_lo, sub_hi, ta, tb)) {
+    if (kd_clip_x4(w.krx4, sub_lo, sub_hi, ta, tb)) {
       // Tested as the kd-tree tests, but through the ray's mailbox: a triangle that crosses
       // cell boundaries is referenced by every grid leaf it touches and by several leaves of a
       // subtree, and a second test of the whole triangle can only repeat the first (best only
       // decreases).
       auto leaf = [&](const KdNode& sn, float& b, bool& f) __attribute__((always_inline)) {
-        return test_refs<Tri, S, kAny, kExact>(w, s, rd, tmin, refs_.data() + sn.prim_offset,
-                                               sn.count(), b, f, h);
+        return test_refs<TriangleTest, Probe, kAny, kExact>(
+            w, s, rd, tmin, refs_.data() + sn.prim_offset, sn.count(), b, f, h);
       };
       // Traces: each node's segment as the walk sees it, within the leaf's segment and never
       // starting before the previous node's (the walk widens its intervals by err, a bound on
@@ -557,8 +559,8 @@ Hybrid::StepResult Hybrid::walk_step(WalkState<Tri>& w, S& s) const {
         }
     }
   } else if (L.count) {
-    if (test_refs<Tri, S, kAny, kExact>(w, s, rd, tmin, refs_.data() + L.first, L.count, w.best,
-                                        w.found, h))
+    if (test_refs<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, refs_.data() + L.first,
+                                                     L.count, w.best, w.found, h))
       return StepResult::Answered;
     if constexpr (!kAny)
       if (h.local != kInvalidPrim) w.hit = {w.best, prim_of_[h.local], h.u, h.v};

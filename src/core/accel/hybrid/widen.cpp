@@ -16,7 +16,7 @@ namespace kdgrid::hybrid {
 
 std::string widen_empty_leaves(std::vector<Leaf>& leaves, const int32_t dims[3], uint64_t budget,
                                const CancelToken* cancel) {
-  constexpr uint64_t kMaxExpandEntries = Hybrid::kMaxExpandEntries;
+  constexpr uint64_t kMaxExpandEntries = GridKdHybrid::kMaxExpandEntries;
   const int64_t nx = dims[0], ny = dims[1], nz = dims[2];
   const uint64_t entries = uint64_t(nx + 1) * uint64_t(ny + 1) * uint64_t(nz + 1);
   if (entries > kMaxExpandEntries || entries * sizeof(uint32_t) > budget)
