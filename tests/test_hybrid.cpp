@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <random>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "accel/brute.h"
@@ -1210,6 +1211,102 @@ TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
   EXPECT_LT(tests_one, 2.0 * tests_grid + double(rays.size()))
       << "one cell " << tests_one / double(rays.size()) << " tests per ray, auto grid "
       << tests_grid / double(rays.size());
+}
+
+// ---- the mailbox's exactness ------------------------------------------------------------
+
+/// Walks every ray closest-hit, any-hit, counted and traced: each must agree with brute force,
+/// no traced ray may test a triangle twice, and a counted ray's triangle tests must be the
+/// traced ray's distinct triangles (a ray that the fast walk gave up to the exact walk counts
+/// only the exact walk's tests and next-leaf cache takes). Returns the closest-hit and the any-hit
+/// queries re-walked.
+std::pair<uint64_t, uint64_t> check_exact(const GridKdHybrid& h, const Mesh& m,
+                                          const std::vector<Ray>& rays, const std::string& label) {
+  uint64_t before = h.rewalked_rays();
+  for (const Ray& r : rays) {
+    Hit hit;
+    h.intersect(r, hit);
+  }
+  const uint64_t closest = h.rewalked_rays() - before;
+  before = h.rewalked_rays();
+  for (const Ray& r : rays) h.occluded(r);
+  const uint64_t any = h.rewalked_rays() - before;
+  int twice = 0, miscounted = 0, mismatched = 0;
+  for (const Ray& r : rays) {
+    const Trace t = h.trace(r);
+    std::vector<uint32_t> tested = t.tested;
+    std::sort(tested.begin(), tested.end());
+    twice += std::adjacent_find(tested.begin(), tested.end()) != tested.end();
+    Hit fast, counted;
+    RayCounters c;
+    const bool got = h.intersect(r, fast);
+    const uint64_t taken0 = GridKdHybrid::next_leaves_from_cache();
+    const bool got_counted = h.intersect_counted(r, counted, c);
+    // Each leaf taken from the next-leaf cache is one of the counted lookups.
+    const uint64_t taken = GridKdHybrid::next_leaves_from_cache() - taken0;
+    miscounted += c.tri_tests != tested.size() || c.tri_tests != t.counters.tri_tests ||
+                  c.mailbox_skips != t.counters.mailbox_skips || c.steps != t.counters.steps ||
+                  taken > c.lookups;
+    // The same walk three ways: bitwise the same hit.
+    mismatched +=
+        got != got_counted || got != t.hit.valid() ||
+        (got && (fast.t != counted.t || fast.prim != counted.prim || fast.u != counted.u ||
+                 fast.v != counted.v || fast.t != t.hit.t || fast.prim != t.hit.prim));
+  }
+  EXPECT_EQ(twice, 0) << label << ": rays that tested a triangle twice";
+  EXPECT_EQ(miscounted, 0) << label << ": rays whose counts are not their exact walk's";
+  EXPECT_EQ(mismatched, 0) << label << ": rays whose fast, counted and traced hits differ";
+  EXPECT_EQ(compare(h, m, rays, brute_reference(m, rays), label), 0) << label;
+  std::printf("%s: %zu rays, %llu closest-hit and %llu any-hit queries re-walked\n", label.c_str(),
+              rays.size(), (unsigned long long)closest, (unsigned long long)any);
+  return {closest, any};
+}
+
+// Slivers across the whole scene are referenced by every leaf they cross, so a ray through a
+// grid of plain leaves tests hundreds of distinct slivers, evicting far more than kEvicted of
+// them from its mailbox; some of them it meets again in later leaves. The fast walk gives
+// such rays to the exact walk, so each triangle is still tested once.
+TEST(HybridMailbox, RaysEvictingMoreThanTheListTestEachTriangleOnce) {
+  const Mesh m = long_thin(31);
+  for (const float cell : {0.2f, 0.4f}) {
+    BuildParams p = params_with(cell, false);
+    p.hybrid_subtree_min = 0;
+    GridKdHybrid h;
+    h.build(m, p);
+    const auto [closest, any] = check_exact(h, m, random_rays(m, 3000, 17),
+                                            "slivers, plain leaves, cell " + std::to_string(cell));
+    EXPECT_GT(closest, 0u) << "the case must evict more than kEvicted";
+    EXPECT_GT(any, 0u) << "any-hit queries must be re-walked too";
+  }
+}
+
+// A cell larger than the scene gives one cell; with leaf subtrees its subtree is the kd-tree,
+// whose leaves share straddling triangles; with plain leaves it is one leaf of every triangle.
+TEST(HybridMailbox, OneCellOfTheWholeSceneTestsEachTriangleOnce) {
+  const Mesh m = long_thin(32);
+  for (const uint32_t subtree_min : {4u, 0u}) {
+    BuildParams p = params_with(1e9f, false);
+    p.hybrid_subtree_min = subtree_min;
+    GridKdHybrid h;
+    h.build(m, p);
+    ASSERT_EQ(h.dims()[0] * h.dims()[1] * h.dims()[2], 1);
+    check_exact(h, m, random_rays(m, 2000, 18),
+                subtree_min ? "one cell, leaf subtree" : "one cell, plain leaf");
+  }
+}
+
+// The bunny's triangles are small, but the plain leaves of a grid 11 times coarser than the
+// auto one hold about 330 references each, and rays through a few of them evict hundreds.
+TEST(HybridMailbox, BunnyInCoarsePlainLeavesTestsEachTriangleOnce) {
+  KDGRID_REQUIRE_SCENE(path, "bunny/bun_zipper.ply");
+  const Mesh m = load_scene(path).mesh;
+  BuildParams p = params_with(0.02f, false);
+  p.hybrid_subtree_min = 0;
+  GridKdHybrid h;
+  h.build(m, p);
+  const auto [closest, any] =
+      check_exact(h, m, random_rays(m, 1000, 19), "bunny, cell 0.02, plain");
+  EXPECT_GT(closest, 0u);
 }
 
 }  // namespace

@@ -46,7 +46,10 @@ namespace hybrid {
 template <class TriangleTest>
 struct WalkState;
 struct Exit;
+struct LocalHit;
 enum class StepResult;
+template <class Probe>
+struct StatsMark;
 }  // namespace hybrid
 
 /// Auto rule density floor: at least this many cells per triangle, so that scenes mixing huge
@@ -142,8 +145,10 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// Direct-mapped per-ray mailbox of recently tested triangles (power of two): a triangle
   /// referenced by several leaves is tested once; 32 entries catch most repeats at no cost.
   static constexpr int kMailbox = 32;
-  /// Triangles a colliding one pushed out of the mailbox are kept too (up to this many per
-  /// ray), so that no ray tests a triangle twice unless it evicted more than this many.
+  /// Triangles a colliding one pushed out of the mailbox are kept too, up to this many per ray;
+  /// a ray that would evict more is walked again by the exact walk (walk.h, tested_before), so
+  /// no ray tests a triangle twice. 64 (256 bytes of the ray's state) covers every ray of the
+  /// dragon's, the bunny's and Sponza's ray sets on their default grids (docs/HYBRID.md).
   static constexpr int kEvicted = 64;
   /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
   /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
@@ -176,6 +181,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   static uint64_t next_leaves_from_cache();
   /// Rays whose traversal reached the nx+ny+nz+1 step bound (a correct traversal never does).
   uint64_t step_bound_errors() const { return step_errors_.load(std::memory_order_relaxed); }
+  /// Rays (queries) the fast walk gave up to the exact walk, having evicted more than kEvicted
+  /// triangles from their mailbox (walk.h, tested_before).
+  uint64_t rewalked_rays() const { return rewalks_.load(std::memory_order_relaxed); }
   /// World box of a leaf: the box its steps cross (an empty leaf's widened box).
   Box3 step_box(uint32_t leaf) const;
   /// Bytes the storage selected by `dense` would take for the current tree (computed, not
@@ -187,6 +195,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   template <class TriangleTest>
   using WalkState = hybrid::WalkState<TriangleTest>;
   using Exit = hybrid::Exit;
+  using LocalHit = hybrid::LocalHit;
   using StepResult = hybrid::StepResult;
 
   [[gnu::always_inline]] uint32_t lookup(int32_t x, int32_t y, int32_t z) const {
@@ -203,8 +212,18 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// means that `id` is the leaf of c.
   [[gnu::always_inline]] inline bool in_kd_box(uint32_t id, const Int4& c) const;
 
-  template <class TriangleTest, class Probe, bool kAny>
+  /// The walk of one ray. The fast walk (kExact false) tests through the ray's mailbox and
+  /// gives the ray to rewalk when the mailbox cannot tell every repeat (tested_before): one
+  /// compare a ray. The exact walk, its copy with a record of every triangle tested, runs only
+  /// there.
+  template <class TriangleTest, class Probe, bool kAny, bool kExact = false>
   bool walk(const Ray& ray, Hit* hit, Probe& s) const;
+  /// Takes back the abandoned fast walk's counts (to `mark`) and walks the ray again exactly:
+  /// the same leaves and tests in the same order, each triangle once, so the same closest hit.
+  /// Out of line and cold, so that the fast walk only pays the branch to it.
+  template <class TriangleTest, class Probe, bool kAny>
+  [[gnu::noinline, gnu::cold]] bool rewalk(const Ray& ray, Hit* hit, Probe& s,
+                                           const hybrid::StatsMark<Probe>& mark) const;
   /// Where the ray leaves a leaf's step box (the nearest far plane) and the cell past it.
   template <class TriangleTest>
   [[gnu::always_inline]] inline Exit leaf_exit(const WalkState<TriangleTest>& w,
@@ -228,8 +247,16 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// than inlined in the ray's loop (5-8% faster primary rays; docs/HYBRID.md, "The walk").
   /// Empty leaves do not come here (traced walks excepted): walk() steps over them inline,
   /// with nothing to test.
-  template <class TriangleTest, class Probe, bool kAny>
+  template <class TriangleTest, class Probe, bool kAny, bool kExact>
   [[gnu::noinline]] StepResult walk_step(WalkState<TriangleTest>& w, Probe& s) const;
+  /// Tests `count` references of a leaf (or a subtree's leaf) through the ray's mailbox, the one
+  /// loop of both; the closest hit goes to best, found and h, which the subtree's walk keeps in
+  /// its locals. True: an any-hit query answered.
+  template <class TriangleTest, class Probe, bool kAny, bool kExact>
+  [[gnu::always_inline]] inline bool test_refs(WalkState<TriangleTest>& w, Probe& s,
+                                               const typename TriangleTest::RayData& rd, float tmin,
+                                               const uint32_t* r, uint32_t count, float& best,
+                                               bool& found, LocalHit& h) const;
 
   // ---- the build (build.cpp, tree.cpp) ----
   void build_tree(const Mesh& mesh, const BuildParams& params);
@@ -257,6 +284,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<TriVerts> tris_;     ///< corners by local id (first-reference order)
   std::vector<uint32_t> prim_of_;  ///< local id -> the mesh's triangle index
   mutable std::atomic<uint64_t> step_errors_{0};
+  mutable std::atomic<uint64_t> rewalks_{0};  ///< rewalked_rays()
 };
 
 }  // namespace kdgrid

@@ -4,7 +4,9 @@
 // triangle referenced by several leaves is tested once), computes the exit over the leaf
 // box's far planes in four lanes (x, y, z and a dummy axis), stops once the closest hit lies
 // before the exit, else moves to the leaf of the cell past the exit face. Cells move
-// monotonically along the ray, so at most nx+ny+nz+1 steps; the loop enforces that bound.
+// monotonically along the ray, so at most nx+ny+nz+1 steps; the loop enforces that bound. A
+// ray that evicts more triangles from its mailbox than it can keep is walked again from the
+// start by the exact walk, the same walk with a record of every triangle tested (rewalk).
 //
 // The next leaf comes from the map (cell_map.h) or from the thread's NextLeafCache, which
 // remembers the leaf last reached across each leaf face (BuildParams::hybrid_next_leaf_cache).
@@ -15,6 +17,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <vector>
 
 #include "accel/hybrid/hybrid.h"
 
@@ -68,6 +71,35 @@ struct NextLeafCache {
 /// The calling thread's next-leaf cache.
 inline thread_local NextLeafCache thread_next_leaf_cache;
 
+/// The exact walk's record of the triangles its ray has tested (GridKdHybrid::rewalk): a bit per
+/// triangle of the structure, and the words the ray set, cleared when the thread's next exact
+/// walk starts, so that every bit is clear as a walk starts. One per thread, grown to the
+/// largest structure the thread re-walks a ray in (a bit a triangle: 106 KiB for the dragon's
+/// 871K) and kept, as a re-walked ray is mostly followed by others.
+struct TestedSet {
+  std::vector<uint64_t> bits;
+  std::vector<uint32_t> dirty;  ///< the words of bits that the current walk set
+
+  /// Clears the previous walk's bits and makes room for `triangles` local ids.
+  void begin(size_t triangles) {
+    for (const uint32_t i : dirty) bits[i] = 0;
+    dirty.clear();
+    if (bits.size() < (triangles + 63) / 64) bits.resize((triangles + 63) / 64, 0);
+  }
+  /// True when `local` was recorded before; else records it.
+  bool test_and_set(uint32_t local) {
+    uint64_t& word = bits[local >> 6];
+    const uint64_t bit = uint64_t(1) << (local & 63);
+    if (word & bit) return true;
+    if (word == 0) dirty.push_back(local >> 6);
+    word |= bit;
+    return false;
+  }
+};
+
+/// The calling thread's record for exact walks.
+inline thread_local TestedSet thread_tested_set;
+
 /// One ray's walk between leaf steps: the ray in grid space, the current cell and leaf,
 /// the closest hit so far and the mailbox.
 template <class TriangleTest>
@@ -94,29 +126,94 @@ struct WalkState {
   Hit hit;
   typename TriangleTest::RayData rd;
   uint32_t mailbox[GridKdHybrid::kMailbox];
-  uint32_t evicted_count;                    ///< triangles pushed out of the mailbox so far
+  /// Triangles pushed out of the mailbox so far; kAbandoned once one more would not fit.
+  uint32_t evicted_count;
   uint32_t evicted[GridKdHybrid::kEvicted];  ///< those triangles
+  TestedSet* tested;                         ///< the exact walk's record (unset in the fast walk)
 };
 
+/// The value of WalkState::evicted_count once the fast walk is abandoned.
+constexpr uint32_t kAbandoned = uint32_t(GridKdHybrid::kEvicted) + 1;
+
 /// True when triangle `local` was tested before on this ray, so the test is skipped; else
-/// records it. The mailbox answers almost every repeat; a triangle that a colliding one pushed
-/// out of it is kept among the ray's evicted (up to GridKdHybrid::kEvicted) and looked up there, on
-/// the rays that have evicted any. Everything stays inline: a call anywhere in walk_step makes
-/// it save registers on every step (+58 instructions a ray on the dragon).
-template <class W>
+/// records it. The fast walk (kExact false) asks the mailbox, which answers almost every repeat;
+/// a triangle that a colliding one pushed out of it is kept among the ray's evicted (up to
+/// GridKdHybrid::kEvicted) and looked up there, on the rays that have evicted any. When one more
+/// would have to be evicted, the fast walk is abandoned: every later test is skipped, the walk
+/// ends at its next step (steps_left 0, which over_step_bound does not count as an error), and
+/// GridKdHybrid::walk gives the ray to rewalk, which runs it again with the exact walk (kExact),
+/// whose record holds every triangle tested. So no ray tests a triangle twice, and the fast walk
+/// keeps everything inline and its triangle loop with no exit for closest hits: a call anywhere in
+/// walk_step makes it save registers on every step (+58 instructions a ray on the dragon), and
+/// leaving the loop at the abandonment made it spill registers (the dragon's primary rays: +5.7
+/// instructions a ray over a walk that can test twice, against +3.6 this way).
+template <bool kExact, class W>
 [[gnu::always_inline]] inline bool tested_before(W& w, uint32_t local) {
-  uint32_t& slot = w.mailbox[local & (GridKdHybrid::kMailbox - 1)];
-  if (slot == local) return true;
-  if ((w.evicted_count | (slot ^ kInvalidPrim)) != 0) [[unlikely]] {
-    for (uint32_t i = 0; i < w.evicted_count; ++i)
-      if (w.evicted[i] == local) return true;
-    if (slot != kInvalidPrim && w.evicted_count < uint32_t(GridKdHybrid::kEvicted))
-      w.evicted[w.evicted_count++] = slot;
+  if constexpr (kExact) {
+    return w.tested->test_and_set(local);
+  } else {
+    uint32_t& slot = w.mailbox[local & (GridKdHybrid::kMailbox - 1)];
+    if (slot == local) return true;
+    if ((w.evicted_count | (slot ^ kInvalidPrim)) != 0) [[unlikely]] {
+      const uint32_t n = w.evicted_count;
+      if (n == kAbandoned) return true;
+      for (uint32_t i = 0; i < n; ++i)
+        if (w.evicted[i] == local) return true;
+      if (slot != kInvalidPrim) {
+        if (n == uint32_t(GridKdHybrid::kEvicted)) {
+          w.evicted_count = kAbandoned;
+          w.steps_left = 0;
+          return true;
+        }
+        w.evicted[n] = slot;
+        w.evicted_count = n + 1;
+      }
+    }
+    slot = local;
+    return false;
   }
-  slot = local;
-  return false;
 }
+
+/// Where a ray's counts start (counted and traced walks), so that GridKdHybrid::rewalk can take
+/// back an abandoned fast walk's counts: a re-walked ray's counters, trace and next-leaf cache
+/// takes (GridKdHybrid::next_leaves_from_cache) are its exact walk's.
+template <class Probe>
+struct StatsMark {
+  explicit StatsMark(const Probe&) {}
+  void restore(Probe&) const {}
+};
+template <>
+struct StatsMark<CountProbe> {
+  RayCounters c;
+  uint64_t taken = thread_next_leaf_cache.taken;
+  explicit StatsMark(const CountProbe& s) : c(s.c) {}
+  void restore(CountProbe& s) const {
+    s.c = c;
+    thread_next_leaf_cache.taken = taken;
+  }
+};
+template <>
+struct StatsMark<TraceProbe> {
+  RayCounters c;
+  size_t steps, tested;
+  uint64_t taken = thread_next_leaf_cache.taken;
+  explicit StatsMark(const TraceProbe& s)
+      : c(s.trace->counters), steps(s.trace->steps.size()), tested(s.trace->tested.size()) {}
+  void restore(TraceProbe& s) const {
+    s.trace->counters = c;
+    s.trace->steps.resize(steps);
+    s.trace->tested.resize(tested);
+    thread_next_leaf_cache.taken = taken;
+  }
+};
+
 enum class StepResult { Next, Done, Answered };
+/// The closest hit of a leaf's tests, kept in the step's locals: the triangle's local id
+/// (kInvalidPrim: none yet) and its u, v (its t is the step's best).
+struct LocalHit {
+  uint32_t local;
+  float u, v;
+};
 /// Where the ray leaves a leaf's (step) box: the exit t, the cell just past the exit face,
 /// and whether that cell lies outside the grid (the walk ends there).
 struct Exit {
@@ -178,17 +275,23 @@ inline bool GridKdHybrid::in_kd_box(uint32_t id, const Int4& c) const {
 template <class TriangleTest>
 inline bool GridKdHybrid::over_step_bound(WalkState<TriangleTest>& w) const {
   if (w.steps_left-- == 0) [[unlikely]] {
-    step_errors_.fetch_add(1, std::memory_order_relaxed);
+    // An abandoned fast walk (tested_before) ends here, with no error.
+    if (w.evicted_count != hybrid::kAbandoned) step_errors_.fetch_add(1, std::memory_order_relaxed);
     return true;
   }
   return false;
 }
 
-template <class TriangleTest, class Probe, bool kAny>
+template <class TriangleTest, class Probe, bool kAny, bool kExact>
 bool GridKdHybrid::walk(const Ray& ray, Hit* hit, Probe& s) const {
   if (leaves_.empty()) return false;
+  [[maybe_unused]] const hybrid::StatsMark<Probe> mark(s);
   WalkState<TriangleTest> w;
   if (!walk_begin(w, ray)) return false;
+  if constexpr (kExact) {
+    w.tested = &hybrid::thread_tested_set;
+    w.tested->begin(tris_.size());
+  }
   s.lookup();
   StepResult r;
   for (;;) {
@@ -214,12 +317,25 @@ bool GridKdHybrid::walk(const Ray& ray, Hit* hit, Probe& s) const {
         continue;
       }
     }
-    if ((r = walk_step<TriangleTest, Probe, kAny>(w, s)) != StepResult::Next) break;
+    if ((r = walk_step<TriangleTest, Probe, kAny, kExact>(w, s)) != StepResult::Next) break;
   }
+  // A walk abandoned by tested_before skipped every test after it (so it is never Answered):
+  // the exact walk answers the ray.
+  if constexpr (!kExact)
+    if (w.evicted_count == hybrid::kAbandoned) [[unlikely]]
+      return rewalk<TriangleTest, Probe, kAny>(ray, hit, s, mark);
   if (r == StepResult::Answered) return true;
   if constexpr (!kAny)
     if (w.found) *hit = w.hit;
   return w.found;
+}
+
+template <class TriangleTest, class Probe, bool kAny>
+bool GridKdHybrid::rewalk(const Ray& ray, Hit* hit, Probe& s,
+                          const hybrid::StatsMark<Probe>& mark) const {
+  rewalks_.fetch_add(1, std::memory_order_relaxed);
+  mark.restore(s);
+  return walk<TriangleTest, Probe, kAny, true>(ray, hit, s);
 }
 
 template <class TriangleTest>
@@ -342,36 +458,37 @@ void GridKdHybrid::exit_through(const WalkState<TriangleTest>& w, const Double4&
   ex.out = uint32_t(face[A]) >= uint32_t(dims_[A]);
 }
 
-template <class TriangleTest, class Probe, bool kAny>
+template <class TriangleTest, class Probe, bool kAny, bool kExact>
+bool GridKdHybrid::test_refs(WalkState<TriangleTest>& w, Probe& s,
+                             const typename TriangleTest::RayData& rd, float tmin,
+                             const uint32_t* r, uint32_t count, float& best, bool& found,
+                             LocalHit& h) const {
+  s.leaf();
+  for (uint32_t i = 0; i < count; ++i) {
+    const uint32_t local = r[i];
+    if (hybrid::tested_before<kExact>(w, local)) {
+      s.mailbox_skip();
+      continue;
+    }
+    if constexpr (Probe::kCount) s.tri_test(prim_of_[local]);
+    const TriVerts& tv = tris_[local];
+    float t, u, v;
+    if (TriangleTest::intersect(rd, tv.v0, tv.v1, tv.v2, tmin, best, t, u, v)) {
+      if constexpr (kAny) return true;
+      best = t;
+      found = true;
+      h = {local, u, v};
+    }
+  }
+  return false;
+}
+
+template <class TriangleTest, class Probe, bool kAny, bool kExact>
 GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Probe& s) const {
   if (over_step_bound(w)) return StepResult::Done;
   const uint32_t leaf_id = w.leaf_id;
   const Leaf& L = leaves_[leaf_id];
   s.step();
-  // Tests a list of references (mailboxed); true = any-hit query answered.
-  auto test = [&](const uint32_t* r, uint32_t count) {
-    s.leaf();
-    for (uint32_t i = 0; i < count; ++i) {
-      const uint32_t local = r[i];
-      if (hybrid::tested_before(w, local)) {
-        s.mailbox_skip();
-        continue;
-      }
-      if constexpr (Probe::kCount) s.tri_test(prim_of_[local]);
-      const TriVerts& tv = tris_[local];
-      float t, u, v;
-      if (TriangleTest::intersect(w.rd, tv.v0, tv.v1, tv.v2, w.tmin, w.best, t, u, v)) {
-        if constexpr (kAny) {
-          return true;
-        } else {
-          w.best = t;
-          w.hit = {t, prim_of_[local], u, v};
-          w.found = true;
-        }
-      }
-    }
-    return false;
-  };
   const Exit ex = leaf_exit(w, L);
   const double t_exit = ex.t;
   const bool last = ex.out || t_exit >= w.t1;
@@ -390,6 +507,10 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
     s.lookup();
     __builtin_prefetch(leaves_.data() + next_id);
   }
+  // The closest hit's triangle and u, v are written to w once after the leaf.
+  const auto& rd = w.rd;
+  const float tmin = w.tmin;
+  LocalHit h{kInvalidPrim, 0.0f, 0.0f};
   if (L.count & kSubtreeFlag) {
     // The kd-tree's walk of the leaf's subtree over the ray's segment in the leaf, clipped to
     // the subtree's box first (the two t's widened by err as the kd-tree widens its own).
@@ -405,37 +526,13 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
     const KdRay kr = w.kr;
     float ta = float(w.t_cur) - w.err, tb = float(std::min(t_exit, w.t1)) + w.err;
     if (kd_clip_x4(w.krx4, sub_lo, sub_hi, ta, tb)) {
-      // Tested as the kd-tree tests, with the closest hit in the walk's own locals (through
-      // test() and w, primary rays on the dragon were 5% slower), but through the ray's
-      // mailbox: a triangle that crosses cell boundaries is referenced by every grid leaf it
-      // touches and by several leaves of a subtree, and a second test of the whole triangle
-      // can only repeat the first (best only decreases).
-      const auto& rd = w.rd;
-      const float tmin = w.tmin;
-      uint32_t hit_local = kInvalidPrim;
-      float hit_u = 0.0f, hit_v = 0.0f;
-      auto leaf = [&](const KdNode& sn, float& best, bool& found) __attribute__((always_inline)) {
-        s.leaf();
-        const uint32_t* r = refs_.data() + sn.prim_offset;
-        for (uint32_t i = 0, count = sn.count(); i < count; ++i) {
-          const uint32_t local = r[i];
-          if (hybrid::tested_before(w, local)) {
-            s.mailbox_skip();
-            continue;
-          }
-          if constexpr (Probe::kCount) s.tri_test(prim_of_[local]);
-          const TriVerts& tv = tris_[local];
-          float t, u, v;
-          if (TriangleTest::intersect(rd, tv.v0, tv.v1, tv.v2, tmin, best, t, u, v)) {
-            if constexpr (kAny) return true;
-            best = t;
-            found = true;
-            hit_local = local;
-            hit_u = u;
-            hit_v = v;
-          }
-        }
-        return false;
+      // Tested as the kd-tree tests, but through the ray's mailbox: a triangle that crosses
+      // cell boundaries is referenced by every grid leaf it touches and by several leaves of a
+      // subtree, and a second test of the whole triangle can only repeat the first (best only
+      // decreases).
+      auto leaf = [&](const KdNode& sn, float& b, bool& f) __attribute__((always_inline)) {
+        return test_refs<TriangleTest, Probe, kAny, kExact>(
+            w, s, rd, tmin, refs_.data() + sn.prim_offset, sn.count(), b, f, h);
       };
       // Traces: each node's segment as the walk sees it, within the leaf's segment and never
       // starting before the previous node's (the walk widens its intervals by err, a bound on
@@ -447,20 +544,26 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
         s.visit(
             TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
       };
+      // The closest hit in the walk's own locals here (through w, primary rays on the dragon
+      // were 5% slower).
       float best = w.best;
       bool found = w.found;
       if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found,
                       s, leaf, visit))
         return StepResult::Answered;
       if constexpr (!kAny)
-        if (hit_local != kInvalidPrim) {
+        if (h.local != kInvalidPrim) {
           w.best = best;
           w.found = true;
-          w.hit = {best, prim_of_[hit_local], hit_u, hit_v};
+          w.hit = {best, prim_of_[h.local], h.u, h.v};
         }
     }
   } else if (L.count) {
-    if (test(refs_.data() + L.first, L.count)) return StepResult::Answered;
+    if (test_refs<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, refs_.data() + L.first,
+                                                     L.count, w.best, w.found, h))
+      return StepResult::Answered;
+    if constexpr (!kAny)
+      if (h.local != kInvalidPrim) w.hit = {w.best, prim_of_[h.local], h.u, h.v};
   }
   if (w.found && double(w.best) <= t_exit) return StepResult::Done;
   if (last) return StepResult::Done;
