@@ -30,14 +30,10 @@ cd "$(dirname "$0")/.."
 out="${1:-docs/CACHE-PROFILE.md}"
 root=$(pwd)
 source scripts/scenes-dir.sh
-command -v valgrind >/dev/null || { echo "cache-profile: valgrind not found: bash scripts/install-deps.sh (or apt-get install valgrind)" >&2; exit 1; }
 command -v callgrind_annotate >/dev/null || { echo "cache-profile: callgrind_annotate not found (package valgrind)" >&2; exit 1; }
 [[ -d "$scenes" ]] || { echo "cache-profile: $scenes not found; set KDGRID_SCENES" >&2; exit 1; }
-grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo ||
-  { echo "cache-profile: the callgrind preset targets x86-64-v3 (AVX2, FMA); this CPU lacks them" >&2; exit 1; }
-cmake --preset callgrind >/dev/null
-cmake --build build/callgrind --target kdgrid -j "${KDGRID_JOBS:-$(nproc)}" >&2
-kdgrid="build/callgrind/src/cli/kdgrid"
+me=cache-profile
+source scripts/callgrind-build.sh
 ll="${CACHE_LL:-2097152,16,64}"
 common=(--res "${CACHE_RES:-1024}" --accel "${CACHE_ACCELS:-kdtree,hybrid,embree}" --cache-sim)
 work=$(mktemp -d)

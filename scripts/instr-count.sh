@@ -32,15 +32,11 @@ scene="${1:-$scenes/dragon/dragon_vrip.ply}"
 accels="${2:-kdtree,hybrid}"
 res="${RES:-1024}"
 rows="${ROWS:-64}"
-command -v valgrind >/dev/null || { echo "instr-count: valgrind not found: bash scripts/install-deps.sh (or apt-get install valgrind)" >&2; exit 1; }
 [[ -f "$scene" ]] || { echo "instr-count: scene $scene not found; pass a scene file or set KDGRID_SCENES" >&2; exit 1; }
 [[ "$res" =~ ^[0-9]+$ && "$rows" =~ ^[0-9]+$ && "$rows" -ge 1 && "$rows" -le "$res" ]] ||
   { echo "instr-count: RES ($res) and ROWS ($rows) must be whole numbers with 1 <= ROWS <= RES" >&2; exit 1; }
-grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo ||
-  { echo "instr-count: the callgrind preset targets x86-64-v3 (AVX2, FMA); this CPU lacks them" >&2; exit 1; }
-cmake --preset callgrind >/dev/null
-cmake --build build/callgrind --target kdgrid -j "${KDGRID_JOBS:-$(nproc)}" >&2
-kdgrid="build/callgrind/src/cli/kdgrid"
+me=instr-count
+source scripts/callgrind-build.sh
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 # shellcheck disable=SC2086

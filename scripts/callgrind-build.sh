@@ -1,0 +1,13 @@
+# shellcheck shell=bash disable=SC2154  # $me is set by the caller
+# Sourced by the callgrind scripts (instr-count.sh, cache-profile.sh, ray-cost-split.sh): checks
+# that valgrind runs here and that the CPU runs x86-64-v3 code, builds build/callgrind (preset
+# `callgrind`: x86-64-v3 with line info, as valgrind 3.19 decodes no AVX-512; a few minutes the
+# first time) and sets $kdgrid to its CLI. Needs $me, the calling script's name for its errors,
+# and the checkout as the working directory.
+command -v valgrind >/dev/null || { echo "$me: valgrind not found: bash scripts/install-deps.sh (or apt-get install valgrind)" >&2; exit 1; }
+grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo ||
+  { echo "$me: the callgrind preset targets x86-64-v3 (AVX2, FMA); this CPU lacks them" >&2; exit 1; }
+cmake --preset callgrind >/dev/null
+cmake --build build/callgrind --target kdgrid -j "${KDGRID_JOBS:-$(nproc)}" >&2
+# shellcheck disable=SC2034  # read by the caller
+kdgrid="$(pwd)/build/callgrind/src/cli/kdgrid"

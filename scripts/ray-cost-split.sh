@@ -1,0 +1,199 @@
+#!/usr/bin/env bash
+# Where a ray's instructions go, by ray class: per ray of each structure and ray set (primary,
+# shadow, diffuse), valgrind's callgrind counts the instructions, simulated cache misses and
+# mispredicted branches of the fast query (AcceleratorBase::intersect, or ::occluded for the
+# shadow set's any-hit queries) and splits the instructions by the code they come from:
+#   setup    the ray's validation, the clip to the structure's box (kd_begin) and, in the hybrid,
+#            the rest of walk_begin: the grid-space ray, the entry cell and its leaf (start_leaf)
+#   steps    the hybrid's leaf steps: walk and walk_step less their tests, leaf_exit, the
+#            next-leaf lookup (next_leaf, the cell map) and the step bound
+#   subtree  kd_traverse and kd_clip_x4 (kd_kernel.h): the kd-tree's whole traversal, the
+#            hybrid's walks of leaf subtrees
+#   tests    the triangle test (WatertightTest::intersect) and the loop over a leaf's
+#            references (test_refs; the kd-tree's leaf loop)
+#   mailbox  the hybrid's per-ray mailbox (tested_before) and the exact walk's set
+#   other    anything else (calls into the C++ runtime; the exact walk's rewalk bookkeeping)
+# Each executed instruction is assigned by its inline chain (addr2line -i over the callgrind
+# build's line info): the innermost frame that names one of the functions above decides, so a
+# vec.h operator inlined into the triangle test counts as a test, the same one inlined into
+# walk_begin as set-up.
+#
+# The rays: `kdgrid rays` writes each set at RES x RES (default 1024) with the camera of
+# KDGRID_ARGS; the middle COUNT rays of each set (default 32768; for the primary set, rows in
+# the image's middle) are traced once on one thread by `kdgrid trace --repeat 1`, whose counted
+# pass (steps, leaves, tests per ray) is printed but not collected. Shadow and diffuse sets hold
+# only the primary rays that hit, so their middle rays come from the image's middle rows too.
+# Counts do not depend on the machine's load. The caches are cache-profile.sh's model (L1d 32
+# KiB 8-way, one 2 MiB 16-way last level, no prefetcher) and its per-address branch predictor:
+# misses and mispredictions compare structures roughly, they are not the CPU's.
+#
+# Builds build/callgrind (preset `callgrind`: x86-64-v3, as valgrind 3.19 decodes no AVX-512,
+# with line info) the first time. Each structure and set takes 1-3 minutes on the dragon, most
+# of it the build under valgrind.
+#
+# Usage: scripts/ray-cost-split.sh [SCENE] [ACCELS] [SETS]
+#   SCENE   a scene file (default $KDGRID_SCENES/dragon/dragon_vrip.ply)
+#   ACCELS  comma-separated structures (default kdtree,hybrid; not embree, which has no line info)
+#   SETS    comma-separated ray sets (default primary,shadow,diffuse)
+# Environment: KDGRID_SCENES (default ../shared/scenes), RES (1024), COUNT (32768), KDGRID_ARGS
+#              (extra options for `kdgrid rays` and `kdgrid trace`, e.g. the suite's Sponza
+#              camera "--eye -14,3,0 --target 10,5,0 --fov 60"), CACHE_SIM (1: simulate the
+#              caches and branches; 0 leaves their columns empty and runs about twice as fast).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+# shellcheck disable=SC2034  # read by scenes-dir.sh
+root=$(pwd)
+source scripts/scenes-dir.sh
+scene="${1:-$scenes/dragon/dragon_vrip.ply}"
+accels="${2:-kdtree,hybrid}"
+sets="${3:-primary,shadow,diffuse}"
+res="${RES:-1024}"
+count="${COUNT:-32768}"
+sim=()
+# shellcheck disable=SC2054  # the commas are valgrind's (size,ways,line)
+[[ "${CACHE_SIM:-1}" == 0 ]] || sim=(--cache-sim=yes --branch-sim=yes --I1=32768,8,64 --D1=32768,8,64 --LL=2097152,16,64)
+command -v addr2line >/dev/null || { echo "ray-cost-split: addr2line not found: apt-get install binutils" >&2; exit 1; }
+[[ -f "$scene" ]] || { echo "ray-cost-split: scene $scene not found; pass a scene file or set KDGRID_SCENES" >&2; exit 1; }
+[[ "$res" =~ ^[0-9]+$ && "$count" =~ ^[0-9]+$ && "$count" -ge 1 ]] ||
+  { echo "ray-cost-split: RES ($res) and COUNT ($count) must be whole numbers, COUNT >= 1" >&2; exit 1; }
+me=ray-cost-split
+source scripts/callgrind-build.sh
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+echo "Instructions per ray by where they go (callgrind, x86-64-v3), $(basename "$scene") ${KDGRID_ARGS:-}, the middle $count rays of each ${res}x${res} set, at $(git rev-parse --short HEAD)$(git diff --quiet -- src || echo ' (modified)')"
+echo
+echo "| structure | rays | instructions | setup | steps | subtree | tests | mailbox | other | D1 misses | LL misses | mispredicted | steps | leaves | tests | hit fraction |"
+echo "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+IFS=, read -ra set_list <<< "$sets"
+IFS=, read -ra accel_list <<< "$accels"
+for set in "${set_list[@]}"; do
+  # shellcheck disable=SC2086
+  "$kdgrid" rays "$scene" --set "$set" --res "$res" -o "$work/$set.all.rays" ${KDGRID_ARGS:-} >/dev/null
+  # The middle rays (docs/RAYSETS.md's header: "RAYS", u32 version, u64 count, 32 bytes a ray).
+  /usr/bin/python3 - "$work/$set.all.rays" "$work/$set.rays" "$count" <<'EOF'
+import struct, sys
+src, dst, want = sys.argv[1], sys.argv[2], int(sys.argv[3])
+with open(src, "rb") as f:
+    head = f.read(16)
+    magic, (version, total) = head[:4], struct.unpack("<IQ", head[4:])
+    if magic != b"RAYS":
+        sys.exit(f"ray-cost-split: {src} is not a .rays file")
+    n = min(want, total)
+    f.seek(16 + 32 * ((total - n) // 2))
+    body = f.read(32 * n)
+with open(dst, "wb") as f:
+    f.write(magic + struct.pack("<IQ", version, n))
+    f.write(body)
+EOF
+  for a in "${accel_list[@]}"; do
+    [[ "$a" != embree* ]] || { echo "ray-cost-split: $a has no line info to split; use kdtree, hybrid" >&2; exit 1; }
+    query=intersect any=()
+    [[ "$set" != shadow ]] || { query=occluded; any=(--any); }
+    sig='kdgrid::AcceleratorBase<*>::intersect(kdgrid::Ray const&, kdgrid::Hit&) const'
+    [[ "$query" == intersect ]] || sig='kdgrid::AcceleratorBase<*>::occluded(kdgrid::Ray const&) const'
+    # shellcheck disable=SC2086
+    valgrind --tool=callgrind --toggle-collect="$sig" "${sim[@]}" --dump-instr=yes --compress-pos=no \
+      --compress-strings=no --callgrind-out-file="$work/cg.$set.$a" \
+      "$kdgrid" trace "$scene" --rays "$work/$set.rays" --accel "$a" --threads 1 --repeat 1 "${any[@]}" \
+      ${KDGRID_ARGS:-} > "$work/trace.$set.$a" 2> "$work/valgrind.$set.$a" ||
+      { cat "$work/trace.$set.$a" "$work/valgrind.$set.$a" >&2; exit 1; }
+    /usr/bin/python3 - "$work/cg.$set.$a" "$work/trace.$set.$a" "$kdgrid" "$a" "$set" <<'EOF'
+import re, subprocess, sys
+cg, trace, binary, accel, rayset = sys.argv[1:6]
+events, ob, skip = None, None, False
+cost = {}  # (object, address) -> self cost per event
+for line in open(cg):
+    if line.startswith("events:"):
+        events = line.split()[1:]
+    elif line.startswith("ob="):
+        ob = line[3:].strip()
+    elif line.startswith("calls="):
+        skip = True  # the next cost line is the call's inclusive cost, counted at its callee
+    elif line[:1] == "0" or line[:1].isdigit():
+        if skip:
+            skip = False
+            continue
+        f = line.split()
+        c = cost.setdefault((ob, int(f[0], 16)), [0] * len(events))
+        for i, x in enumerate(f[2:]):
+            c[i] += int(x)
+ev = {e: i for i, e in enumerate(events)}
+# Runtime addresses of the PIE binary: the load base is the one that maps AcceleratorBase's entry
+# (the collected function's first address) onto its symbol.
+ours = sorted(a for (o, a) in cost if o == binary)
+nm = subprocess.run(["nm", "-C", binary], capture_output=True, text=True).stdout
+syms = sorted(int(l.split()[0], 16) for l in nm.splitlines()
+              if "AcceleratorBase<" in l and ("::intersect(" in l or "::occluded(" in l) and l.split()[0] != "")
+base = None
+for s in syms:
+    if s + 0x108000 in ours or s in ours:
+        base = 0x108000 if s + 0x108000 in ours else 0
+        break
+if base is None:
+    base = 0x108000 if ours and ours[0] > 0x108000 else 0
+chains = {}
+if ours:
+    res = subprocess.run(["addr2line", "-a", "-i", "-f", "-C", "-e", binary] + [hex(a - base) for a in ours],
+                         capture_output=True, text=True).stdout.splitlines()
+    cur, odd = None, False
+    for l in res:
+        if re.fullmatch(r"0x[0-9a-f]+", l):
+            cur, odd = int(l, 16) + base, False
+            chains[cur] = []
+        elif cur is not None:
+            if not odd:
+                chains[cur].append([l, ""])  # a frame's function, then its file:line
+            else:
+                chains[cur][-1][1] = l
+            odd = not odd
+rules = [("tests", ("Test::intersect",)), ("mailbox", ("tested_before", "TestedSet")),
+         ("tests", ("test_refs",)), ("subtree", ("kd_traverse", "kd_clip_x4")),
+         ("setup", ("walk_begin", "kd_begin", "start_leaf")),
+         ("steps", ("leaf_exit", "exit_through", "next_leaf", "walk_step", "over_step_bound")),
+         ("other", ("rewalk",)),
+         ("setup", ("AcceleratorBase",))]
+# The kd-tree's leaf loop is a lambda inside its query: a frame whose name is a lambda in
+# kdtree's code is a test loop.
+# The hybrid's walk itself: its loop (the empty leaves it steps over inline, the call of
+# walk_step) is steps, the rest (entry, exit, the answer's copy) set-up. Its loop's lines are
+# read from walk.h: from `for (;;)` to the call of walk_step.
+src = open("src/core/accel/hybrid/walk.h").read().splitlines()
+w0 = next(i for i, l in enumerate(src) if re.search(r"Hybrid::walk\(const Ray", l))
+loop = (next(i for i in range(w0, len(src)) if "for (;;)" in src[i]) + 1,
+        next(i for i in range(w0, len(src)) if "walk_step<" in src[i]) + 1)
+def kind(chain):
+    for f, loc in chain:
+        if re.search(r"Hybrid::walk<", f):
+            m = re.search(r"walk\.h:(\d+)", loc)
+            return "steps" if m and loop[0] <= int(m.group(1)) <= loop[1] else "setup"
+        for k, names in rules:
+            if any(n in f for n in names):
+                return k
+        if "KdTree" in f and "lambda" in f:
+            return "tests"
+    return "other"
+split, other = {}, {}
+for (o, a), c in cost.items():
+    k = kind(chains.get(a, [])) if o == binary else "other"
+    split[k] = split.get(k, 0) + c[ev["Ir"]]
+    if k == "other":  # told on stderr, to see what the rules miss
+        f = chains.get(a, [["?", ""]])[-1][0] if o == binary else o
+        other[f] = other.get(f, 0) + c[ev["Ir"]]
+tot = [sum(c[i] for c in cost.values()) for i in range(len(events))]
+t = open(trace).read()
+n = int(re.search(r"^rays\s+(\d+)", t, re.M).group(1))
+hit = re.search(r"^hit fraction\s+(\S+)", t, re.M).group(1)
+m = re.search(r"per ray\s+([\d.]+) steps, ([\d.]+) leaves, ([\d.]+) triangle tests", t)
+st, lv, ts = m.groups() if m else ("n/a",) * 3
+g = lambda e: tot[ev[e]] if e in ev else 0
+sim = "D1mr" in ev
+d1 = f'{(g("D1mr") + g("D1mw")) / n:.2f}' if sim else ""
+ll = f'{(g("DLmr") + g("DLmw")) / n:.2f}' if sim else ""
+bm = f'{(g("Bcm") + g("Bim")) / n:.1f}' if sim else ""
+cols = " | ".join(f"{split.get(k, 0) / n:.0f}" for k in ("setup", "steps", "subtree", "tests", "mailbox", "other"))
+for f, c in sorted(other.items(), key=lambda kv: -kv[1])[:3]:
+    print(f"ray-cost-split: {accel} {rayset}: other: {c / n:.1f} a ray in {f[:150]}", file=sys.stderr)
+print(f"| {accel} | {rayset} | {g('Ir') / n:.0f} | {cols} | {d1} | {ll} | {bm} | {st} | {lv} | {ts} | {hit} |")
+EOF
+  done
+done
