@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <regex>
+#include <set>
 #include <string>
 #include <utility>
 #include <vector>
@@ -1384,6 +1385,33 @@ TEST(Viewer, PickStepTableShowsEveryValueWhole) {
   EXPECT_GE(st["ui"]["table_cells"].get<int>(), 6 * 5) << "the step table drew too few cells";
   const std::string cut = clipped_list(st);
   EXPECT_TRUE(cut.empty()) << "cut labels or values:" << cut;
+}
+
+TEST(Viewer, EachStructureShowsTheKnobsItsBuildReads) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // The irregular grid has no cell size: a cell-size slider there would rebuild the same
+  // structure. It shows its two densities; the uniform grid shows its cell size (as lambda).
+  const std::string& scene = kDefaultScene;
+  for (const char* accel : {"irregular", "grid"}) {
+    SCOPED_TRACE(accel);
+    const RunResult r =
+        run_viewer(dir, "'" + scene + "' --accel " + accel +
+                            " --width 1280 --height 720 --frames 3 --min-samples 1 "
+                            "--max-samples 1 --timeout 120 --stats-json stats.json");
+    ASSERT_EQ(r.code, 0) << r.output;
+    const auto st = read_json(dir + "/stats.json");
+    ASSERT_TRUE(st.is_object()) << r.output;
+    std::set<std::string> items;
+    for (const auto& i : st["ui"]["items"]) items.insert(i.get<std::string>());
+    const bool irregular = std::string(accel) == "irregular";
+    EXPECT_EQ(items.count("top density"), irregular ? 1u : 0u) << st["ui"]["items"].dump();
+    EXPECT_EQ(items.count("sub density"), irregular ? 1u : 0u) << st["ui"]["items"].dump();
+    EXPECT_EQ(items.count("cell size"), irregular ? 0u : 1u) << st["ui"]["items"].dump();
+    const std::string cut = clipped_list(st);
+    EXPECT_TRUE(cut.empty()) << "cut labels or values:" << cut;
+  }
 }
 
 // ---- the panel's layout -------------------------------------------------------------------------

@@ -212,14 +212,19 @@ void Viewer::draw_panels() {
       chk("test/step cost");
     } else if (accel_name_ == "hybrid") {
       draw_cell_size_controls(p, rebuild);
-    } else if (accel_name_ != "brute" && !is_embree(accel_name_)) {
+    } else if (accel_name_ == "irregular") {
+      // The irregular grid has no cell size: its two densities (BuildParams) set its cells.
+      ImGui::SliderFloat("top density", &p.irregular_top_density, 0.01f, 2.0f, "%.3g",
+                         ImGuiSliderFlags_Logarithmic);
+      rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      chk("top density");
+      ImGui::SliderFloat("sub density", &p.irregular_sub_density, 0.25f, 16.0f, "%.3g",
+                         ImGuiSliderFlags_Logarithmic);
+      rebuild = rebuild || ImGui::IsItemDeactivatedAfterEdit();
+      chk("sub density");
+    } else if (accel_name_ == "grid") {
       if (cell_size_slider_ <= 0)
         cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
-      bool auto_cs = params_.cell_size <= 0 && accel_name_ != "grid";
-      if (accel_name_ != "grid" && ImGui::Checkbox("auto cell size", &auto_cs)) {
-        p = params_with_cell_size(accel_name_, auto_cs ? 0.0f : cell_size_slider_);
-        rebuild = true;
-      }
       ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
                          ImGuiSliderFlags_Logarithmic);
       audit_.item("cell size");
@@ -232,11 +237,9 @@ void Viewer::draw_panels() {
         p = params_with_cell_size(accel_name_, cell_size_slider_);
         rebuild = true;
       }
-      if (accel_name_ == "grid") {
-        ImGui::PushTextWrapPos(0.0f);
-        ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
-        ImGui::PopTextWrapPos();
-      }
+      ImGui::PushTextWrapPos(0.0f);
+      ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
+      ImGui::PopTextWrapPos();
     }
     if (rebuild) start_build(accel_name_, p);
 

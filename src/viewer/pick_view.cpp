@@ -244,6 +244,7 @@ void same_line_if_fits(const char* next_label) {
 }
 
 void UiAudit::item(const char* label) {
+  items.push_back(label);
   const float right = ImGui::GetWindowPos().x + ImGui::GetWindowContentRegionMax().x;
   const float have = right - ImGui::GetItemRectMin().x, need = ImGui::GetItemRectSize().x;
   if (need > have + 0.5f) {

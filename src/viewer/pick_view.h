@@ -54,6 +54,7 @@ void same_line_if_fits(const char* next_label);
 /// labels and values cut by their window or column, legends drawn, and the layout's anchors.
 struct UiAudit {
   std::vector<std::string> clipped;  ///< "text (needs W, has A)" for each cut label or value
+  std::vector<std::string> items;    ///< the label of every audited item, in drawing order
   std::vector<std::string> legends;  ///< each legend drawn: "<name>: <lo> .. <hi>"
   float status_top = -1;             ///< the panel's y (window units) of the status area
   float below_status_y = -1;         ///< the panel's y of the first widget under the status area

@@ -116,10 +116,13 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   st["samples"] = have_image_ ? image_.samples : 0;
   j["state"] = st;
   // What the last frame's panels showed (empty with the panels hidden).
-  j["ui"] = {
-      {"clipped", audit_.clipped},         {"legends", audit_.legends},
-      {"status_top", audit_.status_top},   {"below_status_y", audit_.below_status_y},
-      {"table_cells", audit_.table_cells}, {"below_status_y_by_state", below_status_y_by_state_}};
+  j["ui"] = {{"clipped", audit_.clipped},
+             {"legends", audit_.legends},
+             {"items", audit_.items},
+             {"status_top", audit_.status_top},
+             {"below_status_y", audit_.below_status_y},
+             {"table_cells", audit_.table_cells},
+             {"below_status_y_by_state", below_status_y_by_state_}};
 
   j["frames"] = {{"count", frame_count_},
                  {"interval_ms", frame_interval_ms_},
