@@ -72,11 +72,10 @@ struct AgreementRule {
 /// judged for those configurations (start_hits_ambiguous); `embree-robust` is held to all.
 inline AgreementRule rule_for(const std::string& structure, const std::string& set = "primary") {
   AgreementRule r;
-  if (is_embree(structure)) {
+  if (const EmbreeConfig* c = embree_config(structure)) {
     r.rel_tol = 1e-4f;
     r.min_fraction = (set == "primary" || set == "random") ? 0.9999 : 0.97;
-    for (const EmbreeConfig& c : embree_configs())
-      if (c.name == structure) r.start_hits_ambiguous = !c.robust;
+    r.start_hits_ambiguous = !c->robust;
   }
   return r;
 }

@@ -107,6 +107,12 @@ const std::vector<EmbreeConfig>& embree_configs() {
   return configs;
 }
 
+const EmbreeConfig* embree_config(const std::string& name) {
+  for (const EmbreeConfig& c : embree_configs())
+    if (c.name == name) return &c;
+  return nullptr;
+}
+
 const EmbreeIsa& embree_isa() {
   static const EmbreeIsa isa = [] {
     EmbreeIsa out;

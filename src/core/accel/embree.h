@@ -42,6 +42,8 @@ struct EmbreeConfig {
 
 /// The configurations the factory registers, in the order tables list them (embree first).
 const std::vector<EmbreeConfig>& embree_configs();
+/// The registered configuration called `name`, or nullptr when no Embree configuration is.
+const EmbreeConfig* embree_config(const std::string& name);
 
 /// What Embree's library chose on this CPU, for reports. Embree 3 has no property naming its
 /// ISA: the widest native ray packet (rtcGetDeviceProperty RTC_DEVICE_PROPERTY_NATIVE_RAY16,

@@ -21,9 +21,7 @@ std::vector<std::string> accelerator_names() {
 }
 
 bool is_embree(const std::string& name) {
-  for (const EmbreeConfig& c : embree_configs())
-    if (c.name == name) return true;
-  return false;
+  return embree_config(name) != nullptr;
 }
 
 std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
@@ -33,8 +31,7 @@ std::unique_ptr<Accelerator> make_accelerator(const std::string& name) {
   if (name == "grid") return std::make_unique<UniformGrid>();
   if (name == "hybrid") return std::make_unique<GridKdHybrid>();
   if (name == "irregular") return std::make_unique<IrregularGrid>();
-  for (const EmbreeConfig& c : embree_configs())
-    if (name == c.name) return std::make_unique<EmbreeAccel>(c);
+  if (const EmbreeConfig* c = embree_config(name)) return std::make_unique<EmbreeAccel>(*c);
   std::string valid;
   for (const auto& n : accelerator_names()) valid += (valid.empty() ? "" : ", ") + n;
   throw ParamError("unknown accelerator '" + name + "': choose one of " + valid);
