@@ -183,8 +183,8 @@ class DropHalf final : public AcceleratorBase<DropHalf> {
     triangle_test_ = p.triangle_test;
     return stats_;
   }
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray& ray, Hit& hit, Probe&) const {
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit* hit, Probe&) const {
     const auto rd = TriangleTest::prepare(ray);
     float tmax = ray.tmax;
     bool found = false;
@@ -192,17 +192,13 @@ class DropHalf final : public AcceleratorBase<DropHalf> {
       const auto c = mesh_->corners(i);
       float t, u, v;
       if (TriangleTest::intersect(rd, c[0], c[1], c[2], ray.tmin, tmax, t, u, v)) {
+        if constexpr (kAny) return true;
         tmax = t;
-        hit = {t, i, u, v};
+        *hit = {t, i, u, v};
         found = true;
       }
     }
     return found;
-  }
-  template <class TriangleTest, class Probe>
-  bool any(const Ray& ray, Probe& s) const {
-    Hit h;
-    return closest<TriangleTest>(ray, h, s);
   }
 
  private:
@@ -263,13 +259,9 @@ class ReportsPrim final : public AcceleratorBase<ReportsPrim> {
   ReportsPrim(uint32_t p, float t) : p_(p), t_(t) {}
   std::string name() const override { return "fixed"; }
   BuildStats build(const Mesh&, const BuildParams&) override { return stats_; }
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray&, Hit& h, Probe&) const {
-    h = {t_, p_, 0, 0};
-    return true;
-  }
-  template <class TriangleTest, class Probe>
-  bool any(const Ray&, Probe&) const {
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray&, Hit* h, Probe&) const {
+    if constexpr (!kAny) *h = {t_, p_, 0, 0};
     return true;
   }
 

@@ -186,32 +186,33 @@ class Accelerator {
 
 /// Implements the virtual entry points from one templated traversal in Derived:
 ///
-///   template <class TriangleTest, class Probe> bool closest(const Ray&, Hit&, Probe&) const;
-///   template <class TriangleTest, class Probe> bool any(const Ray&, Probe&) const;
+///   template <class TriangleTest, class Probe, bool kAny>
+///   bool traverse(const Ray&, Hit* hit, Probe&) const;
 ///
 /// TriangleTest is WatertightTest, MollerTest or NullTest (chosen by BuildParams::triangle_test at
-/// build time), Probe is NoProbe / CountProbe / TraceProbe. Derived stores its BuildStats in stats_
-/// and the chosen triangle test in triangle_test_.
+/// build time), Probe is NoProbe / CountProbe / TraceProbe, and kAny asks for any hit (an
+/// occlusion query: `hit` is null and never written) instead of the closest (written to *hit).
+/// Derived stores its BuildStats in stats_ and the chosen triangle test in triangle_test_.
 template <class Derived>
 class AcceleratorBase : public Accelerator {
  public:
   bool intersect(const Ray& ray, Hit& hit) const final {
     NoProbe s;
-    return dispatch_closest(ray, hit, s);
+    return dispatch<false>(ray, &hit, s);
   }
   bool occluded(const Ray& ray) const final {
     NoProbe s;
-    return dispatch_any(ray, s);
+    return dispatch<true>(ray, nullptr, s);
   }
   bool intersect_counted(const Ray& ray, Hit& hit, RayCounters& counters) const final {
     CountProbe s;
-    const bool r = dispatch_closest(ray, hit, s);
+    const bool r = dispatch<false>(ray, &hit, s);
     counters += s.c;
     return r;
   }
   bool occluded_counted(const Ray& ray, RayCounters& counters) const final {
     CountProbe s;
-    const bool r = dispatch_any(ray, s);
+    const bool r = dispatch<true>(ray, nullptr, s);
     counters += s.c;
     return r;
   }
@@ -219,7 +220,7 @@ class AcceleratorBase : public Accelerator {
     Trace t;
     TraceProbe s(&t);
     Hit h;
-    dispatch_closest(ray, h, s);
+    dispatch<false>(ray, &h, s);
     t.hit = h;
     return t;
   }
@@ -232,22 +233,14 @@ class AcceleratorBase : public Accelerator {
 
  private:
   const Derived& self() const { return static_cast<const Derived&>(*this); }
-  template <class Probe>
-  bool dispatch_closest(const Ray& ray, Hit& hit, Probe& s) const {
+  template <bool kAny, class Probe>
+  bool dispatch(const Ray& ray, Hit* hit, Probe& s) const {
     if (!ray_is_valid(ray)) return false;
     if (triangle_test_ == TriangleTestKind::Watertight)
-      return self().template closest<WatertightTest>(ray, hit, s);
+      return self().template traverse<WatertightTest, Probe, kAny>(ray, hit, s);
     if (triangle_test_ == TriangleTestKind::Moller)
-      return self().template closest<MollerTest>(ray, hit, s);
-    return self().template closest<NullTest>(ray, hit, s);
-  }
-  template <class Probe>
-  bool dispatch_any(const Ray& ray, Probe& s) const {
-    if (!ray_is_valid(ray)) return false;
-    if (triangle_test_ == TriangleTestKind::Watertight)
-      return self().template any<WatertightTest>(ray, s);
-    if (triangle_test_ == TriangleTestKind::Moller) return self().template any<MollerTest>(ray, s);
-    return self().template any<NullTest>(ray, s);
+      return self().template traverse<MollerTest, Probe, kAny>(ray, hit, s);
+    return self().template traverse<NullTest, Probe, kAny>(ray, hit, s);
   }
 };
 

@@ -11,8 +11,9 @@ class BruteForce final : public AcceleratorBase<BruteForce> {
   std::string name() const override { return "brute"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
+  /// The traversal of one ray (AcceleratorBase's contract): every triangle in index order.
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit* hit, Probe& s) const {
     const auto rd = TriangleTest::prepare(ray);
     float tmax = ray.tmax;
     bool found = false;
@@ -26,29 +27,13 @@ class BruteForce final : public AcceleratorBase<BruteForce> {
       float t, u, v;
       if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, tmax, t, u,
                                   v)) {
+        if constexpr (kAny) return true;
         tmax = t;
-        hit = {t, i, u, v};
+        *hit = {t, i, u, v};
         found = true;
       }
     }
     return found;
-  }
-
-  template <class TriangleTest, class Probe>
-  bool any(const Ray& ray, Probe& s) const {
-    const auto rd = TriangleTest::prepare(ray);
-    s.step();
-    s.leaf();
-    const auto& pos = mesh_->positions;
-    for (uint32_t i = 0; i < static_cast<uint32_t>(mesh_->triangles.size()); ++i) {
-      const auto& tri = mesh_->triangles[i];
-      s.tri_test(i);
-      float t, u, v;
-      if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, ray.tmax, t,
-                                  u, v))
-        return true;
-    }
-    return false;
   }
 
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override {

@@ -46,10 +46,9 @@ class Bvh final : public AcceleratorBase<Bvh> {
   std::string name() const override { return "bvh"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray& ray, Hit& hit, Probe& s) const;
-  template <class TriangleTest, class Probe>
-  bool any(const Ray& ray, Probe& s) const;
+  /// The traversal of one ray (AcceleratorBase's contract).
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
 
@@ -66,9 +65,6 @@ class Bvh final : public AcceleratorBase<Bvh> {
   /// Entry/exit distances of the ray in `n`'s box clipped to [tmin, tmax]; true if non-empty.
   static bool slab(const RayBox& rb, const BvhNode& n, float tmin, float tmax, float& t_in,
                    float& t_out);
-
-  template <class TriangleTest, bool kAny, class Probe>
-  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
   const Mesh* mesh_ = nullptr;
   std::vector<BvhNode> nodes_;
@@ -107,7 +103,7 @@ inline bool Bvh::slab(const RayBox& rb, const BvhNode& n, float tmin, float tmax
   return tn <= tf;
 }
 
-template <class TriangleTest, bool kAny, class Probe>
+template <class TriangleTest, class Probe, bool kAny>
 bool Bvh::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (nodes_.empty()) return false;
   const RayBox rb = prepare_box(ray);
@@ -185,16 +181,6 @@ bool Bvh::traverse(const Ray& ray, Hit* hit, Probe& s) const {
     cur = stack[sp].node;
     if constexpr (Probe::kTrace) depth = depth_stack[sp];
   }
-}
-
-template <class TriangleTest, class Probe>
-bool Bvh::closest(const Ray& ray, Hit& hit, Probe& s) const {
-  return traverse<TriangleTest, false>(ray, &hit, s);
-}
-
-template <class TriangleTest, class Probe>
-bool Bvh::any(const Ray& ray, Probe& s) const {
-  return traverse<TriangleTest, true>(ray, nullptr, s);
 }
 
 }  // namespace kdgrid

@@ -37,15 +37,9 @@ class UniformGrid final : public AcceleratorBase<UniformGrid> {
   std::string name() const override { return "grid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
-    return traverse<TriangleTest, Probe, false>(ray, hit, s);
-  }
-  template <class TriangleTest, class Probe>
-  bool any(const Ray& ray, Probe& s) const {
-    Hit h;
-    return traverse<TriangleTest, Probe, true>(ray, h, s);
-  }
+  /// The traversal of one ray (AcceleratorBase's contract).
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
 
@@ -66,9 +60,6 @@ class UniformGrid final : public AcceleratorBase<UniformGrid> {
     return b;
   }
 
-  template <class TriangleTest, class Probe, bool kAny>
-  bool traverse(const Ray& ray, Hit& hit, Probe& s) const;
-
   const Mesh* mesh_ = nullptr;
   Box3 box_;
   std::array<int, 3> res_{1, 1, 1};
@@ -78,7 +69,7 @@ class UniformGrid final : public AcceleratorBase<UniformGrid> {
 };
 
 template <class TriangleTest, class Probe, bool kAny>
-bool UniformGrid::traverse(const Ray& ray, Hit& hit, Probe& s) const {
+bool UniformGrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (refs_.empty()) return false;
   // Clip the ray to the grid box. Axes with a zero (+0 or -0) direction never bound t and
   // never step; the ray misses unless its origin lies within the slab (boundary included).
@@ -160,7 +151,7 @@ bool UniformGrid::traverse(const Ray& ray, Hit& hit, Probe& s) const {
                                     v)) {
           if constexpr (kAny) return true;
           best = t;
-          hit = {t, prim, u, v};
+          *hit = {t, prim, u, v};
           found = true;
         }
       }

@@ -64,14 +64,9 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
   std::string name() const override { return "irregular"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
-    return walk<TriangleTest, Probe, false>(ray, &hit, s);
-  }
-  template <class TriangleTest, class Probe>
-  bool any(const Ray& ray, Probe& s) const {
-    return walk<TriangleTest, Probe, true>(ray, nullptr, s);
-  }
+  /// The walk of one ray (AcceleratorBase's contract).
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
   /// Cell boxes (their own box, not the expanded exit box) with their reference counts.
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
@@ -131,9 +126,6 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
                  float(lattice_plane(2, hi[2])))};
   }
 
-  template <class TriangleTest, class Probe, bool kAny>
-  bool walk(const Ray& ray, Hit* hit, Probe& s) const;
-
   const Mesh* mesh_ = nullptr;
   double lo_[3] = {0, 0, 0}, hi_[3] = {0, 0, 0};      ///< grid box (padded scene box)
   double vs_[3] = {1, 1, 1}, inv_vs_[3] = {1, 1, 1};  ///< finest voxel size and its inverse
@@ -152,7 +144,7 @@ class IrregularGrid final : public AcceleratorBase<IrregularGrid> {
 // ---- traversal ----------------------------------------------------------------------------
 
 template <class TriangleTest, class Probe, bool kAny>
-bool IrregularGrid::walk(const Ray& ray, Hit* hit, Probe& s) const {
+bool IrregularGrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (cells_.empty()) return false;
   // Clip to the grid box in double. Zero components (+0 or -0) are handled explicitly so that
   // no 0 * inf NaN can arise: such a ray either lies within the slab for all t or misses.

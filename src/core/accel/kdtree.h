@@ -71,15 +71,9 @@ class KdTree final : public AcceleratorBase<KdTree> {
   std::string name() const override { return "kdtree"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
-    return traverse<TriangleTest, Probe, false>(ray, hit, s);
-  }
-  template <class TriangleTest, class Probe>
-  bool any(const Ray& ray, Probe& s) const {
-    Hit h;
-    return traverse<TriangleTest, Probe, true>(ray, h, s);
-  }
+  /// The traversal of one ray (AcceleratorBase's contract).
+  template <class TriangleTest, class Probe, bool kAny>
+  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
   void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
@@ -88,9 +82,6 @@ class KdTree final : public AcceleratorBase<KdTree> {
   const std::vector<KdNode>& nodes() const { return nodes_; }
 
  private:
-  template <class TriangleTest, class Probe, bool kAny>
-  bool traverse(const Ray& ray, Hit& hit, Probe& s) const;
-
   const Mesh* mesh_ = nullptr;
   Box3 bounds_;
   float max_abs_ = 0.0f;  ///< largest coordinate magnitude of bounds_
@@ -100,7 +91,7 @@ class KdTree final : public AcceleratorBase<KdTree> {
 };
 
 template <class TriangleTest, class Probe, bool kAny>
-bool KdTree::traverse(const Ray& ray, Hit& hit, Probe& s) const {
+bool KdTree::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (nodes_.empty()) return false;
   // Clip to the root box (kd_begin); zero direction components never bound t.
   KdRay kr;
@@ -122,7 +113,7 @@ bool KdTree::traverse(const Ray& ray, Hit& hit, Probe& s) const {
                                   v)) {
         if constexpr (kAny) return true;
         best = t;
-        hit = {t, prim, u, v};
+        *hit = {t, prim, u, v};
         found = true;
       }
     }

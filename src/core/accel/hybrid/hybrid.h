@@ -157,14 +157,12 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::string name() const override { return "hybrid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
 
-  template <class TriangleTest, class Probe>
-  bool closest(const Ray& ray, Hit& hit, Probe& s) const {
-    return walk<TriangleTest, Probe, false>(ray, &hit, s);
-  }
-  template <class TriangleTest, class Probe>
-  bool any(const Ray& ray, Probe& s) const {
-    return walk<TriangleTest, Probe, true>(ray, nullptr, s);
-  }
+  /// The walk of one ray (AcceleratorBase's contract). The fast walk (kExact false) tests
+  /// through the ray's mailbox and gives the ray to rewalk when the mailbox cannot tell every
+  /// repeat (tested_before): one compare a ray. The exact walk, its copy with a record of every
+  /// triangle tested, runs only there.
+  template <class TriangleTest, class Probe, bool kAny, bool kExact = false>
+  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
   void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
@@ -212,12 +210,6 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// means that `id` is the leaf of c.
   [[gnu::always_inline]] inline bool in_kd_box(uint32_t id, const Int4& c) const;
 
-  /// The walk of one ray. The fast walk (kExact false) tests through the ray's mailbox and
-  /// gives the ray to rewalk when the mailbox cannot tell every repeat (tested_before): one
-  /// compare a ray. The exact walk, its copy with a record of every triangle tested, runs only
-  /// there.
-  template <class TriangleTest, class Probe, bool kAny, bool kExact = false>
-  bool walk(const Ray& ray, Hit* hit, Probe& s) const;
   /// Takes back the abandoned fast walk's counts (to `mark`) and walks the ray again exactly:
   /// the same leaves and tests in the same order, each triangle once, so the same closest hit.
   /// Out of line and cold, so that the fast walk only pays the branch to it.
@@ -238,14 +230,14 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   template <class TriangleTest>
   [[gnu::always_inline]] inline bool over_step_bound(WalkState<TriangleTest>& w) const;
   /// Clips the ray to the grid and finds its entry cell's leaf; false if it misses the grid.
-  /// Inlined into walk(): out of line, every ray pays a call and the stores that build the
+  /// Inlined into traverse(): out of line, every ray pays a call and the stores that build the
   /// walk's state (3% of a dragon ray's instructions; docs/HYBRID.md, "The walk").
   template <class TriangleTest>
   [[gnu::always_inline]] inline bool walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const;
   /// One leaf step: tests the leaf's triangles and moves to the next leaf. Out of line on
   /// purpose: as its own function, with the ray's state in memory, the step compiled better
   /// than inlined in the ray's loop (5-8% faster primary rays; docs/HYBRID.md, "The walk").
-  /// Empty leaves do not come here (traced walks excepted): walk() steps over them inline,
+  /// Empty leaves do not come here (traced walks excepted): traverse() steps over them inline,
   /// with nothing to test.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>
   [[gnu::noinline]] StepResult walk_step(WalkState<TriangleTest>& w, Probe& s) const;

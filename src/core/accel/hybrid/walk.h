@@ -141,12 +141,12 @@ constexpr uint32_t kAbandoned = uint32_t(GridKdHybrid::kEvicted) + 1;
 /// GridKdHybrid::kEvicted) and looked up there, on the rays that have evicted any. When one more
 /// would have to be evicted, the fast walk is abandoned: every later test is skipped, the walk
 /// ends at its next step (steps_left 0, which over_step_bound does not count as an error), and
-/// GridKdHybrid::walk gives the ray to rewalk, which runs it again with the exact walk (kExact),
-/// whose record holds every triangle tested. So no ray tests a triangle twice, and the fast walk
-/// keeps everything inline and its triangle loop with no exit for closest hits: a call anywhere in
-/// walk_step makes it save registers on every step (+58 instructions a ray on the dragon), and
-/// leaving the loop at the abandonment made it spill registers (the dragon's primary rays: +5.7
-/// instructions a ray over a walk that can test twice, against +3.6 this way).
+/// GridKdHybrid::traverse gives the ray to rewalk, which runs it again with the exact walk
+/// (kExact), whose record holds every triangle tested. So no ray tests a triangle twice, and the
+/// fast walk keeps everything inline and its triangle loop with no exit for closest hits: a call
+/// anywhere in walk_step makes it save registers on every step (+58 instructions a ray on the
+/// dragon), and leaving the loop at the abandonment made it spill registers (the dragon's primary
+/// rays: +5.7 instructions a ray over a walk that can test twice, against +3.6 this way).
 template <bool kExact, class W>
 [[gnu::always_inline]] inline bool tested_before(W& w, uint32_t local) {
   if constexpr (kExact) {
@@ -283,7 +283,7 @@ inline bool GridKdHybrid::over_step_bound(WalkState<TriangleTest>& w) const {
 }
 
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
-bool GridKdHybrid::walk(const Ray& ray, Hit* hit, Probe& s) const {
+bool GridKdHybrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (leaves_.empty()) return false;
   [[maybe_unused]] const hybrid::StatsMark<Probe> mark(s);
   WalkState<TriangleTest> w;
@@ -335,7 +335,7 @@ bool GridKdHybrid::rewalk(const Ray& ray, Hit* hit, Probe& s,
                           const hybrid::StatsMark<Probe>& mark) const {
   rewalks_.fetch_add(1, std::memory_order_relaxed);
   mark.restore(s);
-  return walk<TriangleTest, Probe, kAny, true>(ray, hit, s);
+  return traverse<TriangleTest, Probe, kAny, true>(ray, hit, s);
 }
 
 template <class TriangleTest>
