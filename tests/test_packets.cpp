@@ -1,6 +1,7 @@
 // Packet queries (Accelerator::intersect_packet, occluded_packet): every structure's packet
 // answers must be bitwise its single-ray answers, on coherent tiles of camera rays, on random
-// rays, and on packets holding invalid rays (NaN or zero directions), which miss.
+// rays, on meshes far from the origin, and on packets holding invalid rays (NaN or zero
+// directions), which miss.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -10,6 +11,7 @@
 #include <vector>
 
 #include "accel/accelerator.h"
+#include "accel/embree.h"
 #include "bench/raysets.h"
 #include "comparator_meshes.h"
 #include "scene/load.h"
@@ -31,6 +33,10 @@ std::vector<PacketMesh> packet_meshes(const std::string& structure) {
   v.push_back({"soup", test::random_soup(7, 3000)});
   v.push_back({"slivers", test::slivers(2, 1500)});
   v.push_back({"integer_quads", test::integer_quads(8)});
+  // Far from the origin and huge: the triangle tests' and Embree's overflow fallbacks.
+  v.push_back({"sphere_1e6", test::transformed(test::sphere(20, 40), 1e6f, Vec3(0.0f))});
+  v.push_back(
+      {"quads_at_1e5", test::transformed(test::integer_quads(6), 1.0f, Vec3(1e5f, -1e5f, 1e5f))});
   // Brute force tests every triangle for every ray: the bunny would take minutes.
   const std::string bunny = test::shared_scene("bunny/bun_zipper.ply");
   if (!bunny.empty() && structure != "brute") v.push_back({"bunny", load_scene(bunny).mesh});
@@ -67,9 +73,13 @@ TEST_P(Packets, AnswerBitwiseAsSingleRays) {
   int checked_hits = 0;
   // Embree's packet kernels visit triangles in another order than its single-ray ones, so of
   // two triangles hit at exactly the same t (integer_quads' coincident quads) they may report
-  // the other: its packet answers must then tie bitwise with the single ray's. Every other
-  // structure's packet answers are its single-ray answers, bit for bit.
+  // the other: its packet answers must then tie bitwise with the single ray's. With Embree's
+  // default (not robust) flags the two kernels also round its edge tests differently, so a ray
+  // through a shared edge far from the origin may slip through in one and not in the other
+  // (2 of the 5,079 rays of quads_at_1e5): at most 1 ray in 1000 of a mesh may differ so.
+  // Every other structure's packet answers are its single-ray answers, bit for bit.
   const bool tie_may_differ = is_embree(GetParam());
+  const bool edges_may_differ = is_embree(GetParam()) && !embree_config(GetParam())->robust;
   for (const PacketMesh& pm : packet_meshes(GetParam())) {
     auto acc = make_accelerator(GetParam());
     BuildParams p;
@@ -90,16 +100,17 @@ TEST_P(Packets, AnswerBitwiseAsSingleRays) {
           occl[base + i] = o[i];
         }
       }
-      int bad = 0;
+      int bad = 0, slipped = 0;
       for (size_t i = 0; i < rays.size(); ++i) {
         Hit single;
         const bool f = acc->intersect(rays[i], single);
         const bool o = acc->occluded(rays[i]);
         const bool tie = tie_may_differ && hits[i].prim != single.prim &&
                          std::memcmp(&hits[i].t, &single.t, sizeof single.t) == 0;
-        const bool same = bool(found[i]) == f && bool(occl[i]) == o &&
-                          (!f || same_bits(hits[i], single) || tie);
+        const bool same =
+            bool(found[i]) == f && bool(occl[i]) == o && (!f || same_bits(hits[i], single) || tie);
         checked_hits += f && size == 64;
+        if (!same && edges_may_differ && ++slipped <= int(rays.size() / 1000)) continue;
         if (!same && ++bad <= 3)
           ADD_FAILURE() << GetParam() << " on " << pm.name << ", packets of " << size << ", ray "
                         << i << ": packet found " << int(found[i]) << " prim " << hits[i].prim

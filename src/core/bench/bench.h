@@ -96,9 +96,9 @@ struct SetFigures {
   /// ratio_to_reference is.
   double packet_ratio_to_reference = 0;
   double packet_reference_mrays = 0;
-  /// Rays whose packet answer is not bitwise this structure's single-ray answer (0 for every
-  /// structure whose packet walk is its own; Embree's packet kernels may take the other
-  /// triangle of an exact tie).
+  /// Rays whose packet answer is not bitwise this structure's single-ray answer: 0 but for
+  /// Embree, whose packet kernels may take the other triangle of an exact tie and, with its
+  /// default (not robust) flags, round its edge tests differently from its single-ray kernels.
   uint64_t packet_mismatches = 0;
   /// Of those, the ties: the same t bitwise, another triangle.
   uint64_t packet_ties = 0;

@@ -50,10 +50,10 @@ struct RenderSettings {
   /// Trace each tile's primary rays together through Accelerator::intersect_packet, in packets
   /// of up to kRenderPacket rays (rows of the tile), instead of one intersect() per pixel. The
   /// packet answers are bitwise the single-ray ones, so the image is the same (with Embree, up
-  /// to a pixel whose ray hits two triangles at exactly the same t: its packet kernels may pick
-  /// the other). On by default: Embree's packets trace primary rays 1.5-3.8x as fast as its
-  /// single rays, and the other structures' packet queries loop over their single rays
-  /// (docs/HYBRID.md, "Packets").
+  /// to a pixel whose ray hits two triangles at exactly the same t or, with its default flags,
+  /// grazes a shared edge: its packet kernels may pick the other triangle). On by default: Embree's
+  /// packets trace primary rays 1.5-3.8x as fast as its single rays, and the other structures'
+  /// packet queries loop over their single rays (docs/HYBRID.md, "Packets").
   bool packets = true;
   RenderMode mode = RenderMode::Shaded;
 };
