@@ -15,9 +15,12 @@
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 #include <thread>
+
+#include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
 #include "accel/triangle.h"
@@ -641,6 +644,25 @@ TEST(RenderCli, RendersAndSummarises) {
               " --accel brute --res 16x12 --spp 1 --heatmap tests --eye 0,1,3 --target 0,1,0");
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_TRUE(fs::exists(dir.file("heat.png")));
+}
+
+TEST(RenderCli, NoPacketsRendersTheSameImageOneRayAtATime) {
+  TempDir dir;
+  const std::string scene = test::source_path("assets/cornell.gltf");
+  std::vector<float> images[2];
+  for (const bool packets : {true, false}) {
+    const std::string out = dir.file(packets ? "packets.exr" : "single.exr");
+    const std::string stats = dir.file(packets ? "packets.json" : "single.json");
+    const CliResult r =
+        run_cli("render " + scene + " -o " + out + " --accel hybrid --res 24x16 --spp 2 " +
+                "--threads 2 --stats-json " + stats + (packets ? "" : " --no-packets"));
+    ASSERT_EQ(r.code, 0) << r.output;
+    std::ifstream f(stats);
+    EXPECT_EQ(nlohmann::json::parse(f)["packets"], packets);
+    images[packets] = read_image(out).rgb;
+  }
+  ASSERT_EQ(images[0].size(), 24u * 16u * 3u);
+  EXPECT_EQ(images[0], images[1]);
 }
 
 TEST(RenderCli, InterruptWritesWhatIsDone) {
