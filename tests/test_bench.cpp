@@ -382,6 +382,66 @@ TEST(Bench, SmallSuiteHasEveryFieldForEveryStructureAndSet) {
   for (const auto& a : o.accels) EXPECT_NE(md.find("| " + a + " "), std::string::npos) << a;
 }
 
+TEST(Bench, PacketColumnTimesEveryStructuresPacketQueryBesideTheReferences) {
+  TempDir dir("packets");
+  const Suite suite = load_suite(write_small_suite(dir).string());
+  BenchOptions o = small_options();
+  o.reference = "embree";
+  o.packet_tile = 4;
+  const BenchReport rep = run_bench(suite, o);
+  EXPECT_FALSE(rep.any_failed());
+  EXPECT_EQ(rep.packet_tile, 4);
+  int rows = 0;
+  for (const auto& s : rep.scenes)
+    for (const auto& a : s.structures)
+      for (const auto& x : a.sets) {
+        const std::string where = s.name + " " + a.accel + " " + x.set;
+        if (x.set == "diffuse") {  // incoherent: no packet column
+          EXPECT_EQ(x.packet_rays, 0) << where;
+          continue;
+        }
+        ++rows;
+        EXPECT_EQ(x.packet_rays, 16) << where;
+        EXPECT_EQ(x.packet_width, is_embree(a.accel) ? embree_isa().native_packet : 1) << where;
+        EXPECT_EQ(x.packet_mrays_reps.size(), 2u) << where;
+        EXPECT_GT(x.packet_mrays_median, 0.0) << where;
+        EXPECT_GT(x.packet_single_mrays, 0.0) << where;
+        EXPECT_GT(x.packet_speedup, 0.0) << where;
+        EXPECT_GT(x.packet_ratio_to_reference, 0.0) << where;
+        EXPECT_GT(x.packet_reference_mrays, 0.0) << where;
+        // Every structure's packet answers are its single-ray answers; Embree's may only
+        // differ on exact ties (none on these boxes' pixel-centre rays).
+        EXPECT_EQ(x.packet_mismatches, x.packet_ties) << where;
+        if (!is_embree(a.accel)) {
+          EXPECT_EQ(x.packet_mismatches, 0u) << where;
+        }
+      }
+  EXPECT_EQ(rows, 2 * int(o.accels.size()) * 2);
+  const json j = json::parse(bench_to_json(rep));
+  EXPECT_EQ(j["meta"]["packet_tile"], 4);
+  for (const auto& r : j["results"]) {
+    EXPECT_EQ(r.contains("packet"), r["set"] != "diffuse") << r["accel"] << " " << r["set"];
+    if (!r.contains("packet")) continue;
+    for (const char* k : {"rays_per_packet", "packet_width", "mrays", "ratio_to_reference",
+                          "speedup_over_single_loop", "mismatches", "mismatched_ties"}) {
+      EXPECT_TRUE(r["packet"].contains(k)) << k;
+    }
+  }
+  const std::string md = bench_to_markdown(rep);
+  EXPECT_NE(md.find("### Packets: 4x4 tiles"), std::string::npos) << md;
+  EXPECT_NE(md.find("rtcIntersect" + std::to_string(embree_isa().native_packet)),
+            std::string::npos);
+
+  // --packet-tile 0: no packet column anywhere.
+  o.packet_tile = 0;
+  o.accels = {"bvh"};
+  const BenchReport none = run_bench(suite, o);
+  for (const auto& s : none.scenes)
+    for (const auto& a : s.structures)
+      for (const auto& x : a.sets) EXPECT_EQ(x.packet_rays, 0);
+  EXPECT_EQ(bench_to_markdown(none).find("### Packets"), std::string::npos);
+}
+
 TEST(Bench, ExactStructuresAgreeWithEmbree) {
   const auto names = accelerator_names();
   if (std::find(names.begin(), names.end(), "embree") == names.end())
@@ -489,6 +549,11 @@ TEST(Bench, RejectsBadOptions) {
   o = BenchOptions{};
   o.accels = {"nonexistent"};
   EXPECT_THROW(run_bench(s, o), ParamError);
+  for (const int tile : {-1, kMaxPacketTile + 1}) {
+    o = BenchOptions{};
+    o.packet_tile = tile;
+    EXPECT_THROW(run_bench(s, o), ParamError) << tile;
+  }
 }
 
 TEST(Bench, RaysDirWritesThenReadsTheSameRays) {

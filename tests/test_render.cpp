@@ -8,13 +8,19 @@
 #include <gtest/gtest.h>
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <array>
+#include <atomic>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <memory>
 #include <string>
 #include <thread>
+
+#include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
 #include "accel/triangle.h"
@@ -101,6 +107,62 @@ TEST(Renderer, SameSeedSameImageAcrossThreadCounts) {
   rs.seed = 1;
   rs.tile_size = 7;
   EXPECT_EQ(one, render(scene, *accel, rs, 2));
+}
+
+/// A structure that answers through `inner` and counts the packet queries it is asked.
+class PacketCounter final : public Accelerator {
+ public:
+  explicit PacketCounter(const Accelerator& inner) : inner_(inner) {}
+  std::string name() const override { return "packet-counter"; }
+  BuildStats build(const Mesh&, const BuildParams&) override { return {}; }
+  bool intersect(const Ray& r, Hit& h) const override { return inner_.intersect(r, h); }
+  bool occluded(const Ray& r) const override { return inner_.occluded(r); }
+  bool intersect_counted(const Ray& r, Hit& h, RayCounters& c) const override {
+    return inner_.intersect_counted(r, h, c);
+  }
+  bool occluded_counted(const Ray& r, RayCounters& c) const override {
+    return inner_.occluded_counted(r, c);
+  }
+  Trace trace(const Ray& r) const override { return inner_.trace(r); }
+  uint64_t memory_bytes() const override { return 0; }
+  const BuildStats& stats() const override { return inner_.stats(); }
+  void intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const override {
+    packets += 1;
+    packet_rays += n;
+    max_packet = std::max(max_packet.load(), n);
+    inner_.intersect_packet(rays, n, hits, found);
+  }
+  mutable std::atomic<int> packets{0}, packet_rays{0}, max_packet{0};
+
+ private:
+  const Accelerator& inner_;
+};
+
+TEST(Renderer, PacketRenderIsBitwiseTheSingleRayRender) {
+  const Scene scene = cornell_scene();
+  RenderSettings rs;
+  rs.width = 83;  // tiles cut at the edges; 70-pixel tiles are wider than a packet
+  rs.height = 37;
+  for (const std::string name : {"hybrid", "embree", "bvh"}) {
+    const auto accel = build_accelerator(name, scene.mesh, {});
+    for (const int tile : {16, 8, 5, 70}) {
+      rs.tile_size = tile;
+      rs.packets = false;
+      PacketCounter single(*accel);
+      const std::vector<float> a = render(scene, single, rs, 2);
+      EXPECT_EQ(single.packets.load(), 0);
+      rs.packets = true;
+      PacketCounter packed(*accel);
+      const std::vector<float> b = render(scene, packed, rs, 2);
+      // Every primary ray went through a packet of at most kRenderPacket rays.
+      EXPECT_EQ(packed.packet_rays.load(), 2 * rs.width * rs.height) << name << " tile " << tile;
+      EXPECT_LE(packed.max_packet.load(), kRenderPacket);
+      EXPECT_GT(packed.max_packet.load(), tile >= 8 ? 32 : 24) << name << " tile " << tile;
+      ASSERT_EQ(a.size(), b.size());
+      EXPECT_EQ(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)), 0)
+          << name << ", tiles of " << tile << ": the packet render differs from the single-ray one";
+    }
+  }
 }
 
 TEST(Renderer, CancelledPassLeavesFilmUnchanged) {
@@ -582,6 +644,25 @@ TEST(RenderCli, RendersAndSummarises) {
               " --accel brute --res 16x12 --spp 1 --heatmap tests --eye 0,1,3 --target 0,1,0");
   ASSERT_EQ(r.code, 0) << r.output;
   EXPECT_TRUE(fs::exists(dir.file("heat.png")));
+}
+
+TEST(RenderCli, NoPacketsRendersTheSameImageOneRayAtATime) {
+  TempDir dir;
+  const std::string scene = test::source_path("assets/cornell.gltf");
+  std::vector<float> images[2];
+  for (const bool packets : {true, false}) {
+    const std::string out = dir.file(packets ? "packets.exr" : "single.exr");
+    const std::string stats = dir.file(packets ? "packets.json" : "single.json");
+    const CliResult r =
+        run_cli("render " + scene + " -o " + out + " --accel hybrid --res 24x16 --spp 2 " +
+                "--threads 2 --stats-json " + stats + (packets ? "" : " --no-packets"));
+    ASSERT_EQ(r.code, 0) << r.output;
+    std::ifstream f(stats);
+    EXPECT_EQ(nlohmann::json::parse(f)["packets"], packets);
+    images[packets] = read_image(out).rgb;
+  }
+  ASSERT_EQ(images[0].size(), 24u * 16u * 3u);
+  EXPECT_EQ(images[0], images[1]);
 }
 
 TEST(RenderCli, InterruptWritesWhatIsDone) {

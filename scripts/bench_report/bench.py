@@ -33,6 +33,33 @@ def geomean_of(vals):
     return gm ** (1.0 / len(vals))
 
 
+def packets_section(b, res, scenes, accels, name, ref, setup):
+    """kdgrid bench's packet column (results[].packet), or nothing for a bench.json without one."""
+    meta = b["meta"]
+    sets = [st for st in meta["sets"]
+            if any("packet" in res.get((s, a, st), {}) for s in scenes for a in accels)]
+    if not sets:
+        return ""
+    tables = []
+    for st in sets:
+        rows = []
+        for a in accels:
+            row = [name[a] + (" (reference)" if a == ref else "")]
+            for s in scenes:
+                p = res.get((s, a, st), {}).get("packet")
+                row.append("%s (%s; x%s; %d)" % (
+                    g(p["ratio_to_reference"]), g(p["mrays"]), g(p["speedup_over_single_loop"]),
+                    p["packet_width"]) if p else "-")
+            rows.append(row)
+        tables.append(prose("bench", "packets-set", set=st, ref=ref,
+                            table=table(["structure"] + scenes, rows)))
+    tile = meta.get("packet_tile", 0)
+    simd = meta.get("simd") or {}
+    return prose("bench", "packets", ref=ref, tile="%d" % tile, rays="%d" % (tile * tile),
+                 embree_packet="%d" % simd.get("embree", {}).get("native_packet", 0),
+                 setup=setup, tables="".join(tables))
+
+
 def bench_section(b, run, md_dir, img_dir):
     meta = b["meta"]
     results = b["results"]
@@ -99,6 +126,8 @@ def bench_section(b, run, md_dir, img_dir):
         ratio_plot=img(md_dir, img_dir, "bench_ratio.png", "throughput ratio to " + ref),
         mrays_plot=img(md_dir, img_dir, "bench_mrays.png", "throughput in Mrays/s"),
         observations="\n" + "\n".join(obs) + "\n" if obs else ""))
+
+    out.append(packets_section(b, res, scenes, accels, name, ref, setup))
 
     tables = []
     for st in sets:

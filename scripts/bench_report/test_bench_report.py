@@ -65,6 +65,33 @@ class Page(unittest.TestCase):
         self.assertNotIn("-triangle scene (`", page)
         self.assertTrue(page.endswith("(VmHWM/VmRSS) and `getrusage`.\n"))
 
+    def test_packet_column_gives_a_packets_section(self):
+        # A bench.json with kdgrid bench's packet column gets a Packets section; the committed
+        # one (measured before the column existed) gets none.
+        import json
+        committed = build_page(RESULTS, os.path.join(ROOT, "docs"),
+                               os.path.join(ROOT, "docs", "img"), ROOT)
+        self.assertNotIn("\n## Packets\n", committed)
+        with tempfile.TemporaryDirectory() as tmp:
+            res = os.path.join(tmp, "results")
+            shutil.copytree(RESULTS, res)
+            with open(os.path.join(res, "bench.json")) as f:
+                b = json.load(f)
+            b["meta"]["packet_tile"] = 8
+            scene = b["results"][0]["scene"]
+            for r in b["results"]:
+                if r["scene"] == scene and r["set"] == "primary" and r["accel"] == "hybrid":
+                    r["packet"] = {"rays_per_packet": 64, "packet_width": 1, "mrays": 2.72,
+                                   "ratio_to_reference": 0.33, "speedup_over_single_loop": 0.96,
+                                   "mismatches": 0, "mismatched_ties": 0}
+            with open(os.path.join(res, "bench.json"), "w") as f:
+                json.dump(b, f)
+            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+        self.assertIn("\n## Packets\n\nThe primary rays again in 8x8 tiles, one packet of 64", page)
+        self.assertIn("**primary rays, packets**", page)
+        self.assertNotIn("**shadow rays, packets**", page)
+        self.assertIn("| hybrid | 0.33 (2.72; x0.96; 1) |", page)
+
     def test_variant_file_under_its_earlier_name_gives_the_same_section(self):
         # hybrid-nocache.json was hybrid-noguess.json: a results directory written before the
         # rename gives the same section.

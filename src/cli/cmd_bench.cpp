@@ -37,6 +37,7 @@ struct BenchArgs {
   bool quiet = false;
   bool no_interleave = false;
   std::string clock = "wall";
+  int packet_tile = 8;
   AccelOptions accel;
 };
 
@@ -76,6 +77,11 @@ void add_bench_command(CLI::App& app) {
          "so that other processes on a shared machine do not count")
       ->check(CLI::IsMember({"wall", "cpu"}))
       ->capture_default_str();
+  cmd->add_option("--packet-tile", a->packet_tile,
+                  "Packet column: primary rays also traced through each structure's packet "
+                  "query in tiles of this many pixels square (shadow rays in runs of its square), "
+                  "beside Embree's rtcIntersect16/8; 0 = none")
+      ->capture_default_str();
   cmd->add_flag("--no-interleave", a->no_interleave,
                 "Time the reference once per scene instead of before every repetition "
                 "(halves the tracing time; ratios then suffer from changing machine load)");
@@ -90,6 +96,7 @@ void add_bench_command(CLI::App& app) {
     o.reference = a->reference;
     o.interleave_reference = !a->no_interleave;
     o.cpu_clock = a->clock == "cpu";
+    o.packet_tile = a->packet_tile;
     o.params = a->accel.resolve();
     if (!a->quiet)
       o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };

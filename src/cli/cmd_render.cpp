@@ -48,6 +48,7 @@ struct RenderArgs {
   uint64_t seed = 1;
   std::string heatmap;
   std::string stats_json;
+  bool no_packets = false;
 };
 
 /// Heat maps as PNG: counts / max through a blue-cyan-green-yellow-red ramp (EXR keeps raw
@@ -89,6 +90,7 @@ void run_render(const RenderArgs& a) {
   make_accelerator(a.accel.accel);  // an unknown --accel fails here, before the scene loads
   settings.max_depth = a.max_depth;
   settings.seed = a.seed;
+  settings.packets = !a.no_packets;
   if (a.heatmap == "steps")
     settings.mode = RenderMode::HeatSteps;
   else if (a.heatmap == "tests")
@@ -210,6 +212,7 @@ void run_render(const RenderArgs& a) {
     // load's peak and what came after.
     j["rss_peak_bytes"] = std::max({load_peak, build_peak, peak_rss_since_reset()});
     j["render_seconds"] = renderer.seconds();
+    j["packets"] = settings.packets;
     j["width"] = settings.width;
     j["height"] = settings.height;
     j["spp"] = renderer.samples();
@@ -245,6 +248,9 @@ void add_render_command(CLI::App& app) {
   cmd->add_option("--heatmap", a->heatmap,
                   "Render traversal cost of primary rays instead: steps or tests (PNG: colour "
                   "ramp scaled to the maximum; EXR: raw counts)");
+  cmd->add_flag("--no-packets", a->no_packets,
+                "Trace primary rays one at a time instead of in packets of a tile's rays "
+                "(the same image; for timing the packet queries)");
   cmd->add_option("--stats-json", a->stats_json,
                   "Also write build/render figures and process memory by phase (peak RSS of "
                   "the load and of the build) as JSON here");

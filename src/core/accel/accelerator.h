@@ -165,6 +165,22 @@ class Accelerator {
   /// Any hit in [ray.tmin, ray.tmax).
   virtual bool occluded(const Ray& ray) const = 0;
 
+  /// Closest hits of `n` rays traced together (the primary rays of an image tile, in rows):
+  /// found[i] and, where it is true, hits[i] are bitwise what intersect(rays[i], hits[i])
+  /// gives; hits[i] is left as it was where found[i] is false. Any n >= 0 is accepted;
+  /// structures with a packet walk cut the rays into packets of packet_width(). This default
+  /// loops over intersect(), so every structure answers it.
+  virtual void intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
+    for (int i = 0; i < n; ++i) found[i] = intersect(rays[i], hits[i]);
+  }
+  /// Any hits of `n` rays traced together: occluded[i] is occluded(rays[i]).
+  virtual void occluded_packet(const Ray* rays, int n, bool* occluded_out) const {
+    for (int i = 0; i < n; ++i) occluded_out[i] = occluded(rays[i]);
+  }
+  /// Rays the structure's own packet query walks together (1: the default loop over single
+  /// rays), for reports.
+  virtual int packet_width() const { return 1; }
+
   /// Same traversals as above, counting. Adds to `counters`.
   virtual bool intersect_counted(const Ray& ray, Hit& hit, RayCounters& counters) const = 0;
   virtual bool occluded_counted(const Ray& ray, RayCounters& counters) const = 0;

@@ -2,6 +2,7 @@
 
 #include <embree3/rtcore.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <string>
@@ -268,6 +269,79 @@ bool EmbreeAccel::robust() const {
   return (rtcGetSceneFlags(state_->scene) & RTC_SCENE_FLAG_ROBUST) != 0;
 }
 
+namespace {
+
+/// Embree's hit (tfar, primID, u, v, in the ray as to_rtc shifted it) as kdgrid's; false when
+/// the double-precision fallback puts it outside [tmin, tmax).
+bool to_hit(const Mesh& mesh, const Ray& ray, float tfar, float shift, uint32_t prim, float u,
+            float v, Hit& hit) {
+  Hit h{tfar + shift, prim, u, v};
+  if (!std::isfinite(h.t) || !std::isfinite(h.u) || !std::isfinite(h.v)) {
+    // Embree's float test overflows from coordinates of about 1e13 on and reports the hit at
+    // infinity: t and the barycentrics come from the hit triangle in double instead.
+    const auto c = mesh.corners(prim);
+    double t = 0, du = 0, dv = 0;
+    if (!intersect_triangle_double(ray, c[0], c[1], c[2], ray.tmin, ray.tmax, t, du, dv)) {
+      // Embree saw the hit on an edge the double test puts outside: the plane's distance.
+      const Vec3d o(ray.org), d(ray.dir), v0(c[0]);
+      const Vec3d n = cross(Vec3d(c[1]) - v0, Vec3d(c[2]) - v0);
+      t = dot(n, v0 - o) / dot(n, d);
+    }
+    h = {float(t), prim, float(du), float(dv)};
+    if (!(h.t >= ray.tmin && h.t < ray.tmax)) return false;
+  }
+  hit = h;
+  return true;
+}
+
+/// Embree's packet types and calls by width K (rtcIntersect4/8/16, rtcOccluded4/8/16).
+template <class RayHitK, class RaysK, auto kIntersect, auto kOccluded>
+struct EmbreePacketOf {
+  using RayHit = RayHitK;
+  using Rays = RaysK;
+  static void intersect(const int* valid, RTCScene s, RTCIntersectContext* c, RayHit* r) {
+    kIntersect(valid, s, c, r);
+  }
+  static void occluded(const int* valid, RTCScene s, RTCIntersectContext* c, Rays* r) {
+    kOccluded(valid, s, c, r);
+  }
+};
+template <int K>
+struct EmbreePacket;
+template <>
+struct EmbreePacket<4> : EmbreePacketOf<RTCRayHit4, RTCRay4, rtcIntersect4, rtcOccluded4> {};
+template <>
+struct EmbreePacket<8> : EmbreePacketOf<RTCRayHit8, RTCRay8, rtcIntersect8, rtcOccluded8> {};
+template <>
+struct EmbreePacket<16> : EmbreePacketOf<RTCRayHit16, RTCRay16, rtcIntersect16, rtcOccluded16> {};
+
+/// Lane i of a packet's rays (RTCRay4/8/16, structures of arrays) set from one ray.
+template <class RaysK>
+void set_lane(RaysK& k, int i, const RTCRay& r) {
+  k.org_x[i] = r.org_x;
+  k.org_y[i] = r.org_y;
+  k.org_z[i] = r.org_z;
+  k.dir_x[i] = r.dir_x;
+  k.dir_y[i] = r.dir_y;
+  k.dir_z[i] = r.dir_z;
+  k.tnear[i] = r.tnear;
+  k.tfar[i] = r.tfar;
+  k.time[i] = r.time;
+  k.mask[i] = r.mask;
+  k.id[i] = r.id;
+  k.flags[i] = r.flags;
+}
+
+/// The coherent context: Embree's packet kernels may then trace the lanes together.
+RTCIntersectContext coherent_context() {
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+  return ctx;
+}
+
+}  // namespace
+
 bool EmbreeAccel::intersect(const Ray& ray, Hit& hit) const {
   if (!state_->scene || !ray_is_valid(ray)) return false;
   RTCIntersectContext ctx;
@@ -279,23 +353,96 @@ bool EmbreeAccel::intersect(const Ray& ray, Hit& hit) const {
   rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
   rtcIntersect1(state_->scene, &ctx, &rh);
   if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
-  Hit h{rh.ray.tfar + shift, rh.hit.primID, rh.hit.u, rh.hit.v};
-  if (!std::isfinite(h.t) || !std::isfinite(h.u) || !std::isfinite(h.v)) {
-    // Embree's float test overflows from coordinates of about 1e13 on and reports the hit at
-    // infinity: t and the barycentrics come from the hit triangle in double instead.
-    const auto c = mesh_->corners(rh.hit.primID);
-    double t = 0, u = 0, v = 0;
-    if (!intersect_triangle_double(ray, c[0], c[1], c[2], ray.tmin, ray.tmax, t, u, v)) {
-      // Embree saw the hit on an edge the double test puts outside: the plane's distance.
-      const Vec3d o(ray.org), d(ray.dir), v0(c[0]);
-      const Vec3d n = cross(Vec3d(c[1]) - v0, Vec3d(c[2]) - v0);
-      t = dot(n, v0 - o) / dot(n, d);
+  return to_hit(*mesh_, ray, rh.ray.tfar, shift, rh.hit.primID, rh.hit.u, rh.hit.v, hit);
+}
+
+int EmbreeAccel::packet_width() const {
+  const int k = embree_isa().native_packet;
+  return k == 16 || k == 8 || k == 4 ? k : 1;
+}
+
+template <int K>
+void EmbreeAccel::intersect_k(const Ray* rays, int n, Hit* hits, bool* found) const {
+  using P = EmbreePacket<K>;
+  RTCIntersectContext ctx = coherent_context();
+  for (int base = 0; base < n; base += K) {
+    const int m = std::min(K, n - base);
+    alignas(64) int valid[K];
+    alignas(64) typename P::RayHit rh;
+    float shift[K];
+    for (int i = 0; i < K; ++i) {
+      RTCRay one;
+      const Ray& r = rays[base + std::min(i, m - 1)];
+      shift[i] = to_rtc(r, one);
+      valid[i] = i < m && ray_is_valid(r) ? -1 : 0;
+      set_lane(rh.ray, i, one);
+      rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
+      rh.hit.primID[i] = RTC_INVALID_GEOMETRY_ID;
+      rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
     }
-    h = {float(t), rh.hit.primID, float(u), float(v)};
-    if (!(h.t >= ray.tmin && h.t < ray.tmax)) return false;
+    P::intersect(valid, state_->scene, &ctx, &rh);
+    for (int i = 0; i < m; ++i) {
+      bool f = valid[i] && rh.hit.geomID[i] != RTC_INVALID_GEOMETRY_ID;
+      if (f)
+        f = to_hit(*mesh_, rays[base + i], rh.ray.tfar[i], shift[i], rh.hit.primID[i], rh.hit.u[i],
+                   rh.hit.v[i], hits[base + i]);
+      found[base + i] = f;
+    }
   }
-  hit = h;
-  return true;
+}
+
+template <int K>
+void EmbreeAccel::occluded_k(const Ray* rays, int n, bool* occluded_out) const {
+  using P = EmbreePacket<K>;
+  RTCIntersectContext ctx = coherent_context();
+  for (int base = 0; base < n; base += K) {
+    const int m = std::min(K, n - base);
+    alignas(64) int valid[K];
+    alignas(64) typename P::Rays rk;
+    for (int i = 0; i < K; ++i) {
+      RTCRay one;
+      const Ray& r = rays[base + std::min(i, m - 1)];
+      to_rtc(r, one);
+      valid[i] = i < m && ray_is_valid(r) ? -1 : 0;
+      set_lane(rk, i, one);
+    }
+    P::occluded(valid, state_->scene, &ctx, &rk);
+    for (int i = 0; i < m; ++i) occluded_out[base + i] = valid[i] && rk.tfar[i] == -kInf;
+  }
+}
+
+void EmbreeAccel::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
+  if (!state_->scene) {
+    for (int i = 0; i < n; ++i) found[i] = false;
+    return;
+  }
+  switch (packet_width()) {
+    case 16:
+      return intersect_k<16>(rays, n, hits, found);
+    case 8:
+      return intersect_k<8>(rays, n, hits, found);
+    case 4:
+      return intersect_k<4>(rays, n, hits, found);
+    default:
+      return Accelerator::intersect_packet(rays, n, hits, found);
+  }
+}
+
+void EmbreeAccel::occluded_packet(const Ray* rays, int n, bool* occluded_out) const {
+  if (!state_->scene) {
+    for (int i = 0; i < n; ++i) occluded_out[i] = false;
+    return;
+  }
+  switch (packet_width()) {
+    case 16:
+      return occluded_k<16>(rays, n, occluded_out);
+    case 8:
+      return occluded_k<8>(rays, n, occluded_out);
+    case 4:
+      return occluded_k<4>(rays, n, occluded_out);
+    default:
+      return Accelerator::occluded_packet(rays, n, occluded_out);
+  }
 }
 
 bool EmbreeAccel::occluded(const Ray& ray) const {

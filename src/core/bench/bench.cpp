@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
@@ -127,6 +128,63 @@ struct Reference {
   std::vector<std::vector<Hit>> hits;  // per set
 };
 
+/// The packet column of one set (BenchOptions::packet_tile): the rays in tile order (primary
+/// rays of the bench's image; others as they come), timed through acc's packet query, paired
+/// with the reference's when `ref` is given (`is_reference`: acc is the reference itself), and
+/// checked bitwise against acc's single-ray answers `single` (image order).
+void measure_packets(const Accelerator& acc, const std::string& set, const std::vector<Ray>& rays,
+                     const std::vector<Hit>& single, const BenchOptions& o, const Reference* ref,
+                     bool is_reference, SetFigures& sf) {
+  const bool any = is_any_hit(set);
+  const int tile = o.packet_tile;
+  std::vector<uint32_t> order;
+  if (set == "primary" && rays.size() == size_t(o.width) * size_t(o.height))
+    order = tile_order(o.width, o.height, tile);
+  else
+    for (uint32_t i = 0; i < rays.size(); ++i) order.push_back(i);
+  std::vector<Ray> tiled(rays.size());
+  for (size_t i = 0; i < order.size(); ++i) tiled[i] = rays[order[i]];
+  sf.packet_rays = tile * tile;
+  sf.packet_width = acc.packet_width();
+  auto mrays_of = [&](double sec) { return sec > 0 ? double(rays.size()) / sec * 1e-6 : 0.0; };
+  std::vector<Hit> hits, ref_scratch;
+  trace_packets(acc, tiled, sf.packet_rays, any, &hits);  // warms caches, gives the hits
+  std::vector<double> ratios, ref_reps, single_reps, speedups;
+  for (int r = 0; r < o.reps; ++r) {
+    if (ref)
+      ref_reps.push_back(mrays_of(
+          trace_packets(*ref->acc, tiled, sf.packet_rays, any, &ref_scratch, o.cpu_clock)));
+    sf.packet_mrays_reps.push_back(
+        mrays_of(trace_packets(acc, tiled, sf.packet_rays, any, &hits, o.cpu_clock)));
+    single_reps.push_back(
+        mrays_of(trace_packets(acc, tiled, sf.packet_rays, any, &ref_scratch, o.cpu_clock, true)));
+    if (ref && ref_reps.back() > 0) ratios.push_back(sf.packet_mrays_reps.back() / ref_reps.back());
+    if (single_reps.back() > 0)
+      speedups.push_back(sf.packet_mrays_reps.back() / single_reps.back());
+  }
+  sf.packet_mrays_median = median(sf.packet_mrays_reps);
+  sf.packet_single_mrays = median(single_reps);
+  sf.packet_speedup = median(speedups);
+  if (ref) {
+    sf.packet_ratio_to_reference = median(ratios);
+    sf.packet_reference_mrays = median(ref_reps);
+  } else if (is_reference) {
+    sf.packet_ratio_to_reference = 1.0;
+    sf.packet_reference_mrays = sf.packet_mrays_median;
+  }
+  sf.packet_mismatches = 0;
+  for (size_t i = 0; i < order.size(); ++i) {
+    const Hit& a = hits[i];
+    const Hit& b = single[order[i]];
+    const bool same = any ? a.valid() == b.valid()
+                          : a.prim == b.prim && std::memcmp(&a.t, &b.t, sizeof a.t) == 0 &&
+                                std::memcmp(&a.u, &b.u, sizeof a.u) == 0 &&
+                                std::memcmp(&a.v, &b.v, sizeof a.v) == 0;
+    sf.packet_mismatches += !same;
+    sf.packet_ties += !same && !any && a.prim != b.prim && std::memcmp(&a.t, &b.t, sizeof a.t) == 0;
+  }
+}
+
 StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneRays& sr,
                          const BenchOptions& o, int threads, const Reference* ref,
                          std::unique_ptr<Accelerator>* keep,
@@ -212,6 +270,19 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
                 format_double("%.1f", sf.tests_per_ray) + " tests per ray";
       if (sf.agreement >= 0) line += ", agreement " + format_double("%.6f", sf.agreement);
       say(line);
+      if (o.packet_tile > 0 && (sr.names[s] == "primary" || sr.names[s] == "shadow")) {
+        measure_packets(*acc, sr.names[s], rays, hits, o,
+                        ref && ref->ok && ref->acc ? ref : nullptr, !ref, sf);
+        line = "    " + sf.set + " packets of " + std::to_string(sf.packet_rays) + ": " +
+               format_double("%.3g", sf.packet_mrays_median) + " Mrays/s";
+        if (ref && ref->ok)
+          line +=
+              " (x" + format_double("%.2f", sf.packet_ratio_to_reference) + " reference packets)";
+        line += ", x" + format_double("%.2f", sf.packet_speedup) + " its single-ray loop, " +
+                std::to_string(sf.packet_mismatches) + " differ from single rays (" +
+                std::to_string(sf.packet_ties) + " ties)";
+        say(line);
+      }
       if (hits_out) (*hits_out)[s] = std::move(hits);
       f.sets.push_back(std::move(sf));
     }
@@ -253,6 +324,11 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   if (o.width < 1 || o.height < 1 || o.width > 16384 || o.height > 16384)
     throw ParamError("--res must be between 1 and 16384 pixels per side");
   if (o.sets.empty()) throw ParamError("--sets is empty: give primary, shadow and/or diffuse");
+  if (o.packet_tile < 0 || o.packet_tile > kMaxPacketTile)
+    throw ParamError("--packet-tile " + std::to_string(o.packet_tile) +
+                     " must be between 0 (no "
+                     "packet column) and " +
+                     std::to_string(kMaxPacketTile) + " pixels");
   for (const auto& s : o.sets) parse_ray_set(s);  // ParamError naming the valid sets
   const auto names = accelerator_names();
   auto registered = [&](const std::string& n) {
@@ -285,6 +361,7 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   rep.width = o.width;
   rep.height = o.height;
   rep.sets = o.sets;
+  rep.packet_tile = o.packet_tile;
   const auto t_all = Clock::now();
 
   for (size_t si = 0; si < suite.scenes.size(); ++si) {

@@ -23,6 +23,9 @@
 
 namespace kdgrid {
 
+/// Largest BenchOptions::packet_tile: 16 x 16 = 256 rays a packet.
+constexpr int kMaxPacketTile = 16;
+
 struct BenchOptions {
   /// Structures to measure, in table order; empty = every registered structure except brute
   /// (O(N) per ray: only on request). The reference is always run first and reported too.
@@ -49,6 +52,13 @@ struct BenchOptions {
   /// Time tracing with the threads' CPU clocks instead of the wall clock (trace_rays), for
   /// shared, loaded machines; the report says which clock was used.
   bool cpu_clock = false;
+  /// The packet column: primary rays are traced again through every structure's packet query
+  /// (Accelerator::intersect_packet) in tiles of packet_tile x packet_tile pixels, one packet a
+  /// tile, and shadow rays (made in image order from the primary hits) in runs of packet_tile^2,
+  /// with the reference's packet query (Embree: rtcIntersect16/8 with the coherent flag)
+  /// timed beside each repetition. 8 = 64-ray packets, the renderer's; 0 = no packet column;
+  /// at most kMaxPacketTile. Single-ray figures stay the headline.
+  int packet_tile = 8;
   /// Relative tolerance on t under which two different triangles count as the same hit.
   double tie_tolerance = 1e-5;
   /// Receives one line per step of a long run (stderr in the CLI); may be empty.
@@ -76,6 +86,27 @@ struct SetFigures {
   /// tie_tolerance relative). Shadow rays: same occluded answer. -1 when not compared.
   double agreement = -1;
   uint64_t disagreements = 0;
+  /// The packet column (BenchOptions::packet_tile), for primary and shadow sets; packet_rays 0
+  /// where it was not run. Rays are traced in tile order, each side through its own packet query.
+  int packet_rays = 0;   ///< rays per packet (the last packet of a set may hold fewer)
+  int packet_width = 0;  ///< Accelerator::packet_width(): 1 = the loop over single rays
+  std::vector<double> packet_mrays_reps;
+  double packet_mrays_median = 0;
+  /// To the reference's packet query on the same packets, paired per repetition as
+  /// ratio_to_reference is.
+  double packet_ratio_to_reference = 0;
+  double packet_reference_mrays = 0;
+  /// Rays whose packet answer is not bitwise this structure's single-ray answer: 0 but for
+  /// Embree, whose packet kernels may take the other triangle of an exact tie and, with its
+  /// default (not robust) flags, round its edge tests differently from its single-ray kernels.
+  uint64_t packet_mismatches = 0;
+  /// Of those, the ties: the same t bitwise, another triangle.
+  uint64_t packet_ties = 0;
+  /// The packet query over the structure's own single-ray loop on the same packets
+  /// (Accelerator's default intersect_packet), timed right after it in each repetition: the
+  /// median of the per-repetition ratios (1 within the noise without a packet walk).
+  double packet_speedup = 0;
+  double packet_single_mrays = 0;  ///< the single-ray loop's median Mrays/s behind it
 };
 
 /// Figures of one structure on one scene.
@@ -121,6 +152,7 @@ struct BenchReport {
   EmbreeIsa embree;
   int hardware_threads = 0;
   int threads = 0, reps = 0, width = 0, height = 0;
+  int packet_tile = 0;         ///< BenchOptions::packet_tile
   std::string clock = "wall";  ///< "wall" or "cpu" (BenchOptions::cpu_clock)
   std::vector<std::string> sets;
   double seconds = 0;  ///< wall time of the whole run

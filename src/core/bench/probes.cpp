@@ -127,6 +127,52 @@ double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool a
          double(std::max<size_t>(1, std::min(threads, rays.size() / kTraceChunk + 1)));
 }
 
+double trace_packets(const Accelerator& accel, const std::vector<Ray>& rays, int packet,
+                     bool any_hit, std::vector<Hit>* out, bool cpu_clock, bool single_rays) {
+  constexpr int kMax = 256;
+  if (packet < 1 || packet > kMax)
+    throw ParamError("packets of " + std::to_string(packet) + " rays: use 1 to " +
+                     std::to_string(kMax));
+  if (out) out->resize(rays.size());
+  Hit* dst = out ? out->data() : nullptr;
+  const size_t packets = (rays.size() + size_t(packet) - 1) / size_t(packet);
+  const size_t grain = std::max<size_t>(1, kTraceChunk / size_t(packet));
+  std::atomic<int64_t> cpu_ns{0};
+  const auto t0 = Clock::now();
+  tbb::parallel_for(
+      tbb::blocked_range<size_t>(0, packets, grain), [&](const tbb::blocked_range<size_t>& r) {
+        const double c0 = cpu_clock ? thread_cpu_seconds() : 0.0;
+        Hit hits[kMax];
+        bool found[kMax];
+        for (size_t p = r.begin(); p < r.end(); ++p) {
+          const size_t base = p * size_t(packet);
+          const int n = int(std::min(rays.size() - base, size_t(packet)));
+          if (any_hit) {
+            if (single_rays)  // the base class's loop, not the structure's override
+              accel.Accelerator::occluded_packet(rays.data() + base, n, found);
+            else
+              accel.occluded_packet(rays.data() + base, n, found);
+            if (dst)
+              for (int i = 0; i < n; ++i) dst[base + i] = found[i] ? Hit{0.0f, 0, 0, 0} : Hit{};
+          } else {
+            if (single_rays)
+              accel.Accelerator::intersect_packet(rays.data() + base, n, hits, found);
+            else
+              accel.intersect_packet(rays.data() + base, n, hits, found);
+            if (dst)
+              for (int i = 0; i < n; ++i) dst[base + i] = found[i] ? hits[i] : Hit{};
+          }
+        }
+        if (cpu_clock)
+          cpu_ns.fetch_add(int64_t((thread_cpu_seconds() - c0) * 1e9), std::memory_order_relaxed);
+      });
+  if (!cpu_clock) return seconds_since(t0);
+  const size_t threads =
+      tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism);
+  return double(cpu_ns.load()) * 1e-9 /
+         double(std::max<size_t>(1, std::min(threads, rays.size() / kTraceChunk + 1)));
+}
+
 RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit) {
   return tbb::parallel_reduce(
       tbb::blocked_range<size_t>(0, rays.size(), kTraceChunk), RayCounters{},

@@ -43,6 +43,14 @@ std::string cpu_model_name();
 /// to other processes on a shared machine do not count (their cache pollution still does).
 double trace_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit,
                   std::vector<Hit>* out, bool cpu_clock = false);
+/// Times `rays` through `accel`'s packet query (intersect_packet or occluded_packet) in
+/// consecutive packets of `packet` rays (at most 256), tbb::parallel_for over chunks of whole
+/// packets; returns seconds, as trace_rays does, and writes hits to `out` the same way.
+/// single_rays: the same packets through Accelerator's default packet query instead (its loop
+/// over intersect() / occluded()), the structure's own single-ray walk on the same work.
+double trace_packets(const Accelerator& accel, const std::vector<Ray>& rays, int packet,
+                     bool any_hit, std::vector<Hit>* out, bool cpu_clock = false,
+                     bool single_rays = false);
 /// One counted pass; returns the summed counters.
 RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit);
 

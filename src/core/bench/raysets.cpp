@@ -2,6 +2,7 @@
 
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <cmath>
 
 #include "render/camera.h"
@@ -87,6 +88,20 @@ std::vector<Ray> primary_rays(const Camera& cam, int width, int height) {
       rays[size_t(j) * width + i] = f.ray(float(i) + 0.5f, float(j) + 0.5f);
   });
   return rays;
+}
+
+std::vector<uint32_t> tile_order(int width, int height, int tile) {
+  if (width < 1 || height < 1 || tile < 1)
+    throw ParamError("tile order of a " + std::to_string(width) + "x" + std::to_string(height) +
+                     " image in " + std::to_string(tile) + "-pixel tiles: all must be >= 1");
+  std::vector<uint32_t> order;
+  order.reserve(size_t(width) * size_t(height));
+  for (int y0 = 0; y0 < height; y0 += tile)
+    for (int x0 = 0; x0 < width; x0 += tile)
+      for (int y = y0; y < std::min(y0 + tile, height); ++y)
+        for (int x = x0; x < std::min(x0 + tile, width); ++x)
+          order.push_back(uint32_t(size_t(y) * size_t(width) + size_t(x)));
+  return order;
 }
 
 std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& rays) {

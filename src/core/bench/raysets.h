@@ -39,6 +39,11 @@ constexpr int kDefaultRaySetResolution = 1024;
 /// One ray per pixel centre of `cam`, rows top to bottom.
 std::vector<Ray> primary_rays(const Camera& cam, int width, int height);
 
+/// The pixels of a width x height image (row-major indices) in tile order: tiles of tile x tile
+/// pixels left to right, top to bottom, each tile's pixels row by row (edge tiles are cut to
+/// the image). Consecutive runs of tile^2 indices are the packets of a packet query.
+std::vector<uint32_t> tile_order(int width, int height, int tile);
+
 /// Closest hits of `rays`, in parallel over rays (TBB).
 std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& rays);
 

@@ -39,6 +39,16 @@ std::string bench_to_json(const BenchReport& r) {
                {"width", r.width},
                {"height", r.height},
                {"sets", r.sets},
+               {"packet_tile", r.packet_tile},
+               {"packet_note",
+                "results[].packet: primary rays in tiles of packet_tile x packet_tile pixels, one "
+                "packet a tile (shadow rays in runs of packet_tile^2), through each structure's "
+                "packet query (packet_width: the rays its walk holds at once, 1 = a loop over "
+                "single rays; Embree: rtcIntersect/rtcOccluded at its native packet with "
+                "RTC_INTERSECT_CONTEXT_FLAG_COHERENT); ratio_to_reference pairs it with the "
+                "reference's packet query per repetition, speedup_over_single_loop with the "
+                "structure's own single-ray loop on the same packets; mismatches: rays whose "
+                "packet answer is not bitwise the single-ray one (mismatched_ties: same t)"},
                {"seconds", r.seconds},
                {"bytes_note",
                 "bytes = BuildStats::bytes: the structure only, excluding the mesh (positions "
@@ -120,6 +130,17 @@ std::string bench_to_json(const BenchReport& r) {
                   {"mailbox_skips_per_ray", x.mailbox_skips_per_ray},
                   {"agreement", x.agreement >= 0 ? json(x.agreement) : json(nullptr)},
                   {"disagreements", x.disagreements}};
+        if (x.packet_rays > 0)
+          e["packet"] = {{"rays_per_packet", x.packet_rays},
+                         {"packet_width", x.packet_width},
+                         {"mrays", x.packet_mrays_median},
+                         {"mrays_reps", x.packet_mrays_reps},
+                         {"ratio_to_reference", x.packet_ratio_to_reference},
+                         {"reference_mrays", x.packet_reference_mrays},
+                         {"single_loop_mrays", x.packet_single_mrays},
+                         {"speedup_over_single_loop", x.packet_speedup},
+                         {"mismatches", x.packet_mismatches},
+                         {"mismatched_ties", x.packet_ties}};
         j["results"].push_back(e);
       }
     }
@@ -198,6 +219,37 @@ std::string bench_to_markdown(const BenchReport& r) {
       }
       md << "\n";
     }
+  }
+
+  bool packets = false;
+  for (const auto& s : r.scenes)
+    for (const auto& a : s.structures)
+      for (const auto& x : a.sets) packets = packets || x.packet_rays > 0;
+  if (packets) {
+    md << "\n### Packets: " << r.packet_tile << "x" << r.packet_tile
+       << " tiles of primary rays (shadow rays in runs of " << r.packet_tile * r.packet_tile
+       << "), each structure's packet query against the reference's\n\n"
+       << "Packet width: the rays a structure's packet walk holds at once (1: its packet "
+          "query loops over single rays). Embree: rtcIntersect"
+       << r.embree.native_packet << "/rtcOccluded" << r.embree.native_packet
+       << " with the coherent context flag. Speedup: over the same structure's single-ray loop on "
+          "the same packets, timed after it in each repetition (median of the ratios). Differ: "
+          "rays whose packet answer is not bitwise the single-ray one (ties: the same t, "
+          "another triangle).\n\n";
+    md << "| scene | structure | set | packet width | packet Mrays/s | ratio to reference "
+          "packets | speedup over its single rays | differ (ties) |\n";
+    md << "|---|---|---|---:|---:|---:|---:|---:|\n";
+    for (const auto& s : r.scenes)
+      for (const auto& a : s.structures)
+        for (const auto& x : a.sets) {
+          if (x.packet_rays == 0) continue;
+          md << "| " << s.name << " | " << structure_label(a)
+             << (a.accel == s.reference ? " (ref)" : "") << " | " << x.set << " | "
+             << x.packet_width << " | " << format_double("%.3g", x.packet_mrays_median) << " | "
+             << format_double("%.2f", x.packet_ratio_to_reference) << " | "
+             << format_double("%.2f", x.packet_speedup) << " | " << x.packet_mismatches << " ("
+             << x.packet_ties << ") |\n";
+        }
   }
 
   md << "\n### Per ray: traversal steps, leaves visited, triangle tests; agreement with the "

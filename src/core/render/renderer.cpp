@@ -123,46 +123,18 @@ bool Renderer::render_pass(const std::atomic<bool>* cancel) {
   std::atomic<bool> skipped{false};
   const uint64_t sample = uint64_t(samples_);
 
-  tbb::parallel_for(
-      tbb::blocked_range<int>(0, num_tiles, 1), [&](const tbb::blocked_range<int>& r) {
-        for (int tile = r.begin(); tile != r.end(); ++tile) {
-          if (cancel && cancel->load(std::memory_order_relaxed)) {
-            skipped.store(true, std::memory_order_relaxed);
-            return;
-          }
-          RenderCounters& c = tile_counters[tile];
-          const int x0 = (tile % tiles_x) * ts, y0 = (tile / tiles_x) * ts;
-          const int x1 = std::min(x0 + ts, w), y1 = std::min(y0 + ts, h);
-          for (int y = y0; y < y1; ++y)
-            for (int x = x0; x < x1; ++x) {
-              const uint64_t pixel = uint64_t(y) * w + x;
-              SampleRng rng(settings_.seed, pixel, sample);
-              float jx = 0.5f, jy = 0.5f;
-              if (settings_.jitter) {
-                jx = rng.next();
-                jy = rng.next();
-              }
-              const Ray ray = frame_.ray(float(x) + jx, float(y) + jy);
-              ++c.primary;
-              Vec3 value;
-              if (settings_.mode == RenderMode::Shaded) {
-                value = radiance(ray, 0, c);
-                if (!is_finite(value))
-                  value = Vec3(0.0f);  // never let one bad sample poison the film
-              } else {
-                RayCounters rc;
-                Hit hit;
-                accel_->intersect_counted(ray, hit, rc);
-                value =
-                    Vec3(float(settings_.mode == RenderMode::HeatSteps ? rc.steps : rc.tri_tests));
-              }
-              float* dst = &scratch[pixel * 3];
-              dst[0] = value.x;
-              dst[1] = value.y;
-              dst[2] = value.z;
-            }
-        }
-      });
+  tbb::parallel_for(tbb::blocked_range<int>(0, num_tiles, 1),
+                    [&](const tbb::blocked_range<int>& r) {
+                      for (int tile = r.begin(); tile != r.end(); ++tile) {
+                        if (cancel && cancel->load(std::memory_order_relaxed)) {
+                          skipped.store(true, std::memory_order_relaxed);
+                          return;
+                        }
+                        const int x0 = (tile % tiles_x) * ts, y0 = (tile / tiles_x) * ts;
+                        render_tile(x0, y0, std::min(x0 + ts, w), std::min(y0 + ts, h), sample,
+                                    scratch.data(), tile_counters[tile]);
+                      }
+                    });
   if (skipped.load()) return false;
 
   for (size_t i = 0; i < accum_.size(); ++i) accum_[i] += scratch[i];
@@ -175,6 +147,77 @@ bool Renderer::render_pass(const std::atomic<bool>* cancel) {
   ++samples_;
   seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return true;
+}
+
+void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, float* film,
+                           RenderCounters& c) const {
+  const int w = settings_.width;
+  auto camera_ray = [&](int x, int y) {
+    SampleRng rng(settings_.seed, uint64_t(y) * w + x, sample);
+    float jx = 0.5f, jy = 0.5f;
+    if (settings_.jitter) {
+      jx = rng.next();
+      jy = rng.next();
+    }
+    return frame_.ray(float(x) + jx, float(y) + jy);
+  };
+  auto store = [&](int x, int y, const Vec3& value) {
+    float* dst = &film[(uint64_t(y) * w + x) * 3];
+    dst[0] = value.x;
+    dst[1] = value.y;
+    dst[2] = value.z;
+  };
+  if (settings_.mode != RenderMode::Shaded) {
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        ++c.primary;
+        RayCounters rc;
+        Hit hit;
+        accel_->intersect_counted(camera_ray(x, y), hit, rc);
+        store(x, y, Vec3(float(settings_.mode == RenderMode::HeatSteps ? rc.steps : rc.tri_tests)));
+      }
+    return;
+  }
+  auto shaded = [&](const Ray& ray, bool found, const Hit& hit) {
+    uint32_t budget = kMaxSecondaryRaysPerSample;
+    const Vec3 value = shade_hit(ray, found, hit, 0, Vec3(1.0f), budget, c);
+    return is_finite(value) ? value : Vec3(0.0f);  // never let one bad sample poison the film
+  };
+  if (!settings_.packets) {
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        ++c.primary;
+        const Ray ray = camera_ray(x, y);
+        Hit hit;
+        const bool found = accel_->intersect(ray, hit);
+        store(x, y, shaded(ray, found, hit));
+      }
+    return;
+  }
+  // Whole rows of the tile per packet, as many as kRenderPacket rays hold (8 rows of a 16-pixel
+  // tile's width would not fit: 4 rows of 16 do), so a packet is a coherent block of pixels.
+  const int tw = x1 - x0;
+  const int rows = std::max(1, kRenderPacket / std::max(1, tw));
+  Ray rays[kRenderPacket];
+  Hit hits[kRenderPacket];
+  bool found[kRenderPacket];
+  for (int py = y0; py < y1; py += rows) {
+    const int py1 = std::min(py + rows, y1);
+    // A tile wider than a packet is cut along its rows as well.
+    for (int px = x0; px < x1; px += kRenderPacket) {
+      const int px1 = std::min(px + kRenderPacket, x1);
+      int n = 0;
+      for (int y = py; y < py1; ++y)
+        for (int x = px; x < px1; ++x) rays[n++] = camera_ray(x, y);
+      accel_->intersect_packet(rays, n, hits, found);
+      n = 0;
+      for (int y = py; y < py1; ++y)
+        for (int x = px; x < px1; ++x, ++n) {
+          ++c.primary;
+          store(x, y, shaded(rays[n], found[n], hits[n]));
+        }
+    }
+  }
 }
 
 void Renderer::resolve(std::vector<float>& rgb) const {
@@ -191,7 +234,14 @@ Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) con
 Vec3 Renderer::shade(const Ray& ray, int depth, const Vec3& path_weight, uint32_t& budget,
                      RenderCounters& counters) const {
   Hit hit;
-  if (!accel_->intersect(ray, hit)) return scene_->background;
+  const bool found = accel_->intersect(ray, hit);
+  return shade_hit(ray, found, hit, depth, path_weight, budget, counters);
+}
+
+Vec3 Renderer::shade_hit(const Ray& ray, bool found, const Hit& hit, int depth,
+                         const Vec3& path_weight, uint32_t& budget,
+                         RenderCounters& counters) const {
+  if (!found) return scene_->background;
 
   const Mesh& mesh = scene_->mesh;
   const auto& tri = mesh.triangles[hit.prim];
