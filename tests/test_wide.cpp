@@ -17,7 +17,9 @@
 namespace kdgrid {
 namespace {
 
-bool same_bits(float a, float b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+bool same_bits(float a, float b) {
+  return std::memcmp(&a, &b, sizeof a) == 0;
+}
 
 struct Tri {
   Vec3 v[3];
@@ -26,8 +28,8 @@ struct Tri {
 /// The scalar loop the wide test stands for: the lanes in `lanes`, in order, each tested against
 /// the closest hit so far (strict t < best).
 template <int W>
-int scalar_reference(const Ray& r, const std::vector<Tri>& tris, uint32_t lanes, float& t,
-                     float& u, float& v) {
+int scalar_reference(const Ray& r, const std::vector<Tri>& tris, uint32_t lanes, float& t, float& u,
+                     float& v) {
   const auto rd = WatertightTest::prepare(r);
   float best = r.tmax;
   int lane = -1;
@@ -143,14 +145,15 @@ void check_lanes_match_scalar() {
     const int kind = n % 5;
     const std::vector<Tri> tris = c.group(kind);
     WideTriangles<W> g;
-    for (int i = 0; i < W; ++i) g.set(i, tris[size_t(i)].v[0], tris[size_t(i)].v[1], tris[size_t(i)].v[2]);
+    for (int i = 0; i < W; ++i)
+      g.set(i, tris[size_t(i)].v[0], tris[size_t(i)].v[1], tris[size_t(i)].v[2]);
     for (int k = 0; k < 4; ++k) {
       const Ray r = c.ray(kind, tris);
       const uint32_t lanes = k == 0 ? (1u << W) - 1 : uint32_t(c.rng()) & ((1u << W) - 1);
       float ts = 0, us = 0, vs = 0, tw = 0, uw = 0, vw = 0;
       const int ls = scalar_reference<W>(r, tris, lanes, ts, us, vs);
       const int lw = WatertightWide<W>::intersect(WatertightTest::prepare(r), g, lanes, r.tmin,
-                                                 r.tmax, tw, uw, vw);
+                                                  r.tmax, tw, uw, vw);
       hits += ls >= 0;
       const bool same =
           ls == lw && (ls < 0 || (same_bits(ts, tw) && same_bits(us, uw) && same_bits(vs, vw)));
@@ -164,10 +167,14 @@ void check_lanes_match_scalar() {
   EXPECT_GT(hits, 40000);  // most rays are aimed at a triangle of their group
 }
 
-TEST(WideTriangle, FourLanesMatchScalarBitForBit) { check_lanes_match_scalar<4>(); }
+TEST(WideTriangle, FourLanesMatchScalarBitForBit) {
+  check_lanes_match_scalar<4>();
+}
 
 #if defined(__AVX__)
-TEST(WideTriangle, EightLanesMatchScalarBitForBit) { check_lanes_match_scalar<8>(); }
+TEST(WideTriangle, EightLanesMatchScalarBitForBit) {
+  check_lanes_match_scalar<8>();
+}
 #endif
 
 // Ties: a group of one triangle repeated in every lane reports lane 0, the scalar loop's first.
@@ -180,9 +187,9 @@ TEST(WideTriangle, EqualDepthsGoToTheLowestLane) {
   EXPECT_EQ(WatertightWide<W>::intersect(WatertightTest::prepare(r), g, (1u << W) - 1, r.tmin,
                                          r.tmax, t, u, v),
             0);
-  EXPECT_EQ(WatertightWide<W>::intersect(WatertightTest::prepare(r), g, 0b110u, r.tmin, r.tmax, t,
-                                         u, v),
-            1);
+  EXPECT_EQ(
+      WatertightWide<W>::intersect(WatertightTest::prepare(r), g, 0b110u, r.tmin, r.tmax, t, u, v),
+      1);
 }
 
 // ---- the hybrid's leaves ---------------------------------------------------------------

@@ -410,7 +410,9 @@ void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box
                              Box3& bounds) const {
   const Mesh& mesh = impl_->mesh;
   auto& b = impl_->builders.local();
-  if (!b) b = std::make_unique<Builder>(mesh, impl_->params, KdTree::kMaxDepth, impl_->leaf_lanes);
+  if (!b)
+    b = std::make_unique<Builder>(mesh, impl_->params, KdTree::kMaxDepth, impl_->leaf_lanes,
+                                  impl_->lane_cost);
   std::vector<Event> events;
   events.reserve(prims.size() * 6);
   bounds = Box3();

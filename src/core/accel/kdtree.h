@@ -47,7 +47,7 @@ namespace kdgrid {
 /// splits, the same BuildParams::kd_* costs and depth rule, at most `max_depth` levels).
 /// build() may run concurrently. `leaf_lanes`: the triangles the structure's leaves test at once
 /// (the hybrid's groups, kWideLanes); above 1 the SAH costs a leaf of n triangles as
-/// ceil(n / leaf_lanes) tests plus `lane_cost` tests per triangle (GridKdHybrid::kWideLaneCost).
+/// ceil(n / leaf_lanes) tests plus `lane_cost` tests per triangle.
 class KdSubtreeBuilder {
  public:
   KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth, int leaf_lanes = 1,

@@ -87,8 +87,8 @@ struct WatertightWide {
   /// lane, t, u and v, or -1. Among equal t the lowest lane wins, as a scalar loop over the
   /// lanes in order keeps the first triangle at equal t (it accepts only t < best).
   [[gnu::always_inline]] static int intersect(const WatertightTest::RayData& d,
-                                              const WideTriangles<W>& g, uint32_t lanes,
-                                              float tmin, float tmax, float& t_out, float& u_out,
+                                              const WideTriangles<W>& g, uint32_t lanes, float tmin,
+                                              float tmax, float& t_out, float& u_out,
                                               float& v_out) {
     const F Az = load(g.c[0][d.kz]) - d.oz, Bz = load(g.c[1][d.kz]) - d.oz,
             Cz = load(g.c[2][d.kz]) - d.oz;
@@ -103,7 +103,8 @@ struct WatertightWide {
     const F Wf = bx * ay - by * ax;
     const F zero = {};
     const I zero_edge = (U == zero) | (V == zero) | (Wf == zero);
-    const I mixed = ((U < zero) | (V < zero) | (Wf < zero)) & ((U > zero) | (V > zero) | (Wf > zero));
+    const I mixed =
+        ((U < zero) | (V < zero) | (Wf < zero)) & ((U > zero) | (V > zero) | (Wf > zero));
     const F det = U + V + Wf;
     const F az = d.sz * Az, bz = d.sz * Bz, cz = d.sz * Cz;
     const F T = U * az + V * bz + Wf * cz;
@@ -123,9 +124,8 @@ struct WatertightWide {
   /// The lanes with a hit or a scalar test to run, in lane order (the first at equal t wins).
   [[gnu::noinline]] static int resolve(const WatertightTest::RayData& d, const WideTriangles<W>& g,
                                        uint32_t hit, uint32_t slow, const F& t, const F& V,
-                                       const F& Wf, const F& inv_det,
-                                       float tmin, float tmax, float& t_out, float& u_out,
-                                       float& v_out) {
+                                       const F& Wf, const F& inv_det, float tmin, float tmax,
+                                       float& t_out, float& u_out, float& v_out) {
     int best = -1;
     float bt = tmax;
     for (uint32_t m = hit | slow; m != 0; m &= m - 1) {

@@ -156,9 +156,10 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
   /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
   static constexpr uint64_t kMaxExpandEntries = uint64_t(1) << 25;
-  /// The SAH's cost of a leaf of n triangles (top level and leaf subtrees), in triangle tests:
+  /// The top-level SAH's cost of a leaf of n triangles, in triangle tests:
   /// ceil(n / kWideLanes) group tests plus this much per triangle (with kWideLanes 1, n tests).
-  /// Measured with a mailbox per lane: the groups' count alone (0) made Sponza's leaves so large
+  /// Measured with a mailbox per lane and the subtrees costed the same way (tree.cpp,
+  /// kSubtreeLaneCost): the groups' count alone (0) made Sponza's leaves so large
   /// that primary rays ran 20.7 tests and 0.68 of Embree instead of 1.16; 0.25 and 0.5 made
   /// more, smaller leaves (+50 and +250 bytes a triangle on Sponza) for no more speed
   /// (docs/HYBRID.md, "Wide leaves").

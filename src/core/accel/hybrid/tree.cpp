@@ -25,6 +25,13 @@ namespace {
 
 using hybrid::Ref;
 
+/// The leaf subtrees' SAH cost of a leaf per triangle, on top of its groups (KdSubtreeBuilder;
+/// the top level's is GridKdHybrid::kWideLaneCost): 0, leaves costed by their groups alone.
+/// GridKdHybrid::kWideLaneCost there too (0.125) made the bunny's, dragon-200k's and Sponza's
+/// subtrees larger (225, 198 and 239 bytes a triangle against 209, 166 and 203) at the same
+/// speed within the noise (docs/HYBRID.md, "Wide leaves").
+constexpr float kSubtreeLaneCost = 0.0f;
+
 /// Nodes with more references than this build their children as parallel tasks.
 constexpr size_t kParallelThreshold = 2048;
 
@@ -51,8 +58,8 @@ class TreeBuilder {
       : mesh_(mesh),
         inv_cell_(1.0 / cell),
         cell_(cell),
-        kd_(mesh, p, GridKdHybrid::kSubMaxDepth, kWideLanes, GridKdHybrid::kWideLaneCost),
-        kd_deep_(mesh, p, KdTree::kMaxDepth, kWideLanes, GridKdHybrid::kWideLaneCost),
+        kd_(mesh, p, GridKdHybrid::kSubMaxDepth, kWideLanes, kSubtreeLaneCost),
+        kd_deep_(mesh, p, KdTree::kMaxDepth, kWideLanes, kSubtreeLaneCost),
         cancel_(p.cancel),
         account_(effective_memory_budget(p)) {
     for (int a = 0; a < 3; ++a) {
