@@ -572,8 +572,11 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
       // rounding, so a popped node may start up to 2 err before the leaf it follows).
       [[maybe_unused]] float trace_in = float(w.t_cur);
       auto visit = [&](StepKind kind, int depth, uint32_t, const Box3& box, float tn, float tf) {
-        trace_in = std::max(trace_in, tn);
-        const float out = std::max(trace_in, std::min(tf, float(std::min(t_exit, double(w.tmax)))));
+        // Clamped to the leaf's segment: a subtree node's interval, widened by err, may start
+        // past the leaf's exit, where the next leaf's step starts.
+        const float leaf_out = float(std::min(t_exit, double(w.tmax)));
+        trace_in = std::max(trace_in, std::min(tn, leaf_out));
+        const float out = std::max(trace_in, std::min(tf, leaf_out));
         s.visit(
             TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
       };
