@@ -111,12 +111,18 @@ KdNode make_leaf(Subtree& out, std::vector<uint32_t>& ids) {
 
 class Builder {
  public:
-  Builder(const Mesh& mesh, const BuildParams& p, int max_depth)
+  /// `leaf_lanes`: the triangles a leaf tests at once (the hybrid's subtrees: kWideLanes); above
+  /// 1 the SAH costs a leaf of n triangles as ceil(n / leaf_lanes) tests plus `lane_cost` per
+  /// triangle (KdSubtreeBuilder).
+  Builder(const Mesh& mesh, const BuildParams& p, int max_depth, int leaf_lanes = 1,
+          float lane_cost = 0.0f)
       : mesh_(mesh),
         kt_(p.kd_traversal_cost),
         ki_(p.kd_intersection_cost),
         empty_mult_(1.0f - p.kd_empty_bonus),
         max_depth_(max_depth),
+        lanes_(uint32_t(std::max(1, leaf_lanes))),
+        lane_cost_(lane_cost),
         cancel_(p.cancel),
         account_(effective_memory_budget(p)) {}
 
@@ -165,6 +171,13 @@ class Builder {
   const Mesh& mesh_;
   float kt_, ki_, empty_mult_;
   int max_depth_;
+  uint32_t lanes_;   ///< see the constructor
+  float lane_cost_;  ///< see the constructor
+  /// The tests a leaf of n triangles costs: groups of lanes_.
+  float tests(uint32_t n) const {
+    if (lanes_ == 1) return float(n);
+    return float((n + lanes_ - 1) / lanes_) + lane_cost_ * float(n);
+  }
   const CancelToken* cancel_;  // polled once per node
   std::atomic<uint64_t> sah_evals_{0};
   MemoryAccount account_;
@@ -206,7 +219,7 @@ Builder::Split Builder::find_split(const std::vector<Event>& events, uint32_t n,
         const bool boundary = p == lo || p == hi;
         auto cost = [&](uint32_t cl, uint32_t cr) {
           if (boundary && (cl == 0 || cr == 0)) return kInf;
-          float c = kt_ + ki_ * (pl * float(cl) + pr * float(cr));
+          float c = kt_ + ki_ * (pl * tests(cl) + pr * tests(cr));
           if (!boundary && (cl == 0 || cr == 0)) c *= empty_mult_;
           return c;
         };
@@ -241,7 +254,7 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
   check_cancel(cancel_);
   if (n == 0 || depth >= max_depth_ || over_budget()) return leaf(events, out);
   const Split sp = find_split(events, n, box);
-  if (sp.axis < 0 || !(sp.cost < ki_ * float(n))) return leaf(events, out);
+  if (sp.axis < 0 || !(sp.cost < ki_ * tests(n))) return leaf(events, out);
 
   // Classify (Wald & Havran sec. 5.1): on the split axis, a triangle ending at or before
   // the plane is left only, one starting at or after it right only, planar ones by position
@@ -375,16 +388,20 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
 }  // namespace
 
 struct KdSubtreeBuilder::Impl {
-  Impl(const Mesh& m, const BuildParams& p) : mesh(m), params(p) {}
+  Impl(const Mesh& m, const BuildParams& p, int lanes, float cost)
+      : mesh(m), params(p), leaf_lanes(lanes), lane_cost(cost) {}
   const Mesh& mesh;
   BuildParams params;
+  int leaf_lanes;
+  float lane_cost;
   /// One builder per thread: a Builder's classification flags are per thread already, but
   /// its memory account then follows each thread's share of the subtrees.
   mutable tbb::enumerable_thread_specific<std::unique_ptr<Builder>> builders;
 };
 
-KdSubtreeBuilder::KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth)
-    : impl_(std::make_unique<Impl>(mesh, params)),
+KdSubtreeBuilder::KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth,
+                                   int leaf_lanes, float lane_cost)
+    : impl_(std::make_unique<Impl>(mesh, params, leaf_lanes, lane_cost)),
       max_depth_(std::clamp(max_depth, 1, KdTree::kMaxDepth)) {}
 KdSubtreeBuilder::~KdSubtreeBuilder() = default;
 
@@ -393,7 +410,9 @@ void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box
                              Box3& bounds) const {
   const Mesh& mesh = impl_->mesh;
   auto& b = impl_->builders.local();
-  if (!b) b = std::make_unique<Builder>(mesh, impl_->params, KdTree::kMaxDepth);
+  if (!b)
+    b = std::make_unique<Builder>(mesh, impl_->params, KdTree::kMaxDepth, impl_->leaf_lanes,
+                                  impl_->lane_cost);
   std::vector<Event> events;
   events.reserve(prims.size() * 6);
   bounds = Box3();

@@ -45,10 +45,13 @@ namespace kdgrid {
 /// The kd-tree's builder over some of a mesh's triangles clipped to a box: the hybrid's leaf
 /// subtrees, so that they are built as the whole-scene kd-tree is (exact event SAH, perfect
 /// splits, the same BuildParams::kd_* costs and depth rule, at most `max_depth` levels).
-/// build() may run concurrently.
+/// build() may run concurrently. `leaf_lanes`: the triangles the structure's leaves test at once
+/// (the hybrid's groups, kWideLanes); above 1 the SAH costs a leaf of n triangles as
+/// ceil(n / leaf_lanes) tests plus `lane_cost` tests per triangle.
 class KdSubtreeBuilder {
  public:
-  KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth);
+  KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth, int leaf_lanes = 1,
+                   float lane_cost = 0.0f);
   ~KdSubtreeBuilder();
   /// The tree of `prims` (mesh triangle ids) clipped to `box`, built over `bounds`, the box of
   /// the clipped triangles (within `box`), which the walk should clip a ray to first. Child

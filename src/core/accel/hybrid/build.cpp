@@ -160,8 +160,8 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     estimate = check_memory_budget(
         "hybrid", ntri,
         {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
-         {"references, triangle corners and ids (at least one of each per triangle)",
-          nt * (2 * sizeof(uint32_t) + sizeof(TriVerts))},
+         {"triangle groups and ids (at least one lane and one id per triangle)",
+          nt * (sizeof(uint32_t) + sizeof(TriGroup) / kWideLanes)},
          {"leaf subtrees' classification flags (a byte per triangle per thread)",
           params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
         params,
@@ -175,9 +175,8 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaves_.clear();
   kd_boxes_.clear();
   leaf_depth_.clear();
-  refs_.clear();
   sub_nodes_.clear();
-  tris_.clear();
+  groups_.clear();
   prim_of_.clear();
   map_.reset(params.hybrid_dense_matrix);
   step_errors_.store(0);
@@ -214,7 +213,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     return format_double("%.0f", d[0]) + "x" + format_double("%.0f", d[1]) + "x" +
            format_double("%.0f", d[2]);
   };
-  const double tri_bytes = double(ntri) * (sizeof(TriVerts) + 4 * sizeof(uint32_t));
+  const double tri_bytes = double(ntri) * (sizeof(TriGroup) / kWideLanes + 4 * sizeof(uint32_t));
   if (map_.dense()) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
@@ -266,32 +265,41 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   map_.set_grid(dims_);
 
   double t_tree = 0, t_matrix = 0, t_expand = 0;
+  uint64_t references = 0;
   std::string expand_text;
   tbb::task_arena arena(threads);
   arena.execute([&] {
     const auto t0 = std::chrono::steady_clock::now();
-    build_tree(mesh, params);
+    std::vector<uint32_t> lanes;
+    build_tree(mesh, params, lanes, references);
     check_cancel(params.cancel);
     // Local triangle ids in first-reference order (leaves are numbered depth-first).
-    std::vector<uint32_t> local_of(ntri, kInvalidPrim);
-    prim_of_.clear();
-    prim_of_.reserve(ntri);
-    for (uint32_t& r : refs_) {
-      uint32_t& l = local_of[r];
-      if (l == kInvalidPrim) {
-        l = uint32_t(prim_of_.size());
-        prim_of_.push_back(r);
+    {
+      std::vector<uint32_t> local_of(ntri, kInvalidPrim);
+      prim_of_.clear();
+      prim_of_.reserve(ntri);
+      for (uint32_t& r : lanes) {
+        uint32_t& l = local_of[r];
+        if (l == kInvalidPrim) {
+          l = uint32_t(prim_of_.size());
+          prim_of_.push_back(r);
+        }
+        r = l;
       }
-      r = l;
     }
-    tris_.resize(prim_of_.size());
-    tbb::parallel_for(size_t(0), prim_of_.size(), [&](size_t i) {
-      const auto c = mesh.corners(prim_of_[i]);
-      tris_[i] = {c[0], c[1], c[2]};
+    groups_.resize(lanes.size() / kWideLanes);
+    tbb::parallel_for(size_t(0), groups_.size(), [&](size_t g) {
+      for (int i = 0; i < kWideLanes; ++i) {
+        const uint32_t local = lanes[g * kWideLanes + size_t(i)];
+        const auto c = mesh.corners(prim_of_[local]);
+        groups_[g].tri.set(i, c[0], c[1], c[2]);
+        groups_[g].local[i] = local;
+      }
     });
+    std::vector<uint32_t>().swap(lanes);
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
-             leaf_depth_.size() + refs_.size() * 4 + tris_.size() * (sizeof(TriVerts) + 4);
+             leaf_depth_.size() + groups_.size() * sizeof(TriGroup) + prim_of_.size() * 4;
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
@@ -328,22 +336,22 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     subtree_leaves += (l.count & kSubtreeFlag) != 0;
     largest_leaf = std::max(largest_leaf, l.count & ~kSubtreeFlag);
   }
-  stats_.references = refs_.size();
+  stats_.references = references;
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
   const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(KdBox);
-  const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
-  const uint64_t b_tris = tris_.size() * (sizeof(TriVerts) + sizeof(uint32_t));
+  const uint64_t b_groups = groups_.size() * sizeof(TriGroup);
+  const uint64_t b_ids = prim_of_.size() * sizeof(uint32_t);
   const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);
   stats_.bytes =
-      b_tree + b_leaves + b_kd_boxes + b_sub + b_refs + b_tris + b_matrix + sizeof(*this);
+      b_tree + b_leaves + b_kd_boxes + b_sub + b_groups + b_ids + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
                           {"leaf kd boxes", b_kd_boxes},
                           {"leaf subtrees", b_sub},
-                          {"references", b_refs},
-                          {"triangles (corners + ids)", b_tris},
+                          {"triangle groups (corners + local ids)", b_groups},
+                          {"triangle ids (local -> mesh)", b_ids},
                           {map_.dense() ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
   stats_.extra = {
@@ -358,6 +366,13 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
                                   std::to_string(params.hybrid_subtree_min) + " triangles, " +
                                   std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
                                   std::to_string(largest_leaf) + " triangles"},
+      {"triangle groups",
+       std::to_string(groups_.size()) + " groups of " + std::to_string(kWideLanes) + " lanes for " +
+           std::to_string(references) + " references (" +
+           format_double(
+               "%.1f", 100.0 * (1.0 - double(references) / double(std::max<uint64_t>(
+                                                               1, groups_.size() * kWideLanes)))) +
+           "% padding lanes)"},
       {"empty-leaf boxes", expand_text},
       {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " +
                            format_double("%.3f", t_matrix) + " s, empty-leaf boxes " +

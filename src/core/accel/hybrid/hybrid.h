@@ -4,9 +4,9 @@
 // uniform grid, instead of descending the tree. The files of accel/hybrid/:
 //
 //   hybrid.h          this class: parameters, records' names, the walk's declarations
-//   records.h         Node, Leaf (the step box), KdBox (the kd box), TriVerts
+//   records.h         Node, Leaf (the step box), KdBox (the kd box), TriGroup
 //   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
-//   walk.h            the ray walk: clip, entry cell, leaf steps with mailboxed tests, and
+//   walk.h            the ray walk: clip, entry cell, leaf steps with wide tests, and
 //                     the next-leaf cache (NextLeafCache)
 //   build.cpp         GridKdHybrid::build; choose_cell_size (explicit size or the auto rule)
 //   tree.cpp          the kd-tree on cell boundaries, its leaf subtrees, flattened
@@ -31,6 +31,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "accel/accelerator.h"
@@ -123,7 +124,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   using Node = hybrid::Node;
   using Leaf = hybrid::Leaf;
   using KdBox = hybrid::KdBox;
-  using TriVerts = hybrid::TriVerts;
+  using TriGroup = hybrid::TriGroup;
   static constexpr uint32_t kSubtreeFlag = hybrid::kSubtreeFlag;
   /// A leaf subtree in sub_nodes_ starts with the box of its clipped triangles (its corners
   /// as two ClipBox4 lanes, x, y, z, -inf and x, y, z, +inf, in this many nodes' bytes), which
@@ -143,7 +144,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
   static constexpr double kRangeEps = 1e-6;
   /// Direct-mapped per-ray mailbox of recently tested triangles (power of two): a triangle
-  /// referenced by several leaves is tested once; 32 entries catch most repeats at no cost.
+  /// referenced by several leaves is tested once; 32 entries catch most repeats at no cost. The
+  /// lane-by-lane walk's (not kWide): the wide walk tests every lane, as its look-ups cost more
+  /// than the repeats they saved (docs/HYBRID.md, "Wide leaves").
   static constexpr int kMailbox = 32;
   /// Triangles a colliding one pushed out of the mailbox are kept too, up to this many per ray;
   /// a ray that would evict more is walked again by the exact walk (walk.h, tested_before), so
@@ -153,6 +156,19 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
   /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
   static constexpr uint64_t kMaxExpandEntries = uint64_t(1) << 25;
+  /// The top-level SAH's cost of a leaf of n triangles, in triangle tests:
+  /// ceil(n / kWideLanes) group tests plus this much per triangle (with kWideLanes 1, n tests).
+  /// Measured with a mailbox per lane and the subtrees costed the same way (tree.cpp,
+  /// kSubtreeLaneCost): the groups' count alone (0) made Sponza's leaves so large
+  /// that primary rays ran 20.7 tests and 0.68 of Embree instead of 1.16; 0.25 and 0.5 made
+  /// more, smaller leaves (+50 and +250 bytes a triangle on Sponza) for no more speed
+  /// (docs/HYBRID.md, "Wide leaves").
+  static constexpr float kWideLaneCost = kWideLanes > 1 ? 0.125f : 0.0f;
+  /// Whether leaves are tested by WatertightWide, a group's lanes at once: for WatertightTest
+  /// where groups have more than one lane. Every other test (WatertightScalar, the reference the
+  /// wide test is held to, among them) runs lane by lane.
+  template <class TriangleTest>
+  static constexpr bool kWide = (std::is_same_v<TriangleTest, WatertightTest> && kWideLanes > 1);
 
   std::string name() const override { return "hybrid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;
@@ -241,17 +257,22 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// with nothing to test.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>
   [[gnu::noinline]] StepResult walk_step(WalkState<TriangleTest>& w, Probe& s) const;
-  /// Tests `count` references of a leaf (or a subtree's leaf) through the ray's mailbox, the one
-  /// loop of both; the closest hit goes to best, found and h, which the subtree's walk keeps in
-  /// its locals. True: an any-hit query answered.
+  /// Tests the `count` triangles of a leaf (or a subtree's leaf), from group `first` on, the one
+  /// loop of both: with kWide, each group's lanes together by WatertightWide, without the
+  /// mailbox; else lane by lane in order, through the ray's mailbox. The closest hit goes to
+  /// best, found and h, which the subtree's walk keeps in its locals. True: an any-hit query
+  /// answered.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>
-  [[gnu::always_inline]] inline bool test_refs(WalkState<TriangleTest>& w, Probe& s,
-                                               const typename TriangleTest::RayData& rd, float tmin,
-                                               const uint32_t* r, uint32_t count, float& best,
-                                               bool& found, LocalHit& h) const;
+  [[gnu::always_inline]] inline bool test_groups(WalkState<TriangleTest>& w, Probe& s,
+                                                 const typename TriangleTest::RayData& rd,
+                                                 float tmin, uint32_t first, uint32_t count,
+                                                 float& best, bool& found, LocalHit& h) const;
 
   // ---- the build (build.cpp, tree.cpp) ----
-  void build_tree(const Mesh& mesh, const BuildParams& params);
+  /// Builds nodes_, leaves_ and sub_nodes_; `lanes` gets the groups' triangles (mesh ids,
+  /// kWideLanes a group, padded as TriGroup says) and `references` the leaves' references.
+  void build_tree(const Mesh& mesh, const BuildParams& params, std::vector<uint32_t>& lanes,
+                  uint64_t& references);
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
@@ -272,8 +293,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<KdBox> kd_boxes_;  ///< each leaf's kd box; kept only for the next-leaf cache
   std::vector<uint8_t> leaf_depth_;
   std::vector<KdNode> sub_nodes_;  ///< leaf subtrees (world space, KdNode layout)
-  std::vector<uint32_t> refs_;     ///< per leaf, indices into tris_ (local triangle ids)
-  std::vector<TriVerts> tris_;     ///< corners by local id (first-reference order)
+  std::vector<TriGroup> groups_;   ///< the leaves' triangles (records.h, TriGroup)
   std::vector<uint32_t> prim_of_;  ///< local id -> the mesh's triangle index
   mutable std::atomic<uint64_t> step_errors_{0};
   mutable std::atomic<uint64_t> rewalks_{0};  ///< rewalked_rays()

@@ -1,9 +1,10 @@
 // The hybrid's records: the tree's nodes, the leaves the walk steps over, the leaves' kd boxes
-// and the triangles' corners (accel/hybrid/hybrid.h holds them; docs/HYBRID.md explains them).
+// and the leaves' triangle groups (accel/hybrid/hybrid.h holds them; docs/HYBRID.md explains them).
 #pragma once
 
 #include <cstdint>
 
+#include "accel/triangle_wide.h"
 #include "math/vec.h"
 
 namespace kdgrid::hybrid {
@@ -16,7 +17,8 @@ struct Node {
   uint32_t axis;   ///< 0..2 interior, 3 leaf
 };
 
-/// Leaf: an integer cell box [lo, hi) and its range in the reference array. 64 bytes.
+/// Leaf: an integer cell box [lo, hi), its first triangle group (TriGroup) and its triangle
+/// count. 64 bytes.
 /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
 /// box widened over empty cells (widen.cpp).
 struct alignas(64) Leaf {
@@ -30,8 +32,9 @@ struct alignas(64) Leaf {
   double pad;
 };
 
-/// Leaf::count bit: `first` is the root of the leaf's kd subtree in the subtree node array and
-/// the low bits count the triangles the leaf references.
+/// Leaf::count bit: `first` is the root of the leaf's kd subtree in the subtree node array (whose
+/// leaves hold their first group and triangle count) and the low bits count the triangles the
+/// leaf references.
 constexpr uint32_t kSubtreeFlag = 0x80000000u;
 
 /// A leaf's kd box (an empty leaf's before widening): the kd boxes tile the grid, so a cell
@@ -42,12 +45,15 @@ struct KdBox {
   int32_t hi[4];
 };
 
-/// The three corners of a triangle, copied once per triangle in the order in which the
-/// leaves (depth-first, so spatially coherent) first reference it: a leaf's triangles lie
-/// close together in memory without paying a vertex copy per reference (references are
-/// ~3 per triangle at the auto cell size, so per-reference copies tripled this array).
-struct TriVerts {
-  Vec3 v0, v1, v2;
+/// A leaf's triangles, kWideLanes of them by lane (the wide test reads each coordinate of a
+/// corner as one vector), with their local ids: ids count the triangles in the order in which
+/// the leaves (depth-first, so spatially coherent) first reference them, and
+/// GridKdHybrid::prim_of_ maps them to the mesh's. A leaf of n triangles owns ceil(n / kWideLanes)
+/// consecutive groups, in its references' order; its last group repeats the leaf's last triangle
+/// in the lanes left over. A triangle referenced by several leaves is copied into each.
+struct TriGroup {
+  WideTriangles<kWideLanes> tri;
+  uint32_t local[kWideLanes];
 };
 
 }  // namespace kdgrid::hybrid

@@ -25,6 +25,13 @@ namespace {
 
 using hybrid::Ref;
 
+/// The leaf subtrees' SAH cost of a leaf per triangle, on top of its groups (KdSubtreeBuilder;
+/// the top level's is GridKdHybrid::kWideLaneCost): 0, leaves costed by their groups alone.
+/// GridKdHybrid::kWideLaneCost there too (0.125) made the bunny's, dragon-200k's and Sponza's
+/// subtrees larger (225, 198 and 239 bytes a triangle against 209, 166 and 203) at the same
+/// speed within the noise (docs/HYBRID.md, "Wide leaves").
+constexpr float kSubtreeLaneCost = 0.0f;
+
 /// Nodes with more references than this build their children as parallel tasks.
 constexpr size_t kParallelThreshold = 2048;
 
@@ -51,8 +58,8 @@ class TreeBuilder {
       : mesh_(mesh),
         inv_cell_(1.0 / cell),
         cell_(cell),
-        kd_(mesh, p, GridKdHybrid::kSubMaxDepth),
-        kd_deep_(mesh, p, KdTree::kMaxDepth),
+        kd_(mesh, p, GridKdHybrid::kSubMaxDepth, kWideLanes, kSubtreeLaneCost),
+        kd_deep_(mesh, p, KdTree::kMaxDepth, kWideLanes, kSubtreeLaneCost),
         cancel_(p.cancel),
         account_(effective_memory_budget(p)) {
     for (int a = 0; a < 3; ++a) {
@@ -282,7 +289,12 @@ class TreeBuilder {
     const double w[3] = {double(hi[0] - lo[0]), double(hi[1] - lo[1]), double(hi[2] - lo[2])};
     const double area = w[0] * w[1] + w[1] * w[2] + w[2] * w[0];
     const double inv_area = 1.0 / area;
-    double best_cost = ki_ * double(n);
+    // A leaf costs a test per group of kWideLanes triangles (they are tested together) and
+    // kWideLaneCost per triangle.
+    auto tests = [](size_t k) {
+      return double((k + kWideLanes - 1) / kWideLanes) + GridKdHybrid::kWideLaneCost * double(k);
+    };
+    double best_cost = ki_ * tests(n);
     uint64_t evals = 0;
     for (int a = 0; a < 3; ++a) {
       const int32_t width = hi[a] - lo[a];
@@ -300,7 +312,7 @@ class TreeBuilder {
         nl += starts[size_t(j - 1)];
         nr -= ends[size_t(j - 1)];
         const double al = double(j) * perim + cross, ar = double(width - j) * perim + cross;
-        double cost = kt_ + ki_ * (al * double(nl) + ar * double(nr)) * inv_area;
+        double cost = kt_ + ki_ * (al * tests(nl) + ar * tests(nr)) * inv_area;
         if (nl == 0 || nr == 0) cost *= 1.0 - bonus_;
         if (cost < best_cost) {
           best_cost = cost;
@@ -331,7 +343,8 @@ class TreeBuilder {
 
 }  // namespace
 
-void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
+void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params,
+                              std::vector<uint32_t>& lanes, uint64_t& references) {
   TreeBuilder tb(mesh, origin_, cell_, dims_, params);
   std::unique_ptr<BuildNode> root = tb.build_root();
   stats_.sah_evaluations = tb.sah_evaluations();
@@ -352,25 +365,43 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
                      fix +
                      ", or raise --memory-budget-mb (0 = half of physical "
                      "memory) if the machine has the memory");
-  // Exact now: the references are counted (leaf subtrees add a few). Flattening copies them
-  // while the build tree is alive, then the triangle corners replace the build tree.
+  // Exact now: the references are counted (leaf subtrees add a few); each becomes a lane of a
+  // triangle group, and each leaf pads its last group (at most kWideLanes - 1 lanes a leaf).
+  // Flattening lists the lanes while the build tree is alive, then the groups replace both.
   const double refs = double(tb.leaf_refs()), nodes = double(tb.nodes_made());
   const double flat = nodes * sizeof(Node) + (nodes + 1) / 2 * (sizeof(Leaf) + 1);
+  const double lane_count = refs + (nodes + 1) / 2 * double(kWideLanes - 1);
   check_memory_budget("hybrid", mesh.num_triangles(),
                       {{"build tree", double(tb.live_bytes())},
-                       {"references", refs * sizeof(uint32_t)},
+                       {"references", lane_count * sizeof(uint32_t)},
                        {"nodes and leaves", flat}},
                       params, fix);
-  check_memory_budget(
-      "hybrid", mesh.num_triangles(),
-      {{"references", refs * sizeof(uint32_t)},
-       {"triangle corners and ids", double(mesh.num_triangles()) * (sizeof(TriVerts) + 4)},
-       {"nodes and leaves", flat}},
-      params, fix);
+  check_memory_budget("hybrid", mesh.num_triangles(),
+                      {{"references", lane_count * sizeof(uint32_t)},
+                       {"triangle groups", lane_count / kWideLanes * sizeof(TriGroup)},
+                       {"triangle ids", double(mesh.num_triangles()) * sizeof(uint32_t)},
+                       {"nodes and leaves", flat}},
+                      params, fix);
   nodes_.reserve(size_t(nodes));
   leaves_.reserve(size_t(nodes + 1) / 2);
   leaf_depth_.reserve(size_t(nodes + 1) / 2);
-  refs_.reserve(size_t(refs));
+  lanes.clear();
+  lanes.reserve(size_t(refs));
+  references = 0;
+  // A leaf's triangles as groups of kWideLanes lanes (mesh ids), the last one padded with the
+  // leaf's last triangle (TriGroup); returns the first group's index.
+  auto add_groups = [&](const uint32_t* prims, uint32_t n) {
+    const uint64_t first = lanes.size() / kWideLanes;
+    if (first + (n + kWideLanes - 1) / kWideLanes >= (uint64_t(1) << 30))
+      throw ParamError(
+          "hybrid: more than 2^30 triangle groups in the leaves: use a larger cell size or "
+          "--hybrid-subtree-min 0");
+    for (uint32_t i = 0; i < n; i += kWideLanes)
+      for (uint32_t k = 0; k < uint32_t(kWideLanes); ++k)
+        lanes.push_back(prims[std::min(i + k, n - 1)]);
+    references += n;
+    return uint32_t(first);
+  };
   // Flatten depth-first: left child follows its parent, leaves numbered in that order.
   uint32_t max_depth = 0;
   auto flatten = [&](auto&& self, BuildNode* n) -> void {
@@ -383,31 +414,29 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params) {
         l.lo[a] = n->lo[a];
         l.hi[a] = n->hi[a];
       }
-      l.first = uint32_t(refs_.size());
       l.count = uint32_t(n->prims.size());
       if (!n->sub_nodes.empty()) {
-        // Relocate the subtree: child and reference indices are local to the leaf.
-        const uint32_t base = uint32_t(sub_nodes_.size()), ref_base = uint32_t(refs_.size());
-        if (refs_.size() + n->sub_refs.size() >= (uint64_t(1) << 30) ||
-            sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
+        // Relocate the subtree: child indices are local to the leaf, and each of its leaves
+        // gets its own groups in place of its range of sub_refs.
+        const uint32_t base = uint32_t(sub_nodes_.size());
+        if (sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
           throw ParamError(
-              "hybrid: more than 2^30 subtree references or 2^29 nodes: use a larger cell size "
-              "or --hybrid-subtree-min 0");
+              "hybrid: more than 2^29 subtree nodes: use a larger cell size or "
+              "--hybrid-subtree-min 0");
         for (size_t k = 0; k < n->sub_nodes.size(); ++k) {
           KdNode kn = n->sub_nodes[k];
           if (k < kSubBoxNodes) {
           } else if (kn.leaf()) {
-            kn.prim_offset += ref_base;
+            kn.prim_offset = add_groups(n->sub_refs.data() + kn.prim_offset, kn.count());
           } else {
             kn.bits = ((kn.above() + base + kSubBoxNodes) << 2) | uint32_t(kn.axis());
           }
           sub_nodes_.push_back(kn);
         }
-        refs_.insert(refs_.end(), n->sub_refs.begin(), n->sub_refs.end());
         l.first = base;
         l.count |= kSubtreeFlag;
       } else {
-        refs_.insert(refs_.end(), n->prims.begin(), n->prims.end());
+        l.first = add_groups(n->prims.data(), uint32_t(n->prims.size()));
       }
       nodes_[idx] = {int32_t(leaves_.size()), 0, 3};
       leaves_.push_back(l);

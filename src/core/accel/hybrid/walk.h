@@ -1,7 +1,8 @@
 // The hybrid's ray walk (included by hybrid.h; the class is declared there). A ray is clipped
 // in float to the grid's box, widened by the kd-tree's rounding bound; its entry cell's leaf
-// is looked up; then each step tests the leaf's triangles (through a per-ray mailbox, so a
-// triangle referenced by several leaves is tested once), computes the exit over the leaf
+// is looked up; then each step tests the leaf's triangle groups (WatertightWide; or lane by lane
+// through a per-ray mailbox, so that a triangle referenced by several leaves is tested once,
+// for the other triangle tests: GridKdHybrid::kWide), computes the exit over the leaf
 // box's far planes in four lanes (x, y, z and a dummy axis), stops once the closest hit lies
 // before the exit, else moves to the leaf of the cell past the exit face. Cells move
 // monotonically along the ray, so at most nx+ny+nz+1 steps; the loop enforces that bound. A
@@ -290,7 +291,7 @@ bool GridKdHybrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (!walk_begin(w, ray)) return false;
   if constexpr (kExact) {
     w.tested = &hybrid::thread_tested_set;
-    w.tested->begin(tris_.size());
+    w.tested->begin(prim_of_.size());
   }
   s.lookup();
   StepResult r;
@@ -395,7 +396,8 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   w.tmax = ray.tmax;
   w.best = ray.tmax;
   w.found = false;
-  for (auto& m : w.mailbox) m = kInvalidPrim;
+  if constexpr (!kWide<TriangleTest>)
+    for (auto& m : w.mailbox) m = kInvalidPrim;
   w.evicted_count = 0;
   w.t1 = t1;
   w.t_cur = t0;
@@ -459,25 +461,56 @@ void GridKdHybrid::exit_through(const WalkState<TriangleTest>& w, const Double4&
 }
 
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
-bool GridKdHybrid::test_refs(WalkState<TriangleTest>& w, Probe& s,
-                             const typename TriangleTest::RayData& rd, float tmin,
-                             const uint32_t* r, uint32_t count, float& best, bool& found,
-                             LocalHit& h) const {
+bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
+                               const typename TriangleTest::RayData& rd, float tmin, uint32_t first,
+                               uint32_t count, float& best, bool& found, LocalHit& h) const {
   s.leaf();
-  for (uint32_t i = 0; i < count; ++i) {
-    const uint32_t local = r[i];
-    if (hybrid::tested_before<kExact>(w, local)) {
-      s.mailbox_skip();
-      continue;
+  const TriGroup* g = groups_.data() + first;
+  for (uint32_t left = count; left != 0; ++g) {
+    const uint32_t n = std::min(left, uint32_t(kWideLanes));
+    left -= n;
+    uint32_t lanes = 0;
+    if constexpr (kWide<TriangleTest>) {
+      // Every lane, without the mailbox: a repeated test cannot change the closest hit (best
+      // only decreases and a hit must be closer than best) nor an any-hit answer, and the
+      // look-ups cost more than the repeats they saved (docs/HYBRID.md, "Wide leaves").
+      lanes = (1u << n) - 1;
+      if constexpr (Probe::kCount)
+        for (uint32_t i = 0; i < n; ++i) s.tri_test(prim_of_[g->local[i]]);
+    } else {
+      // The lanes whose triangle the ray has not tested before.
+      for (uint32_t i = 0; i < n; ++i) {
+        const uint32_t local = g->local[i];
+        if (hybrid::tested_before<kExact>(w, local)) {
+          s.mailbox_skip();
+          continue;
+        }
+        if constexpr (Probe::kCount) s.tri_test(prim_of_[local]);
+        lanes |= 1u << i;
+      }
     }
-    if constexpr (Probe::kCount) s.tri_test(prim_of_[local]);
-    const TriVerts& tv = tris_[local];
-    float t, u, v;
-    if (TriangleTest::intersect(rd, tv.v0, tv.v1, tv.v2, tmin, best, t, u, v)) {
-      if constexpr (kAny) return true;
-      best = t;
-      found = true;
-      h = {local, u, v};
+    if (lanes == 0) continue;
+    if constexpr (kWide<TriangleTest>) {
+      float t, u, v;
+      const int i = WatertightWide<kWideLanes>::intersect(rd, g->tri, lanes, tmin, best, t, u, v);
+      if (i >= 0) {
+        if constexpr (kAny) return true;
+        best = t;
+        found = true;
+        h = {g->local[i], u, v};
+      }
+    } else {
+      for (; lanes != 0; lanes &= lanes - 1) {
+        const int i = __builtin_ctz(lanes);
+        float t, u, v;
+        if (TriangleTest::intersect(rd, g->tri.corner(0, i), g->tri.corner(1, i),
+                                    g->tri.corner(2, i), tmin, best, t, u, v)) {
+          if constexpr (kAny) return true;
+          best = t;
+          found = true;
+          h = {g->local[i], u, v};
+        }
+      }
     }
   }
   return false;
@@ -531,16 +564,19 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
       // subtree, and a second test of the whole triangle can only repeat the first (best only
       // decreases).
       auto leaf = [&](const KdNode& sn, float& b, bool& f) __attribute__((always_inline)) {
-        return test_refs<TriangleTest, Probe, kAny, kExact>(
-            w, s, rd, tmin, refs_.data() + sn.prim_offset, sn.count(), b, f, h);
+        return test_groups<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, sn.prim_offset,
+                                                              sn.count(), b, f, h);
       };
       // Traces: each node's segment as the walk sees it, within the leaf's segment and never
       // starting before the previous node's (the walk widens its intervals by err, a bound on
       // rounding, so a popped node may start up to 2 err before the leaf it follows).
       [[maybe_unused]] float trace_in = float(w.t_cur);
       auto visit = [&](StepKind kind, int depth, uint32_t, const Box3& box, float tn, float tf) {
-        trace_in = std::max(trace_in, tn);
-        const float out = std::max(trace_in, std::min(tf, float(std::min(t_exit, double(w.tmax)))));
+        // Clamped to the leaf's segment: a subtree node's interval, widened by err, may start
+        // past the leaf's exit, where the next leaf's step starts.
+        const float leaf_out = float(std::min(t_exit, double(w.tmax)));
+        trace_in = std::max(trace_in, std::min(tn, leaf_out));
+        const float out = std::max(trace_in, std::min(tf, leaf_out));
         s.visit(
             TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
       };
@@ -559,8 +595,8 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
         }
     }
   } else if (L.count) {
-    if (test_refs<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, refs_.data() + L.first,
-                                                     L.count, w.best, w.found, h))
+    if (test_groups<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, L.first, L.count, w.best,
+                                                       w.found, h))
       return StepResult::Answered;
     if constexpr (!kAny)
       if (h.local != kInvalidPrim) w.hit = {w.best, prim_of_[h.local], h.u, h.v};

@@ -1,0 +1,154 @@
+// One ray against a group of W triangles stored by lane (structure of arrays): WatertightTest's
+// arithmetic on W lanes at once, with GCC vector extensions (which clang also accepts), so one
+// source compiles to AVX where the target has it and to SSE elsewhere. Per lane it performs
+// exactly WatertightTest::intersect's float operations in the same order (the build's
+// -ffp-contract=off keeps them unfused), and the lanes that the scalar test would take to its
+// double-precision code (an edge function exactly zero, or a depth that overflowed) are given to
+// the scalar test itself, so every hit is bit for bit the scalar test's.
+#pragma once
+
+#include <cstdint>
+#include <cstring>
+
+#include "accel/triangle.h"
+
+namespace kdgrid {
+
+/// Triangles per group in the leaves that store them so (the hybrid's): 8 where the build targets
+/// AVX (eight float lanes), 4 with SSE, 1 elsewhere, where leaves are tested one triangle at a
+/// time by the scalar test.
+inline constexpr int kWideLanes =
+#if defined(__AVX__)
+    8;
+#elif defined(__SSE2__)
+    4;
+#else
+    1;
+#endif
+
+/// WatertightTest under another name: a structure whose leaves WatertightWide tests runs this one
+/// lane by lane, the scalar reference that tests hold the wide test to.
+struct WatertightScalar : WatertightTest {};
+
+/// W triangles' corners by lane: c[corner][axis][lane]. A group of fewer triangles repeats its
+/// last one in the lanes left over, so that every lane holds a real triangle.
+template <int W>
+struct alignas(4 * W) WideTriangles {
+  float c[3][3][W];
+  /// Corner k of lane i.
+  Vec3 corner(int k, int i) const { return {c[k][0][i], c[k][1][i], c[k][2][i]}; }
+  void set(int i, const Vec3& v0, const Vec3& v1, const Vec3& v2) {
+    const Vec3* v[3] = {&v0, &v1, &v2};
+    for (int k = 0; k < 3; ++k)
+      for (int a = 0; a < 3; ++a) c[k][a][i] = component(*v[k], a);
+  }
+};
+
+/// Float and int32 vectors of W lanes (a specialization per width: GCC ignores a vector_size
+/// that depends on a template parameter).
+template <int W>
+struct WideVectors;
+template <>
+struct WideVectors<4> {
+  using F = float __attribute__((vector_size(16)));
+  using I = int32_t __attribute__((vector_size(16)));
+};
+template <>
+struct WideVectors<8> {
+  using F = float __attribute__((vector_size(32)));
+  using I = int32_t __attribute__((vector_size(32)));
+};
+
+/// WatertightTest on W lanes (W = 4 or 8; see the file's comment).
+template <int W>
+struct WatertightWide {
+  using F = typename WideVectors<W>::F;
+  using I = typename WideVectors<W>::I;
+
+  [[gnu::always_inline]] static F load(const float* p) {
+    F v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+  }
+  /// Bit i set where lane i of the mask (all ones or zero per lane) is set.
+  [[gnu::always_inline]] static uint32_t bits(I m) {
+#if defined(__AVX__)
+    if constexpr (W == 8) return uint32_t(__builtin_ia32_movmskps256((F)m));
+#endif
+#if defined(__SSE__)
+    if constexpr (W == 4) return uint32_t(__builtin_ia32_movmskps((F)m));
+#endif
+    uint32_t r = 0;
+    for (int i = 0; i < W; ++i) r |= uint32_t(m[i] != 0) << i;
+    return r;
+  }
+
+  /// The closest hit with tmin <= t < tmax among the lanes whose bit is set in `lanes`: its
+  /// lane, t, u and v, or -1. Among equal t the lowest lane wins, as a scalar loop over the
+  /// lanes in order keeps the first triangle at equal t (it accepts only t < best).
+  [[gnu::always_inline]] static int intersect(const WatertightTest::RayData& d,
+                                              const WideTriangles<W>& g, uint32_t lanes, float tmin,
+                                              float tmax, float& t_out, float& u_out,
+                                              float& v_out) {
+    const F Az = load(g.c[0][d.kz]) - d.oz, Bz = load(g.c[1][d.kz]) - d.oz,
+            Cz = load(g.c[2][d.kz]) - d.oz;
+    const F ax = (load(g.c[0][d.kx]) - d.ox) - d.sx * Az,
+            ay = (load(g.c[0][d.ky]) - d.oy) - d.sy * Az;
+    const F bx = (load(g.c[1][d.kx]) - d.ox) - d.sx * Bz,
+            by = (load(g.c[1][d.ky]) - d.oy) - d.sy * Bz;
+    const F cx = (load(g.c[2][d.kx]) - d.ox) - d.sx * Cz,
+            cy = (load(g.c[2][d.ky]) - d.oy) - d.sy * Cz;
+    const F U = cx * by - cy * bx;
+    const F V = ax * cy - ay * cx;
+    const F Wf = bx * ay - by * ax;
+    const F zero = {};
+    const I zero_edge = (U == zero) | (V == zero) | (Wf == zero);
+    const I mixed =
+        ((U < zero) | (V < zero) | (Wf < zero)) & ((U > zero) | (V > zero) | (Wf > zero));
+    const F det = U + V + Wf;
+    const F az = d.sz * Az, bz = d.sz * Bz, cz = d.sz * Cz;
+    const F T = U * az + V * bz + Wf * cz;
+    const F inv_det = 1.0f / det;
+    const F t = T * inv_det;
+    const I live = ~mixed & (det != zero);
+    const I in_range = (t >= tmin) & (t < tmax);  // false for NaN
+    const I finite = (T - T) == zero;             // false for inf and NaN
+    // Hits in float; the scalar test's double-precision lanes go to the scalar test.
+    const uint32_t hit = bits(live & in_range & ~zero_edge) & lanes;
+    const uint32_t slow = bits(zero_edge | (live & ~in_range & ~finite)) & lanes;
+    if ((hit | slow) == 0) [[likely]]
+      return -1;
+    return resolve(d, g, hit, slow, t, V, Wf, inv_det, tmin, tmax, t_out, u_out, v_out);
+  }
+
+  /// The lanes with a hit or a scalar test to run, in lane order (the first at equal t wins).
+  [[gnu::noinline]] static int resolve(const WatertightTest::RayData& d, const WideTriangles<W>& g,
+                                       uint32_t hit, uint32_t slow, const F& t, const F& V,
+                                       const F& Wf, const F& inv_det, float tmin, float tmax,
+                                       float& t_out, float& u_out, float& v_out) {
+    int best = -1;
+    float bt = tmax;
+    for (uint32_t m = hit | slow; m != 0; m &= m - 1) {
+      const int i = __builtin_ctz(m);
+      if (slow >> i & 1u) {
+        float ts, us, vs;
+        if (WatertightTest::intersect(d, g.corner(0, i), g.corner(1, i), g.corner(2, i), tmin, bt,
+                                      ts, us, vs)) {
+          best = i;
+          bt = ts;
+          u_out = us;
+          v_out = vs;
+        }
+      } else if (t[i] < bt) {
+        best = i;
+        bt = t[i];
+        u_out = V[i] * inv_det[i];
+        v_out = Wf[i] * inv_det[i];
+      }
+    }
+    if (best >= 0) t_out = bt;
+    return best;
+  }
+};
+
+}  // namespace kdgrid

@@ -1,0 +1,252 @@
+// The wide watertight test (accel/triangle_wide.h) against the scalar one, bit for bit: lane by
+// lane on random and adversarial triangle groups, then through the hybrid's leaves, whose
+// WatertightTest walk uses the wide test and whose WatertightScalar walk tests lane by lane.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "accel/hybrid/hybrid.h"
+#include "accel/triangle_wide.h"
+#include "comparator_meshes.h"
+#include "scene/load.h"
+#include "test_util.h"
+
+namespace kdgrid {
+namespace {
+
+bool same_bits(float a, float b) {
+  return std::memcmp(&a, &b, sizeof a) == 0;
+}
+
+struct Tri {
+  Vec3 v[3];
+};
+
+/// The scalar loop the wide test stands for: the lanes in `lanes`, in order, each tested against
+/// the closest hit so far (strict t < best).
+template <int W>
+int scalar_reference(const Ray& r, const std::vector<Tri>& tris, uint32_t lanes, float& t, float& u,
+                     float& v) {
+  const auto rd = WatertightTest::prepare(r);
+  float best = r.tmax;
+  int lane = -1;
+  for (int i = 0; i < W; ++i) {
+    if (!(lanes >> i & 1u)) continue;
+    float ts, us, vs;
+    if (WatertightTest::intersect(rd, tris[i].v[0], tris[i].v[1], tris[i].v[2], r.tmin, best, ts,
+                                  us, vs)) {
+      best = ts;
+      lane = i;
+      u = us;
+      v = vs;
+    }
+  }
+  t = best;
+  return lane;
+}
+
+/// Groups of W triangles made to reach every path of the scalar test: random triangles, fans
+/// and strips sharing edges and corners (rays through them make edge functions exactly zero:
+/// the double-precision lanes), duplicates and coplanar copies (ties: the lowest lane wins),
+/// degenerate triangles (det 0), coordinates near 1e13 whose depth overflows float (the
+/// double depth), and rays with finite tmax.
+template <int W>
+struct Cases {
+  std::mt19937 rng{7};
+  std::uniform_real_distribution<float> u01{0.0f, 1.0f};
+  float uni(float lo, float hi) { return lo + (hi - lo) * u01(rng); }
+  Vec3 point(float s) { return {uni(-s, s), uni(-s, s), uni(-s, s)}; }
+  /// On integer coordinates: rays through shared corners and edges give exact zeros.
+  Vec3 lattice(int n) {
+    std::uniform_int_distribution<int> k(-n, n);
+    return Vec3(float(k(rng)), float(k(rng)), float(k(rng)));
+  }
+
+  std::vector<Tri> group(int kind) {
+    std::vector<Tri> g(W);
+    const float scale = kind == 4 ? 1e13f : 1.0f;
+    const Vec3 hub = kind == 1 ? lattice(2) : point(scale);
+    for (int i = 0; i < W; ++i) {
+      Tri& t = g[size_t(i)];
+      switch (kind) {
+        case 0:  // random
+        case 4:  // huge coordinates
+          for (Vec3& p : t.v) p = point(scale);
+          break;
+        case 1:  // a fan around a lattice point, on lattice points
+          t.v[0] = hub;
+          t.v[1] = lattice(2);
+          t.v[2] = lattice(2);
+          break;
+        case 2:  // duplicates and coplanar copies of a few triangles
+          if (i < 2) {
+            for (Vec3& p : t.v) p = point(1);
+          } else {
+            t = g[size_t(rng() % uint32_t(i))];
+            if (rng() % 2) std::swap(t.v[0], t.v[1]);  // the same plane, the other winding
+          }
+          break;
+        default:  // degenerate: collinear or repeated corners, mixed with random ones
+          t.v[0] = point(1);
+          t.v[1] = rng() % 2 ? t.v[0] : point(1);
+          t.v[2] = t.v[0] + (t.v[1] - t.v[0]) * uni(-1, 2);
+          if (i % 3 == 0)
+            for (Vec3& p : t.v) p = point(1);
+          break;
+      }
+    }
+    return g;
+  }
+
+  Ray ray(int kind, const std::vector<Tri>& g) {
+    Ray r;
+    const float scale = kind == 4 ? 1e13f : 1.0f;
+    const Tri& t = g[rng() % uint32_t(W)];
+    Vec3 target;
+    switch (rng() % 4) {
+      case 0:  // a corner
+        target = t.v[rng() % 3];
+        break;
+      case 1:  // an edge's midpoint
+        target = (t.v[0] + t.v[1]) * 0.5f;
+        break;
+      default: {  // inside
+        float a = u01(rng), b = u01(rng);
+        if (a + b > 1) a = 1 - a, b = 1 - b;
+        target = t.v[0] * (1 - a - b) + t.v[1] * a + t.v[2] * b;
+      }
+    }
+    r.org = kind == 1 ? lattice(6) : target + point(3 * scale);
+    if (kind == 1 && rng() % 2) {
+      // Axis-parallel through a lattice point: the edge functions of the fan are exact.
+      r.org = target;
+      const int a = int(rng() % 3);
+      r.org[a] += 5.0f;
+    }
+    r.dir = target - r.org;
+    if (r.dir == Vec3(0.0f)) r.dir = Vec3(0, 0, 1);
+    // Huge coordinates with a unit direction: the depth's numerator, of the order of the cube of
+    // the coordinates over the direction, overflows float.
+    if (kind == 4) r.dir = normalize(r.dir);
+    r.tmin = rng() % 8 == 0 ? 0.5f : 0.0f;
+    r.tmax = rng() % 4 == 0 ? uni(0.5f, 1.5f) : kInf;
+    return r;
+  }
+};
+
+template <int W>
+void check_lanes_match_scalar() {
+  Cases<W> c;
+  int hits = 0, mismatches = 0;
+  for (int n = 0; n < 40000; ++n) {
+    const int kind = n % 5;
+    const std::vector<Tri> tris = c.group(kind);
+    WideTriangles<W> g;
+    for (int i = 0; i < W; ++i)
+      g.set(i, tris[size_t(i)].v[0], tris[size_t(i)].v[1], tris[size_t(i)].v[2]);
+    for (int k = 0; k < 4; ++k) {
+      const Ray r = c.ray(kind, tris);
+      const uint32_t lanes = k == 0 ? (1u << W) - 1 : uint32_t(c.rng()) & ((1u << W) - 1);
+      float ts = 0, us = 0, vs = 0, tw = 0, uw = 0, vw = 0;
+      const int ls = scalar_reference<W>(r, tris, lanes, ts, us, vs);
+      const int lw = WatertightWide<W>::intersect(WatertightTest::prepare(r), g, lanes, r.tmin,
+                                                  r.tmax, tw, uw, vw);
+      hits += ls >= 0;
+      const bool same =
+          ls == lw && (ls < 0 || (same_bits(ts, tw) && same_bits(us, uw) && same_bits(vs, vw)));
+      if (!same && ++mismatches <= 5)
+        ADD_FAILURE() << "W " << W << " group " << n << " kind " << kind << " lanes " << lanes
+                      << ": scalar lane " << ls << " t " << ts << " u " << us << " v " << vs
+                      << "; wide lane " << lw << " t " << tw << " u " << uw << " v " << vw;
+    }
+  }
+  EXPECT_EQ(mismatches, 0);
+  EXPECT_GT(hits, 40000);  // most rays are aimed at a triangle of their group
+}
+
+TEST(WideTriangle, FourLanesMatchScalarBitForBit) {
+  check_lanes_match_scalar<4>();
+}
+
+#if defined(__AVX__)
+TEST(WideTriangle, EightLanesMatchScalarBitForBit) {
+  check_lanes_match_scalar<8>();
+}
+#endif
+
+// Ties: a group of one triangle repeated in every lane reports lane 0, the scalar loop's first.
+TEST(WideTriangle, EqualDepthsGoToTheLowestLane) {
+  constexpr int W = kWideLanes > 1 ? kWideLanes : 4;
+  WideTriangles<W> g;
+  for (int i = 0; i < W; ++i) g.set(i, Vec3(-1, -1, 2), Vec3(1, -1, 2), Vec3(0, 1, 2));
+  const Ray r{Vec3(0, 0, 0), 0.0f, Vec3(0, 0, 1), kInf};
+  float t, u, v;
+  EXPECT_EQ(WatertightWide<W>::intersect(WatertightTest::prepare(r), g, (1u << W) - 1, r.tmin,
+                                         r.tmax, t, u, v),
+            0);
+  EXPECT_EQ(
+      WatertightWide<W>::intersect(WatertightTest::prepare(r), g, 0b110u, r.tmin, r.tmax, t, u, v),
+      1);
+}
+
+// ---- the hybrid's leaves ---------------------------------------------------------------
+
+/// Rays whose closest hit (triangle, t, u, v: bit for bit), any-hit answer or steps differ
+/// between the wide walk (WatertightTest) and the scalar one (WatertightScalar), or whose wide
+/// walk skipped a test through the mailbox or tested fewer triangles than the scalar one (it
+/// tests every lane, repeats included).
+int wide_scalar_differences(const GridKdHybrid& h, const std::vector<Ray>& rays,
+                            const std::string& label) {
+  int bad = 0;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    const Ray& r = rays[i];
+    Hit hw, hs;
+    CountProbe cw, cs;
+    const bool fw = h.closest<WatertightTest>(r, hw, cw);
+    const bool fs = h.closest<WatertightScalar>(r, hs, cs);
+    NoProbe n;
+    const bool aw = h.any<WatertightTest>(r, n), as = h.any<WatertightScalar>(r, n);
+    bool same = fw == fs && aw == as && aw == fw && cw.c.tri_tests >= cs.c.tri_tests &&
+                cw.c.mailbox_skips == 0 && cw.c.steps == cs.c.steps;
+    if (same && fw)
+      same = hw.prim == hs.prim && same_bits(hw.t, hs.t) && same_bits(hw.u, hs.u) &&
+             same_bits(hw.v, hs.v);
+    if (!same && ++bad <= 5)
+      ADD_FAILURE() << label << " ray " << i << ": wide " << fw << " prim " << hw.prim << " t "
+                    << hw.t << " any " << aw << "; scalar " << fs << " prim " << hs.prim << " t "
+                    << hs.t << " any " << as;
+  }
+  return bad;
+}
+
+TEST(WideLeaves, HybridHitsMatchScalarBitForBit) {
+  if (kWideLanes == 1) GTEST_SKIP() << "this build's groups have one lane: no wide test";
+  for (const auto& nm : test::test_meshes()) {
+    for (const uint32_t subtree_min : {0u, 4u}) {
+      BuildParams p;
+      p.hybrid_subtree_min = subtree_min;
+      GridKdHybrid h;
+      h.build(nm.mesh, p);
+      std::vector<Ray> rays = test::random_rays(nm.mesh, 3, 3000);
+      for (const Ray& r : test::signed_zero_rays()) rays.push_back(r);
+      const std::string label = nm.name + " subtree_min " + std::to_string(subtree_min);
+      EXPECT_EQ(wide_scalar_differences(h, rays, label), 0) << label;
+    }
+  }
+}
+
+TEST(WideLeaves, HybridHitsMatchScalarBitForBitOnTheBunny) {
+  if (kWideLanes == 1) GTEST_SKIP() << "this build's groups have one lane: no wide test";
+  const std::string path = test::shared_scene("bunny/bun_zipper.ply");
+  if (path.empty()) GTEST_SKIP() << "bunny/bun_zipper.ply is not in the shared scenes";
+  const Scene scene = load_scene(path);
+  GridKdHybrid h;
+  h.build(scene.mesh, BuildParams{});
+  EXPECT_EQ(wide_scalar_differences(h, test::random_rays(scene.mesh, 11, 20000), "bunny"), 0);
+}
+
+}  // namespace
+}  // namespace kdgrid
