@@ -1193,15 +1193,15 @@ TEST(HybridEstimate, BunnySuggestedSizeBuildsWithinABound) {
 // hits to these. The queries below are the lane-by-lane walk's.
 bool scalar_closest(const GridKdHybrid& h, const Ray& r, Hit& hit) {
   NoProbe s;
-  return h.closest<WatertightScalar>(r, hit, s);
+  return h.traverse<WatertightScalar, NoProbe, false>(r, &hit, s);
 }
 bool scalar_any(const GridKdHybrid& h, const Ray& r) {
   NoProbe s;
-  return h.any<WatertightScalar>(r, s);
+  return h.traverse<WatertightScalar, NoProbe, true>(r, nullptr, s);
 }
 bool scalar_counted(const GridKdHybrid& h, const Ray& r, Hit& hit, RayCounters& c) {
   CountProbe s;
-  const bool got = h.closest<WatertightScalar>(r, hit, s);
+  const bool got = h.traverse<WatertightScalar, CountProbe, false>(r, &hit, s);
   c += s.c;
   return got;
 }
@@ -1209,7 +1209,7 @@ Trace scalar_trace(const GridKdHybrid& h, const Ray& r) {
   Trace t;
   TraceProbe s(&t);
   Hit hit;
-  h.closest<WatertightScalar>(r, hit, s);
+  h.traverse<WatertightScalar, TraceProbe, false>(r, &hit, s);
   t.hit = hit;
   return t;
 }

@@ -205,10 +205,11 @@ int wide_scalar_differences(const GridKdHybrid& h, const std::vector<Ray>& rays,
     const Ray& r = rays[i];
     Hit hw, hs;
     CountProbe cw, cs;
-    const bool fw = h.closest<WatertightTest>(r, hw, cw);
-    const bool fs = h.closest<WatertightScalar>(r, hs, cs);
+    const bool fw = h.traverse<WatertightTest, CountProbe, false>(r, &hw, cw);
+    const bool fs = h.traverse<WatertightScalar, CountProbe, false>(r, &hs, cs);
     NoProbe n;
-    const bool aw = h.any<WatertightTest>(r, n), as = h.any<WatertightScalar>(r, n);
+    const bool aw = h.traverse<WatertightTest, NoProbe, true>(r, nullptr, n),
+               as = h.traverse<WatertightScalar, NoProbe, true>(r, nullptr, n);
     bool same = fw == fs && aw == as && aw == fw && cw.c.tri_tests >= cs.c.tri_tests &&
                 cw.c.mailbox_skips == 0 && cw.c.steps == cs.c.steps;
     if (same && fw)
