@@ -922,11 +922,12 @@ TEST(Viewer, LiveFlightOnSponzaChangesThePictureEvery200ms) {
 TEST(Viewer, LiveFlightDuringARebuildFollowsTheCameraOnTheOldStructure) {
   KDGRID_REQUIRE_FLY_TEST();
   // The smaller dragon (the full one is measured in docs/VIEWER.md): a hybrid rebuild with a
-  // fine cell runs for several seconds while W is held.
+  // fine cell (1e-4: 2.5 s and 1 GB on an idle 2-core machine, longer while the flight renders)
+  // runs while W is held.
   KDGRID_REQUIRE_SCENE(dragon, "dragon/dragon_vrip_res2.ply");
   const auto stats =
       expect_live_flight(dragon, "dragon_vrip_res2.ply",
-                         "--accel hybrid --hybrid-max-build-seconds 0 --rebuild-cell-size 0.0004");
+                         "--accel hybrid --hybrid-max-build-seconds 0 --rebuild-cell-size 1e-4");
   ASSERT_TRUE(stats.is_object());
   // The flight (1 to 3 s after the window showed the scene) happened during the rebuild:
   // Ctrl+Q cancelled it, or it ran past then.
@@ -939,16 +940,16 @@ TEST(Viewer, LiveFlightDuringARebuildFollowsTheCameraOnTheOldStructure) {
 
 TEST(Viewer, EscCancelsARunningBuildAndTheOldStructureStays) {
   KDGRID_REQUIRE_INPUT_TEST();
-  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  KDGRID_REQUIRE_SCENE(dragon, "dragon/dragon_vrip.ply");
   const std::string dir = scratch_dir();
-  // A 6e-5 cell on the bunny (with the build-time limit off) builds for tens of seconds; Esc 2 s
-  // in.
+  // A 1e-4 cell on the full dragon (with the build-time limit off) builds for 5 s on an idle
+  // 2-core machine (1.4 GB); Esc 2 s in.
   const Driven d = drive_viewer(
       dir,
-      "'" + bunny +
+      "'" + dragon +
           "' --accel hybrid --width 640 --height 480 --max-samples 1 "
-          "--hold 90 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5 --screenshot shot.png",
-      "bun_zipper.ply", "sleep 2\nkey Escape\nsleep 1");
+          "--hold 90 --hybrid-max-build-seconds 0 --rebuild-cell-size 1e-4 --screenshot shot.png",
+      "dragon_vrip.ply", "sleep 2\nkey Escape\nsleep 1");
   ASSERT_DRIVEN_OK(d);
   const auto& builds = d.stats["builds"];
   ASSERT_EQ(builds.size(), 2u) << d.viewer_log;
@@ -967,22 +968,22 @@ TEST(Viewer, EscCancelsARunningBuildAndTheOldStructureStays) {
 
 TEST(Viewer, ANewCellSizeRequestCancelsTheRunningBuildAndBuildsTheNewSize) {
   KDGRID_REQUIRE_XVFB();
-  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  KDGRID_REQUIRE_SCENE(dragon, "dragon/dragon_vrip.ply");
   const std::string dir = scratch_dir();
-  // A 6e-5 cell on the bunny (build-time limit off, 0.7 GB) builds for 6.5 s on an idle 2-core
-  // machine and longer on a busy one; 2 s into it a 0.003 cell is requested through the panel's
-  // cell-size path (about 1 s to build). The newer request stops the running build within a
-  // second, and the 0.003 structure is what remains.
+  // A 1e-4 cell on the full dragon (build-time limit off, 1.4 GB) builds for 5 s on an idle
+  // 2-core machine and longer on a busy one; 2 s into it a 0.003 cell is requested through the
+  // panel's cell-size path (under a second to build). The newer request stops the running build
+  // within a second, and the 0.003 structure is what remains.
   const RunResult r = run_viewer(
-      dir, "'" + bunny +
+      dir, "'" + dragon +
                "' --accel hybrid --width 640 --height 480 --max-samples 1 "
-               "--frames 3 --timeout 120 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5 "
+               "--frames 3 --timeout 120 --hybrid-max-build-seconds 0 --rebuild-cell-size 1e-4 "
                "--supersede-cell-size 0.003 --supersede-after 2 --stats-json stats.json");
   ASSERT_EQ(r.code, 0) << r.output;
   const auto st = read_json(dir + "/stats.json");
   ASSERT_TRUE(st.is_object()) << r.output;
   const auto& builds = st["builds"];
-  ASSERT_EQ(builds.size(), 3u) << "load, the 6e-5 rebuild, the 0.003 rebuild: " << builds.dump()
+  ASSERT_EQ(builds.size(), 3u) << "load, the 1e-4 rebuild, the 0.003 rebuild: " << builds.dump()
                                << r.output;
   EXPECT_EQ(builds[1].value("error", ""), "cancelled")
       << "the running build was not superseded: " << builds[1].dump();
@@ -992,7 +993,7 @@ TEST(Viewer, ANewCellSizeRequestCancelsTheRunningBuildAndBuildsTheNewSize) {
   EXPECT_FLOAT_EQ(builds[2]["requested_cell_size"].get<float>(), 0.003f) << builds[2].dump();
   EXPECT_FLOAT_EQ(st["state"]["cell_size"].get<float>(), 0.003f) << st["state"].dump();
   EXPECT_EQ(st["state"]["error"], "") << "a superseded build is not an error";
-  // The 6e-5 build ended within a second of the second request (2 s in), not at its own end.
+  // The 1e-4 build ended within a second of the second request (2 s in), not at its own end.
   EXPECT_LT(builds[1]["wall_seconds"].get<double>(), 3.0) << builds.dump();
 }
 

@@ -169,6 +169,12 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// wide test is held to, among them) runs lane by lane.
   template <class TriangleTest>
   static constexpr bool kWide = (std::is_same_v<TriangleTest, WatertightTest> && kWideLanes > 1);
+  /// Whether the walk tests through the mailbox: not with wide groups, nor with no test at all
+  /// (NullTest, the traversal-only timing), which walks and counts the lanes as the wide walk
+  /// does, so that it times and counts that walk without its tests.
+  template <class TriangleTest>
+  static constexpr bool kMailboxed =
+      !(kWideLanes > 1 && (kWide<TriangleTest> || std::is_same_v<TriangleTest, NullTest>));
 
   std::string name() const override { return "hybrid"; }
   BuildStats build(const Mesh& mesh, const BuildParams& params) override;

@@ -396,7 +396,7 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   w.tmax = ray.tmax;
   w.best = ray.tmax;
   w.found = false;
-  if constexpr (!kWide<TriangleTest>)
+  if constexpr (kMailboxed<TriangleTest>)
     for (auto& m : w.mailbox) m = kInvalidPrim;
   w.evicted_count = 0;
   w.t1 = t1;
@@ -470,7 +470,7 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
     const uint32_t n = std::min(left, uint32_t(kWideLanes));
     left -= n;
     uint32_t lanes = 0;
-    if constexpr (kWide<TriangleTest>) {
+    if constexpr (!kMailboxed<TriangleTest>) {
       // Every lane, without the mailbox: a repeated test cannot change the closest hit (best
       // only decreases and a hit must be closer than best) nor an any-hit answer, and the
       // look-ups cost more than the repeats they saved (docs/HYBRID.md, "Wide leaves").
