@@ -18,6 +18,7 @@
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
+#include "accel/triangle_wide.h"
 #include "bench/bench.h"
 #include "bench/profile.h"
 #include "bench/rayfile.h"
@@ -641,6 +642,7 @@ TEST(BenchCli, SmokeRunWritesJsonWithEveryField) {
   const json& simd = j["meta"]["simd"];
   EXPECT_EQ(simd["kdgrid"]["isa"], kBuildIsa);
   EXPECT_EQ(simd["kdgrid"]["lanes"], kTraversalLanes);
+  EXPECT_EQ(simd["kdgrid"]["leaf_lanes"], kWideLanes);
   EXPECT_EQ(simd["embree"]["isa"], embree_isa().isa);
   EXPECT_EQ(simd["embree"]["native_packet"], embree_isa().native_packet);
   EXPECT_EQ(simd["embree"]["version"], embree_isa().version);

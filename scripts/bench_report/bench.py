@@ -9,8 +9,16 @@ def simd_text(meta):
         return "SIMD: not recorded in this bench.json."
     k, e = simd["kdgrid"], simd["embree"]
     return prose("bench", "simd", kdgrid_isa=k["isa"], kdgrid_lanes="%d" % k["lanes"],
+                 kdgrid_leaves=leaf_lanes_text(k),
                  embree_version=e["version"], embree_isa=e["isa"],
                  embree_packet="%d" % e["native_packet"])
+
+
+def leaf_lanes_text(k):
+    """How many triangles a hybrid leaf tests at once (bench.json files from builds before the
+    leaves held triangle groups have no leaf_lanes: one at a time)."""
+    n = k.get("leaf_lanes", 1)
+    return "one at a time" if n == 1 else "%d at a time" % n
 
 
 def labels(builds):

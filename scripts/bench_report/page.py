@@ -2,7 +2,7 @@
 import os
 
 from .common import load, prose, table
-from .bench import bench_section
+from .bench import bench_section, leaf_lanes_text
 from .big_scene import big_scene_section
 from .hybrid_variants import hybrid_variants_section
 from .speed_accuracy import speed_accuracy_section
@@ -21,8 +21,9 @@ def build_page(results_dir, md_dir, img_dir, root):
         simd = b["meta"].get("simd")
         facts += [("CPU", run.get("cpu", b["meta"]["machine"])),
                   ("SIMD, kdgrid", "%s build; one ray at a time, the hybrid's walk in %d-lane "
-                   "vectors" % (simd["kdgrid"]["isa"], simd["kdgrid"]["lanes"])
-                   if simd else "not recorded"),
+                   "vectors, its leaves' triangles %s" % (
+                       simd["kdgrid"]["isa"], simd["kdgrid"]["lanes"],
+                       leaf_lanes_text(simd["kdgrid"])) if simd else "not recorded"),
                   ("SIMD, Embree", "Embree %s, %s kernels (native ray packets of %d)" % (
                       simd["embree"]["version"], simd["embree"]["isa"],
                       simd["embree"]["native_packet"]) if simd else "not recorded"),

@@ -46,7 +46,8 @@ class Page(unittest.TestCase):
                     "| embree-robust (robust flags, medium quality) |",
                     "| embree-high (default flags, high quality) |"):
             self.assertIn(row, page)
-        self.assertEqual(page.count("SIMD: kdgrid built for "), 2)
+        # The throughput, packet and build tables each say it.
+        self.assertEqual(page.count("SIMD: kdgrid built for "), 3)
         self.assertIn("| SIMD, Embree | Embree 3.", page)
         self.assertIn("- primary rays: the hybrid is ", page)
         self.assertIn("| Embree scene flags | `RTC_SCENE_FLAG_ROBUST` (`embree-robust`) |", page)
@@ -65,18 +66,30 @@ class Page(unittest.TestCase):
         self.assertNotIn("-triangle scene (`", page)
         self.assertTrue(page.endswith("(VmHWM/VmRSS) and `getrusage`.\n"))
 
-    def test_packet_column_gives_a_packets_section(self):
-        # A bench.json with kdgrid bench's packet column gets a Packets section; the committed
-        # one (measured before the column existed) gets none.
+    @staticmethod
+    def page_with_bench(edit):
+        """The page from a copy of the committed results whose bench.json `edit` changed."""
         import json
-        committed = build_page(RESULTS, os.path.join(ROOT, "docs"),
-                               os.path.join(ROOT, "docs", "img"), ROOT)
-        self.assertNotIn("\n## Packets\n", committed)
         with tempfile.TemporaryDirectory() as tmp:
             res = os.path.join(tmp, "results")
             shutil.copytree(RESULTS, res)
             with open(os.path.join(res, "bench.json")) as f:
                 b = json.load(f)
+            edit(b)
+            with open(os.path.join(res, "bench.json"), "w") as f:
+                json.dump(b, f)
+            return build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+
+    def test_packet_column_gives_a_packets_section(self):
+        # A bench.json with kdgrid bench's packet column gets a Packets section; one without it
+        # (measured before the column existed, or with --packet-tile 0) gets none.
+        def without_packets(b):
+            b["meta"].pop("packet_tile", None)
+            for r in b["results"]:
+                r.pop("packet", None)
+
+        def one_packet_figure(b):
+            without_packets(b)
             b["meta"]["packet_tile"] = 8
             scene = b["results"][0]["scene"]
             for r in b["results"]:
@@ -84,13 +97,28 @@ class Page(unittest.TestCase):
                     r["packet"] = {"rays_per_packet": 64, "packet_width": 1, "mrays": 2.72,
                                    "ratio_to_reference": 0.33, "speedup_over_single_loop": 0.96,
                                    "mismatches": 0, "mismatched_ties": 0}
-            with open(os.path.join(res, "bench.json"), "w") as f:
-                json.dump(b, f)
-            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+
+        self.assertNotIn("\n## Packets\n", self.page_with_bench(without_packets))
+        page = self.page_with_bench(one_packet_figure)
         self.assertIn("\n## Packets\n\nThe primary rays again in 8x8 tiles, one packet of 64", page)
         self.assertIn("**primary rays, packets**", page)
         self.assertNotIn("**shadow rays, packets**", page)
         self.assertIn("| hybrid | 0.33 (2.72; x0.96; 1) |", page)
+
+    def test_tables_name_the_leaf_lanes_where_recorded(self):
+        # bench.json files from before the hybrid's leaves held triangle groups have no
+        # leaf_lanes: their tables say the leaves test one triangle at a time.
+        def lanes(n):
+            def edit(b):
+                k = b["meta"]["simd"]["kdgrid"]
+                k.pop("leaf_lanes", None)
+                if n:
+                    k["leaf_lanes"] = n
+            return edit
+
+        self.assertIn("vectors, its leaves' triangles 8 at a time", self.page_with_bench(lanes(8)))
+        self.assertIn("vectors, its leaves' triangles one at a time",
+                      self.page_with_bench(lanes(None)))
 
     def test_variant_file_under_its_earlier_name_gives_the_same_section(self):
         # hybrid-nocache.json was hybrid-noguess.json: a results directory written before the

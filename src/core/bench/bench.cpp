@@ -22,6 +22,7 @@
 
 #include "accel/guards.h"
 #include "accel/triangle.h"
+#include "accel/triangle_wide.h"
 #include "bench/rayfile.h"
 #include "bench/raysets.h"
 #include "math/simd.h"
@@ -353,6 +354,7 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   rep.machine = cpu_model_name();
   rep.kdgrid_isa = kBuildIsa;
   rep.kdgrid_lanes = kTraversalLanes;
+  rep.kdgrid_leaf_lanes = kWideLanes;
   rep.embree = embree_isa();
   rep.hardware_threads = int(std::thread::hardware_concurrency());
   rep.threads = threads;

@@ -146,9 +146,11 @@ struct BenchReport {
   std::string date;     ///< ISO 8601 local time of the start
   std::string machine;  ///< CPU model name (lscpu / /proc/cpuinfo)
   /// SIMD of each side: kdgrid's from the build (math/simd.h: the ISA it targets, the lanes
-  /// of its traversal vectors), Embree's as its library chose it on this CPU (embree_isa()).
+  /// of its traversal vectors; accel/triangle_wide.h: the triangles a hybrid leaf tests at
+  /// once), Embree's as its library chose it on this CPU (embree_isa()).
   std::string kdgrid_isa;
   int kdgrid_lanes = 0;
+  int kdgrid_leaf_lanes = 0;
   EmbreeIsa embree;
   int hardware_threads = 0;
   int threads = 0, reps = 0, width = 0, height = 0;

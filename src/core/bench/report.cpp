@@ -19,10 +19,12 @@ std::string bench_to_json(const BenchReport& r) {
                 {{"kdgrid",
                   {{"isa", r.kdgrid_isa},
                    {"lanes", r.kdgrid_lanes},
+                   {"leaf_lanes", r.kdgrid_leaf_lanes},
                    {"how",
                     "the ISA the build targets (-march=native unless KDGRID_NATIVE=OFF); every "
                     "structure traces one ray at a time, the hybrid's walk in vectors of this "
-                    "many lanes (three axes and padding)"}}},
+                    "many lanes (three axes and padding), its leaves' triangles leaf_lanes at a "
+                    "time"}}},
                  {"embree",
                   {{"version", r.embree.version},
                    {"isa", r.embree.isa},
@@ -168,7 +170,8 @@ std::string structure_label(const StructureFigures& a) {
 
 std::string simd_line(const BenchReport& r) {
   return "SIMD: kdgrid built for " + r.kdgrid_isa + " (one ray at a time, the hybrid's walk in " +
-         std::to_string(r.kdgrid_lanes) + "-lane vectors); Embree " + r.embree.version +
+         std::to_string(r.kdgrid_lanes) + "-lane vectors, its leaves' triangles " +
+         std::to_string(r.kdgrid_leaf_lanes) + " at a time); Embree " + r.embree.version +
          " with its " + r.embree.isa + " kernels (native ray packets of " +
          std::to_string(r.embree.native_packet) +
          "; rtcIntersect1/rtcOccluded1 one ray at a time).";
