@@ -21,6 +21,12 @@ def leaf_lanes_text(k):
     return "one at a time" if n == 1 else "%d at a time" % n
 
 
+def structure_rows(accels, scenes, st, res, name, ref, cell):
+    """One row per structure (the reference marked), one cell per scene: cell(result or None)."""
+    return [[name[a] + (" (reference)" if a == ref else "")] +
+            [cell(res.get((s, a, st))) for s in scenes] for a in accels]
+
+
 def labels(builds):
     """Row labels: the structure's name, and for Embree's configurations the scene flags and
     build quality its builds report (BuildStats::extra)."""
@@ -50,15 +56,12 @@ def packets_section(b, res, scenes, accels, name, ref, setup):
         return ""
     tables = []
     for st in sets:
-        rows = []
-        for a in accels:
-            row = [name[a] + (" (reference)" if a == ref else "")]
-            for s in scenes:
-                p = res.get((s, a, st), {}).get("packet")
-                row.append("%s (%s; x%s; %d)" % (
-                    g(p["ratio_to_reference"]), g(p["mrays"]), g(p["speedup_over_single_loop"]),
-                    p["packet_width"]) if p else "-")
-            rows.append(row)
+        def cell(r):
+            p = (r or {}).get("packet")
+            return "%s (%s; x%s; %d)" % (
+                g(p["ratio_to_reference"]), g(p["mrays"]), g(p["speedup_over_single_loop"]),
+                p["packet_width"]) if p else "-"
+        rows = structure_rows(accels, scenes, st, res, name, ref, cell)
         tables.append(prose("bench", "packets-set", set=st, ref=ref,
                             table=table(["structure"] + scenes, rows)))
     tile = meta.get("packet_tile", 0)
@@ -97,13 +100,8 @@ def bench_section(b, run, md_dir, img_dir):
 
     tables = []
     for st in sets:
-        rows = []
-        for a in accels:
-            row = [name[a] + (" (reference)" if a == ref else "")]
-            for s in scenes:
-                r = res.get((s, a, st))
-                row.append("%s (%s)" % (g(r["ratio_to_reference"]), g(r["mrays"])) if r else "-")
-            rows.append(row)
+        rows = structure_rows(accels, scenes, st, res, name, ref, lambda r: "%s (%s)" % (
+            g(r["ratio_to_reference"]), g(r["mrays"])) if r else "-")
         tables.append(prose("bench", "throughput-set", set=st,
                             table=table(["structure"] + scenes, rows)))
 
