@@ -5,12 +5,12 @@
 # shadow set's any-hit queries) and splits the instructions by the code they come from:
 #   setup    the ray's validation, the clip to the structure's box (kd_begin) and, in the hybrid,
 #            the rest of walk_begin: the grid-space ray, the entry cell and its leaf (start_leaf)
-#   steps    the hybrid's leaf steps: walk and walk_step less their tests, leaf_exit, the
+#   steps    the hybrid's leaf steps: traverse's loop and walk_step less their tests, leaf_exit, the
 #            next-leaf lookup (next_leaf, the cell map) and the step bound
 #   subtree  kd_traverse and kd_clip_x4 (kd_kernel.h): the kd-tree's whole traversal, the
 #            hybrid's walks of leaf subtrees
-#   tests    the triangle test (WatertightTest::intersect) and the loop over a leaf's
-#            references (test_refs; the kd-tree's leaf loop)
+#   tests    the triangle test (WatertightTest::intersect, the wide leaves' WatertightWide) and
+#            the loop over a leaf's groups (test_groups; the kd-tree's leaf loop)
 #   mailbox  the hybrid's per-ray mailbox (tested_before) and the exact walk's set
 #   other    anything else (calls into the C++ runtime; the exact walk's rewalk bookkeeping)
 # Each executed instruction is assigned by its inline chain (addr2line -i over the callgrind
@@ -146,8 +146,8 @@ if ours:
             else:
                 chains[cur][-1][1] = l
             odd = not odd
-rules = [("tests", ("Test::intersect",)), ("mailbox", ("tested_before", "TestedSet")),
-         ("tests", ("test_refs",)), ("subtree", ("kd_traverse", "kd_clip_x4")),
+rules = [("tests", ("Test::intersect", "WatertightWide<")),
+         ("mailbox", ("tested_before", "TestedSet")), ("tests", ("test_groups",)), ("subtree", ("kd_traverse", "kd_clip_x4")),
          ("setup", ("walk_begin", "kd_begin", "start_leaf")),
          ("steps", ("leaf_exit", "exit_through", "next_leaf", "walk_step", "over_step_bound")),
          ("other", ("rewalk",)),
@@ -158,12 +158,12 @@ rules = [("tests", ("Test::intersect",)), ("mailbox", ("tested_before", "TestedS
 # walk_step) is steps, the rest (entry, exit, the answer's copy) set-up. Its loop's lines are
 # read from walk.h: from `for (;;)` to the call of walk_step.
 src = open("src/core/accel/hybrid/walk.h").read().splitlines()
-w0 = next(i for i, l in enumerate(src) if re.search(r"Hybrid::walk\(const Ray", l))
+w0 = next(i for i, l in enumerate(src) if re.search(r"Hybrid::traverse\(const Ray", l))
 loop = (next(i for i in range(w0, len(src)) if "for (;;)" in src[i]) + 1,
         next(i for i in range(w0, len(src)) if "walk_step<" in src[i]) + 1)
 def kind(chain):
     for f, loc in chain:
-        if re.search(r"Hybrid::walk<", f):
+        if re.search(r"Hybrid::traverse<", f):
             m = re.search(r"walk\.h:(\d+)", loc)
             return "steps" if m and loop[0] <= int(m.group(1)) <= loop[1] else "setup"
         for k, names in rules:
