@@ -76,7 +76,7 @@ struct BuildParams {
   /// kd-tree's builder over the leaf's triangles (split planes anywhere inside the leaf, the
   /// kd_* costs, at most GridKdHybrid::kSubMaxDepth levels), walked by the kd-tree's traversal over
   /// the ray's segment in the leaf. A cell is then not a triangle wide (the auto rule caps the
-  /// grid at 2^19 cells), so a plain leaf would test tens of triangles a ray mostly misses.
+  /// grid at 2^16 cells), so a plain leaf would test tens of triangles a ray mostly misses.
   /// 0 = the paper's plain leaves (`scripts/hybrid-variants.sh` measures both).
   uint32_t hybrid_subtree_min = 4;
   /// Empty-leaf boxes (an extension of the paper): the walk steps over each empty leaf's box

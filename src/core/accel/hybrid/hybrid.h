@@ -59,9 +59,10 @@ constexpr double kHybridAutoCellsPerTriangle = 16.0;
 /// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
 constexpr int64_t kHybridAutoMaxAxisCells = 2048;
 /// Auto rule cap on the total cell count with leaf subtrees: the subtrees resolve the geometry,
-/// and a small grid keeps lookups in the caches and references few (docs/HYBRID.md, "The cell
-/// size").
-constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 19);
+/// and a small grid keeps lookups in the caches and references few. With wide leaves 2^16 cells
+/// made every suite scene 25-37% smaller than 2^19 and its shadow and diffuse rays faster, at 8%
+/// of Sponza's primary rays (docs/HYBRID.md, "The cell size").
+constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 16);
 /// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
 /// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
 constexpr double kHybridAutoMaxCellsPlain = double(uint64_t(1) << 24);
@@ -108,9 +109,10 @@ struct HybridEstimate {
 /// builds shared it, so on the slow side: the bunny's matrix took 10-11 us a brick at 3.4x and
 /// 6.7x finer cells than auto (174K and 716K bricks, 4.4 and 4.5 bricks per (4-cell)^2 of
 /// area); the tree took 16 (Sponza) and 26 (the dragon) us a triangle at the auto size, and
-/// 220-580 bytes a triangle (the bunny, auto to 18x finer).
+/// 110-150 bytes a triangle at the auto size and 216-312 at 18x finer cells (the bunny,
+/// dragon-200k, Sponza; matrix excluded).
 constexpr double kHybridBricksPerArea = 4.5;         ///< bricks per (4-cell)^2 of triangle area
-constexpr double kHybridBytesPerTriangle = 600;      ///< tree, leaves, subtrees, references
+constexpr double kHybridBytesPerTriangle = 300;      ///< tree, leaves, subtrees, references
 constexpr double kHybridSecondsPerBrick = 10e-6;     ///< matrix construction, one thread
 constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
 constexpr double kHybridSecondsPerBinOp = 1e-9;      ///< one per-cell binning entry
@@ -136,9 +138,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   static constexpr int kSubMaxDepth = 6;
   /// A leaf with more references than this gets the kd-tree's whole depth rule (8 + 1.3
   /// log2 n) instead of kSubMaxDepth levels: 64 leaves of 16 triangles or more would be
-  /// tested in bulk. Only a grid much coarser than the auto rule's makes such leaves (the auto
-  /// grid's largest leaves hold 22, 310 and 187 references on the bunny, the dragon and Sponza);
-  /// with one cell the whole scene is one leaf, whose subtree is then the kd-tree itself.
+  /// tested in bulk. Few leaves of the auto grid are so large (its largest hold 48, 1147 and 470
+  /// references on the bunny, the dragon and Sponza); with one cell the whole scene is one leaf,
+  /// whose subtree is then the kd-tree itself.
   static constexpr uint32_t kSubDeepMin = 1024;
   /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
   /// referenced on both sides and no rounding (1e-12 cells in double) can lose a triangle.
