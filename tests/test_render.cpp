@@ -132,14 +132,36 @@ class PacketCounter final : public Accelerator {
     max_packet = std::max(max_packet.load(), n);
     inner_.intersect_packet(rays, n, hits, found);
   }
+  void occluded_packet(const Ray* rays, int n, bool* occluded_out) const override {
+    shadow_packets += 1;
+    shadow_packet_rays += n;
+    max_shadow_packet = std::max(max_shadow_packet.load(), n);
+    inner_.occluded_packet(rays, n, occluded_out);
+  }
   mutable std::atomic<int> packets{0}, packet_rays{0}, max_packet{0};
+  mutable std::atomic<int> shadow_packets{0}, shadow_packet_rays{0}, max_shadow_packet{0};
 
  private:
   const Accelerator& inner_;
 };
 
 TEST(Renderer, PacketRenderIsBitwiseTheSingleRayRender) {
-  const Scene scene = cornell_scene();
+  Scene scene = cornell_scene();
+  // Six lights of every kind, so that a hit's shadow rays are several and their order in the
+  // sum matters: a packet render that dropped, added or reordered one would differ.
+  const Vec3 lo = scene.mesh.bounds().lo, hi = scene.mesh.bounds().hi;
+  const Vec3 mid = (lo + hi) * 0.5f, ext = hi - lo;
+  for (int k = 0; k < 5; ++k) {
+    Light l;
+    l.type = k < 3 ? LightType::Point : k == 3 ? LightType::Spot : LightType::Directional;
+    l.position = mid + Vec3(ext.x * (0.1f * float(k) - 0.2f), ext.y * 0.3f, ext.z * 0.1f);
+    l.direction = normalize(Vec3(0.2f * float(k) - 0.3f, -1.0f, 0.1f));
+    l.color = Vec3(0.3f + 0.1f * float(k), 0.5f, 0.9f - 0.1f * float(k));
+    l.intensity = k == 4 ? 0.5f : 0.4f * float(ext.y * ext.y);
+    l.outer_cone = 0.6f;
+    scene.lights.push_back(l);
+  }
+  ASSERT_EQ(scene.lights.size(), 6u);
   RenderSettings rs;
   rs.width = 83;  // tiles cut at the edges; 70-pixel tiles are wider than a packet
   rs.height = 37;
@@ -147,17 +169,31 @@ TEST(Renderer, PacketRenderIsBitwiseTheSingleRayRender) {
     const auto accel = build_accelerator(name, scene.mesh, {});
     for (const int tile : {16, 8, 5, 70}) {
       rs.tile_size = tile;
+      // Without reflection and refraction rays every shadow ray is a primary hit's.
+      rs.max_depth = tile == 8 ? 0 : 5;
       rs.packets = false;
       PacketCounter single(*accel);
-      const std::vector<float> a = render(scene, single, rs, 2);
+      RenderCounters single_counts, packed_counts;
+      const std::vector<float> a = render(scene, single, rs, 2, &single_counts);
       EXPECT_EQ(single.packets.load(), 0);
+      EXPECT_EQ(single.shadow_packets.load(), 0);
       rs.packets = true;
       PacketCounter packed(*accel);
-      const std::vector<float> b = render(scene, packed, rs, 2);
+      const std::vector<float> b = render(scene, packed, rs, 2, &packed_counts);
       // Every primary ray went through a packet of at most kRenderPacket rays.
       EXPECT_EQ(packed.packet_rays.load(), 2 * rs.width * rs.height) << name << " tile " << tile;
       EXPECT_LE(packed.max_packet.load(), kRenderPacket);
       EXPECT_GT(packed.max_packet.load(), tile >= 8 ? 32 : 24) << name << " tile " << tile;
+      // Every shadow ray of a primary hit went through a packet; those of reflection and
+      // refraction hits are traced one at a time.
+      EXPECT_EQ(packed_counts.shadow, single_counts.shadow) << name << " tile " << tile;
+      EXPECT_GT(packed.shadow_packet_rays.load(), 2 * rs.width * rs.height);
+      if (rs.max_depth == 0)
+        EXPECT_EQ(uint64_t(packed.shadow_packet_rays.load()), single_counts.shadow) << name;
+      else
+        EXPECT_LT(uint64_t(packed.shadow_packet_rays.load()), single_counts.shadow) << name;
+      EXPECT_LE(packed.max_shadow_packet.load(), kShadowPacket);
+      EXPECT_GT(packed.max_shadow_packet.load(), tile >= 8 ? 64 : 24) << name << " tile " << tile;
       ASSERT_EQ(a.size(), b.size());
       EXPECT_EQ(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)), 0)
           << name << ", tiles of " << tile << ": the packet render differs from the single-ray one";

@@ -249,8 +249,8 @@ void add_render_command(CLI::App& app) {
                   "Render traversal cost of primary rays instead: steps or tests (PNG: colour "
                   "ramp scaled to the maximum; EXR: raw counts)");
   cmd->add_flag("--no-packets", a->no_packets,
-                "Trace primary rays one at a time instead of in packets of a tile's rays "
-                "(the same image; for timing the packet queries)");
+                "Trace primary rays and their shadow rays one at a time instead of in "
+                "packets of a tile's rays (the same image; for timing the packet queries)");
   cmd->add_option("--stats-json", a->stats_json,
                   "Also write build/render figures and process memory by phase (peak RSS of "
                   "the load and of the build) as JSON here");

@@ -178,11 +178,6 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
       }
     return;
   }
-  auto shaded = [&](const Ray& ray, bool found, const Hit& hit) {
-    uint32_t budget = kMaxSecondaryRaysPerSample;
-    const Vec3 value = shade_hit(ray, found, hit, 0, Vec3(1.0f), budget, c);
-    return is_finite(value) ? value : Vec3(0.0f);  // never let one bad sample poison the film
-  };
   if (!settings_.packets) {
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
@@ -190,7 +185,10 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
         const Ray ray = camera_ray(x, y);
         Hit hit;
         const bool found = accel_->intersect(ray, hit);
-        store(x, y, shaded(ray, found, hit));
+        uint32_t budget = kMaxSecondaryRaysPerSample;
+        const Vec3 value = shade_hit(ray, found, hit, 0, Vec3(1.0f), budget, c);
+        // Never let one bad sample poison the film.
+        store(x, y, is_finite(value) ? value : Vec3(0.0f));
       }
     return;
   }
@@ -201,6 +199,7 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
   Ray rays[kRenderPacket];
   Hit hits[kRenderPacket];
   bool found[kRenderPacket];
+  Vec3 values[kRenderPacket];
   for (int py = y0; py < y1; py += rows) {
     const int py1 = std::min(py + rows, y1);
     // A tile wider than a packet is cut along its rows as well.
@@ -210,12 +209,12 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
       for (int y = py; y < py1; ++y)
         for (int x = px; x < px1; ++x) rays[n++] = camera_ray(x, y);
       accel_->intersect_packet(rays, n, hits, found);
+      shade_packet(rays, hits, found, n, values, c);
+      c.primary += uint64_t(n);
       n = 0;
       for (int y = py; y < py1; ++y)
-        for (int x = px; x < px1; ++x, ++n) {
-          ++c.primary;
-          store(x, y, shaded(rays[n], found[n], hits[n]));
-        }
+        for (int x = px; x < px1; ++x, ++n)
+          store(x, y, is_finite(values[n]) ? values[n] : Vec3(0.0f));
     }
   }
 }
@@ -242,32 +241,100 @@ Vec3 Renderer::shade_hit(const Ray& ray, bool found, const Hit& hit, int depth,
                          const Vec3& path_weight, uint32_t& budget,
                          RenderCounters& counters) const {
   if (!found) return scene_->background;
+  const Surface s = surface_at(ray, hit);
+  Vec3 result = unlit(s);
+  for (const Light& light : scene_->lights) {
+    LightTerm t;
+    if (!light_term(s, light, t)) continue;
+    if (settings_.shadows) {
+      ++counters.shadow;
+      if (accel_->occluded(shadow_ray(s, light, t))) continue;
+    }
+    add_light(s, t, result);
+  }
+  return finish_hit(s, result, depth, path_weight, budget, counters);
+}
 
+void Renderer::shade_packet(const Ray* rays, const Hit* hits, const bool* found, int n, Vec3* out,
+                            RenderCounters& counters) const {
+  // One entry per (hit, light) whose light can reach the hit, in the order shade_hit meets
+  // them: hit by hit, each hit's lights in the scene's order. Per thread, reused.
+  struct Lit {
+    int hit;
+    uint32_t light;
+    LightTerm term;
+    bool blocked;
+  };
+  thread_local std::vector<Surface> surfaces;
+  thread_local std::vector<Lit> lit;
+  surfaces.resize(size_t(n));
+  lit.clear();
+  const auto& lights = scene_->lights;
+  for (int i = 0; i < n; ++i) {
+    if (!found[i]) continue;
+    surfaces[size_t(i)] = surface_at(rays[i], hits[i]);
+    for (uint32_t l = 0; l < lights.size(); ++l) {
+      LightTerm t;
+      if (light_term(surfaces[size_t(i)], lights[l], t)) lit.push_back({i, l, t, false});
+    }
+  }
+  if (settings_.shadows) {
+    Ray shadow[kShadowPacket];
+    bool blocked[kShadowPacket];
+    for (size_t k0 = 0; k0 < lit.size(); k0 += kShadowPacket) {
+      const int m = int(std::min<size_t>(kShadowPacket, lit.size() - k0));
+      for (int k = 0; k < m; ++k) {
+        const Lit& e = lit[k0 + size_t(k)];
+        shadow[k] = shadow_ray(surfaces[size_t(e.hit)], lights[e.light], e.term);
+      }
+      accel_->occluded_packet(shadow, m, blocked);
+      for (int k = 0; k < m; ++k) lit[k0 + size_t(k)].blocked = blocked[k];
+    }
+    counters.shadow += lit.size();
+  }
+  size_t next = 0;
+  for (int i = 0; i < n; ++i) {
+    if (!found[i]) {
+      out[i] = scene_->background;
+      continue;
+    }
+    const Surface& s = surfaces[size_t(i)];
+    Vec3 result = unlit(s);
+    for (; next < lit.size() && lit[next].hit == i; ++next)
+      if (!lit[next].blocked) add_light(s, lit[next].term, result);
+    uint32_t budget = kMaxSecondaryRaysPerSample;
+    out[i] = finish_hit(s, result, 0, Vec3(1.0f), budget, counters);
+  }
+}
+
+Renderer::Surface Renderer::surface_at(const Ray& ray, const Hit& hit) const {
+  Surface s;
   const Mesh& mesh = scene_->mesh;
   const auto& tri = mesh.triangles[hit.prim];
   const auto c = mesh.corners(hit.prim);
   const float b0 = 1.0f - hit.u - hit.v, b1 = hit.u, b2 = hit.v;
   // The hit point from barycentrics is accurate relative to the triangle's coordinates
   // (what offset_ray_origin assumes), unlike org + t*dir.
-  const Vec3 p = c[0] * b0 + c[1] * b1 + c[2] * b2;
-  const Vec3 d = normalize(ray.dir);
+  s.p = c[0] * b0 + c[1] * b1 + c[2] * b2;
+  s.d = normalize(ray.dir);
 
-  Vec3 ng = normalize(mesh.geometric_normal(hit.prim));
-  const bool front = dot(ng, d) < 0.0f;  // entering a closed object through its outside
-  if (!front) ng = -ng;                  // ng now faces the incoming ray
-  Vec3 n = ng;
+  s.ng = normalize(mesh.geometric_normal(hit.prim));
+  s.front = dot(s.ng, s.d) < 0.0f;  // entering a closed object through its outside
+  if (!s.front) s.ng = -s.ng;       // ng now faces the incoming ray
+  s.n = s.ng;
   if (!mesh.normals.empty()) {
     const Vec3 ns =
         mesh.normals[tri[0]] * b0 + mesh.normals[tri[1]] * b1 + mesh.normals[tri[2]] * b2;
     if (dot(ns, ns) > 0.0f && is_finite(ns)) {
-      n = normalize(ns);
-      if (dot(n, ng) < 0.0f) n = -n;
+      s.n = normalize(ns);
+      if (dot(s.n, s.ng) < 0.0f) s.n = -s.n;
     }
   }
 
   const uint32_t mat_id = mesh.material_of(hit.prim);
-  const Material& m = scene_->materials[mat_id < scene_->materials.size() ? mat_id : 0];
-  Vec3 albedo = m.base_color;
+  s.m = &scene_->materials[mat_id < scene_->materials.size() ? mat_id : 0];
+  const Material& m = *s.m;
+  s.albedo = m.base_color;
   if (m.base_color_texture >= 0 && size_t(m.base_color_texture) < scene_->textures.size() &&
       !mesh.uvs.empty()) {
     const auto& uv0 = mesh.uvs[tri[0]];
@@ -275,62 +342,72 @@ Vec3 Renderer::shade_hit(const Ray& ray, bool found, const Hit& hit, int depth,
     const auto& uv2 = mesh.uvs[tri[2]];
     const float tu = uv0[0] * b0 + uv1[0] * b1 + uv2[0] * b2;
     const float tv = uv0[1] * b0 + uv1[1] * b1 + uv2[1] * b2;
-    albedo = albedo * scene_->textures[size_t(m.base_color_texture)].sample(tu, tv);
+    s.albedo = s.albedo * scene_->textures[size_t(m.base_color_texture)].sample(tu, tv);
   }
 
-  const float transmission = need_refraction_ ? saturate(m.transmission) : 0.0f;
-  const Vec3 diffuse = albedo * ((1.0f - saturate(m.metallic)) * (1.0f - transmission));
-  const Vec3 spec = specular_color(m, albedo);
-  const float exponent = highlight_exponent(m);
-  const Vec3 to_eye = -d;
+  s.transmission = need_refraction_ ? saturate(m.transmission) : 0.0f;
+  s.diffuse = s.albedo * ((1.0f - saturate(m.metallic)) * (1.0f - s.transmission));
+  s.spec = specular_color(m, s.albedo);
+  s.exponent = highlight_exponent(m);
+  s.shadow_org = offset_ray_origin(s.p, s.ng);
+  return s;
+}
 
-  Vec3 result = m.emission + diffuse * kAmbient;
-  const Vec3 shadow_org = offset_ray_origin(p, ng);
+Vec3 Renderer::unlit(const Surface& s) {
+  return s.m->emission + s.diffuse * kAmbient;
+}
 
-  for (const Light& light : scene_->lights) {
-    Vec3 wi;
-    float dist = kInf;
-    Vec3 irradiance = light.color * light.intensity;  // at normal incidence
-    if (light.type == LightType::Directional) {
-      wi = -normalize(light.direction);
-    } else {
-      const Vec3 to_light = light.position - p;
-      const float d2 = dot(to_light, to_light);
-      if (!(d2 > 0.0f)) continue;
-      dist = std::sqrt(d2);
-      wi = to_light / dist;
-      irradiance = irradiance / d2;
-      if (light.type == LightType::Spot) {
-        // glTF KHR_lights_punctual: smooth falloff between the inner and outer cone.
-        const float cos_outer = std::cos(light.outer_cone), cos_inner = std::cos(light.inner_cone);
-        const float scale = 1.0f / std::max(1e-3f, cos_inner - cos_outer);
-        const float cd = dot(normalize(light.direction), -wi);
-        const float a = saturate((cd - cos_outer) * scale);
-        if (a <= 0.0f) continue;
-        irradiance = irradiance * (a * a);
-      }
+bool Renderer::light_term(const Surface& s, const Light& light, LightTerm& t) const {
+  t.irradiance = light.color * light.intensity;  // at normal incidence
+  if (light.type == LightType::Directional) {
+    t.wi = -normalize(light.direction);
+  } else {
+    const Vec3 to_light = light.position - s.p;
+    const float d2 = dot(to_light, to_light);
+    if (!(d2 > 0.0f)) return false;
+    const float dist = std::sqrt(d2);
+    t.wi = to_light / dist;
+    t.irradiance = t.irradiance / d2;
+    if (light.type == LightType::Spot) {
+      // glTF KHR_lights_punctual: smooth falloff between the inner and outer cone.
+      const float cos_outer = std::cos(light.outer_cone), cos_inner = std::cos(light.inner_cone);
+      const float scale = 1.0f / std::max(1e-3f, cos_inner - cos_outer);
+      const float cd = dot(normalize(light.direction), -t.wi);
+      const float a = saturate((cd - cos_outer) * scale);
+      if (a <= 0.0f) return false;
+      t.irradiance = t.irradiance * (a * a);
     }
-    // Lights behind the geometric surface cannot reach it, whatever the shading normal says.
-    if (dot(wi, ng) <= 0.0f) continue;
-    const float cos_l = dot(n, wi);
-    if (cos_l <= 0.0f) continue;
-    if (settings_.shadows) {
-      ++counters.shadow;
-      Ray shadow{shadow_org, 0.0f, wi, kInf};
-      if (light.type != LightType::Directional) {
-        // Aim at the light itself and stop just short of it.
-        shadow.dir = light.position - shadow_org;
-        shadow.tmax = 1.0f - 1e-4f;
-      }
-      if (accel_->occluded(shadow)) continue;
-    }
-    const Vec3 half = normalize(wi + to_eye);
-    const float cos_h = std::max(0.0f, dot(n, half));
-    // Energy-normalised Blinn-Phong lobe so that the exponent changes shape, not brightness.
-    const float lobe = (exponent + 8.0f) / (8.0f * kPi) * std::pow(cos_h, exponent);
-    result += (diffuse * (1.0f / kPi) + spec * lobe) * irradiance * cos_l;
   }
+  // Lights behind the geometric surface cannot reach it, whatever the shading normal says.
+  if (dot(t.wi, s.ng) <= 0.0f) return false;
+  t.cos_l = dot(s.n, t.wi);
+  return t.cos_l > 0.0f;
+}
 
+Ray Renderer::shadow_ray(const Surface& s, const Light& light, const LightTerm& t) {
+  Ray shadow{s.shadow_org, 0.0f, t.wi, kInf};
+  if (light.type != LightType::Directional) {
+    // Aim at the light itself and stop just short of it.
+    shadow.dir = light.position - s.shadow_org;
+    shadow.tmax = 1.0f - 1e-4f;
+  }
+  return shadow;
+}
+
+void Renderer::add_light(const Surface& s, const LightTerm& t, Vec3& result) {
+  const Vec3 half = normalize(t.wi - s.d);  // -d: towards the eye
+  const float cos_h = std::max(0.0f, dot(s.n, half));
+  // Energy-normalised Blinn-Phong lobe so that the exponent changes shape, not brightness.
+  const float lobe = (s.exponent + 8.0f) / (8.0f * kPi) * std::pow(cos_h, s.exponent);
+  result += (s.diffuse * (1.0f / kPi) + s.spec * lobe) * t.irradiance * t.cos_l;
+}
+
+Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& path_weight,
+                          uint32_t& budget, RenderCounters& counters) const {
+  const Material& m = *s.m;
+  const Vec3 &p = s.p, &d = s.d, &n = s.n, &ng = s.ng, &albedo = s.albedo;
+  const bool front = s.front;
+  const float transmission = s.transmission;
   if (depth >= settings_.max_depth) return result;
   // Traces one secondary ray of weight `w` if its path still matters and the budget allows.
   auto secondary = [&](const Vec3& w, const Ray& next, uint64_t& kind) {

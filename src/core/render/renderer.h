@@ -39,6 +39,10 @@ constexpr uint32_t kMaxSecondaryRaysPerSample = 1024;
 /// `kdgrid bench` measures packets with (docs/HYBRID.md, "Packets").
 constexpr int kRenderPacket = 64;
 
+/// Most shadow rays of one occluded_packet call: the shadow rays of a packet's primary hits
+/// (one per hit and light that can reach it) are traced in packets of this many.
+constexpr int kShadowPacket = 256;
+
 struct RenderSettings {
   int width = 640;      ///< pixels, >= 1
   int height = 480;     ///< pixels, >= 1
@@ -48,8 +52,9 @@ struct RenderSettings {
   bool shadows = true;  ///< trace shadow rays to lights
   bool jitter = true;   ///< jitter samples inside the pixel (false: pixel centres)
   /// Trace each tile's primary rays together through Accelerator::intersect_packet, in packets
-  /// of up to kRenderPacket rays (rows of the tile), instead of one intersect() per pixel. The
-  /// packet answers are bitwise the single-ray ones, so the image is the same (with Embree, up
+  /// of up to kRenderPacket rays (rows of the tile), instead of one intersect() per pixel, and
+  /// their hits' shadow rays together through occluded_packet. The packet answers are bitwise
+  /// the single-ray ones, so the image is the same (with Embree, up
   /// to a pixel whose ray hits two triangles at exactly the same t or, with its default flags,
   /// grazes a shared edge: its packet kernels may pick the other triangle). On by default: Embree's
   /// packets trace primary rays 1.5-3.8x as fast as its single rays, and the other structures'
@@ -104,6 +109,38 @@ class Renderer {
   /// shade() once the ray's closest hit is known (`found`, `hit` as intersect() gives them).
   Vec3 shade_hit(const Ray& ray, bool found, const Hit& hit, int depth, const Vec3& path_weight,
                  uint32_t& budget, RenderCounters& counters) const;
+
+  /// What shading needs of the surface a ray hit: its point, normals and material terms.
+  struct Surface {
+    const Material* m;
+    Vec3 p, d, ng, n;  ///< hit point, unit ray direction, geometric and shading normals
+    Vec3 albedo, diffuse, spec, shadow_org;
+    float exponent, transmission;
+    bool front;  ///< the ray entered through the outside (ng was not flipped)
+  };
+  /// The light one light sends to a surface point if nothing is in its way.
+  struct LightTerm {
+    Vec3 wi, irradiance;
+    float cos_l;
+  };
+  Surface surface_at(const Ray& ray, const Hit& hit) const;
+  /// False when `light` cannot light `s` whatever lies between them (behind the surface,
+  /// outside a spot's cone, at the point itself).
+  bool light_term(const Surface& s, const Light& light, LightTerm& t) const;
+  /// The shadow ray that decides whether `light` reaches `s`.
+  static Ray shadow_ray(const Surface& s, const Light& light, const LightTerm& t);
+  /// The light's reflected radiance, added to `result`.
+  static void add_light(const Surface& s, const LightTerm& t, Vec3& result);
+  /// Emission and ambient light: the start of a surface's radiance, before its lights.
+  static Vec3 unlit(const Surface& s);
+  /// The surface's reflection and refraction rays, traced and added to `result` (its lights
+  /// already in it); returns the radiance.
+  Vec3 finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& path_weight,
+                  uint32_t& budget, RenderCounters& counters) const;
+  /// The shaded radiance of n primary rays of one packet (their hits as intersect_packet gave
+  /// them), their shadow rays traced through occluded_packet; bitwise shade_hit's answers.
+  void shade_packet(const Ray* rays, const Hit* hits, const bool* found, int n, Vec3* out,
+                    RenderCounters& counters) const;
   /// One tile of a pass (x0..x1, y0..y1): its samples added to `film` (the pass's scratch).
   void render_tile(int x0, int y0, int x1, int y1, uint64_t sample, float* film,
                    RenderCounters& c) const;
