@@ -11,3 +11,17 @@ cmake --preset callgrind >/dev/null
 cmake --build build/callgrind --target kdgrid -j "${KDGRID_JOBS:-$(nproc)}" >&2
 # shellcheck disable=SC2034  # read by the caller
 kdgrid="$(pwd)/build/callgrind/src/cli/kdgrid"
+# Highway (libhwy, loaded with OpenImageIO's image codecs) times the CPU's counter with RDTSCP
+# while the library loads; valgrind 3.19 cannot run that instruction on a CPU whose flags do not
+# list rdtscp, and stops the process before main ("unhandled instruction bytes: 0xF 0x1 0xF9").
+# Where that happens, a one-function library preloaded in front of Highway's timer calibration
+# keeps the instruction from running (kdgrid never uses Highway's timers).
+if ! (valgrind --tool=none -q "$kdgrid" --help; exit $?) >/dev/null 2>&1; then
+  shim="$(pwd)/build/callgrind/hwy-timer-shim.so"
+  echo 'namespace hwy { namespace platform { unsigned long long TimerResolution() { return 1; } } }' |
+    c++ -x c++ -shared -fPIC -O2 -o "$shim" -
+  export LD_PRELOAD="$shim${LD_PRELOAD:+:$LD_PRELOAD}"
+  (valgrind --tool=none -q "$kdgrid" --help; exit $?) >/dev/null 2>&1 ||
+    { echo "$me: valgrind cannot run $kdgrid here (valgrind --tool=none $kdgrid --help shows why)" >&2; exit 1; }
+  echo "$me: preloading $shim: valgrind cannot run Highway's RDTSCP on this CPU" >&2
+fi
