@@ -1,5 +1,7 @@
-// Progressive tiled Whitted renderer (renderer.h). Shading lives in radiance(); passes and
-// tiles in render_pass().
+// Progressive tiled Whitted renderer (renderer.h). Passes and tiles live in render_pass() and
+// render_tile(); shading in shade_hit() (one ray) and shade_packet() (a packet's primary hits,
+// their shadow rays traced together), both built from surface_at, light_term, shadow_ray,
+// add_light and finish_hit so that the two add the same terms in the same order.
 #include "render/renderer.h"
 
 #include <tbb/blocked_range.h>

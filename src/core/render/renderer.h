@@ -53,12 +53,12 @@ struct RenderSettings {
   bool jitter = true;   ///< jitter samples inside the pixel (false: pixel centres)
   /// Trace each tile's primary rays together through Accelerator::intersect_packet, in packets
   /// of up to kRenderPacket rays (rows of the tile), instead of one intersect() per pixel, and
-  /// their hits' shadow rays together through occluded_packet. The packet answers are bitwise
-  /// the single-ray ones, so the image is the same (with Embree, up
-  /// to a pixel whose ray hits two triangles at exactly the same t or, with its default flags,
-  /// grazes a shared edge: its packet kernels may pick the other triangle). On by default: Embree's
-  /// packets trace primary rays 1.5-3.8x as fast as its single rays, and the other structures'
-  /// packet queries loop over their single rays (docs/HYBRID.md, "Packets").
+  /// their hits' shadow rays together through occluded_packet, up to kShadowPacket at a time.
+  /// The packet answers are bitwise the single-ray ones, so the image is the same (with Embree,
+  /// up to a pixel whose ray hits two triangles at exactly the same t or, with its default
+  /// flags, grazes a shared edge: its packet kernels may pick the other triangle). On by
+  /// default: Embree's packets trace primary rays 1.5-3.8x as fast as its single rays, and the
+  /// other structures' packet queries loop over their single rays (docs/HYBRID.md, "Packets").
   bool packets = true;
   RenderMode mode = RenderMode::Shaded;
 };
