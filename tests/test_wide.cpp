@@ -171,9 +171,13 @@ TEST(WideTriangle, FourLanesMatchScalarBitForBit) {
   check_lanes_match_scalar<4>();
 }
 
-#if defined(__AVX__)
 TEST(WideTriangle, EightLanesMatchScalarBitForBit) {
   check_lanes_match_scalar<8>();
+}
+
+#if defined(__AVX512F__)
+TEST(WideTriangle, SixteenLanesMatchScalarBitForBit) {
+  check_lanes_match_scalar<16>();
 }
 #endif
 

@@ -14,16 +14,28 @@
 
 namespace kdgrid {
 
-/// Triangles per group in the leaves that store them so (the hybrid's): 8 where the build targets
-/// AVX (eight float lanes), 4 with SSE, 1 elsewhere, where leaves are tested one triangle at a
-/// time by the scalar test.
+/// Triangles per group in the leaves that store them so (the hybrid's): 16 where the build targets
+/// AVX-512 (sixteen float lanes), 8 with AVX, 4 with SSE, 1 elsewhere, where leaves are tested one
+/// triangle at a time by the scalar test. The build option KDGRID_WIDE_LANES sets it (1, 4, 8 or
+/// 16) to compare widths on one CPU (docs/HYBRID.md, "Wide leaves").
 inline constexpr int kWideLanes =
-#if defined(__AVX__)
+#if defined(KDGRID_WIDE_LANES)
+    KDGRID_WIDE_LANES;
+#elif defined(__AVX512F__)
+    16;
+#elif defined(__AVX__)
     8;
 #elif defined(__SSE2__)
     4;
 #else
     1;
+#endif
+static_assert(kWideLanes == 1 || kWideLanes == 4 || kWideLanes == 8 || kWideLanes == 16,
+              "KDGRID_WIDE_LANES: 1, 4, 8 or 16");
+#if !defined(__AVX512F__)
+// Without AVX-512 a 16-lane vector is two 256-bit halves passed through memory: groups of 16 ran
+// at 0.3-0.4 of Embree where groups of 8 ran at 0.5-1.4 (docs/HYBRID.md, "Wide leaves").
+static_assert(kWideLanes != 16, "KDGRID_WIDE_LANES=16 needs a build for AVX-512");
 #endif
 
 /// WatertightTest under another name: a structure whose leaves WatertightWide tests runs this one
@@ -58,8 +70,15 @@ struct WideVectors<8> {
   using F = float __attribute__((vector_size(32)));
   using I = int32_t __attribute__((vector_size(32)));
 };
+#if defined(__AVX512F__)
+template <>
+struct WideVectors<16> {
+  using F = float __attribute__((vector_size(64)));
+  using I = int32_t __attribute__((vector_size(64)));
+};
+#endif
 
-/// WatertightTest on W lanes (W = 4 or 8; see the file's comment).
+/// WatertightTest on W lanes (W = 4, 8, or 16 with AVX-512; see the file's comment).
 template <int W>
 struct WatertightWide {
   using F = typename WideVectors<W>::F;
@@ -74,6 +93,14 @@ struct WatertightWide {
   [[gnu::always_inline]] static uint32_t bits(I m) {
 #if defined(__AVX__)
     if constexpr (W == 8) return uint32_t(__builtin_ia32_movmskps256((F)m));
+    if constexpr (W == 16) {
+      using F8 = WideVectors<8>::F;
+      F8 lo, hi;
+      std::memcpy(&lo, &m, sizeof lo);
+      std::memcpy(&hi, reinterpret_cast<const char*>(&m) + sizeof lo, sizeof hi);
+      const uint32_t low = uint32_t(__builtin_ia32_movmskps256(lo));
+      return low | uint32_t(__builtin_ia32_movmskps256(hi)) << 8;
+    }
 #endif
 #if defined(__SSE__)
     if constexpr (W == 4) return uint32_t(__builtin_ia32_movmskps((F)m));
