@@ -171,9 +171,11 @@ TEST(WideTriangle, FourLanesMatchScalarBitForBit) {
   check_lanes_match_scalar<4>();
 }
 
+#if defined(__AVX__)
 TEST(WideTriangle, EightLanesMatchScalarBitForBit) {
   check_lanes_match_scalar<8>();
 }
+#endif
 
 #if defined(__AVX512F__)
 TEST(WideTriangle, SixteenLanesMatchScalarBitForBit) {
@@ -225,6 +227,29 @@ int wide_scalar_differences(const GridKdHybrid& h, const std::vector<Ray>& rays,
                     << hs.t << " any " << as;
   }
   return bad;
+}
+
+// The group width follows the build's target (16 lanes with AVX-512, 8 with AVX, 4 with SSE)
+// unless KDGRID_WIDE_LANES sets it, and the hybrid builds its leaves in groups of that width.
+TEST(WideLeaves, GroupWidthFollowsTheTargetAndTheBuildUsesIt) {
+#if defined(KDGRID_WIDE_LANES)
+  EXPECT_EQ(kWideLanes, KDGRID_WIDE_LANES);
+#elif defined(__AVX512F__)
+  EXPECT_EQ(kWideLanes, 16);
+#elif defined(__AVX__)
+  EXPECT_EQ(kWideLanes, 8);
+#elif defined(__SSE2__)
+  EXPECT_EQ(kWideLanes, 4);
+#endif
+  if (kWideLanes == 1) GTEST_SKIP() << "this build's groups have one lane";
+  const auto meshes = test::test_meshes();
+  GridKdHybrid h;
+  const BuildStats st = h.build(meshes.front().mesh, BuildParams{});
+  std::string groups;
+  for (const auto& [key, value] : st.extra)
+    if (key == "triangle groups") groups = value;
+  EXPECT_NE(groups.find(" groups of " + std::to_string(kWideLanes) + " lanes "), std::string::npos)
+      << groups;
 }
 
 TEST(WideLeaves, HybridHitsMatchScalarBitForBit) {
