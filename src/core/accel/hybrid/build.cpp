@@ -177,7 +177,6 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaf_depth_.clear();
   sub_nodes_.clear();
   groups_.clear();
-  prim_of_.clear();
   map_.reset(params.hybrid_dense_matrix);
   step_errors_.store(0);
   {
@@ -273,33 +272,19 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     std::vector<uint32_t> lanes;
     build_tree(mesh, params, lanes, references);
     check_cancel(params.cancel);
-    // Local triangle ids in first-reference order (leaves are numbered depth-first).
-    {
-      std::vector<uint32_t> local_of(ntri, kInvalidPrim);
-      prim_of_.clear();
-      prim_of_.reserve(ntri);
-      for (uint32_t& r : lanes) {
-        uint32_t& l = local_of[r];
-        if (l == kInvalidPrim) {
-          l = uint32_t(prim_of_.size());
-          prim_of_.push_back(r);
-        }
-        r = l;
-      }
-    }
     groups_.resize(lanes.size() / kWideLanes);
     tbb::parallel_for(size_t(0), groups_.size(), [&](size_t g) {
       for (int i = 0; i < kWideLanes; ++i) {
-        const uint32_t local = lanes[g * kWideLanes + size_t(i)];
-        const auto c = mesh.corners(prim_of_[local]);
+        const uint32_t prim = lanes[g * kWideLanes + size_t(i)];
+        const auto c = mesh.corners(prim);
         groups_[g].tri.set(i, c[0], c[1], c[2]);
-        groups_[g].local[i] = local;
+        groups_[g].prim[i] = prim;
       }
     });
     std::vector<uint32_t>().swap(lanes);
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
-             leaf_depth_.size() + groups_.size() * sizeof(TriGroup) + prim_of_.size() * 4;
+             leaf_depth_.size() + groups_.size() * sizeof(TriGroup);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
@@ -342,16 +327,13 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
   const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(KdBox);
   const uint64_t b_groups = groups_.size() * sizeof(TriGroup);
-  const uint64_t b_ids = prim_of_.size() * sizeof(uint32_t);
   const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);
-  stats_.bytes =
-      b_tree + b_leaves + b_kd_boxes + b_sub + b_groups + b_ids + b_matrix + sizeof(*this);
+  stats_.bytes = b_tree + b_leaves + b_kd_boxes + b_sub + b_groups + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
                           {"leaf kd boxes", b_kd_boxes},
                           {"leaf subtrees", b_sub},
-                          {"triangle groups (corners + local ids)", b_groups},
-                          {"triangle ids (local -> mesh)", b_ids},
+                          {"triangle groups (corners + triangle ids)", b_groups},
                           {map_.dense() ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
   stats_.extra = {

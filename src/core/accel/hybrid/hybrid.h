@@ -302,7 +302,6 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<uint8_t> leaf_depth_;
   std::vector<KdNode> sub_nodes_;  ///< leaf subtrees (world space, KdNode layout)
   std::vector<TriGroup> groups_;   ///< the leaves' triangles (records.h, TriGroup)
-  std::vector<uint32_t> prim_of_;  ///< local id -> the mesh's triangle index
   mutable std::atomic<uint64_t> step_errors_{0};
   mutable std::atomic<uint64_t> rewalks_{0};  ///< rewalked_rays()
 };

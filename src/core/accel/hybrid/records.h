@@ -46,14 +46,13 @@ struct KdBox {
 };
 
 /// A leaf's triangles, kWideLanes of them by lane (the wide test reads each coordinate of a
-/// corner as one vector), with their local ids: ids count the triangles in the order in which
-/// the leaves (depth-first, so spatially coherent) first reference them, and
-/// GridKdHybrid::prim_of_ maps them to the mesh's. A leaf of n triangles owns ceil(n / kWideLanes)
-/// consecutive groups, in its references' order; its last group repeats the leaf's last triangle
-/// in the lanes left over. A triangle referenced by several leaves is copied into each.
+/// corner as one vector), with the mesh's index of each. A leaf of n triangles owns
+/// ceil(n / kWideLanes) consecutive groups, in its references' order; its last group repeats the
+/// leaf's last triangle in the lanes left over. A triangle referenced by several leaves is
+/// copied into each.
 struct TriGroup {
   WideTriangles<kWideLanes> tri;
-  uint32_t local[kWideLanes];
+  uint32_t prim[kWideLanes];
 };
 
 }  // namespace kdgrid::hybrid

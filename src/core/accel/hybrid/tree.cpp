@@ -379,7 +379,6 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params,
   check_memory_budget("hybrid", mesh.num_triangles(),
                       {{"references", lane_count * sizeof(uint32_t)},
                        {"triangle groups", lane_count / kWideLanes * sizeof(TriGroup)},
-                       {"triangle ids", double(mesh.num_triangles()) * sizeof(uint32_t)},
                        {"nodes and leaves", flat}},
                       params, fix);
   nodes_.reserve(size_t(nodes));

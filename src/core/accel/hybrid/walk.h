@@ -81,18 +81,18 @@ struct TestedSet {
   std::vector<uint64_t> bits;
   std::vector<uint32_t> dirty;  ///< the words of bits that the current walk set
 
-  /// Clears the previous walk's bits and makes room for `triangles` local ids.
+  /// Clears the previous walk's bits and makes room for `triangles` triangle indices.
   void begin(size_t triangles) {
     for (const uint32_t i : dirty) bits[i] = 0;
     dirty.clear();
     if (bits.size() < (triangles + 63) / 64) bits.resize((triangles + 63) / 64, 0);
   }
-  /// True when `local` was recorded before; else records it.
-  bool test_and_set(uint32_t local) {
-    uint64_t& word = bits[local >> 6];
-    const uint64_t bit = uint64_t(1) << (local & 63);
+  /// True when `prim` was recorded before; else records it.
+  bool test_and_set(uint32_t prim) {
+    uint64_t& word = bits[prim >> 6];
+    const uint64_t bit = uint64_t(1) << (prim & 63);
     if (word & bit) return true;
-    if (word == 0) dirty.push_back(local >> 6);
+    if (word == 0) dirty.push_back(prim >> 6);
     word |= bit;
     return false;
   }
@@ -136,7 +136,7 @@ struct WalkState {
 /// The value of WalkState::evicted_count once the fast walk is abandoned.
 constexpr uint32_t kAbandoned = uint32_t(GridKdHybrid::kEvicted) + 1;
 
-/// True when triangle `local` was tested before on this ray, so the test is skipped; else
+/// True when triangle `prim` was tested before on this ray, so the test is skipped; else
 /// records it. The fast walk (kExact false) asks the mailbox, which answers almost every repeat;
 /// a triangle that a colliding one pushed out of it is kept among the ray's evicted (up to
 /// GridKdHybrid::kEvicted) and looked up there, on the rays that have evicted any. When one more
@@ -149,17 +149,17 @@ constexpr uint32_t kAbandoned = uint32_t(GridKdHybrid::kEvicted) + 1;
 /// dragon), and leaving the loop at the abandonment made it spill registers (the dragon's primary
 /// rays: +5.7 instructions a ray over a walk that can test twice, against +3.6 this way).
 template <bool kExact, class W>
-[[gnu::always_inline]] inline bool tested_before(W& w, uint32_t local) {
+[[gnu::always_inline]] inline bool tested_before(W& w, uint32_t prim) {
   if constexpr (kExact) {
-    return w.tested->test_and_set(local);
+    return w.tested->test_and_set(prim);
   } else {
-    uint32_t& slot = w.mailbox[local & (GridKdHybrid::kMailbox - 1)];
-    if (slot == local) return true;
+    uint32_t& slot = w.mailbox[prim & (GridKdHybrid::kMailbox - 1)];
+    if (slot == prim) return true;
     if ((w.evicted_count | (slot ^ kInvalidPrim)) != 0) [[unlikely]] {
       const uint32_t n = w.evicted_count;
       if (n == kAbandoned) return true;
       for (uint32_t i = 0; i < n; ++i)
-        if (w.evicted[i] == local) return true;
+        if (w.evicted[i] == prim) return true;
       if (slot != kInvalidPrim) {
         if (n == uint32_t(GridKdHybrid::kEvicted)) {
           w.evicted_count = kAbandoned;
@@ -170,7 +170,7 @@ template <bool kExact, class W>
         w.evicted_count = n + 1;
       }
     }
-    slot = local;
+    slot = prim;
     return false;
   }
 }
@@ -209,10 +209,10 @@ struct StatsMark<TraceProbe> {
 };
 
 enum class StepResult { Next, Done, Answered };
-/// The closest hit of a leaf's tests, kept in the step's locals: the triangle's local id
+/// The closest hit of a leaf's tests, kept in the step's locals: the triangle's index
 /// (kInvalidPrim: none yet) and its u, v (its t is the step's best).
 struct LocalHit {
-  uint32_t local;
+  uint32_t prim;
   float u, v;
 };
 /// Where the ray leaves a leaf's (step) box: the exit t, the cell just past the exit face,
@@ -291,7 +291,7 @@ bool GridKdHybrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
   if (!walk_begin(w, ray)) return false;
   if constexpr (kExact) {
     w.tested = &hybrid::thread_tested_set;
-    w.tested->begin(prim_of_.size());
+    w.tested->begin(mesh_->num_triangles());
   }
   s.lookup();
   StepResult r;
@@ -476,16 +476,16 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
       // look-ups cost more than the repeats they saved (docs/HYBRID.md, "Wide leaves").
       lanes = (1u << n) - 1;
       if constexpr (Probe::kCount)
-        for (uint32_t i = 0; i < n; ++i) s.tri_test(prim_of_[g->local[i]]);
+        for (uint32_t i = 0; i < n; ++i) s.tri_test(g->prim[i]);
     } else {
       // The lanes whose triangle the ray has not tested before.
       for (uint32_t i = 0; i < n; ++i) {
-        const uint32_t local = g->local[i];
-        if (hybrid::tested_before<kExact>(w, local)) {
+        const uint32_t prim = g->prim[i];
+        if (hybrid::tested_before<kExact>(w, prim)) {
           s.mailbox_skip();
           continue;
         }
-        if constexpr (Probe::kCount) s.tri_test(prim_of_[local]);
+        if constexpr (Probe::kCount) s.tri_test(prim);
         lanes |= 1u << i;
       }
     }
@@ -497,7 +497,7 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
         if constexpr (kAny) return true;
         best = t;
         found = true;
-        h = {g->local[i], u, v};
+        h = {g->prim[i], u, v};
       }
     } else {
       for (; lanes != 0; lanes &= lanes - 1) {
@@ -508,7 +508,7 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
           if constexpr (kAny) return true;
           best = t;
           found = true;
-          h = {g->local[i], u, v};
+          h = {g->prim[i], u, v};
         }
       }
     }
@@ -588,10 +588,10 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
                       s, leaf, visit))
         return StepResult::Answered;
       if constexpr (!kAny)
-        if (h.local != kInvalidPrim) {
+        if (h.prim != kInvalidPrim) {
           w.best = best;
           w.found = true;
-          w.hit = {best, prim_of_[h.local], h.u, h.v};
+          w.hit = {best, h.prim, h.u, h.v};
         }
     }
   } else if (L.count) {
@@ -599,7 +599,7 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
                                                        w.found, h))
       return StepResult::Answered;
     if constexpr (!kAny)
-      if (h.local != kInvalidPrim) w.hit = {w.best, prim_of_[h.local], h.u, h.v};
+      if (h.prim != kInvalidPrim) w.hit = {w.best, h.prim, h.u, h.v};
   }
   if (w.found && double(w.best) <= t_exit) return StepResult::Done;
   if (last) return StepResult::Done;
