@@ -9,6 +9,9 @@
 
 #include <cstdint>
 #include <cstring>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 #include "accel/triangle.h"
 
@@ -93,14 +96,9 @@ struct WatertightWide {
   [[gnu::always_inline]] static uint32_t bits(I m) {
 #if defined(__AVX__)
     if constexpr (W == 8) return uint32_t(__builtin_ia32_movmskps256((F)m));
-    if constexpr (W == 16) {
-      using F8 = WideVectors<8>::F;
-      F8 lo, hi;
-      std::memcpy(&lo, &m, sizeof lo);
-      std::memcpy(&hi, reinterpret_cast<const char*>(&m) + sizeof lo, sizeof hi);
-      const uint32_t low = uint32_t(__builtin_ia32_movmskps256(lo));
-      return low | uint32_t(__builtin_ia32_movmskps256(hi)) << 8;
-    }
+#if defined(__AVX512F__)
+    if constexpr (W == 16) return uint32_t(_mm512_test_epi32_mask((__m512i)m, (__m512i)m));
+#endif
 #endif
 #if defined(__SSE__)
     if constexpr (W == 4) return uint32_t(__builtin_ia32_movmskps((F)m));
