@@ -9,7 +9,7 @@
 # the release suite first, so no reference is recomputed under a sanitizer).
 # Sanitizer builds are -O1 (CMakeLists.txt). Cost on 2 cores with no compiler cache (measured):
 # address, build 551 s and suite 958 s of wall time, about 25 minutes (at -O3 the build alone
-# took 31 CPU-min); thread, build 5 CPU-min (at -O3) and a 15 s viewer run. The
+# took 31 CPU-min); thread, build and a 15 s viewer run 112 s. The
 # address run is the whole suite but the viewer tests (the viewer is not built): it fits CI's
 # budget, so nothing is left out; big scanned meshes (bunny, dragon) cost the most there, in
 # kd-tree builds, not in brute force.

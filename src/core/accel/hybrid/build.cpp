@@ -160,7 +160,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     estimate = check_memory_budget(
         "hybrid", ntri,
         {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
-         {"triangle groups and ids (at least one lane and one id per triangle)",
+         {"triangle groups and their lane list (at least one lane and one entry per triangle)",
           nt * (sizeof(uint32_t) + sizeof(TriGroup) / kWideLanes)},
          {"leaf subtrees' classification flags (a byte per triangle per thread)",
           params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
