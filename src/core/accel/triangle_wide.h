@@ -115,14 +115,27 @@ struct WatertightWide {
                                               const WideTriangles<W>& g, uint32_t lanes, float tmin,
                                               float tmax, float& t_out, float& u_out,
                                               float& v_out) {
-    const F Az = load(g.c[0][d.kz]) - d.oz, Bz = load(g.c[1][d.kz]) - d.oz,
-            Cz = load(g.c[2][d.kz]) - d.oz;
-    const F ax = (load(g.c[0][d.kx]) - d.ox) - d.sx * Az,
-            ay = (load(g.c[0][d.ky]) - d.oy) - d.sy * Az;
-    const F bx = (load(g.c[1][d.kx]) - d.ox) - d.sx * Bz,
-            by = (load(g.c[1][d.ky]) - d.oy) - d.sy * Bz;
-    const F cx = (load(g.c[2][d.kx]) - d.ox) - d.sx * Cz,
-            cy = (load(g.c[2][d.ky]) - d.oy) - d.sy * Cz;
+    return intersect(d, &g.c[0][0][0], W, lanes, tmin, tmax, t_out, u_out, v_out);
+  }
+
+  /// The same for a group stored by coordinate with `stride` (lane i's coordinate a of corner k
+  /// at p[(3k + a) stride + i]): stride W, or with AVX-512 any stride of at least the highest
+  /// lane in `lanes` plus one (the lanes not in `lanes` are not read).
+  [[gnu::always_inline]] static int intersect(const WatertightTest::RayData& d, const float* p,
+                                              uint32_t stride, uint32_t lanes, float tmin,
+                                              float tmax, float& t_out, float& u_out,
+                                              float& v_out) {
+    auto ld = [&](int k, int a) __attribute__((always_inline)) {
+      const float* q = p + uint32_t(3 * k + a) * stride;
+#if defined(__AVX512F__)
+      if constexpr (W == 16) return (F)_mm512_maskz_loadu_ps(__mmask16(lanes), q);
+#endif
+      return load(q);
+    };
+    const F Az = ld(0, d.kz) - d.oz, Bz = ld(1, d.kz) - d.oz, Cz = ld(2, d.kz) - d.oz;
+    const F ax = (ld(0, d.kx) - d.ox) - d.sx * Az, ay = (ld(0, d.ky) - d.oy) - d.sy * Az;
+    const F bx = (ld(1, d.kx) - d.ox) - d.sx * Bz, by = (ld(1, d.ky) - d.oy) - d.sy * Bz;
+    const F cx = (ld(2, d.kx) - d.ox) - d.sx * Cz, cy = (ld(2, d.ky) - d.oy) - d.sy * Cz;
     const F U = cx * by - cy * bx;
     const F V = ax * cy - ay * cx;
     const F Wf = bx * ay - by * ax;
@@ -143,22 +156,28 @@ struct WatertightWide {
     const uint32_t slow = bits(zero_edge | (live & ~in_range & ~finite)) & lanes;
     if ((hit | slow) == 0) [[likely]]
       return -1;
-    return resolve(d, g, hit, slow, t, V, Wf, inv_det, tmin, tmax, t_out, u_out, v_out);
+    return resolve(d, p, stride, hit, slow, t, V, Wf, inv_det, tmin, tmax, t_out, u_out, v_out);
+  }
+
+  /// Corner k of lane i of a group stored with `stride`.
+  static Vec3 corner(const float* p, uint32_t stride, int k, int i) {
+    const float* q = p + uint32_t(3 * k) * stride + uint32_t(i);
+    return {q[0], q[stride], q[2 * stride]};
   }
 
   /// The lanes with a hit or a scalar test to run, in lane order (the first at equal t wins).
-  [[gnu::noinline]] static int resolve(const WatertightTest::RayData& d, const WideTriangles<W>& g,
-                                       uint32_t hit, uint32_t slow, const F& t, const F& V,
-                                       const F& Wf, const F& inv_det, float tmin, float tmax,
-                                       float& t_out, float& u_out, float& v_out) {
+  [[gnu::noinline]] static int resolve(const WatertightTest::RayData& d, const float* p,
+                                       uint32_t stride, uint32_t hit, uint32_t slow, const F& t,
+                                       const F& V, const F& Wf, const F& inv_det, float tmin,
+                                       float tmax, float& t_out, float& u_out, float& v_out) {
     int best = -1;
     float bt = tmax;
     for (uint32_t m = hit | slow; m != 0; m &= m - 1) {
       const int i = __builtin_ctz(m);
       if (slow >> i & 1u) {
         float ts, us, vs;
-        if (WatertightTest::intersect(d, g.corner(0, i), g.corner(1, i), g.corner(2, i), tmin, bt,
-                                      ts, us, vs)) {
+        if (WatertightTest::intersect(d, corner(p, stride, 0, i), corner(p, stride, 1, i),
+                                      corner(p, stride, 2, i), tmin, bt, ts, us, vs)) {
           best = i;
           bt = ts;
           u_out = us;

@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <string>
 
@@ -161,7 +162,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
         "hybrid", ntri,
         {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
          {"triangle groups and their lane list (at least one lane and one entry per triangle)",
-          nt * (sizeof(uint32_t) + sizeof(TriGroup) / kWideLanes)},
+          nt * (sizeof(uint32_t) + hybrid::kGroupLaneFloats * sizeof(float))},
          {"leaf subtrees' classification flags (a byte per triangle per thread)",
           params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
         params,
@@ -177,6 +178,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaf_depth_.clear();
   sub_nodes_.clear();
   groups_.clear();
+  group_count_ = group_lanes_ = 0;
   map_.reset(params.hybrid_dense_matrix);
   step_errors_.store(0);
   {
@@ -212,7 +214,8 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     return format_double("%.0f", d[0]) + "x" + format_double("%.0f", d[1]) + "x" +
            format_double("%.0f", d[2]);
   };
-  const double tri_bytes = double(ntri) * (sizeof(TriGroup) / kWideLanes + 4 * sizeof(uint32_t));
+  const double tri_bytes =
+      double(ntri) * (hybrid::kGroupLaneFloats * sizeof(float) + 4 * sizeof(uint32_t));
   if (map_.dense()) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
@@ -269,22 +272,29 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   tbb::task_arena arena(threads);
   arena.execute([&] {
     const auto t0 = std::chrono::steady_clock::now();
-    std::vector<uint32_t> lanes;
-    build_tree(mesh, params, lanes, references);
+    GroupPlan plan;
+    build_tree(mesh, params, plan, references);
     check_cancel(params.cancel);
-    groups_.resize(lanes.size() / kWideLanes);
-    tbb::parallel_for(size_t(0), groups_.size(), [&](size_t g) {
-      for (int i = 0; i < kWideLanes; ++i) {
-        const uint32_t prim = lanes[g * kWideLanes + size_t(i)];
+    groups_.assign(size_t((plan.floats + 15) / 16), hybrid::GroupLine{});
+    group_count_ = plan.fill.size();
+    group_lanes_ = 0;
+    for (const uint32_t n : plan.fill) group_lanes_ += hybrid::group_stride(n);
+    float* const base = groups_.empty() ? nullptr : groups_[0].f;
+    tbb::parallel_for(size_t(0), plan.fill.size(), [&](size_t g) {
+      const uint32_t stride = hybrid::group_stride(plan.fill[g]);
+      float* const p = base + plan.offset[g];
+      for (uint32_t i = 0; i < stride; ++i) {
+        const uint32_t prim = plan.lanes[g * kWideLanes + i];
         const auto c = mesh.corners(prim);
-        groups_[g].tri.set(i, c[0], c[1], c[2]);
-        groups_[g].prim[i] = prim;
+        for (int k = 0; k < 3; ++k)
+          for (int a = 0; a < 3; ++a) p[uint32_t(3 * k + a) * stride + i] = component(c[k], a);
+        std::memcpy(p + 9 * stride + i, &prim, sizeof prim);
       }
     });
-    std::vector<uint32_t>().swap(lanes);
+    plan = GroupPlan{};
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
-             leaf_depth_.size() + groups_.size() * sizeof(TriGroup);
+             leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
@@ -326,7 +336,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
   const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(KdBox);
-  const uint64_t b_groups = groups_.size() * sizeof(TriGroup);
+  const uint64_t b_groups = groups_.size() * sizeof(hybrid::GroupLine);
   const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);
   stats_.bytes = b_tree + b_leaves + b_kd_boxes + b_sub + b_groups + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
@@ -349,12 +359,12 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
                                   std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
                                   std::to_string(largest_leaf) + " triangles"},
       {"triangle groups",
-       std::to_string(groups_.size()) + " groups of " + std::to_string(kWideLanes) + " lanes for " +
+       std::to_string(group_count_) + " groups of " + std::to_string(kWideLanes) + " lanes for " +
            std::to_string(references) + " references (" +
-           format_double(
-               "%.1f", 100.0 * (1.0 - double(references) / double(std::max<uint64_t>(
-                                                               1, groups_.size() * kWideLanes)))) +
-           "% padding lanes)"},
+           format_double("%.1f", 100.0 * (1.0 - double(references) /
+                                                    double(std::max<uint64_t>(1, group_lanes_)))) +
+           (hybrid::kCompactGroups ? "% padding lanes; a leaf's last group holds only its lanes)"
+                                   : "% padding lanes)")},
       {"empty-leaf boxes", expand_text},
       {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " +
                            format_double("%.3f", t_matrix) + " s, empty-leaf boxes " +

@@ -4,7 +4,7 @@
 // uniform grid, instead of descending the tree. The files of accel/hybrid/:
 //
 //   hybrid.h          this class: parameters, records' names, the walk's declarations
-//   records.h         Node, Leaf (the step box), KdBox (the kd box), TriGroup
+//   records.h         Node, Leaf (the step box), KdBox (the kd box), the triangle groups' layout
 //   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
 //   walk.h            the ray walk: clip, entry cell, leaf steps with wide tests, and
 //                     the next-leaf cache (NextLeafCache)
@@ -126,7 +126,6 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   using Node = hybrid::Node;
   using Leaf = hybrid::Leaf;
   using KdBox = hybrid::KdBox;
-  using TriGroup = hybrid::TriGroup;
   static constexpr uint32_t kSubtreeFlag = hybrid::kSubtreeFlag;
   /// A leaf subtree in sub_nodes_ starts with the box of its clipped triangles (its corners
   /// as two ClipBox4 lanes, x, y, z, -inf and x, y, z, +inf, in this many nodes' bytes), which
@@ -277,9 +276,16 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
                                                  float& best, bool& found, LocalHit& h) const;
 
   // ---- the build (build.cpp, tree.cpp) ----
-  /// Builds nodes_, leaves_ and sub_nodes_; `lanes` gets the groups' triangles (mesh ids,
-  /// kWideLanes a group, padded as TriGroup says) and `references` the leaves' references.
-  void build_tree(const Mesh& mesh, const BuildParams& params, std::vector<uint32_t>& lanes,
+  /// Where build_tree puts the groups: each group's triangles (mesh ids, kWideLanes a group,
+  /// the last lanes repeating the leaf's last triangle), float offset and lane count, and the
+  /// floats of all groups (records.h, "Triangle groups").
+  struct GroupPlan {
+    std::vector<uint32_t> lanes, offset, fill;
+    uint64_t floats = 0;
+  };
+  /// Builds nodes_, leaves_ and sub_nodes_; `plan` gets the groups and `references` the leaves'
+  /// references.
+  void build_tree(const Mesh& mesh, const BuildParams& params, GroupPlan& plan,
                   uint64_t& references);
 
   const Mesh* mesh_ = nullptr;
@@ -300,8 +306,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<Leaf> leaves_;
   std::vector<KdBox> kd_boxes_;  ///< each leaf's kd box; kept only for the next-leaf cache
   std::vector<uint8_t> leaf_depth_;
-  std::vector<KdNode> sub_nodes_;  ///< leaf subtrees (world space, KdNode layout)
-  std::vector<TriGroup> groups_;   ///< the leaves' triangles (records.h, TriGroup)
+  std::vector<KdNode> sub_nodes_;               ///< leaf subtrees (world space, KdNode layout)
+  std::vector<hybrid::GroupLine> groups_;       ///< the leaves' triangle groups (records.h)
+  uint64_t group_count_ = 0, group_lanes_ = 0;  ///< groups and lanes stored (BuildStats)
   mutable std::atomic<uint64_t> step_errors_{0};
   mutable std::atomic<uint64_t> rewalks_{0};  ///< rewalked_rays()
 };

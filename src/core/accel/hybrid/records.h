@@ -17,8 +17,8 @@ struct Node {
   uint32_t axis;   ///< 0..2 interior, 3 leaf
 };
 
-/// Leaf: an integer cell box [lo, hi), its first triangle group (TriGroup) and its triangle
-/// count. 64 bytes.
+/// Leaf: an integer cell box [lo, hi), where its triangle groups start (a float offset into
+/// GridKdHybrid::groups_, "Triangle groups" below) and its triangle count. 64 bytes.
 /// The box is the one the walk steps over: the kd leaf's box, or for an empty leaf that
 /// box widened over empty cells (widen.cpp).
 struct alignas(64) Leaf {
@@ -45,14 +45,33 @@ struct KdBox {
   int32_t hi[4];
 };
 
-/// A leaf's triangles, kWideLanes of them by lane (the wide test reads each coordinate of a
-/// corner as one vector), with the mesh's index of each. A leaf of n triangles owns
-/// ceil(n / kWideLanes) consecutive groups, in its references' order; its last group repeats the
-/// leaf's last triangle in the lanes left over. A triangle referenced by several leaves is
-/// copied into each.
-struct TriGroup {
-  WideTriangles<kWideLanes> tri;
-  uint32_t prim[kWideLanes];
+/// Triangle groups. A leaf's triangles are stored as consecutive groups of kWideLanes lanes, the
+/// last one holding what is left (n lanes): a group holds, for each corner k and axis a, the
+/// lanes' coordinates one after the other (lane i's at float (3k + a) stride + i), then the
+/// lanes' mesh indices (as uint32, at 9 stride + i). With AVX-512 masked loads read a group of
+/// n lanes, so it is stored with stride n and rounded up to whole 64-byte lines (no padding
+/// lanes); without them every group has stride kWideLanes and its last lanes repeat the leaf's
+/// last triangle. A triangle referenced by several leaves is copied into each.
+#if defined(__AVX512F__)
+constexpr bool kCompactGroups = kWideLanes == 16;
+#else
+constexpr bool kCompactGroups = false;
+#endif
+/// Floats a lane takes: nine corner coordinates and the mesh's index.
+constexpr uint32_t kGroupLaneFloats = 10;
+/// The stride of a group of n lanes.
+constexpr uint32_t group_stride(uint32_t n) {
+  return kCompactGroups ? n : uint32_t(kWideLanes);
+}
+/// The floats a group of n lanes occupies (a full group: kGroupLaneFloats * kWideLanes).
+constexpr uint32_t group_floats(uint32_t n) {
+  return kCompactGroups ? (kGroupLaneFloats * n + 15) / 16 * 16
+                        : kGroupLaneFloats * uint32_t(kWideLanes);
+}
+static_assert(group_floats(kWideLanes) == kGroupLaneFloats * kWideLanes);
+/// 64 bytes of group storage (the array is 64-byte aligned).
+struct alignas(64) GroupLine {
+  float f[16];
 };
 
 }  // namespace kdgrid::hybrid

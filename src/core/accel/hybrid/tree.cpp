@@ -343,8 +343,8 @@ class TreeBuilder {
 
 }  // namespace
 
-void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params,
-                              std::vector<uint32_t>& lanes, uint64_t& references) {
+void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, GroupPlan& plan,
+                              uint64_t& references) {
   TreeBuilder tb(mesh, origin_, cell_, dims_, params);
   std::unique_ptr<BuildNode> root = tb.build_root();
   stats_.sah_evaluations = tb.sah_evaluations();
@@ -378,26 +378,31 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params,
                       params, fix);
   check_memory_budget("hybrid", mesh.num_triangles(),
                       {{"references", lane_count * sizeof(uint32_t)},
-                       {"triangle groups", lane_count / kWideLanes * sizeof(TriGroup)},
+                       {"triangle groups", lane_count * hybrid::kGroupLaneFloats * sizeof(float)},
                        {"nodes and leaves", flat}},
                       params, fix);
   nodes_.reserve(size_t(nodes));
   leaves_.reserve(size_t(nodes + 1) / 2);
   leaf_depth_.reserve(size_t(nodes + 1) / 2);
-  lanes.clear();
-  lanes.reserve(size_t(refs));
+  plan = GroupPlan{};
+  plan.lanes.reserve(size_t(refs));
   references = 0;
-  // A leaf's triangles as groups of kWideLanes lanes (mesh ids), the last one padded with the
-  // leaf's last triangle (TriGroup); returns the first group's index.
+  // A leaf's triangles as groups of kWideLanes lanes (mesh ids), the last one's lanes left over
+  // filled with the leaf's last triangle; returns the first group's float offset.
   auto add_groups = [&](const uint32_t* prims, uint32_t n) {
-    const uint64_t first = lanes.size() / kWideLanes;
-    if (first + (n + kWideLanes - 1) / kWideLanes >= (uint64_t(1) << 30))
-      throw ParamError(
-          "hybrid: more than 2^30 triangle groups in the leaves: use a larger cell size or "
-          "--hybrid-subtree-min 0");
-    for (uint32_t i = 0; i < n; i += kWideLanes)
+    const uint64_t first = plan.floats;
+    for (uint32_t i = 0; i < n; i += kWideLanes) {
+      const uint32_t fill = std::min(n - i, uint32_t(kWideLanes));
+      plan.offset.push_back(uint32_t(plan.floats));
+      plan.fill.push_back(fill);
+      plan.floats += hybrid::group_floats(fill);
+      if (plan.floats >= (uint64_t(1) << 32))
+        throw ParamError(
+            "hybrid: more than 2^32 floats of triangle groups in the leaves: use a larger cell "
+            "size or --hybrid-subtree-min 0");
       for (uint32_t k = 0; k < uint32_t(kWideLanes); ++k)
-        lanes.push_back(prims[std::min(i + k, n - 1)]);
+        plan.lanes.push_back(prims[std::min(i + k, n - 1)]);
+    }
     references += n;
     return uint32_t(first);
   };
