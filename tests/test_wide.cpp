@@ -3,11 +3,13 @@
 // WatertightTest walk uses the wide test and whose WatertightScalar walk tests lane by lane.
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <cstring>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "accel/brute.h"
 #include "accel/hybrid/hybrid.h"
 #include "accel/triangle_wide.h"
 #include "comparator_meshes.h"
@@ -248,8 +250,10 @@ TEST(WideLeaves, GroupWidthFollowsTheTargetAndTheBuildUsesIt) {
   std::string groups;
   for (const auto& [key, value] : st.extra)
     if (key == "triangle groups") groups = value;
-  EXPECT_NE(groups.find(" groups of " + std::to_string(kWideLanes) + " lanes "), std::string::npos)
-      << groups;
+  const std::string width =
+      std::string(hybrid::kSharedCorners ? " groups of up to " : " groups of ") +
+      std::to_string(kWideLanes) + " lanes ";
+  EXPECT_NE(groups.find(width), std::string::npos) << groups;
 }
 
 TEST(WideLeaves, HybridHitsMatchScalarBitForBit) {
@@ -265,6 +269,64 @@ TEST(WideLeaves, HybridHitsMatchScalarBitForBit) {
       const std::string label = nm.name + " subtree_min " + std::to_string(subtree_min);
       EXPECT_EQ(wide_scalar_differences(h, rays, label), 0) << label;
     }
+  }
+}
+
+/// The lanes and distinct corners a group holds on average, from the build's "triangle groups"
+/// figure (a shared-corner build: "... (L lanes and C distinct corners a group)").
+std::pair<double, double> lanes_and_corners(const BuildStats& st) {
+  for (const auto& [key, value] : st.extra) {
+    const size_t at = value.rfind('(');
+    double lanes = 0, corners = 0;
+    if (key == "triangle groups" && at != std::string::npos &&
+        std::sscanf(value.c_str() + at, "(%lf lanes and %lf distinct corners", &lanes, &corners) ==
+            2)
+      return {lanes, corners};
+  }
+  return {0, 0};
+}
+
+// Shared-corner groups (records.h): a group stores each distinct corner once and its lanes
+// index them. A mesh's connected triangles share corners (a sphere: about one new corner a
+// lane); a triangle soup brings three a lane, so its groups end at 32 corners (10 lanes). Either
+// way every hit is the one brute force finds from the mesh (t bit for bit, and the triangle
+// where no other lies at the same t).
+TEST(WideLeaves, SharedCornerGroupsStoreEachCornerOnce) {
+  if (!hybrid::kSharedCorners)
+    GTEST_SKIP() << "this build stores groups by lane (shared corners need AVX-512 BW and VL)";
+  struct Case {
+    const char* name;
+    Mesh mesh;
+  };
+  const Case cases[] = {{"soup", test::random_soup(5, 6000)}, {"sphere", test::sphere(60, 120)}};
+  for (const Case& c : cases) {
+    BuildParams p;
+    p.hybrid_subtree_min = 0;  // plain leaves, so that many hold more than one group
+    GridKdHybrid h;
+    const auto [lanes, corners] = lanes_and_corners(h.build(c.mesh, p));
+    if (std::string(c.name) == "soup") {
+      EXPECT_GT(lanes, 1.0) << c.name;
+      EXPECT_LE(lanes, 10.0) << c.name;                // 32 corners at most, three new ones a lane
+      EXPECT_NEAR(corners, 3 * lanes, 0.1) << c.name;  // the figures have one decimal
+    } else {
+      EXPECT_GT(lanes, 4.0) << c.name;
+      EXPECT_LT(corners, 1.6 * lanes) << c.name;  // shared: well under three a lane
+    }
+    BruteForce brute;
+    brute.build(c.mesh, p);
+    int bad = 0;
+    for (const Ray& r : test::random_rays(c.mesh, 17, 4000)) {
+      Hit hh, hb;
+      const bool fh = h.intersect(r, hh), fb = brute.intersect(r, hb);
+      bool same = fh == fb;
+      if (same && fh)
+        same = same_bits(hh.t, hb.t) &&
+               (hh.prim != hb.prim || (same_bits(hh.u, hb.u) && same_bits(hh.v, hb.v)));
+      if (!same && ++bad <= 5)
+        ADD_FAILURE() << c.name << ": hybrid " << fh << " prim " << hh.prim << " t " << hh.t
+                      << "; brute force " << fb << " prim " << hb.prim << " t " << hb.t;
+    }
+    EXPECT_EQ(bad, 0) << c.name;
   }
 }
 

@@ -1,4 +1,5 @@
-// One ray against a group of W triangles stored by lane (structure of arrays): WatertightTest's
+// One ray against a group of W triangles whose corners the group gives by lane (structure of
+// arrays; WideTriangles here, the hybrid's groups in accel/hybrid/records.h): WatertightTest's
 // arithmetic on W lanes at once, with GCC vector extensions (which clang also accepts), so one
 // source compiles to AVX where the target has it and to SSE elsewhere. Per lane it performs
 // exactly WatertightTest::intersect's float operations in the same order (the build's
@@ -52,6 +53,9 @@ struct alignas(4 * W) WideTriangles {
   float c[3][3][W];
   /// Corner k of lane i.
   Vec3 corner(int k, int i) const { return {c[k][0][i], c[k][1][i], c[k][2][i]}; }
+  /// WatertightWide's view of the group (see WatertightWide::intersect).
+  template <class D, class F>
+  [[gnu::always_inline]] void sheared(const D& d, uint32_t, F (&out)[3][3]) const;
   void set(int i, const Vec3& v0, const Vec3& v1, const Vec3& v2) {
     const Vec3* v[3] = {&v0, &v1, &v2};
     for (int k = 0; k < 3; ++k)
@@ -87,11 +91,6 @@ struct WatertightWide {
   using F = typename WideVectors<W>::F;
   using I = typename WideVectors<W>::I;
 
-  [[gnu::always_inline]] static F load(const float* p) {
-    F v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  }
   /// Bit i set where lane i of the mask (all ones or zero per lane) is set.
   [[gnu::always_inline]] static uint32_t bits(I m) {
 #if defined(__AVX__)
@@ -108,34 +107,31 @@ struct WatertightWide {
     return r;
   }
 
-  /// The closest hit with tmin <= t < tmax among the lanes whose bit is set in `lanes`: its
-  /// lane, t, u and v, or -1. Among equal t the lowest lane wins, as a scalar loop over the
-  /// lanes in order keeps the first triangle at equal t (it accepts only t < best).
-  [[gnu::always_inline]] static int intersect(const WatertightTest::RayData& d,
-                                              const WideTriangles<W>& g, uint32_t lanes, float tmin,
-                                              float tmax, float& t_out, float& u_out,
-                                              float& v_out) {
-    return intersect(d, &g.c[0][0][0], W, lanes, tmin, tmax, t_out, u_out, v_out);
+  /// The scalar test's shear of a corner (vx, vy, vz: its coordinates kx, ky, kz) on W lanes:
+  /// x = (vx - ox) - sx (vz - oz), y likewise, z = sz (vz - oz), each lane as the scalar test.
+  [[gnu::always_inline]] static void shear(const WatertightTest::RayData& d, const F& vx,
+                                           const F& vy, const F& vz, F& x, F& y, F& z) {
+    const F dz = vz - d.oz;
+    x = (vx - d.ox) - d.sx * dz;
+    y = (vy - d.oy) - d.sy * dz;
+    z = d.sz * dz;
   }
 
-  /// The same for a group stored by coordinate with `stride` (lane i's coordinate a of corner k
-  /// at p[(3k + a) stride + i]): stride W, or with AVX-512 any stride of at least the highest
-  /// lane in `lanes` plus one (the lanes not in `lanes` are not read).
-  [[gnu::always_inline]] static int intersect(const WatertightTest::RayData& d, const float* p,
-                                              uint32_t stride, uint32_t lanes, float tmin,
-                                              float tmax, float& t_out, float& u_out,
-                                              float& v_out) {
-    auto ld = [&](int k, int a) __attribute__((always_inline)) {
-      const float* q = p + uint32_t(3 * k + a) * stride;
-#if defined(__AVX512F__)
-      if constexpr (W == 16) return (F)_mm512_maskz_loadu_ps(__mmask16(lanes), q);
-#endif
-      return load(q);
-    };
-    const F Az = ld(0, d.kz) - d.oz, Bz = ld(1, d.kz) - d.oz, Cz = ld(2, d.kz) - d.oz;
-    const F ax = (ld(0, d.kx) - d.ox) - d.sx * Az, ay = (ld(0, d.ky) - d.oy) - d.sy * Az;
-    const F bx = (ld(1, d.kx) - d.ox) - d.sx * Bz, by = (ld(1, d.ky) - d.oy) - d.sy * Bz;
-    const F cx = (ld(2, d.kx) - d.ox) - d.sx * Cz, cy = (ld(2, d.ky) - d.oy) - d.sy * Cz;
+  /// The closest hit with tmin <= t < tmax among the lanes of group g whose bit is set in
+  /// `lanes`: its lane, t, u and v, or -1. Among equal t the lowest lane wins, as a scalar loop
+  /// over the lanes in order keeps the first triangle at equal t (it accepts only t < best).
+  /// G gives its lanes' corners sheared (WideTriangles, or the hybrid's group views, records.h):
+  /// G::sheared(d, lanes, c) sets c[k] to corner k of every lane in `lanes` after shear() (the
+  /// other lanes may hold anything), G::corner(k, i) gives corner k of lane i.
+  template <class G>
+  [[gnu::always_inline]] static int intersect(const WatertightTest::RayData& d, const G& g,
+                                              uint32_t lanes, float tmin, float tmax, float& t_out,
+                                              float& u_out, float& v_out) {
+    F c[3][3];
+    g.sheared(d, lanes, c);
+    const F &ax = c[0][0], &ay = c[0][1], &az = c[0][2];
+    const F &bx = c[1][0], &by = c[1][1], &bz = c[1][2];
+    const F &cx = c[2][0], &cy = c[2][1], &cz = c[2][2];
     const F U = cx * by - cy * bx;
     const F V = ax * cy - ay * cx;
     const F Wf = bx * ay - by * ax;
@@ -144,7 +140,6 @@ struct WatertightWide {
     const I mixed =
         ((U < zero) | (V < zero) | (Wf < zero)) & ((U > zero) | (V > zero) | (Wf > zero));
     const F det = U + V + Wf;
-    const F az = d.sz * Az, bz = d.sz * Bz, cz = d.sz * Cz;
     const F T = U * az + V * bz + Wf * cz;
     const F inv_det = 1.0f / det;
     const F t = T * inv_det;
@@ -156,28 +151,23 @@ struct WatertightWide {
     const uint32_t slow = bits(zero_edge | (live & ~in_range & ~finite)) & lanes;
     if ((hit | slow) == 0) [[likely]]
       return -1;
-    return resolve(d, p, stride, hit, slow, t, V, Wf, inv_det, tmin, tmax, t_out, u_out, v_out);
-  }
-
-  /// Corner k of lane i of a group stored with `stride`.
-  static Vec3 corner(const float* p, uint32_t stride, int k, int i) {
-    const float* q = p + uint32_t(3 * k) * stride + uint32_t(i);
-    return {q[0], q[stride], q[2 * stride]};
+    return resolve(d, g, hit, slow, t, V, Wf, inv_det, tmin, tmax, t_out, u_out, v_out);
   }
 
   /// The lanes with a hit or a scalar test to run, in lane order (the first at equal t wins).
-  [[gnu::noinline]] static int resolve(const WatertightTest::RayData& d, const float* p,
-                                       uint32_t stride, uint32_t hit, uint32_t slow, const F& t,
-                                       const F& V, const F& Wf, const F& inv_det, float tmin,
-                                       float tmax, float& t_out, float& u_out, float& v_out) {
+  template <class G>
+  [[gnu::noinline]] static int resolve(const WatertightTest::RayData& d, const G& g, uint32_t hit,
+                                       uint32_t slow, const F& t, const F& V, const F& Wf,
+                                       const F& inv_det, float tmin, float tmax, float& t_out,
+                                       float& u_out, float& v_out) {
     int best = -1;
     float bt = tmax;
     for (uint32_t m = hit | slow; m != 0; m &= m - 1) {
       const int i = __builtin_ctz(m);
       if (slow >> i & 1u) {
         float ts, us, vs;
-        if (WatertightTest::intersect(d, corner(p, stride, 0, i), corner(p, stride, 1, i),
-                                      corner(p, stride, 2, i), tmin, bt, ts, us, vs)) {
+        if (WatertightTest::intersect(d, g.corner(0, i), g.corner(1, i), g.corner(2, i), tmin, bt,
+                                      ts, us, vs)) {
           best = i;
           bt = ts;
           u_out = us;
@@ -194,5 +184,17 @@ struct WatertightWide {
     return best;
   }
 };
+
+template <int W>
+template <class D, class F>
+inline void WideTriangles<W>::sheared(const D& d, uint32_t, F (&out)[3][3]) const {
+  for (int k = 0; k < 3; ++k) {
+    F v[3];
+    std::memcpy(&v[0], c[k][d.kx], sizeof(F));
+    std::memcpy(&v[1], c[k][d.ky], sizeof(F));
+    std::memcpy(&v[2], c[k][d.kz], sizeof(F));
+    WatertightWide<W>::shear(d, v[0], v[1], v[2], out[k][0], out[k][1], out[k][2]);
+  }
+}
 
 }  // namespace kdgrid

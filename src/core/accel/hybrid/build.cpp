@@ -162,7 +162,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
         "hybrid", ntri,
         {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
          {"triangle groups and their lane list (at least one lane and one entry per triangle)",
-          nt * (sizeof(uint32_t) + hybrid::kGroupLaneFloats * sizeof(float))},
+          nt * (sizeof(uint32_t) + hybrid::kGroupLaneFloatsAtMost * sizeof(float))},
          {"leaf subtrees' classification flags (a byte per triangle per thread)",
           params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
         params,
@@ -178,7 +178,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaf_depth_.clear();
   sub_nodes_.clear();
   groups_.clear();
-  group_count_ = group_lanes_ = 0;
+  group_count_ = group_lanes_ = group_corners_ = 0;
   map_.reset(params.hybrid_dense_matrix);
   step_errors_.store(0);
   {
@@ -215,7 +215,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
            format_double("%.0f", d[2]);
   };
   const double tri_bytes =
-      double(ntri) * (hybrid::kGroupLaneFloats * sizeof(float) + 4 * sizeof(uint32_t));
+      double(ntri) * (hybrid::kGroupLaneFloatsAtMost * sizeof(float) + 4 * sizeof(uint32_t));
   if (map_.dense()) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
@@ -277,18 +277,36 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     check_cancel(params.cancel);
     groups_.assign(size_t((plan.floats + 15) / 16), hybrid::GroupLine{});
     group_count_ = plan.fill.size();
-    group_lanes_ = 0;
-    for (const uint32_t n : plan.fill) group_lanes_ += hybrid::group_stride(n);
+    group_lanes_ = hybrid::kSharedCorners ? plan.lanes.size() : group_count_ * kWideLanes;
+    group_corners_ = 0;
+    for (const uint32_t u : plan.corners) group_corners_ += u;
     float* const base = groups_.empty() ? nullptr : groups_[0].f;
     tbb::parallel_for(size_t(0), plan.fill.size(), [&](size_t g) {
-      const uint32_t stride = hybrid::group_stride(plan.fill[g]);
       float* const p = base + plan.offset[g];
-      for (uint32_t i = 0; i < stride; ++i) {
-        const uint32_t prim = plan.lanes[g * kWideLanes + i];
-        const auto c = mesh.corners(prim);
-        for (int k = 0; k < 3; ++k)
-          for (int a = 0; a < 3; ++a) p[uint32_t(3 * k + a) * stride + i] = component(c[k], a);
-        std::memcpy(p + 9 * stride + i, &prim, sizeof prim);
+      const uint32_t* const lanes = plan.lanes.data() + plan.start[g];
+      if constexpr (hybrid::kSharedCorners) {
+        const uint32_t n = plan.fill[g], u = plan.corners[g];
+        const uint32_t header = n | u << 8;
+        std::memcpy(p, &header, sizeof header);
+        std::memcpy(p + 1 + 3 * u, lanes, n * sizeof(uint32_t));
+        uint8_t* const index = reinterpret_cast<uint8_t*>(p + 1 + 3 * u + n);
+        const uint8_t* const planned = plan.index.data() + 3 * size_t(plan.start[g]);
+        for (uint32_t i = 0; i < n; ++i) {
+          const auto c = mesh.corners(lanes[i]);
+          for (int k = 0; k < 3; ++k) {
+            const uint32_t j = planned[3 * i + uint32_t(k)];
+            index[uint32_t(k) * n + i] = uint8_t(j);
+            for (int a = 0; a < 3; ++a) p[1 + uint32_t(a) * u + j] = component(c[k], a);
+          }
+        }
+      } else {
+        constexpr uint32_t W = uint32_t(kWideLanes);
+        for (uint32_t i = 0; i < W; ++i) {
+          const auto c = mesh.corners(lanes[i]);
+          for (int k = 0; k < 3; ++k)
+            for (int a = 0; a < 3; ++a) p[uint32_t(3 * k + a) * W + i] = component(c[k], a);
+          std::memcpy(p + 9 * W + i, &lanes[i], sizeof(uint32_t));
+        }
       }
     });
     plan = GroupPlan{};
@@ -359,12 +377,21 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
                                   std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
                                   std::to_string(largest_leaf) + " triangles"},
       {"triangle groups",
-       std::to_string(group_count_) + " groups of " + std::to_string(kWideLanes) + " lanes for " +
-           std::to_string(references) + " references (" +
-           format_double("%.1f", 100.0 * (1.0 - double(references) /
-                                                    double(std::max<uint64_t>(1, group_lanes_)))) +
-           (hybrid::kCompactGroups ? "% padding lanes; a leaf's last group holds only its lanes)"
-                                   : "% padding lanes)")},
+       hybrid::kSharedCorners
+           ? std::to_string(group_count_) + " groups of up to " + std::to_string(kWideLanes) +
+                 " lanes for " + std::to_string(references) + " references (" +
+                 format_double("%.1f",
+                               double(references) / double(std::max<uint64_t>(1, group_count_))) +
+                 " lanes and " +
+                 format_double(
+                     "%.1f", double(group_corners_) / double(std::max<uint64_t>(1, group_count_))) +
+                 " distinct corners a group)"
+           : std::to_string(group_count_) + " groups of " + std::to_string(kWideLanes) +
+                 " lanes for " + std::to_string(references) + " references (" +
+                 format_double("%.1f",
+                               100.0 * (1.0 - double(references) /
+                                                  double(std::max<uint64_t>(1, group_lanes_)))) +
+                 "% padding lanes)"},
       {"empty-leaf boxes", expand_text},
       {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " +
                            format_double("%.3f", t_matrix) + " s, empty-leaf boxes " +

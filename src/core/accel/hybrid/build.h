@@ -2,7 +2,9 @@
 // cell_map.cpp); not part of the structure's interface, which is hybrid.h.
 #pragma once
 
+#include <array>
 #include <cstdint>
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -18,6 +20,37 @@ namespace kdgrid::hybrid {
 struct Ref {
   uint32_t prim;
   int32_t lo[3], hi[3];
+};
+
+/// The distinct corners of a shared-corner group (records.h, "Triangle groups"), compared by
+/// their bits, in the order the lanes first name them.
+struct CornerSet {
+  uint32_t bits[kMaxGroupCorners + 3][3];
+  uint32_t key[kMaxGroupCorners + 3];  ///< a hash of bits, compared first
+  uint32_t size = 0;
+
+  /// Adds the corners of a triangle and sets their indices in the set, if the set then holds
+  /// at most kMaxGroupCorners corners; else leaves it as it was and returns false.
+  bool add(const std::array<Vec3, 3>& c, uint8_t index[3]) {
+    const uint32_t before = size;
+    for (int k = 0; k < 3; ++k) {
+      uint32_t b[3];
+      std::memcpy(b, &c[k], sizeof b);
+      const uint32_t h = b[0] * 0x9e3779b1u ^ b[1] * 0x85ebca77u ^ b[2] * 0xc2b2ae3du;
+      uint32_t i = 0;
+      while (i < size &&
+             (key[i] != h || bits[i][0] != b[0] || bits[i][1] != b[1] || bits[i][2] != b[2]))
+        ++i;
+      if (i == size) {
+        key[size] = h;
+        std::memcpy(bits[size++], b, sizeof b);
+      }
+      index[k] = uint8_t(i);
+    }
+    if (size <= kMaxGroupCorners) return true;
+    size = before;
+    return false;
+  }
 };
 
 /// Cells per axis of a grid of cell size `cell` over a box of extent `ext`: at least 1, as doubles.

@@ -108,11 +108,13 @@ struct HybridEstimate {
 /// --stats-json` ("build phases") on the 2-core AMD EPYC this project is developed on while other
 /// builds shared it, so on the slow side: the bunny's matrix took 10-11 us a brick at 3.4x and
 /// 6.7x finer cells than auto (174K and 716K bricks, 4.4 and 4.5 bricks per (4-cell)^2 of
-/// area); the tree took 16 (Sponza) and 26 (the dragon) us a triangle at the auto size, and
-/// 110-150 bytes a triangle at the auto size and 216-312 at 18x finer cells (the bunny,
-/// dragon-200k, Sponza; matrix excluded).
-constexpr double kHybridBricksPerArea = 4.5;         ///< bricks per (4-cell)^2 of triangle area
-constexpr double kHybridBytesPerTriangle = 300;      ///< tree, leaves, subtrees, references
+/// area); the tree took 16 (Sponza) and 26 (the dragon) us a triangle at the auto size. Bytes a
+/// triangle, matrix excluded (the bunny, dragon-200k, Sponza): with groups by lane 110-150 at
+/// the auto size and 216-312 at 18x finer cells (groups of 8); with shared-corner groups
+/// (records.h) 47-71 at the auto size, 100-119 at 6x and 108-140 at 18x finer cells.
+constexpr double kHybridBricksPerArea = 4.5;  ///< bricks per (4-cell)^2 of triangle area
+/// Tree, leaves, subtrees and triangle groups, a triangle.
+constexpr double kHybridBytesPerTriangle = hybrid::kSharedCorners ? 150 : 300;
 constexpr double kHybridSecondsPerBrick = 10e-6;     ///< matrix construction, one thread
 constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
 constexpr double kHybridSecondsPerBinOp = 1e-9;      ///< one per-cell binning entry
@@ -276,11 +278,13 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
                                                  float& best, bool& found, LocalHit& h) const;
 
   // ---- the build (build.cpp, tree.cpp) ----
-  /// Where build_tree puts the groups: each group's triangles (mesh ids, kWideLanes a group,
-  /// the last lanes repeating the leaf's last triangle), float offset and lane count, and the
-  /// floats of all groups (records.h, "Triangle groups").
+  /// Where build_tree puts the groups (records.h, "Triangle groups"): group g's lanes (mesh
+  /// indices) from lanes[start[g]], fill[g] of them holding the leaf's triangles (by lane, the
+  /// others repeat the last), corners[g] distinct corners (shared corners: lane l's corner k is
+  /// corner index[3 l + k] of its group), its float offset; and the floats of all groups.
   struct GroupPlan {
-    std::vector<uint32_t> lanes, offset, fill;
+    std::vector<uint32_t> lanes, start, offset, fill, corners;
+    std::vector<uint8_t> index;
     uint64_t floats = 0;
   };
   /// Builds nodes_, leaves_ and sub_nodes_; `plan` gets the groups and `references` the leaves'
@@ -306,9 +310,10 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<Leaf> leaves_;
   std::vector<KdBox> kd_boxes_;  ///< each leaf's kd box; kept only for the next-leaf cache
   std::vector<uint8_t> leaf_depth_;
-  std::vector<KdNode> sub_nodes_;               ///< leaf subtrees (world space, KdNode layout)
-  std::vector<hybrid::GroupLine> groups_;       ///< the leaves' triangle groups (records.h)
-  uint64_t group_count_ = 0, group_lanes_ = 0;  ///< groups and lanes stored (BuildStats)
+  std::vector<KdNode> sub_nodes_;          ///< leaf subtrees (world space, KdNode layout)
+  std::vector<hybrid::GroupLine> groups_;  ///< the leaves' triangle groups (records.h)
+  /// Groups, lanes and (shared corners) distinct corners stored (BuildStats)
+  uint64_t group_count_ = 0, group_lanes_ = 0, group_corners_ = 0;
   mutable std::atomic<uint64_t> step_errors_{0};
   mutable std::atomic<uint64_t> rewalks_{0};  ///< rewalked_rays()
 };

@@ -3,6 +3,10 @@
 #pragma once
 
 #include <cstdint>
+#include <cstring>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 #include "accel/triangle_wide.h"
 #include "math/vec.h"
@@ -45,30 +49,129 @@ struct KdBox {
   int32_t hi[4];
 };
 
-/// Triangle groups. A leaf's triangles are stored as consecutive groups of kWideLanes lanes, the
-/// last one holding what is left (n lanes): a group holds, for each corner k and axis a, the
-/// lanes' coordinates one after the other (lane i's at float (3k + a) stride + i), then the
-/// lanes' mesh indices (as uint32, at 9 stride + i). With AVX-512 masked loads read a group of
-/// n lanes, so it is stored with stride n and rounded up to whole 64-byte lines (no padding
-/// lanes); without them every group has stride kWideLanes and its last lanes repeat the leaf's
-/// last triangle. A triangle referenced by several leaves is copied into each.
-#if defined(__AVX512F__)
-constexpr bool kCompactGroups = kWideLanes == 16;
+/// Triangle groups. A leaf's triangles are stored as consecutive groups of up to kWideLanes lanes
+/// in the order the leaf references them (which decides ties between equal hits). A triangle
+/// referenced by several leaves is copied into each. Two layouts, by build target:
+///
+/// - Shared corners (AVX-512 with its byte and 128-bit forms, groups of 16): a group of n lanes
+///   stores its u distinct corners once (u <= 32) and, per lane, the byte index of each of its
+///   three corners. At float offsets from the group's start: a header (n | u << 8, as uint32);
+///   the u corners' x, then their y, then their z (u floats each); the lanes' mesh indices (n
+///   uint32); the corner indices (3n bytes: corner k of lane i at byte k n + i), padded to a
+///   whole float. The walk gathers each coordinate of a corner of all lanes with one permute
+///   of the table (vpermt2ps), so a hit is bit for bit the one from stored coordinates. A
+///   group ends early where its next triangle would bring more than 32 distinct corners.
+/// - By lane (other builds): a group holds kWideLanes lanes, for each corner k and axis a the
+///   lanes' coordinates one after the other (lane i's at float (3k + a) kWideLanes + i), then
+///   the lanes' mesh indices (as uint32, at 9 kWideLanes + i); a leaf's last group repeats its
+///   last triangle in the lanes left over.
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+constexpr bool kSharedCorners = kWideLanes == 16;
 #else
-constexpr bool kCompactGroups = false;
+constexpr bool kSharedCorners = false;
 #endif
-/// Floats a lane takes: nine corner coordinates and the mesh's index.
+/// Floats a lane takes by lane: nine corner coordinates and the mesh's index.
 constexpr uint32_t kGroupLaneFloats = 10;
-/// The stride of a group of n lanes.
-constexpr uint32_t group_stride(uint32_t n) {
-  return kCompactGroups ? n : uint32_t(kWideLanes);
+/// The most floats a lane takes in either layout, its group's share included (a shared-corner
+/// group of 2 lanes and 6 corners: 23 floats).
+constexpr uint32_t kGroupLaneFloatsAtMost = kSharedCorners ? 12 : kGroupLaneFloats;
+/// The most distinct corners a shared-corner group holds (two 16-float tables per axis).
+constexpr uint32_t kMaxGroupCorners = 32;
+/// The floats of a shared-corner group of n lanes and u corners.
+constexpr uint32_t shared_group_floats(uint32_t n, uint32_t u) {
+  return 1 + 3 * u + n + (3 * n + 3) / 4;
 }
-/// The floats a group of n lanes occupies (a full group: kGroupLaneFloats * kWideLanes).
-constexpr uint32_t group_floats(uint32_t n) {
-  return kCompactGroups ? (kGroupLaneFloats * n + 15) / 16 * 16
-                        : kGroupLaneFloats * uint32_t(kWideLanes);
-}
-static_assert(group_floats(kWideLanes) == kGroupLaneFloats * kWideLanes);
+
+/// A group by lane, as WatertightWide and the walk read it.
+struct LaneGroup {
+  const float* p;
+  uint32_t n;  ///< the lanes that hold the leaf's triangles (the others repeat the last)
+
+  [[gnu::always_inline]] static LaneGroup at(const float* p, uint32_t left) {
+    return {p, left < uint32_t(kWideLanes) ? left : uint32_t(kWideLanes)};
+  }
+  [[gnu::always_inline]] const float* end() const {
+    return p + kGroupLaneFloats * uint32_t(kWideLanes);
+  }
+  [[gnu::always_inline]] uint32_t prim(uint32_t i) const {
+    uint32_t v;
+    std::memcpy(&v, p + 9 * kWideLanes + i, sizeof v);
+    return v;
+  }
+  Vec3 corner(int k, int i) const {
+    const float* q = p + 3 * k * kWideLanes + i;
+    return {q[0], q[kWideLanes], q[2 * kWideLanes]};
+  }
+  template <class F>
+  [[gnu::always_inline]] void sheared(const WatertightTest::RayData& d, uint32_t,
+                                      F (&c)[3][3]) const {
+    for (int k = 0; k < 3; ++k) {
+      F v[3];
+      std::memcpy(&v[0], p + (3 * k + d.kx) * kWideLanes, sizeof(F));
+      std::memcpy(&v[1], p + (3 * k + d.ky) * kWideLanes, sizeof(F));
+      std::memcpy(&v[2], p + (3 * k + d.kz) * kWideLanes, sizeof(F));
+      WatertightWide<kWideLanes>::shear(d, v[0], v[1], v[2], c[k][0], c[k][1], c[k][2]);
+    }
+  }
+};
+
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+/// A shared-corner group, as WatertightWide and the walk read it.
+struct SharedCornerGroup {
+  const float* p;
+  uint32_t n, u;
+
+  [[gnu::always_inline]] static SharedCornerGroup at(const float* p, uint32_t) {
+    uint32_t h;
+    std::memcpy(&h, p, sizeof h);
+    return {p, h & 0xffu, h >> 8};
+  }
+  [[gnu::always_inline]] const float* end() const { return p + shared_group_floats(n, u); }
+  [[gnu::always_inline]] uint32_t prim(uint32_t i) const {
+    uint32_t v;
+    std::memcpy(&v, p + 1 + 3 * u + i, sizeof v);
+    return v;
+  }
+  [[gnu::always_inline]] const uint8_t* index() const {
+    return reinterpret_cast<const uint8_t*>(p + 1 + 3 * u + n);
+  }
+  Vec3 corner(int k, int i) const {
+    const uint32_t j = index()[uint32_t(k) * n + uint32_t(i)];
+    return {p[1 + j], p[1 + u + j], p[1 + 2 * u + j]};
+  }
+  /// The table's corners sheared (16 at a time, so once a corner however many lanes name it),
+  /// then each lane's corner taken from them by a permute. Masked loads: the lanes outside
+  /// `lanes` read no memory (and hold corner 0).
+  template <class F>
+  [[gnu::always_inline]] void sheared(const WatertightTest::RayData& d, uint32_t lanes,
+                                      F (&c)[3][3]) const {
+    using Wide = WatertightWide<16>;
+    const float* const tx = p + 1 + uint32_t(d.kx) * u;
+    const float* const ty = p + 1 + uint32_t(d.ky) * u;
+    const float* const tz = p + 1 + uint32_t(d.kz) * u;
+    const uint32_t corners = u >= 32 ? ~0u : (1u << u) - 1;
+    const __mmask16 lo = __mmask16(corners);
+    F s[2][3];
+    Wide::shear(d, (F)_mm512_maskz_loadu_ps(lo, tx), (F)_mm512_maskz_loadu_ps(lo, ty),
+                (F)_mm512_maskz_loadu_ps(lo, tz), s[0][0], s[0][1], s[0][2]);
+    const uint8_t* idx = index();
+    __m512i ik[3];
+    for (int k = 0; k < 3; ++k)
+      ik[k] = _mm512_maskz_cvtepu8_epi32(
+          __mmask16(lanes), _mm_maskz_loadu_epi8(__mmask16(lanes), idx + uint32_t(k) * n));
+    const __mmask16 hi = __mmask16(corners >> 16);
+    Wide::shear(d, (F)_mm512_maskz_loadu_ps(hi, tx + 16), (F)_mm512_maskz_loadu_ps(hi, ty + 16),
+                (F)_mm512_maskz_loadu_ps(hi, tz + 16), s[1][0], s[1][1], s[1][2]);
+    for (int k = 0; k < 3; ++k)
+      for (int j = 0; j < 3; ++j)
+        c[k][j] = (F)_mm512_permutex2var_ps((__m512)s[0][j], ik[k], (__m512)s[1][j]);
+  }
+};
+using GroupView = SharedCornerGroup;
+#else
+using GroupView = LaneGroup;
+#endif
+
 /// 64 bytes of group storage (the array is 64-byte aligned).
 struct alignas(64) GroupLine {
   float f[16];

@@ -10,6 +10,8 @@
 #include <cstring>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "accel/guards.h"
 #include "accel/hybrid/build.h"
@@ -371,37 +373,99 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
   const double refs = double(tb.leaf_refs()), nodes = double(tb.nodes_made());
   const double flat = nodes * sizeof(Node) + (nodes + 1) / 2 * (sizeof(Leaf) + 1);
   const double lane_count = refs + (nodes + 1) / 2 * double(kWideLanes - 1);
+  // A lane's mesh index, and with shared corners its three corner indices (planned, then listed).
+  const double lane_bytes = sizeof(uint32_t) + (hybrid::kSharedCorners ? 6 : 0);
   check_memory_budget("hybrid", mesh.num_triangles(),
                       {{"build tree", double(tb.live_bytes())},
-                       {"references", lane_count * sizeof(uint32_t)},
+                       {"references", lane_count * lane_bytes},
                        {"nodes and leaves", flat}},
                       params, fix);
-  check_memory_budget("hybrid", mesh.num_triangles(),
-                      {{"references", lane_count * sizeof(uint32_t)},
-                       {"triangle groups", lane_count * hybrid::kGroupLaneFloats * sizeof(float)},
-                       {"nodes and leaves", flat}},
-                      params, fix);
+  check_memory_budget(
+      "hybrid", mesh.num_triangles(),
+      {{"references", lane_count * lane_bytes},
+       {"triangle groups", lane_count * hybrid::kGroupLaneFloatsAtMost * sizeof(float)},
+       {"nodes and leaves", flat}},
+      params, fix);
   nodes_.reserve(size_t(nodes));
   leaves_.reserve(size_t(nodes + 1) / 2);
   leaf_depth_.reserve(size_t(nodes + 1) / 2);
   plan = GroupPlan{};
   plan.lanes.reserve(size_t(refs));
+  if constexpr (hybrid::kSharedCorners) plan.index.reserve(3 * size_t(refs));
   references = 0;
-  // A leaf's triangles as groups of kWideLanes lanes (mesh ids), the last one's lanes left over
-  // filled with the leaf's last triangle; returns the first group's float offset.
+  // Shared corners: each leaf's (and subtree leaf's) groups are planned first, in parallel (the
+  // corner sets are most of the groups' build time), in the order flatten meets the leaves.
+  struct LeafGroups {
+    std::vector<uint8_t> fill, corners, index;  ///< per group; three corner indices a lane
+  };
+  std::vector<std::pair<const uint32_t*, uint32_t>> leaf_lists;
+  std::vector<LeafGroups> planned;
+  if constexpr (hybrid::kSharedCorners) {
+    auto collect = [&](auto&& self, BuildNode* n) -> void {
+      if (n->axis >= 0) {
+        self(self, n->kid[0].get());
+        self(self, n->kid[1].get());
+      } else if (n->sub_nodes.empty()) {
+        leaf_lists.push_back({n->prims.data(), uint32_t(n->prims.size())});
+      } else {
+        for (size_t k = kSubBoxNodes; k < n->sub_nodes.size(); ++k)
+          if (n->sub_nodes[k].leaf())
+            leaf_lists.push_back(
+                {n->sub_refs.data() + n->sub_nodes[k].prim_offset, n->sub_nodes[k].count()});
+      }
+    };
+    collect(collect, root.get());
+    planned.resize(leaf_lists.size());
+    tbb::parallel_for(size_t(0), leaf_lists.size(), [&](size_t j) {
+      const auto [prims, n] = leaf_lists[j];
+      LeafGroups& lg = planned[j];
+      lg.index.resize(3 * size_t(n));
+      for (uint32_t i = 0; i < n;) {
+        // Up to kWideLanes lanes and kMaxGroupCorners distinct corners.
+        hybrid::CornerSet set;
+        uint32_t k = 0;
+        while (i + k < n && k < uint32_t(kWideLanes) &&
+               set.add(mesh.corners(prims[i + k]), &lg.index[3 * size_t(i + k)]))
+          ++k;
+        lg.fill.push_back(uint8_t(k));
+        lg.corners.push_back(uint8_t(set.size));
+        i += k;
+      }
+    });
+  }
+  size_t next_list = 0;
+  // A leaf's triangles as groups (records.h, "Triangle groups"), in the leaf's order; returns
+  // the first group's float offset.
+  auto add_group = [&](uint32_t fill, uint32_t corners) {
+    plan.offset.push_back(uint32_t(plan.floats));
+    plan.fill.push_back(fill);
+    plan.corners.push_back(corners);
+    plan.floats += hybrid::kSharedCorners ? hybrid::shared_group_floats(fill, corners)
+                                          : hybrid::kGroupLaneFloats * uint32_t(kWideLanes);
+    if (plan.floats >= (uint64_t(1) << 32))
+      throw ParamError(
+          "hybrid: more than 2^32 floats of triangle groups in the leaves: use a larger cell "
+          "size or --hybrid-subtree-min 0");
+  };
   auto add_groups = [&](const uint32_t* prims, uint32_t n) {
     const uint64_t first = plan.floats;
-    for (uint32_t i = 0; i < n; i += kWideLanes) {
-      const uint32_t fill = std::min(n - i, uint32_t(kWideLanes));
-      plan.offset.push_back(uint32_t(plan.floats));
-      plan.fill.push_back(fill);
-      plan.floats += hybrid::group_floats(fill);
-      if (plan.floats >= (uint64_t(1) << 32))
-        throw ParamError(
-            "hybrid: more than 2^32 floats of triangle groups in the leaves: use a larger cell "
-            "size or --hybrid-subtree-min 0");
-      for (uint32_t k = 0; k < uint32_t(kWideLanes); ++k)
-        plan.lanes.push_back(prims[std::min(i + k, n - 1)]);
+    if constexpr (hybrid::kSharedCorners) {
+      LeafGroups& lg = planned[next_list++];
+      plan.lanes.insert(plan.lanes.end(), prims, prims + n);
+      plan.index.insert(plan.index.end(), lg.index.begin(), lg.index.end());
+      for (size_t g = 0, i = 0; g < lg.fill.size(); i += lg.fill[g++]) {
+        plan.start.push_back(uint32_t(plan.lanes.size() - n + i));
+        add_group(lg.fill[g], lg.corners[g]);
+      }
+      lg = LeafGroups{};
+    } else {
+      for (uint32_t i = 0; i < n; i += uint32_t(kWideLanes)) {
+        // kWideLanes lanes, those left over filled with the leaf's last triangle.
+        plan.start.push_back(uint32_t(plan.lanes.size()));
+        for (uint32_t j = 0; j < uint32_t(kWideLanes); ++j)
+          plan.lanes.push_back(prims[std::min(i + j, n - 1)]);
+        add_group(std::min(n - i, uint32_t(kWideLanes)), 0);
+      }
     }
     references += n;
     return uint32_t(first);

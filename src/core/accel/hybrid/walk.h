@@ -466,16 +466,12 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
                                uint32_t count, float& best, bool& found, LocalHit& h) const {
   s.leaf();
   using Wide = WatertightWide<kWideLanes>;
-  // The leaf's groups (records.h, "Triangle groups"): full ones, then the lanes left over.
+  // The leaf's groups, one after the other (records.h, "Triangle groups").
   const float* p = groups_[0].f + first;
-  auto prim_of = [](const float* q, uint32_t stride, uint32_t i) {
-    uint32_t v;
-    std::memcpy(&v, q + 9 * stride + i, sizeof v);
-    return v;
-  };
-  for (uint32_t left = count; left != 0; p += hybrid::kGroupLaneFloats * kWideLanes) {
-    const uint32_t n = std::min(left, uint32_t(kWideLanes));
-    const uint32_t stride = hybrid::group_stride(n);
+  for (uint32_t left = count; left != 0;) {
+    const hybrid::GroupView g = hybrid::GroupView::at(p, left);
+    const uint32_t n = g.n;
+    p = g.end();
     left -= n;
     uint32_t lanes = 0;
     if constexpr (!kMailboxed<TriangleTest>) {
@@ -484,11 +480,11 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
       // look-ups cost more than the repeats they saved (docs/HYBRID.md, "Wide leaves").
       lanes = uint32_t((uint64_t(1) << n) - 1);
       if constexpr (Probe::kCount)
-        for (uint32_t i = 0; i < n; ++i) s.tri_test(prim_of(p, stride, i));
+        for (uint32_t i = 0; i < n; ++i) s.tri_test(g.prim(i));
     } else {
       // The lanes whose triangle the ray has not tested before.
       for (uint32_t i = 0; i < n; ++i) {
-        const uint32_t prim = prim_of(p, stride, i);
+        const uint32_t prim = g.prim(i);
         if (hybrid::tested_before<kExact>(w, prim)) {
           s.mailbox_skip();
           continue;
@@ -500,24 +496,23 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
     if (lanes == 0) continue;
     if constexpr (kWide<TriangleTest>) {
       float t, u, v;
-      const int i = Wide::intersect(rd, p, stride, lanes, tmin, best, t, u, v);
+      const int i = Wide::intersect(rd, g, lanes, tmin, best, t, u, v);
       if (i >= 0) {
         if constexpr (kAny) return true;
         best = t;
         found = true;
-        h = {prim_of(p, stride, uint32_t(i)), u, v};
+        h = {g.prim(uint32_t(i)), u, v};
       }
     } else {
       for (; lanes != 0; lanes &= lanes - 1) {
         const int i = __builtin_ctz(lanes);
         float t, u, v;
-        if (TriangleTest::intersect(rd, Wide::corner(p, stride, 0, i),
-                                    Wide::corner(p, stride, 1, i), Wide::corner(p, stride, 2, i),
-                                    tmin, best, t, u, v)) {
+        if (TriangleTest::intersect(rd, g.corner(0, i), g.corner(1, i), g.corner(2, i), tmin, best,
+                                    t, u, v)) {
           if constexpr (kAny) return true;
           best = t;
           found = true;
-          h = {prim_of(p, stride, uint32_t(i)), u, v};
+          h = {g.prim(uint32_t(i)), u, v};
         }
       }
     }
