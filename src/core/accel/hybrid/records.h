@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <cstring>
+#include <type_traits>
 #if defined(__AVX512F__)
 #include <immintrin.h>
 #endif
@@ -167,7 +168,8 @@ struct SharedCornerGroup {
         c[k][j] = (F)_mm512_permutex2var_ps((__m512)s[0][j], ik[k], (__m512)s[1][j]);
   }
 };
-using GroupView = SharedCornerGroup;
+/// The layout this build stores (kSharedCorners).
+using GroupView = std::conditional_t<kSharedCorners, SharedCornerGroup, LaneGroup>;
 #else
 using GroupView = LaneGroup;
 #endif
