@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Checks that the core library compiles under clang (syntax and semantics, no code generated),
 # in the portable, x86-64-v3 (AVX2) and x86-64-v4 (AVX-512: the hybrid's 16-lane groups)
-# flavours: the ctest `Portability.CoreCompilesWithClang`.
+# flavours, and the hybrid's files for AVX-512 with groups of 8: the ctest
+# `Portability.CoreCompilesWithClang`.
 # The tests build with GCC; CI's fuzz step builds the core with clang much later, and a
 # GCC-only builtin once failed CI there after 40 minutes. This finds it in seconds.
 # Exits 77 (ctest's skip) with a message when clang++ is not installed.
@@ -23,5 +24,12 @@ for arch in "${archs[@]}"; do
   find src/core -name '*.cpp' -print0 | sort -z |
     xargs -0 -P "$jobs" -n 4 "$cxx" "${flags[@]}" $arch || status=1
 done
+# The hybrid's groups of 8 in a build for AVX-512 (KDGRID_WIDE_LANES=8: lanes by coordinate, not
+# the shared corners the target would otherwise pick): the files that instantiate its walk.
+if [ "$(uname -m)" = x86_64 ]; then
+  echo "== $cxx -march=x86-64-v4 -DKDGRID_WIDE_LANES=8 (the hybrid's files)"
+  ls src/core/accel/hybrid/*.cpp src/core/accel/factory.cpp |
+    xargs -P "$jobs" -n 2 "$cxx" "${flags[@]}" -march=x86-64-v4 -DKDGRID_WIDE_LANES=8 || status=1
+fi
 [ "$status" = 0 ] && echo "src/core compiles under $("$cxx" --version | head -1)"
 exit "$status"

@@ -117,6 +117,24 @@ struct WatertightWide {
     z = d.sz * dz;
   }
 
+  /// G::sheared for corners stored by lane: coordinate a of corner k of lane i at
+  /// p[(3k + a) W + i] (WideTriangles, the hybrid's groups by lane).
+  [[gnu::always_inline]] static void sheared_by_lane(const WatertightTest::RayData& d,
+                                                     const float* p, F (&c)[3][3]) {
+    for (int k = 0; k < 3; ++k) {
+      F v[3];
+      std::memcpy(&v[0], p + (3 * k + d.kx) * W, sizeof(F));
+      std::memcpy(&v[1], p + (3 * k + d.ky) * W, sizeof(F));
+      std::memcpy(&v[2], p + (3 * k + d.kz) * W, sizeof(F));
+      shear(d, v[0], v[1], v[2], c[k][0], c[k][1], c[k][2]);
+    }
+  }
+  /// G::corner for the same layout.
+  static Vec3 corner_by_lane(const float* p, int k, int i) {
+    const float* q = p + 3 * k * W + i;
+    return {q[0], q[W], q[2 * W]};
+  }
+
   /// The closest hit with tmin <= t < tmax among the lanes of group g whose bit is set in
   /// `lanes`: its lane, t, u and v, or -1. Among equal t the lowest lane wins, as a scalar loop
   /// over the lanes in order keeps the first triangle at equal t (it accepts only t < best).
@@ -188,13 +206,7 @@ struct WatertightWide {
 template <int W>
 template <class D, class F>
 inline void WideTriangles<W>::sheared(const D& d, uint32_t, F (&out)[3][3]) const {
-  for (int k = 0; k < 3; ++k) {
-    F v[3];
-    std::memcpy(&v[0], c[k][d.kx], sizeof(F));
-    std::memcpy(&v[1], c[k][d.ky], sizeof(F));
-    std::memcpy(&v[2], c[k][d.kz], sizeof(F));
-    WatertightWide<W>::shear(d, v[0], v[1], v[2], out[k][0], out[k][1], out[k][2]);
-  }
+  WatertightWide<W>::sheared_by_lane(d, &c[0][0][0], out);
 }
 
 }  // namespace kdgrid

@@ -162,7 +162,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
         "hybrid", ntri,
         {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
          {"triangle groups and their lane list (at least one lane and one entry per triangle)",
-          nt * (sizeof(uint32_t) + hybrid::kGroupLaneFloatsAtMost * sizeof(float))},
+          nt * (sizeof(uint32_t) + hybrid::kGroupLaneBytesAtLeast)},
          {"leaf subtrees' classification flags (a byte per triangle per thread)",
           params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
         params,
@@ -214,8 +214,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     return format_double("%.0f", d[0]) + "x" + format_double("%.0f", d[1]) + "x" +
            format_double("%.0f", d[2]);
   };
-  const double tri_bytes =
-      double(ntri) * (hybrid::kGroupLaneFloatsAtMost * sizeof(float) + 4 * sizeof(uint32_t));
+  const double tri_bytes = double(ntri) * (hybrid::kGroupLaneBytesAtLeast + 4 * sizeof(uint32_t));
   if (map_.dense()) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {

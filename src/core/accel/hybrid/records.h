@@ -82,6 +82,11 @@ constexpr uint32_t kMaxGroupCorners = 32;
 constexpr uint32_t shared_group_floats(uint32_t n, uint32_t u) {
   return 1 + 3 * u + n + (3 * n + 3) / 4;
 }
+/// The least bytes a lane takes, its group's share included (the memory guard's "at least"):
+/// by lane its 40; with shared corners those of a full group whose lanes name the same 3
+/// corners (9.5).
+constexpr double kGroupLaneBytesAtLeast =
+    kSharedCorners ? shared_group_floats(kWideLanes, 3) * 4.0 / kWideLanes : kGroupLaneFloats * 4.0;
 
 /// A group by lane, as WatertightWide and the walk read it.
 struct LaneGroup {
@@ -99,20 +104,11 @@ struct LaneGroup {
     std::memcpy(&v, p + 9 * kWideLanes + i, sizeof v);
     return v;
   }
-  Vec3 corner(int k, int i) const {
-    const float* q = p + 3 * k * kWideLanes + i;
-    return {q[0], q[kWideLanes], q[2 * kWideLanes]};
-  }
+  Vec3 corner(int k, int i) const { return WatertightWide<kWideLanes>::corner_by_lane(p, k, i); }
   template <class F>
   [[gnu::always_inline]] void sheared(const WatertightTest::RayData& d, uint32_t,
                                       F (&c)[3][3]) const {
-    for (int k = 0; k < 3; ++k) {
-      F v[3];
-      std::memcpy(&v[0], p + (3 * k + d.kx) * kWideLanes, sizeof(F));
-      std::memcpy(&v[1], p + (3 * k + d.ky) * kWideLanes, sizeof(F));
-      std::memcpy(&v[2], p + (3 * k + d.kz) * kWideLanes, sizeof(F));
-      WatertightWide<kWideLanes>::shear(d, v[0], v[1], v[2], c[k][0], c[k][1], c[k][2]);
-    }
+    WatertightWide<kWideLanes>::sheared_by_lane(d, p, c);
   }
 };
 
