@@ -23,6 +23,8 @@ packages=(
   clang-format-14
   # scripts/cache-profile.sh: callgrind's cache and branch simulation
   valgrind
+  # scripts/time-split.sh: perf's samples of the native build
+  linux-perf
   # plots
   python3-matplotlib python3-numpy
 )

@@ -2,21 +2,9 @@
 # Where a ray's instructions go, by ray class: per ray of each structure and ray set (primary,
 # shadow, diffuse), valgrind's callgrind counts the instructions, simulated cache misses and
 # mispredicted branches of the fast query (AcceleratorBase::intersect, or ::occluded for the
-# shadow set's any-hit queries) and splits the instructions by the code they come from:
-#   setup    the ray's validation, the clip to the structure's box (kd_begin) and, in the hybrid,
-#            the rest of walk_begin: the grid-space ray, the entry cell and its leaf (start_leaf)
-#   steps    the hybrid's leaf steps: traverse's loop and walk_step less their tests, leaf_exit, the
-#            next-leaf lookup (next_leaf, the cell map) and the step bound
-#   subtree  kd_traverse and kd_clip_x4 (kd_kernel.h): the kd-tree's whole traversal, the
-#            hybrid's walks of leaf subtrees
-#   tests    the triangle test (WatertightTest::intersect, the wide leaves' WatertightWide) and
-#            the loop over a leaf's groups (test_groups; the kd-tree's leaf loop)
-#   mailbox  the hybrid's per-ray mailbox (tested_before) and the exact walk's set
-#   other    anything else (calls into the C++ runtime; the exact walk's rewalk bookkeeping)
-# Each executed instruction is assigned by its inline chain (addr2line -i over the callgrind
-# build's line info): the innermost frame that names one of the functions above decides, so a
-# vec.h operator inlined into the triangle test counts as a test, the same one inlined into
-# walk_begin as set-up.
+# shadow set's any-hit queries) and splits the instructions by the code they come from: set-up,
+# leaf steps, subtrees, tests, mailbox and other, as scripts/walk_parts.py defines them (the
+# same split as scripts/time-split.sh's of perf's time samples on the native build).
 #
 # The rays: `kdgrid rays` writes each set at RES x RES (default 1024) with the camera of
 # KDGRID_ARGS; the middle COUNT rays of each set (default 32768; for the primary set, rows in
@@ -131,50 +119,12 @@ for s in syms:
         break
 if base is None:
     base = 0x108000 if ours and ours[0] > 0x108000 else 0
-chains = {}
-if ours:
-    res = subprocess.run(["addr2line", "-a", "-i", "-f", "-C", "-e", binary] + [hex(a - base) for a in ours],
-                         capture_output=True, text=True).stdout.splitlines()
-    cur, odd = None, False
-    for l in res:
-        if re.fullmatch(r"0x[0-9a-f]+", l):
-            cur, odd = int(l, 16) + base, False
-            chains[cur] = []
-        elif cur is not None:
-            if not odd:
-                chains[cur].append([l, ""])  # a frame's function, then its file:line
-            else:
-                chains[cur][-1][1] = l
-            odd = not odd
-rules = [("tests", ("Test::intersect", "WatertightWide<")),
-         ("mailbox", ("tested_before", "TestedSet")), ("tests", ("test_groups",)), ("subtree", ("kd_traverse", "kd_clip_x4")),
-         ("setup", ("walk_begin", "kd_begin", "start_leaf")),
-         ("steps", ("leaf_exit", "exit_through", "next_leaf", "walk_step", "over_step_bound")),
-         ("other", ("rewalk",)),
-         ("setup", ("AcceleratorBase",))]
-# The kd-tree's leaf loop is a lambda inside its query: a frame whose name is a lambda in
-# kdtree's code is a test loop.
-# The hybrid's walk itself: its loop (the empty leaves it steps over inline, the call of
-# walk_step) is steps, the rest (entry, exit, the answer's copy) set-up. Its loop's lines are
-# read from walk.h: from `for (;;)` to the call of walk_step.
-src = open("src/core/accel/hybrid/walk.h").read().splitlines()
-w0 = next(i for i, l in enumerate(src) if re.search(r"Hybrid::traverse\(const Ray", l))
-loop = (next(i for i in range(w0, len(src)) if "for (;;)" in src[i]) + 1,
-        next(i for i in range(w0, len(src)) if "walk_step<" in src[i]) + 1)
-def kind(chain):
-    for f, loc in chain:
-        if re.search(r"Hybrid::traverse<", f):
-            m = re.search(r"walk\.h:(\d+)", loc)
-            return "steps" if m and loop[0] <= int(m.group(1)) <= loop[1] else "setup"
-        for k, names in rules:
-            if any(n in f for n in names):
-                return k
-        if "KdTree" in f and "lambda" in f:
-            return "tests"
-    return "other"
+sys.path.insert(0, "scripts")
+from walk_parts import inline_chains, part
+chains = {a + base: c for a, c in inline_chains(binary, [a - base for a in ours]).items()}
 split, other = {}, {}
 for (o, a), c in cost.items():
-    k = kind(chains.get(a, [])) if o == binary else "other"
+    k = part(chains.get(a, [])) if o == binary else "other"
     split[k] = split.get(k, 0) + c[ev["Ir"]]
     if k == "other":  # told on stderr, to see what the rules miss
         f = chains.get(a, [["?", ""]])[-1][0] if o == binary else o
