@@ -99,6 +99,9 @@ for line in open(samples):
     a = addr[sym] + off
     counts[a] = counts.get(a, 0) + 1
     total += 1
+if total == 0:
+    sys.exit(f"time-split: {accel} {rayset}: perf recorded no samples of the query: raise REPEAT, "
+             f"or check that perf samples user code here (/proc/sys/kernel/perf_event_paranoid)")
 chains = inline_chains(binary, sorted(counts))
 split, other = dict.fromkeys(PARTS, 0), {}
 for a, c in counts.items():
@@ -112,7 +115,7 @@ for f, c in sorted(other.items(), key=lambda kv: -kv[1])[:3]:
 t = open(trace).read()
 m = re.search(r"^speed\s+([\d.]+) Mrays/s", t, re.M)
 ns = f"{1000.0 / float(m.group(1)):.0f}" if m and float(m.group(1)) > 0 else "n/a"
-cols = " | ".join(f"{100.0 * split[k] / total:.0f}%" if total else "-" for k in PARTS)
+cols = " | ".join(f"{100.0 * split[k] / total:.0f}%" for k in PARTS)
 print(f"| {accel} | {rayset} | {ns} | {cols} | {total} |")
 EOF
   done

@@ -52,7 +52,7 @@ template <int W>
 struct alignas(4 * W) WideTriangles {
   float c[3][3][W];
   /// Corner k of lane i.
-  Vec3 corner(int k, int i) const { return {c[k][0][i], c[k][1][i], c[k][2][i]}; }
+  Vec3 corner(int k, int i) const;
   /// WatertightWide's view of the group (see WatertightWide::intersect).
   template <class D, class F>
   [[gnu::always_inline]] void sheared(const D& d, uint32_t, F (&out)[3][3]) const;
@@ -202,6 +202,11 @@ struct WatertightWide {
     return best;
   }
 };
+
+template <int W>
+inline Vec3 WideTriangles<W>::corner(int k, int i) const {
+  return WatertightWide<W>::corner_by_lane(&c[0][0][0], k, i);
+}
 
 template <int W>
 template <class D, class F>
