@@ -3,8 +3,9 @@
 # suite's primary rays, for docs/RESULTS.md ("The hybrid's variants"): the default (leaf
 # subtrees, empty-leaf boxes, bricked matrix), plain leaves (--hybrid-subtree-min 0), the paper's
 # hybrid (plain leaves stepping over kd leaf boxes: --hybrid-subtree-min 0
-# --hybrid-no-expand-empty), the dense matrix of the paper (--hybrid-dense-matrix), and the
-# default without the next-leaf cache (--hybrid-no-next-leaf-cache).
+# --hybrid-no-expand-empty), the dense matrix of the paper (--hybrid-dense-matrix), the
+# default without the next-leaf cache (--hybrid-no-next-leaf-cache), and every leaf subtree
+# walked by its kd nodes (--hybrid-no-flat-subtrees).
 # Tracing is timed with the threads' CPU clocks (--clock cpu) because this machine is shared;
 # every figure is also given as a ratio to Embree and to the kd-tree measured in the same run.
 #
@@ -32,4 +33,5 @@ variant plain --hybrid-subtree-min 0
 variant paper --hybrid-subtree-min 0 --hybrid-no-expand-empty
 variant dense --hybrid-dense-matrix
 variant nocache --hybrid-no-next-leaf-cache
-echo "hybrid-variants: wrote $results/hybrid-{default,plain,paper,dense,nocache}.json" >&2
+variant kdsub --hybrid-no-flat-subtrees
+echo "hybrid-variants: wrote $results/hybrid-{default,plain,paper,dense,nocache,kdsub}.json" >&2

@@ -34,6 +34,12 @@ class Parts(unittest.TestCase):
         self.assertEqual(walk_parts.part([["kdgrid::kd_traverse<...>(...)", "kd_kernel.h:200"],
                                           ["kdgrid::GridKdHybrid::walk_step<...>(...)", "walk.h:600"]]),
                          "subtree")
+        self.assertEqual(walk_parts.part([["kdgrid::GridKdHybrid::walk_flat<...>(...)", "walk.h:560"],
+                                          ["kdgrid::GridKdHybrid::walk_step<...>(...)", "walk.h:640"]]),
+                         "subtree")
+        self.assertEqual(walk_parts.part([["kdgrid::GridKdHybrid::test_groups<...>(...)", "walk.h:480"],
+                                          ["kdgrid::GridKdHybrid::walk_flat<...>(...)", "walk.h:590"]]),
+                         "tests")
         self.assertEqual(walk_parts.part([["kdgrid::GridKdHybrid::next_leaf(...)", "walk.h:240"]]),
                          "steps")
         self.assertEqual(walk_parts.part([["kdgrid::hybrid::tested_before<false, ...>(...)", "walk.h:160"],

@@ -7,7 +7,7 @@ comes from:
   steps    the hybrid's leaf steps: traverse's loop and walk_step less their tests, leaf_exit,
            the next-leaf lookup (next_leaf, the cell map) and the step bound
   subtree  kd_traverse and kd_clip_x4 (kd_kernel.h): the kd-tree's whole traversal, the hybrid's
-           walks of leaf subtrees
+           walks of leaf subtrees; and the hybrid's walk_flat, its flat subtrees' walk
   tests    the triangle test (WatertightTest::intersect, the wide leaves' WatertightWide) and the
            loop over a leaf's groups (test_groups; the kd-tree's leaf loop)
   mailbox  the hybrid's per-ray mailbox (tested_before) and the exact walk's set
@@ -24,7 +24,7 @@ PARTS = ("setup", "steps", "subtree", "tests", "mailbox", "other")
 
 _RULES = [("tests", ("Test::intersect", "WatertightWide<")),
           ("mailbox", ("tested_before", "TestedSet")), ("tests", ("test_groups",)),
-          ("subtree", ("kd_traverse", "kd_clip_x4")),
+          ("subtree", ("kd_traverse", "kd_clip_x4", "walk_flat")),
           ("setup", ("walk_begin", "kd_begin", "start_leaf")),
           ("steps", ("leaf_exit", "exit_through", "next_leaf", "walk_step", "over_step_bound")),
           ("other", ("rewalk",)),

@@ -58,6 +58,8 @@ const std::vector<FlagCase>& flag_cases() {
        }},
       {"--hybrid-no-expand-empty", "--hybrid-no-expand", "",
        [](const AccelOptions&, const BuildParams& p) { return !p.hybrid_expand_empty; }},
+      {"--hybrid-no-flat-subtrees", "", "",
+       [](const AccelOptions&, const BuildParams& p) { return !p.hybrid_flat_subtrees; }},
       {"--hybrid-no-next-leaf-cache", "--hybrid-no-guess", "",
        [](const AccelOptions&, const BuildParams& p) { return !p.hybrid_next_leaf_cache; }},
       {"--bvh-max-leaf", "--bvh-leaf", "3",
@@ -185,6 +187,7 @@ TEST(CliFlags, PrintedBuildFlagsUseTheFieldNamesAndRebuildTheSameParams) {
   p.hybrid_max_build_seconds = 30.0;
   p.hybrid_expand_empty = false;
   p.hybrid_next_leaf_cache = false;
+  p.hybrid_flat_subtrees = false;
   p.bvh_max_leaf = 5;
   p.irregular_top_density = 0.3f;
   p.irregular_sub_density = 3.0f;
@@ -213,6 +216,7 @@ TEST(CliFlags, PrintedBuildFlagsUseTheFieldNamesAndRebuildTheSameParams) {
   EXPECT_EQ(q.hybrid_max_build_seconds, p.hybrid_max_build_seconds);
   EXPECT_EQ(q.hybrid_expand_empty, p.hybrid_expand_empty);
   EXPECT_EQ(q.hybrid_next_leaf_cache, p.hybrid_next_leaf_cache);
+  EXPECT_EQ(q.hybrid_flat_subtrees, p.hybrid_flat_subtrees);
   EXPECT_EQ(q.bvh_max_leaf, p.bvh_max_leaf);
   EXPECT_EQ(q.irregular_top_density, p.irregular_top_density);
   EXPECT_EQ(q.irregular_sub_density, p.irregular_sub_density);

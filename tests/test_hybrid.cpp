@@ -880,6 +880,66 @@ TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
   EXPECT_EQ(with_cache, without);
 }
 
+// Flat subtrees (BuildParams::hybrid_flat_subtrees, records.h): the leaves of a subtree tested
+// against the ray all at once and visited in the kd walk's order for the ray's octant give the
+// same answers as the kd walk of the same subtrees, bit for bit, closest hit and any hit, on
+// rays from everywhere, axis-parallel ones (zero direction components) and segments; the
+// traced walk (flat leaves one level below their grid leaf) ends at the same hit.
+TEST(Hybrid, FlatSubtreesAnswerAsTheKdWalk) {
+  if (!hybrid::kFlatSubtrees)
+    GTEST_SKIP() << "flat subtrees are built for AVX-512 targets only; this build walks every "
+                    "subtree by its kd nodes";
+  // Cells of a fifth to a third of the meshes' size: leaves of hundreds of triangles, whose
+  // subtrees have 5 to 16 leaves with triangles (the auto grid's leaves here hold at most 32).
+  struct Case {
+    const char* name;
+    Mesh mesh;
+    float cell;
+  };
+  const Case cases[] = {
+      {"sphere", subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 6), 0.2f},
+      {"soup", random_soup(21, 30000, Vec3(-1), Vec3(1), 0.03f), 0.3f},
+      {"sphere far from the origin",
+       transformed(subdivided_sphere(Vec3(0.0f), 1.0f, 6), 1.0f, Vec3(1e4f, -3e3f, 2e3f)), 0.2f}};
+  for (const Case& c : cases) {
+    BuildParams p = params_with(c.cell, false);
+    GridKdHybrid flat, kd;
+    const BuildStats st = flat.build(c.mesh, p);
+    p.hybrid_flat_subtrees = false;
+    const BuildStats st_kd = kd.build(c.mesh, p);
+    const std::string subtrees = extra_value(st, "leaf subtrees");
+    ASSERT_NE(subtrees.find(" stored flat"), std::string::npos) << c.name << ": " << subtrees;
+    EXPECT_EQ(subtrees.find("(0 stored flat"), std::string::npos)
+        << c.name << ": the test needs flat subtrees: " << subtrees;
+    EXPECT_NE(extra_value(st_kd, "leaf subtrees").find("none flat"), std::string::npos)
+        << c.name << ": " << extra_value(st_kd, "leaf subtrees");
+    std::vector<Ray> rays = random_rays(c.mesh, 20000, 9);
+    for (const Ray& r : coherent_rays(64)) rays.push_back(r);
+    int hits = 0;
+    for (size_t i = 0; i < rays.size(); ++i) {
+      const Ray& r = rays[i];
+      Hit a, b;
+      const bool fa = flat.intersect(r, a), fb = kd.intersect(r, b);
+      ASSERT_EQ(fa, fb) << c.name << " ray " << i;
+      if (fa) {
+        ++hits;
+        EXPECT_EQ(a.prim, b.prim) << c.name << " ray " << i;
+        EXPECT_EQ(a.t, b.t) << c.name << " ray " << i;
+        EXPECT_EQ(a.u, b.u) << c.name << " ray " << i;
+      }
+      ASSERT_EQ(flat.occluded(r), kd.occluded(r)) << c.name << " ray " << i;
+      if (i % 16 == 0) {
+        const Trace tr = flat.trace(r);
+        ASSERT_EQ(tr.hit.valid(), fa) << c.name << " ray " << i;
+        if (fa) {
+          EXPECT_EQ(tr.hit.t, a.t) << c.name << " ray " << i;
+        }
+      }
+    }
+    EXPECT_GT(hits, 5000) << c.name;
+  }
+}
+
 void check_trace_order(uint32_t subtree_min) {
   const Mesh m = random_soup(8, 2000, Vec3(-1), Vec3(1), 0.08f);
   GridKdHybrid h;

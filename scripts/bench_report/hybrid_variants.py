@@ -5,12 +5,13 @@ from .bench import labels
 from .common import g, load, ordered_unique, prose, table
 
 
-HYBRID_VARIANTS = [("default", "default: leaf subtrees, empty-leaf boxes"),
+HYBRID_VARIANTS = [("default", "default: leaf subtrees (flat where they pay), empty-leaf boxes"),
                    ("plain", "plain leaves (`--hybrid-subtree-min 0`)"),
                    ("paper", "the paper's: plain leaves, kd leaf boxes "
                     "(`--hybrid-subtree-min 0 --hybrid-no-expand-empty`)"),
                    ("dense", "dense matrix (`--hybrid-dense-matrix`)"),
-                   ("nocache", "no next-leaf cache (`--hybrid-no-next-leaf-cache`)")]
+                   ("nocache", "no next-leaf cache (`--hybrid-no-next-leaf-cache`)"),
+                   ("kdsub", "every subtree walked by its kd nodes (`--hybrid-no-flat-subtrees`)")]
 # Earlier names of the variants' files, read when a results directory has only those.
 EARLIER_NAMES = {"nocache": "noguess"}
 

@@ -70,6 +70,12 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
          "Hybrid: step over the kd leaf boxes of the paper, without widening empty leaves over "
          "the empty cells around them")
       ->group(g);
+  bool& flat_subtrees = params.hybrid_flat_subtrees;
+  cmd->add_flag_callback(
+         "--hybrid-no-flat-subtrees", [&flat_subtrees] { flat_subtrees = false; },
+         "Hybrid: walk every leaf subtree by its kd nodes, instead of testing the leaves of a "
+         "subtree of 5 to 16 leaves against the ray all at once (AVX-512 builds)")
+      ->group(g);
   bool& next_leaf_cache = params.hybrid_next_leaf_cache;
   cmd->add_flag_callback(
          "--hybrid-no-next-leaf-cache,--hybrid-no-guess",
@@ -143,6 +149,7 @@ std::string accel_flags(const std::string& accel, const BuildParams& p) {
   if (p.hybrid_subtree_min != d.hybrid_subtree_min)
     s += " --hybrid-subtree-min " + std::to_string(p.hybrid_subtree_min);
   if (!p.hybrid_expand_empty) s += " --hybrid-no-expand-empty";
+  if (!p.hybrid_flat_subtrees) s += " --hybrid-no-flat-subtrees";
   if (!p.hybrid_next_leaf_cache) s += " --hybrid-no-next-leaf-cache";
   if (p.hybrid_intersection_cost != d.hybrid_intersection_cost)
     s += " --hybrid-intersection-cost " + num(p.hybrid_intersection_cost);

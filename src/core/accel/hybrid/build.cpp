@@ -178,7 +178,9 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaf_depth_.clear();
   sub_nodes_.clear();
   groups_.clear();
+  flat_.clear();
   group_count_ = group_lanes_ = group_corners_ = 0;
+  flat_subtrees_ = 0;
   map_.reset(params.hybrid_dense_matrix);
   step_errors_.store(0);
   {
@@ -311,7 +313,8 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     plan = GroupPlan{};
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
-             leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine);
+             leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine) +
+             sub_nodes_.size() * sizeof(KdNode) + flat_.size() * sizeof(hybrid::GroupLine);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
@@ -351,15 +354,18 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.references = references;
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
+  const uint64_t b_flat = flat_.size() * sizeof(hybrid::GroupLine);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
   const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(KdBox);
   const uint64_t b_groups = groups_.size() * sizeof(hybrid::GroupLine);
   const uint64_t b_matrix = map_.entries() * sizeof(uint32_t);
-  stats_.bytes = b_tree + b_leaves + b_kd_boxes + b_sub + b_groups + b_matrix + sizeof(*this);
+  stats_.bytes =
+      b_tree + b_leaves + b_kd_boxes + b_sub + b_flat + b_groups + b_matrix + sizeof(*this);
   stats_.bytes_by_part = {{"tree nodes", b_tree},
                           {"leaves", b_leaves},
                           {"leaf kd boxes", b_kd_boxes},
                           {"leaf subtrees", b_sub},
+                          {"flat subtrees", b_flat},
                           {"triangle groups (corners + triangle ids)", b_groups},
                           {map_.dense() ? "matrix (dense)" : "matrix (bricked)", b_matrix},
                           {"object", sizeof(*this)}};
@@ -369,12 +375,18 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
       {"grid",
        std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" + std::to_string(dims_[2])},
       {"matrix", map_.dense() ? "dense" : map_.bricked().describe()},
-      {"leaf subtrees", params.hybrid_subtree_min == 0
-                            ? std::string("off (plain leaves)")
-                            : std::to_string(subtree_leaves) + " leaves with more than " +
-                                  std::to_string(params.hybrid_subtree_min) + " triangles, " +
-                                  std::to_string(sub_nodes_.size()) + " nodes; largest leaf " +
-                                  std::to_string(largest_leaf) + " triangles"},
+      {"leaf subtrees",
+       params.hybrid_subtree_min == 0
+           ? std::string("off (plain leaves)")
+           : std::to_string(subtree_leaves) + " leaves with more than " +
+                 std::to_string(params.hybrid_subtree_min) + " triangles (" +
+                 (params.hybrid_flat_subtrees && hybrid::kFlatSubtrees
+                      ? std::to_string(flat_subtrees_) +
+                            " stored flat: " + std::to_string(hybrid::kFlatMinLeaves) + " to " +
+                            std::to_string(hybrid::kFlatLeaves) + " leaves with triangles"
+                      : std::string("none flat")) +
+                 "), " + std::to_string(sub_nodes_.size()) + " kd nodes; largest leaf " +
+                 std::to_string(largest_leaf) + " triangles"},
       {"triangle groups",
        hybrid::kSharedCorners
            ? std::to_string(group_count_) + " groups of up to " + std::to_string(kWideLanes) +

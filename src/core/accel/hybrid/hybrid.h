@@ -4,7 +4,8 @@
 // uniform grid, instead of descending the tree. The files of accel/hybrid/:
 //
 //   hybrid.h          this class: parameters, records' names, the walk's declarations
-//   records.h         Node, Leaf (the step box), KdBox (the kd box), the triangle groups' layout
+//   records.h         Node, Leaf (the step box), KdBox (the kd box), the triangle groups' and the
+//                     flat subtrees' layouts
 //   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
 //   walk.h            the ray walk: clip, entry cell, leaf steps with wide tests, and
 //                     the next-leaf cache (NextLeafCache)
@@ -21,7 +22,8 @@
 // triangles' largest extents, lowered to give at least kHybridAutoCellsPerTriangle cells per
 // triangle, then raised to at most kHybridAutoMaxAxisCells per axis and kHybridAutoMaxCells in
 // all (kHybridAutoMaxCellsPlain with plain leaves). Leaves of more than hybrid_subtree_min
-// triangles keep a kd subtree, walked by the kd-tree's traversal. Empty leaves' step boxes are
+// triangles keep a kd subtree, walked by the kd-tree's traversal, or with 5 to 16 leaves holding
+// triangles stored flat and tested all at once (hybrid_flat_subtrees). Empty leaves' step boxes are
 // widened over the empty cells around them (hybrid_expand_empty). A walk takes at most
 // nx+ny+nz+1 steps; the loop enforces that bound.
 #pragma once
@@ -266,6 +268,14 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// with nothing to test.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>
   [[gnu::noinline]] StepResult walk_step(WalkState<TriangleTest>& w, Probe& s) const;
+  /// Walks the flat subtree at float `at` of flat_ (records.h, "Flat subtrees") over the ray's
+  /// segment in leaf `leaf_id`, which ends at t_exit: the leaves the ray meets, found all at
+  /// once, tested in the kd walk's order until the closest hit lies before the next one. The
+  /// closest hit goes to w (its triangle and u, v through h). True: an any-hit query answered.
+  template <class TriangleTest, class Probe, bool kAny, bool kExact>
+  [[gnu::always_inline]] inline bool walk_flat(WalkState<TriangleTest>& w, Probe& s,
+                                               uint32_t leaf_id, uint32_t at, double t_exit,
+                                               LocalHit& h) const;
   /// Tests the `count` triangles of a leaf (or a subtree's leaf), from group `first` on, the one
   /// loop of both: with kWide, each group's lanes together by WatertightWide, without the
   /// mailbox; else lane by lane in order, through the ray's mailbox. The closest hit goes to
@@ -312,8 +322,10 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<uint8_t> leaf_depth_;
   std::vector<KdNode> sub_nodes_;          ///< leaf subtrees (world space, KdNode layout)
   std::vector<hybrid::GroupLine> groups_;  ///< the leaves' triangle groups (records.h)
+  std::vector<hybrid::GroupLine> flat_;    ///< flat subtrees (records.h)
   /// Groups, lanes and (shared corners) distinct corners stored (BuildStats)
   uint64_t group_count_ = 0, group_lanes_ = 0, group_corners_ = 0;
+  uint64_t flat_subtrees_ = 0;  ///< leaf subtrees stored flat (BuildStats)
   mutable std::atomic<uint64_t> step_errors_{0};
   mutable std::atomic<uint64_t> rewalks_{0};  ///< rewalked_rays()
 };

@@ -470,6 +470,76 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
     references += n;
     return uint32_t(first);
   };
+  // A subtree's leaves with triangles as one flat list (records.h, "Flat subtrees"), when it
+  // has kFlatMinLeaves to kFlatLeaves of them; returns its float offset in flat_ (0: none).
+  // `sub` is the relocated subtree in sub_nodes_ (its box, then its nodes).
+  flat_.clear();
+  std::vector<float> flat_list(16, 0.0f);  // offset 0 means "no flat list"
+  const bool want_flat = hybrid::kFlatSubtrees && params.hybrid_flat_subtrees;
+  auto add_flat = [&](const KdNode* sub) -> uint32_t {
+    if (!want_flat) return 0;
+    struct FlatLeaf {
+      const KdNode* node;
+      Box3 box;
+    };
+    std::vector<FlatLeaf> list;
+    float box8[8];
+    std::memcpy(box8, sub, sizeof box8);
+    const Box3 sub_box(Vec3(box8[0], box8[1], box8[2]), Vec3(box8[4], box8[5], box8[6]));
+    const KdNode* const root_node = sub + kSubBoxNodes;
+    // The leaves with triangles, depth-first (below first), each with its kd box within the
+    // subtree's box; a leaf whose box lies outside it holds no part of a triangle.
+    auto collect = [&](auto&& self, const KdNode* nd, Box3 b) -> bool {
+      if (nd->leaf()) {
+        if (nd->count() == 0) return true;
+        for (int a = 0; a < 3; ++a)
+          if (b.lo[a] > b.hi[a]) return true;
+        list.push_back({nd, b});
+        return list.size() <= hybrid::kFlatLeaves;
+      }
+      const int a = nd->axis();
+      Box3 below = b, above = b;
+      below.hi[a] = std::min(b.hi[a], nd->split);
+      above.lo[a] = std::max(b.lo[a], nd->split);
+      return self(self, nd + 1, below) && self(self, sub_nodes_.data() + nd->above(), above);
+    };
+    if (!collect(collect, root_node, sub_box) || list.size() < hybrid::kFlatMinLeaves) return 0;
+    const uint32_t n = uint32_t(list.size());
+    const uint32_t off = uint32_t(flat_list.size());
+    flat_list.resize(off + (hybrid::flat_subtree_floats(n) + 15) / 16 * 16, 0.0f);
+    float* const f = flat_list.data() + off;
+    std::memcpy(f, box8, sizeof box8);
+    std::memcpy(f + 8, &n, sizeof n);
+    float* const q = f + 16;
+    for (uint32_t i = 0; i < n; ++i) {
+      for (int a = 0; a < 3; ++a) {
+        q[uint32_t(a) * n + i] = list[i].box.lo[a];
+        q[uint32_t(3 + a) * n + i] = list[i].box.hi[a];
+      }
+      const uint32_t first = list[i].node->prim_offset, count = list[i].node->count();
+      std::memcpy(q + 6 * n + i, &first, sizeof first);
+      std::memcpy(q + 7 * n + i, &count, sizeof count);
+    }
+    // Each octant's front-to-back order: at a split, first the side a ray moving along the
+    // octant's signs meets first.
+    uint8_t* const order = reinterpret_cast<uint8_t*>(q + 8 * n);
+    for (uint32_t oct = 0, k = 0; oct < 8; ++oct) {
+      auto visit = [&](auto&& self, const KdNode* nd) -> void {
+        if (nd->leaf()) {
+          for (uint32_t i = 0; i < n; ++i)
+            if (list[i].node == nd) order[k++] = uint8_t(i);
+          return;
+        }
+        const KdNode* below = nd + 1;
+        const KdNode* above = sub_nodes_.data() + nd->above();
+        const bool down = (oct >> nd->axis()) & 1u;
+        self(self, down ? above : below);
+        self(self, down ? below : above);
+      };
+      visit(visit, root_node);
+    }
+    return off;
+  };
   // Flatten depth-first: left child follows its parent, leaves numbered in that order.
   uint32_t max_depth = 0;
   auto flatten = [&](auto&& self, BuildNode* n) -> void {
@@ -503,6 +573,14 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
         }
         l.first = base;
         l.count |= kSubtreeFlag;
+        // A flat subtree replaces the kd nodes, which the walk then never reads.
+        const uint32_t flat_at = add_flat(sub_nodes_.data() + base);
+        if (flat_at != 0) {
+          std::memcpy(&l.pad, &flat_at, sizeof flat_at);
+          sub_nodes_.resize(base);
+          l.first = 0;
+          ++flat_subtrees_;
+        }
       } else {
         l.first = add_groups(n->prims.data(), uint32_t(n->prims.size()));
       }
@@ -517,6 +595,10 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
   };
   flatten(flatten, root.get());
   stats_.max_depth = max_depth;
+  if (flat_list.size() > 16) {  // offset 0 alone: no flat subtree
+    flat_.assign(flat_list.size() / 16, hybrid::GroupLine{});
+    std::memcpy(flat_[0].f, flat_list.data(), flat_list.size() * sizeof(float));
+  }
 }
 
 }  // namespace kdgrid

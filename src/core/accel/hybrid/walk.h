@@ -521,6 +521,94 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
 }
 
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
+bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& s, uint32_t leaf_id, uint32_t at,
+                             double t_exit, LocalHit& h) const {
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+  // The ray's segment in the leaf, clipped to the subtree's box as the kd walk clips it.
+  const float* fb = flat_[0].f + at;
+  Float4 sub_lo, sub_hi;
+  std::memcpy(&sub_lo, fb, sizeof sub_lo);
+  std::memcpy(&sub_hi, fb + 4, sizeof sub_hi);
+  float ta = float(w.t_cur) - w.err, tb = float(std::min(t_exit, w.t1)) + w.err;
+  if (!kd_clip_x4(w.krx4, sub_lo, sub_hi, ta, tb)) return false;
+  uint32_t n;
+  std::memcpy(&n, fb + 8, sizeof n);
+  const float* q = fb + 16;
+  using F = WideVectors<16>::F;
+  using I = WideVectors<16>::I;
+  using Wide = WatertightWide<16>;
+  // The leaves in the kd walk's order for the ray's octant: at each split the side the ray
+  // meets first (a ray with a zero component takes the positive side's order; it lies in one
+  // slab of that axis, so the order of the others does not matter).
+  const uint32_t oct = uint32_t(w.kr.dir.x < 0.0f) | uint32_t(w.kr.dir.y < 0.0f) << 1 |
+                       uint32_t(w.kr.dir.z < 0.0f) << 2;
+  const uint8_t* order = reinterpret_cast<const uint8_t*>(q + 8 * n) + oct * n;
+  const uint32_t all = (1u << n) - 1;
+  // Each leaf's box clipped as kd_clip clips it (each slab widened by err, a zero direction
+  // component never bounding t), all leaves at once: the same [t0, t1] per leaf, except that
+  // a NaN slab t (a subnormal direction component) leaves the interval wider.
+  F t0 = F{} + ta, t1 = F{} + tb;
+  uint32_t inside = all;
+  for (int a = 0; a < 3; ++a) {
+    const F lo = (F)_mm512_maskz_loadu_ps(__mmask16(all), q + uint32_t(a) * n);
+    const F hi = (F)_mm512_maskz_loadu_ps(__mmask16(all), q + uint32_t(3 + a) * n);
+    const F o = F{} + w.krx4.org[a];
+    if (w.krx4.fixed[a]) {
+      inside &= Wide::bits((lo <= o) & (o <= hi));
+      continue;
+    }
+    const F inv = F{} + w.krx4.inv[a], e = F{} + w.krx4.err[a];
+    const F tl = (lo - o) * inv, th = (hi - o) * inv;
+    const F near = (tl < th ? tl : th) - e, far = (tl > th ? tl : th) + e;
+    t0 = near > t0 ? near : t0;
+    t1 = far < t1 ? far : t1;
+  }
+  // The leaves the ray meets, and their entry t's, in that order (lane k: the k-th leaf).
+  const I perm =
+      (I)_mm512_maskz_cvtepu8_epi32(__mmask16(all), _mm_maskz_loadu_epi8(__mmask16(all), order));
+  const I lane_bit = {1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768};
+  const I met = (t0 <= t1) & (((I{} + int(inside)) & lane_bit) != 0);
+  const __mmask16 lanes = __mmask16(all);
+  uint32_t left = Wide::bits((I)_mm512_maskz_permutexvar_epi32(lanes, (__m512i)perm, (__m512i)met));
+  const F entry = (F)_mm512_maskz_permutexvar_ps(lanes, (__m512i)perm, (__m512)t0);
+  const uint32_t* firsts = reinterpret_cast<const uint32_t*>(q + 6 * n);
+  const uint32_t* counts = reinterpret_cast<const uint32_t*>(q + 7 * n);
+  float best = w.best;
+  bool found = w.found;
+  [[maybe_unused]] float trace_in = float(w.t_cur);
+  while (left) {
+    const uint32_t k = uint32_t(__builtin_ctz(left));
+    // Done once the closest hit lies before the next leaf's entry (the kd walk's rule).
+    if (found && ((Wide::bits(F{} + best < entry) >> k) & 1u)) break;
+    left &= left - 1;
+    const uint32_t i = order[k];
+    s.step();
+    if constexpr (Probe::kTrace) {
+      // The leaf's segment within the grid leaf's, as the kd walk's traces clamp theirs.
+      const Box3 box(Vec3(q[i], q[n + i], q[2 * n + i]),
+                     Vec3(q[3 * n + i], q[4 * n + i], q[5 * n + i]));
+      const float leaf_out = float(std::min(t_exit, double(w.tmax)));
+      trace_in = std::max(trace_in, std::min(t0[i], leaf_out));
+      s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]) + 1, leaf_id, box, trace_in,
+                        std::max(trace_in, std::min(t1[i], leaf_out))});
+    }
+    if (test_groups<TriangleTest, Probe, kAny, kExact>(w, s, w.rd, w.tmin, firsts[i], counts[i],
+                                                       best, found, h))
+      return true;
+  }
+  if constexpr (!kAny)
+    if (h.prim != kInvalidPrim) {
+      w.best = best;
+      w.found = true;
+      w.hit = {best, h.prim, h.u, h.v};
+    }
+#else
+  (void)w, (void)s, (void)leaf_id, (void)at, (void)t_exit, (void)h;
+#endif
+  return false;
+}
+
+template <class TriangleTest, class Probe, bool kAny, bool kExact>
 GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Probe& s) const {
   if (over_step_bound(w)) return StepResult::Done;
   const uint32_t leaf_id = w.leaf_id;
@@ -548,7 +636,12 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
   const auto& rd = w.rd;
   const float tmin = w.tmin;
   LocalHit h{kInvalidPrim, 0.0f, 0.0f};
-  if (L.count & kSubtreeFlag) {
+  uint32_t flat_at;  // the leaf's flat subtree (records.h, "Flat subtrees"), 0 if none
+  std::memcpy(&flat_at, &L.pad, sizeof flat_at);
+  if (hybrid::kFlatSubtrees && flat_at != 0) {
+    if (walk_flat<TriangleTest, Probe, kAny, kExact>(w, s, leaf_id, flat_at, t_exit, h))
+      return StepResult::Answered;
+  } else if (L.count & kSubtreeFlag) {
     // The kd-tree's walk of the leaf's subtree over the ray's segment in the leaf, clipped to
     // the subtree's box first (the two t's widened by err as the kd-tree widens its own).
     const KdNode* sub = sub_nodes_.data() + L.first;
