@@ -571,8 +571,6 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& s, uint32_t leaf
   const __mmask16 lanes = __mmask16(all);
   uint32_t left = Wide::bits((I)_mm512_maskz_permutexvar_epi32(lanes, (__m512i)perm, (__m512i)met));
   const F entry = (F)_mm512_maskz_permutexvar_ps(lanes, (__m512i)perm, (__m512)t0);
-  const uint32_t* firsts = reinterpret_cast<const uint32_t*>(q + 6 * n);
-  const uint32_t* counts = reinterpret_cast<const uint32_t*>(q + 7 * n);
   float best = w.best;
   bool found = w.found;
   [[maybe_unused]] float trace_in = float(w.t_cur);
@@ -592,8 +590,11 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& s, uint32_t leaf
       s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]) + 1, leaf_id, box, trace_in,
                         std::max(trace_in, std::min(t1[i], leaf_out))});
     }
-    if (test_groups<TriangleTest, Probe, kAny, kExact>(w, s, w.rd, w.tmin, firsts[i], counts[i],
-                                                       best, found, h))
+    uint32_t first, count;  // stored as floats' bits (records.h)
+    std::memcpy(&first, q + 6 * n + i, sizeof first);
+    std::memcpy(&count, q + 7 * n + i, sizeof count);
+    if (test_groups<TriangleTest, Probe, kAny, kExact>(w, s, w.rd, w.tmin, first, count, best,
+                                                       found, h))
       return true;
   }
   if constexpr (!kAny)
