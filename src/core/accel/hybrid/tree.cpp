@@ -505,6 +505,8 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
     };
     if (!collect(collect, root_node, sub_box) || list.size() < hybrid::kFlatMinLeaves) return 0;
     const uint32_t n = uint32_t(list.size());
+    // Offsets are 32-bit float indices (the leaf record's pad); past that, the kd walk.
+    if (flat_list.size() + hybrid::flat_subtree_floats(n) + 16 >= (uint64_t(1) << 32)) return 0;
     const uint32_t off = uint32_t(flat_list.size());
     flat_list.resize(off + (hybrid::flat_subtree_floats(n) + 15) / 16 * 16, 0.0f);
     float* const f = flat_list.data() + off;
