@@ -194,6 +194,9 @@ constexpr uint32_t kFlatLeaves = 16;
 /// nodes, where the flat walk pays its box tests and their latency before the first leaf
 /// (docs/HYBRID.md, "Flat subtrees").
 constexpr uint32_t kFlatMinLeaves = 5;
+/// Cache lines of each met leaf's groups that the flat walk prefetches before its first test
+/// (512 bytes; docs/HYBRID.md, "Flat subtrees").
+constexpr int kFlatPrefetchLines = 8;
 /// The floats of a flat subtree of n leaves, before padding to a multiple of 16.
 constexpr uint32_t flat_subtree_floats(uint32_t n) {
   return 16 + 8 * n + 2 * n;
