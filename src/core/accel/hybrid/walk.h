@@ -520,6 +520,17 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
   return false;
 }
 
+/// After a subtree's walk (kd or flat), which kept the closest hit in its locals: the hit it
+/// found, if any, becomes the ray's.
+template <class TriangleTest>
+[[gnu::always_inline]] inline void keep_subtree_hit(hybrid::WalkState<TriangleTest>& w, float best,
+                                                    const hybrid::LocalHit& h) {
+  if (h.prim == kInvalidPrim) return;
+  w.best = best;
+  w.found = true;
+  w.hit = {best, h.prim, h.u, h.v};
+}
+
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
 bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& s, uint32_t leaf_id, uint32_t at,
                              double t_exit, LocalHit& h) const {
@@ -606,12 +617,7 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& s, uint32_t leaf
                                                        found, h))
       return true;
   }
-  if constexpr (!kAny)
-    if (h.prim != kInvalidPrim) {
-      w.best = best;
-      w.found = true;
-      w.hit = {best, h.prim, h.u, h.v};
-    }
+  if constexpr (!kAny) keep_subtree_hit(w, best, h);
 #else
   (void)w, (void)s, (void)leaf_id, (void)at, (void)t_exit, (void)h;
 #endif
@@ -694,12 +700,7 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
       if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found,
                       s, leaf, visit))
         return StepResult::Answered;
-      if constexpr (!kAny)
-        if (h.prim != kInvalidPrim) {
-          w.best = best;
-          w.found = true;
-          w.hit = {best, h.prim, h.u, h.v};
-        }
+      if constexpr (!kAny) keep_subtree_hit(w, best, h);
     }
   } else if (L.count) {
     if (test_groups<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, L.first, L.count, w.best,
