@@ -53,6 +53,7 @@ struct LocalHit;
 enum class StepResult;
 template <class Probe>
 struct StatsMark;
+struct PacketRays;
 }  // namespace hybrid
 
 /// Auto rule density floor: at least this many cells per triangle, so that scenes mixing huge
@@ -191,6 +192,15 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   template <class TriangleTest, class Probe, bool kAny, bool kExact = false>
   bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
 
+  /// Packets of up to 16 rays walked together (packet.cpp: one ray a float lane, the kd-tree
+  /// and the leaves' subtrees walked by the packet, each triangle group culled against it). Each
+  /// ray's answer is its single walk's, except that of two triangles hit at exactly the same t
+  /// the packet may report the other. Builds without AVX-512's shared-corner groups, and
+  /// triangle tests other than the watertight one, loop over the single walk.
+  void intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const override;
+  void occluded_packet(const Ray* rays, int n, bool* occluded_out) const override;
+  int packet_width() const override;
+
   void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;
 
@@ -286,6 +296,26 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
                                                  const typename TriangleTest::RayData& rd,
                                                  float tmin, uint32_t first, uint32_t count,
                                                  float& best, bool& found, LocalHit& h) const;
+
+  // ---- packets (packet.cpp) ----
+  /// Whether the packet walk answers packets: shared-corner groups (AVX-512), the watertight
+  /// test, a built structure.
+  bool packets_ready() const {
+    return hybrid::kSharedCorners && triangle_test_ == TriangleTestKind::Watertight &&
+           !leaves_.empty() && !nodes_.empty();
+  }
+  /// Up to 64 rays as up to four packets of 16 lanes: those that can share a walk (valid, their
+  /// direction components normal numbers, one sign per axis and, within a packet of 16, the
+  /// test's shear axes of its first) by packet_walk, the others (and a packet of one) by the
+  /// single walk.
+  template <bool kAny>
+  void packet64(const Ray* rays, int n, Hit* hits, bool* out) const;
+  /// The walk of the K (1 to 4) packets which[0..K) of R (rays 16 which[k] + i for the lanes i of
+  /// lanes[which[k]], all with one direction sign per axis), down the grid's kd-tree together;
+  /// false (and nothing written) when its stack would overflow, for the single walk to answer.
+  template <bool kAny, int K>
+  bool packet_walk(const hybrid::PacketRays* R, const uint32_t* lanes, const int* which, Hit* hits,
+                   bool* out) const;
 
   // ---- the build (build.cpp, tree.cpp) ----
   /// Where build_tree puts the groups (records.h, "Triangle groups"): group g's lanes (mesh

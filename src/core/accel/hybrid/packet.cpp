@@ -1,0 +1,577 @@
+// The hybrid's packet queries (GridKdHybrid::intersect_packet, occluded_packet): up to 16 rays
+// walked together, one ray a float lane of 512-bit vectors (builds for AVX-512 with
+// shared-corner groups; the others loop over the single-ray walk).
+//
+// The rays of a packet go down the kd-tree whose splits lie on the grid's cell boundaries, and
+// down the leaves' subtrees, together: each lane keeps its own [t0, t1] within a node, widened
+// by the kd-tree's rounding bound err (KdRay) as the single-ray kd walk widens its own, and the
+// packet visits a child when any of its lanes does, front to back (the rays share their
+// directions' signs), until every lane's closest hit lies before the next node. In a leaf, each
+// triangle group is first culled against the whole packet: a triangle whose three corners,
+// in the watertight test's shear space (WatertightTest), lie on one side of the origin for
+// every ray of the packet is missed by all of them; the rest are tested one triangle against
+// all the lanes at once, each lane by WatertightTest's own float operations in its order (and
+// its double-precision cases by the scalar test), so each ray's t, u, v of a triangle are bit
+// for bit its single walk's. Each ray thus finds the closest of the same intersections as its
+// single walk; only of two triangles hit at exactly the same t may the packet keep the other
+// (the walks test them in other orders).
+//
+// Why the cull is exact: a corner's sheared x for ray i is fl(fl(vx - ox_i) - fl(sx_i fl(vz -
+// oz_i))) (kx, ky, kz shared by the packet). Every float operation is monotone, so the same
+// operations on the packet's extreme origin and shear values bound every lane's value, and when
+// those bounds put all three corners at x > 0 (or x < 0, y > 0, y < 0), every lane's corners lie
+// there as its test computes them. The test's edge functions have the exact signs of the
+// sheared corners' (their float products are monotone, and an exactly zero difference is redone
+// in double, where the products are exact), so the origin lies outside the triangle for every
+// lane and the test finds their signs mixed: no lane can hit it.
+#include <algorithm>
+#include <cfloat>
+#include <cstddef>
+#include <cmath>
+#include <cstring>
+
+#include "accel/hybrid/hybrid.h"
+
+namespace kdgrid {
+
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+
+namespace {
+
+using F = WideVectors<16>::F;
+using I = WideVectors<16>::I;
+using Wide = WatertightWide<16>;
+
+[[gnu::always_inline]] inline F splat(float x) { return F{} + x; }
+[[gnu::always_inline]] inline F load16(const float* p) {
+  F v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+[[gnu::always_inline]] inline F vmin(F a, F b) { return a < b ? a : b; }
+[[gnu::always_inline]] inline F vmax(F a, F b) { return a > b ? a : b; }
+[[gnu::always_inline]] inline uint32_t bits(I m) { return Wide::bits(m); }
+[[gnu::always_inline]] inline F blend(F a, uint32_t m, F b) {
+  return (F)_mm512_mask_mov_ps((__m512)a, __mmask16(m), (__m512)b);
+}
+[[gnu::always_inline]] inline I blend(I a, uint32_t m, I b) {
+  return (I)_mm512_mask_mov_epi32((__m512i)a, __mmask16(m), (__m512i)b);
+}
+/// The least and the greatest of the lanes `m` of v.
+[[gnu::always_inline]] inline float lane_min(F v, uint32_t m) {
+  F x = blend(splat(kInf), m, v);
+  x = vmin(x, __builtin_shufflevector(x, x, 8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7));
+  x = vmin(x, __builtin_shufflevector(x, x, 4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11));
+  x = vmin(x, __builtin_shufflevector(x, x, 2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13));
+  x = vmin(x, __builtin_shufflevector(x, x, 1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14));
+  return x[0];
+}
+[[gnu::always_inline]] inline float lane_max(F v, uint32_t m) { return -lane_min(-v, m); }
+
+}  // namespace
+
+namespace hybrid {
+
+/// The packet's rays by lane: world-space origin, reciprocal direction and err (KdRay's), the
+/// watertight test's ray data (its axes shared by the packet), and the packet's extreme origins
+/// and shears on the test's axes, which bound every lane's sheared corners (the cull).
+struct PacketRays {
+  F o[3], inv[3], err[3];
+  F ox, oy, oz, sx, sy, sz;
+  F tmin, tmax;  ///< the rays' (+inf and -inf in the lanes not in the packet)
+  int kx, ky, kz;
+  bool neg[3];  ///< the packet's directions point down axis a
+  float oxl, oxh, oyl, oyh, ozl, ozh, sxl, sxh, syl, syh;
+  /// Lane i's WatertightTest::RayData (what prepare() gives: the same divisions).
+  WatertightTest::RayData ray_data(int i) const {
+    return {ox[i], oy[i], oz[i], kx, ky, kz, sx[i], sy[i], sz[i]};
+  }
+};
+
+/// The lanes' closest hits so far (or, for any-hit queries, the lanes that found one).
+struct PacketHits {
+  F best, u, v;
+  I prim;
+  uint32_t found = 0;
+};
+
+}  // namespace hybrid
+
+namespace {
+
+using hybrid::PacketHits;
+using hybrid::PacketRays;
+
+/// One triangle against the lanes `m` of the packet: WatertightTest::intersect's operations on
+/// each lane (WatertightWide's, with the lanes as rays instead of triangles).
+template <bool kAny>
+[[gnu::always_inline]] inline void test_triangle(const PacketRays& R, PacketHits& H,
+                                                 const Vec3& v0, const Vec3& v1, const Vec3& v2,
+                                                 uint32_t prim, uint32_t m) {
+  const F Az = splat(component(v0, R.kz)) - R.oz, Bz = splat(component(v1, R.kz)) - R.oz,
+          Cz = splat(component(v2, R.kz)) - R.oz;
+  const F ax = (splat(component(v0, R.kx)) - R.ox) - R.sx * Az,
+          ay = (splat(component(v0, R.ky)) - R.oy) - R.sy * Az;
+  const F bx = (splat(component(v1, R.kx)) - R.ox) - R.sx * Bz,
+          by = (splat(component(v1, R.ky)) - R.oy) - R.sy * Bz;
+  const F cx = (splat(component(v2, R.kx)) - R.ox) - R.sx * Cz,
+          cy = (splat(component(v2, R.ky)) - R.oy) - R.sy * Cz;
+  const F U = cx * by - cy * bx;
+  const F V = ax * cy - ay * cx;
+  const F Wf = bx * ay - by * ax;
+  const F zero = {};
+  const I zero_edge = (U == zero) | (V == zero) | (Wf == zero);
+  const I mixed = ((U < zero) | (V < zero) | (Wf < zero)) & ((U > zero) | (V > zero) | (Wf > zero));
+  const F det = U + V + Wf;
+  const F az = R.sz * Az, bz = R.sz * Bz, cz = R.sz * Cz;
+  const F T = U * az + V * bz + Wf * cz;
+  const F inv_det = 1.0f / det;
+  const F t = T * inv_det;
+  const I live = ~mixed & (det != zero);
+  const I in_range = (t >= R.tmin) & (t < H.best);  // false for NaN
+  const I finite = (T - T) == zero;                 // false for inf and NaN
+  const uint32_t hit = bits(live & in_range & ~zero_edge) & m;
+  const uint32_t slow = bits(zero_edge | (live & ~in_range & ~finite)) & m;
+  if ((hit | slow) == 0) [[likely]]
+    return;
+  H.found |= hit;
+  if constexpr (!kAny) {
+    H.best = blend(H.best, hit, t);
+    H.u = blend(H.u, hit, V * inv_det);
+    H.v = blend(H.v, hit, Wf * inv_det);
+    H.prim = blend(H.prim, hit, I{} + int32_t(prim));
+  }
+  for (uint32_t s = slow; s != 0; s &= s - 1) {
+    const int i = __builtin_ctz(s);
+    float ts, us, vs;
+    if (WatertightTest::intersect(R.ray_data(i), v0, v1, v2, R.tmin[i], H.best[i], ts, us, vs)) {
+      H.found |= 1u << i;
+      if constexpr (!kAny) {
+        H.best[i] = ts;
+        H.u[i] = us;
+        H.v[i] = vs;
+        H.prim[i] = int32_t(prim);
+      }
+    }
+  }
+}
+
+/// Codes of a shared-corner group's corners from `at` on (16 of them, the lanes `corners`): bit
+/// 1, 2, 4, 8 set where every lane of the packet sees the corner at x > 0, x < 0, y > 0, y < 0
+/// in its shear space (bounds from the packet's extreme origins and shears; see the file's
+/// comment).
+[[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& R, const float* tx,
+                                                   const float* ty, const float* tz,
+                                                   __mmask16 corners) {
+  const F vx = (F)_mm512_maskz_loadu_ps(corners, tx), vy = (F)_mm512_maskz_loadu_ps(corners, ty),
+          vz = (F)_mm512_maskz_loadu_ps(corners, tz);
+  const F dzl = vz - R.ozh, dzh = vz - R.ozl;
+  const auto range = [&](float sl, float sh, F& lo, F& hi) __attribute__((always_inline)) {
+    const F p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
+    lo = vmin(vmin(p1, p2), vmin(p3, p4));
+    hi = vmax(vmax(p1, p2), vmax(p3, p4));
+  };
+  F pxl, pxh, pyl, pyh;
+  range(R.sxl, R.sxh, pxl, pxh);
+  range(R.syl, R.syh, pyl, pyh);
+  const F xl = (vx - R.oxh) - pxh, xh = (vx - R.oxl) - pxl;
+  const F yl = (vy - R.oyh) - pyh, yh = (vy - R.oyl) - pyl;
+  const F zero = {};
+  const __m512i one = _mm512_set1_epi32(1);
+  __m512i c = _mm512_maskz_mov_epi32(__mmask16(bits(xl > zero)), one);
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(bits(xh < zero)), _mm512_set1_epi32(2)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(bits(yl > zero)), _mm512_set1_epi32(4)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(bits(yh < zero)), _mm512_set1_epi32(8)));
+  return c;
+}
+
+/// The lanes of a shared-corner group that some ray of the packet may hit: those whose three
+/// corners do not all share a side that every ray sees them on.
+[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& R,
+                                              const hybrid::SharedCornerGroup& g) {
+  const float* const tx = g.p + 1 + uint32_t(R.kx) * g.u;
+  const float* const ty = g.p + 1 + uint32_t(R.ky) * g.u;
+  const float* const tz = g.p + 1 + uint32_t(R.kz) * g.u;
+  const uint32_t corners = g.u >= 32 ? ~0u : (1u << g.u) - 1;
+  const __m512i lo = corner_codes(R, tx, ty, tz, __mmask16(corners));
+  const __m512i hi = g.u > 16 ? corner_codes(R, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
+                              : _mm512_setzero_si512();
+  const uint32_t lanes = (1u << g.n) - 1;
+  const uint8_t* idx = g.index();
+  __m512i all = _mm512_set1_epi32(-1);
+  for (uint32_t k = 0; k < 3; ++k) {
+    const __m512i ik = _mm512_maskz_cvtepu8_epi32(
+        __mmask16(lanes), _mm_maskz_loadu_epi8(__mmask16(lanes), idx + k * g.n));
+    all = _mm512_and_si512(all, _mm512_permutex2var_epi32(lo, ik, hi));
+  }
+  return uint32_t(_mm512_testn_epi32_mask(all, all)) & lanes;
+}
+
+
+/// Rays i < n of `rays` by lane: f[k] holds float k of each (Ray: origin, tmin, direction,
+/// tmax), 0 in lanes n and up; rays past n are not read. Rays j and j + 8 are loaded into vector
+/// j, then three rounds of two-source permutes each swap a bit of the vector's index (the ray's
+/// bits 0, 1, 2) with a bit of the lane's (the float's bits 0, 1, 2): the transpose of the 16 x 8
+/// floats, with no gather.
+[[gnu::always_inline]] inline void load_rays(const Ray* rays, int n, F (&f)[8]) {
+  static_assert(sizeof(Ray) == 32 && offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 &&
+                offsetof(Ray, tmax) == 28);
+  const float* p = reinterpret_cast<const float*>(rays);
+  __m512 v[8];
+  for (int j = 0; j < 8; ++j) {
+    const __m256 lo = _mm256_maskz_loadu_ps(__mmask8(j < n ? 0xff : 0), p + 8 * j);
+    const __m256 hi = _mm256_maskz_loadu_ps(__mmask8(j + 8 < n ? 0xff : 0), p + 8 * (j + 8));
+    v[j] = _mm512_insertf32x8(_mm512_castps256_ps512(lo), hi, 1);
+  }
+  for (int k = 0; k < 3; ++k) {
+    alignas(64) int32_t lo_idx[16], hi_idx[16];
+    for (int l = 0; l < 16; ++l) {
+      const int c = (l >> k) & 1;
+      lo_idx[l] = c << 4 | (l & ~(1 << k));
+      hi_idx[l] = c << 4 | (l | (1 << k));
+    }
+    const __m512i il = _mm512_load_si512(lo_idx), ih = _mm512_load_si512(hi_idx);
+    for (int j = 0; j < 8; ++j) {
+      if (j >> k & 1) continue;
+      const __m512 a = v[j], b = v[j | 1 << k];
+      v[j] = _mm512_permutex2var_ps(a, il, b);
+      v[j | 1 << k] = _mm512_permutex2var_ps(a, ih, b);
+    }
+  }
+  for (int j = 0; j < 8; ++j) f[j] = (F)v[j];
+}
+
+
+/// Sets up R for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
+/// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
+/// number (finite reciprocals and err), sharing the first one's direction signs and the
+/// watertight test's axes. The others take the single walk.
+uint32_t prepare_packet(const Ray* rays, int n, float max_abs, PacketRays& R) {
+  F f[8];
+  load_rays(rays, n, f);
+  const F o[3] = {f[0], f[1], f[2]}, d[3] = {f[4], f[5], f[6]};
+  const F tmin = f[3], tmax = f[7];
+  const F zero = {}, big = splat(kMaxRayCoordinate), tiny = splat(FLT_MIN);
+  F ao[3], ad[3];
+  I ok = (tmin >= zero) & (tmin <= tmax) & (tmin < splat(kInf));
+  for (int a = 0; a < 3; ++a) {
+    ao[a] = (F)_mm512_abs_ps((__m512)o[a]);
+    ad[a] = (F)_mm512_abs_ps((__m512)d[a]);
+    ok &= (ao[a] <= big) & (ad[a] <= big) & (ad[a] >= tiny);
+  }
+  uint32_t lanes = bits(ok) & ((1u << n) - 1);
+  if (lanes == 0) return 0;
+  // max_dimension's axis: the first largest component.
+  const uint32_t k0 = bits((ad[0] > ad[1]) & (ad[0] > ad[2]));
+  const uint32_t k1 = ~k0 & bits(ad[1] > ad[2]);
+  const uint32_t kz_of[3] = {k0, k1, ~(k0 | k1)};
+  const int first = __builtin_ctz(lanes);
+  R.kz = (k0 >> first & 1u) ? 0 : (k1 >> first & 1u) ? 1 : 2;
+  lanes &= kz_of[R.kz];
+  for (int a = 0; a < 3; ++a) {
+    const uint32_t neg = bits(d[a] < zero);
+    R.neg[a] = neg >> first & 1u;
+    lanes &= R.neg[a] ? neg : ~neg;
+  }
+  R.kx = R.kz == 2 ? 0 : R.kz + 1;
+  R.ky = R.kx == 2 ? 0 : R.kx + 1;
+  if (R.neg[R.kz]) std::swap(R.kx, R.ky);  // WatertightTest::prepare's
+  const F one = splat(1.0f);
+  const F err_scale = vmax(vmax(ao[0], vmax(ao[1], ao[2])), splat(max_abs)) * splat(0x1p-20f);
+  I finite = ~I{};
+  for (int a = 0; a < 3; ++a) {
+    R.o[a] = o[a];
+    R.inv[a] = one / d[a];
+    R.err[a] = err_scale * (F)_mm512_abs_ps((__m512)R.inv[a]);
+    finite &= R.err[a] <= splat(FLT_MAX);
+  }
+  lanes &= bits(finite);
+  R.ox = o[R.kx], R.oy = o[R.ky], R.oz = o[R.kz];
+  R.sx = d[R.kx] / d[R.kz], R.sy = d[R.ky] / d[R.kz], R.sz = one / d[R.kz];
+  R.tmin = blend(splat(kInf), lanes, tmin);
+  R.tmax = blend(splat(-kInf), lanes, tmax);
+  R.oxl = lane_min(R.ox, lanes), R.oxh = lane_max(R.ox, lanes);
+  R.oyl = lane_min(R.oy, lanes), R.oyh = lane_max(R.oy, lanes);
+  R.ozl = lane_min(R.oz, lanes), R.ozh = lane_max(R.oz, lanes);
+  R.sxl = lane_min(R.sx, lanes), R.sxh = lane_max(R.sx, lanes);
+  R.syl = lane_min(R.sy, lanes), R.syh = lane_max(R.sy, lanes);
+  return lanes;
+}
+
+}  // namespace
+
+template <bool kAny>
+void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const {
+  // Up to four packets of 16 set up; those of two rays or more that share the first one's
+  // direction signs walk together, then those that share the next one's, and so on.
+  PacketRays R[4];
+  uint32_t lanes[4] = {0, 0, 0, 0};
+  const int parts = (n + 15) / 16;
+  for (int k = 0; k < parts; ++k) {
+    lanes[k] = prepare_packet(rays + 16 * k, std::min(16, n - 16 * k), max_abs_, R[k]);
+    if ((lanes[k] & (lanes[k] - 1)) == 0) lanes[k] = 0;
+  }
+  uint32_t walked[4] = {0, 0, 0, 0};
+  for (int lead = 0; lead < parts; ++lead) {
+    if (lanes[lead] == 0 || walked[lead] != 0) continue;
+    int which[4] = {0, 0, 0, 0}, count = 0;
+    for (int k = lead; k < parts; ++k)
+      if (lanes[k] != 0 && walked[k] == 0 && R[k].neg[0] == R[lead].neg[0] &&
+          R[k].neg[1] == R[lead].neg[1] && R[k].neg[2] == R[lead].neg[2])
+        which[count++] = k;
+    const bool done = count == 4   ? packet_walk<kAny, 4>(R, lanes, which, hits, out)
+                      : count == 3 ? packet_walk<kAny, 3>(R, lanes, which, hits, out)
+                      : count == 2 ? packet_walk<kAny, 2>(R, lanes, which, hits, out)
+                                   : packet_walk<kAny, 1>(R, lanes, which, hits, out);
+    if (!done) continue;
+    for (int j = 0; j < count; ++j) walked[which[j]] = lanes[which[j]];
+  }
+  for (int i = 0; i < n; ++i)
+    if (!(walked[i / 16] >> (i % 16) & 1u))
+      out[i] = kAny ? occluded(rays[i]) : intersect(rays[i], hits[i]);
+}
+
+template <bool kAny, int K>
+bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lanes_of,
+                               const int* which, Hit* hits, bool* out) const {
+  // The packets of the walk (at most 4), each its rays and hits; the t's of each by packet.
+  const PacketRays* R[K];
+  PacketHits H[K];
+  uint32_t alive[K];  // lanes still walking: any-hit lanes leave at their first hit
+  for (int k = 0; k < K; ++k) {
+    R[k] = &Rs[which[k]];
+    H[k].best = R[k]->tmax;
+    H[k].u = H[k].v = F{};
+    H[k].prim = I{} + int32_t(kInvalidPrim);
+    alive[k] = lanes_of[which[k]];
+  }
+  struct Span {
+    F t0[K], t1[K];
+  };
+
+  // The groups of a leaf for packet k, culled against it, then each triangle left against the
+  // lanes m.
+  const auto groups = [&](int k, uint32_t first, uint32_t count, uint32_t m)
+                          __attribute__((always_inline)) {
+    const PacketRays& r = *R[k];
+    PacketHits& h = H[k];
+    const float* p = groups_[0].f + first;
+    for (uint32_t left = count; left != 0;) {
+      const hybrid::SharedCornerGroup g = hybrid::SharedCornerGroup::at(p, left);
+      p = g.end();
+      left -= g.n;
+      for (uint32_t keep = uncull(r, g); keep != 0; keep &= keep - 1) {
+        const int i = __builtin_ctz(keep);
+        test_triangle<kAny>(r, h, g.corner(0, i), g.corner(1, i), g.corner(2, i),
+                            g.prim(uint32_t(i)), m);
+        if constexpr (kAny) {
+          m &= ~h.found;
+          alive[k] &= ~h.found;
+          if (m == 0) return;
+        }
+      }
+    }
+  };
+  // The lanes of packet k that still have something to find in [t0, t1].
+  const auto active = [&](int k, const F& t0, const F& t1) __attribute__((always_inline)) {
+    uint32_t m = bits(t0 <= t1) & alive[k];
+    if constexpr (!kAny) m &= bits(t0 <= H[k].best);
+    return m;
+  };
+  const auto any_active = [&](const Span& s) __attribute__((always_inline)) {
+    uint32_t m = 0;
+    for (int k = 0; k < K; ++k) m |= active(k, s.t0[k], s.t1[k]);
+    return m != 0;
+  };
+  // Each packet's [t0, t1] clipped to a box (each slab widened by err, as kd_clip).
+  const auto clip = [&](const float* lo, const float* hi, Span& s) __attribute__((always_inline)) {
+    for (int k = 0; k < K; ++k)
+      for (int a = 0; a < 3; ++a) {
+        const F tl = (splat(lo[a]) - R[k]->o[a]) * R[k]->inv[a];
+        const F th = (splat(hi[a]) - R[k]->o[a]) * R[k]->inv[a];
+        const F near = R[k]->neg[a] ? th : tl, far = R[k]->neg[a] ? tl : th;
+        s.t0[k] = vmax(s.t0[k], near - R[k]->err[a]);
+        s.t1[k] = vmin(s.t1[k], far + R[k]->err[a]);
+      }
+  };
+  const bool* neg = R[0]->neg;
+  // A split on axis a at `plane`: whether the packets go to the near side, to the far side or
+  // both (then `far` gets the far side's t's and s keeps the near side's).
+  const auto split = [&](int a, float plane, Span& s, Span& far, bool& to_near, bool& to_far)
+                         __attribute__((always_inline)) {
+    uint32_t need_near = 0, need_far = 0;
+    F ts[K];
+    for (int k = 0; k < K; ++k) {
+      ts[k] = (splat(plane) - R[k]->o[a]) * R[k]->inv[a];
+      const uint32_t m = active(k, s.t0[k], s.t1[k]);
+      need_near |= bits(ts[k] + R[k]->err[a] >= s.t0[k]) & m;
+      need_far |= bits(ts[k] - R[k]->err[a] <= s.t1[k]) & m;
+    }
+    to_near = need_near != 0;
+    to_far = need_far != 0;
+    if (to_near && to_far)
+      for (int k = 0; k < K; ++k) {
+        far.t0[k] = vmax(s.t0[k], ts[k] - R[k]->err[a]);
+        far.t1[k] = s.t1[k];
+        s.t1[k] = vmin(s.t1[k], ts[k] + R[k]->err[a]);
+      }
+  };
+  struct Entry {
+    uint32_t node;
+    Span s;
+  };
+  // Deep enough for the leaves' subtrees (at most kKdMaxDepth levels); a deeper grid tree
+  // gives its packets to the single walk.
+  constexpr int kStack = kKdMaxDepth + 4;
+  Entry stack[kStack];
+
+  // A leaf's kd subtree, walked by the packets from its box on.
+  const auto subtree = [&](uint32_t root, Span s) __attribute__((always_inline)) {
+    const KdNode* nodes = sub_nodes_.data();
+    const float* box = reinterpret_cast<const float*>(nodes + root);
+    clip(box, box + 4, s);
+    if (!any_active(s)) return;
+    int sp = 0;
+    uint32_t node = root + kSubBoxNodes;
+    for (;;) {
+      const KdNode& nd = nodes[node];
+      if (!nd.leaf()) {
+        const int a = nd.axis();
+        const uint32_t below = node + 1, above = nd.above();
+        bool to_near, to_far;
+        split(a, nd.split, s, stack[sp].s, to_near, to_far);
+        const uint32_t near = neg[a] ? above : below, far = neg[a] ? below : above;
+        if (to_near && to_far) stack[sp++].node = far;
+        node = to_near ? near : far;
+        if (to_near || to_far) continue;
+      } else if (nd.count() != 0) {
+        for (int k = 0; k < K; ++k) {
+          const uint32_t m = active(k, s.t0[k], s.t1[k]);
+          if (m != 0) groups(k, nd.prim_offset, nd.count(), m);
+        }
+      }
+      do {
+        if (sp == 0) return;
+        --sp;
+        node = stack[sp].node;
+        s = stack[sp].s;
+      } while (!any_active(s));
+    }
+  };
+
+  // A flat subtree: its leaves in the kd walk's order for the packets' octant.
+  const auto flat = [&](uint32_t at, Span s) __attribute__((always_inline)) {
+    const float* fb = flat_[0].f + at;
+    clip(fb, fb + 4, s);
+    if (!any_active(s)) return;
+    uint32_t count;
+    std::memcpy(&count, fb + 8, sizeof count);
+    const float* q = fb + 16;
+    const uint32_t oct = uint32_t(neg[0]) | uint32_t(neg[1]) << 1 | uint32_t(neg[2]) << 2;
+    const uint8_t* order = reinterpret_cast<const uint8_t*>(q + 8 * count) + oct * count;
+    for (uint32_t j = 0; j < count; ++j) {
+      const uint32_t i = order[j];
+      const float lo[3] = {q[i], q[count + i], q[2 * count + i]};
+      const float hi[3] = {q[3 * count + i], q[4 * count + i], q[5 * count + i]};
+      Span l = s;
+      clip(lo, hi, l);
+      uint32_t first, n;  // stored as floats' bits (records.h)
+      std::memcpy(&first, q + 6 * count + i, sizeof first);
+      std::memcpy(&n, q + 7 * count + i, sizeof n);
+      for (int k = 0; k < K; ++k) {
+        const uint32_t m = active(k, l.t0[k], l.t1[k]);
+        if (m != 0) groups(k, first, n, m);
+      }
+    }
+  };
+
+  // The grid's kd-tree from its root, the packets clipped to the grid's box first.
+  Span s;
+  for (int k = 0; k < K; ++k) {
+    s.t0[k] = R[k]->tmin;
+    s.t1[k] = R[k]->tmax;
+  }
+  {
+    const float lo[3] = {wbox_.lo.x, wbox_.lo.y, wbox_.lo.z};
+    const float hi[3] = {wbox_.hi.x, wbox_.hi.y, wbox_.hi.z};
+    clip(lo, hi, s);
+  }
+  Entry top[kStack];
+  int sp = 0;
+  uint32_t node = 0;
+  bool walking = any_active(s);
+  while (walking) {
+    const Node& nd = nodes_[node];
+    if (nd.axis != 3) {
+      const int a = int(nd.axis);
+      if (sp == kStack) return false;
+      bool to_near, to_far;
+      split(a, float(origin_[a] + double(nd.split) * cell_), s, top[sp].s, to_near, to_far);
+      const uint32_t below = node + 1, above = nd.right;
+      const uint32_t near = neg[a] ? above : below, far = neg[a] ? below : above;
+      if (to_near && to_far) top[sp++].node = far;
+      node = to_near ? near : far;
+      if (to_near || to_far) continue;
+    } else {
+      const Leaf& L = leaves_[uint32_t(nd.split)];
+      uint32_t flat_at;
+      std::memcpy(&flat_at, &L.pad, sizeof flat_at);
+      if (hybrid::kFlatSubtrees && flat_at != 0) {
+        flat(flat_at, s);
+      } else if (L.count & kSubtreeFlag) {
+        subtree(L.first, s);
+      } else if (L.count != 0) {
+        for (int k = 0; k < K; ++k) {
+          const uint32_t m = active(k, s.t0[k], s.t1[k]);
+          if (m != 0) groups(k, L.first, L.count, m);
+        }
+      }
+    }
+    do {
+      if (sp == 0) {
+        walking = false;
+        break;
+      }
+      --sp;
+      node = top[sp].node;
+      s = top[sp].s;
+    } while (!any_active(s));
+  }
+  for (int k = 0; k < K; ++k) {
+    const int base = 16 * which[k];
+    for (uint32_t m = lanes_of[which[k]]; m != 0; m &= m - 1) {
+      const int i = __builtin_ctz(m);
+      out[base + i] = (H[k].found >> i) & 1u;
+      if constexpr (!kAny)
+        if (out[base + i]) hits[base + i] = {H[k].best[i], uint32_t(H[k].prim[i]), H[k].u[i], H[k].v[i]};
+    }
+  }
+  return true;
+}
+
+void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
+  if (!packets_ready()) return Accelerator::intersect_packet(rays, n, hits, found);
+  for (int b = 0; b < n; b += 64) packet64<false>(rays + b, std::min(64, n - b), hits + b, found + b);
+}
+
+void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) const {
+  if (!packets_ready()) return Accelerator::occluded_packet(rays, n, occluded_out);
+  for (int b = 0; b < n; b += 64)
+    packet64<true>(rays + b, std::min(64, n - b), nullptr, occluded_out + b);
+}
+
+#else
+
+void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
+  Accelerator::intersect_packet(rays, n, hits, found);
+}
+
+void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) const {
+  Accelerator::occluded_packet(rays, n, occluded_out);
+}
+
+#endif
+
+int GridKdHybrid::packet_width() const { return packets_ready() ? 64 : 1; }
+
+}  // namespace kdgrid
