@@ -26,8 +26,8 @@
 // lane and the test finds their signs mixed: no lane can hit it.
 #include <algorithm>
 #include <cfloat>
-#include <cstddef>
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 
 #include "accel/hybrid/hybrid.h"
@@ -42,15 +42,23 @@ using F = WideVectors<16>::F;
 using I = WideVectors<16>::I;
 using Wide = WatertightWide<16>;
 
-[[gnu::always_inline]] inline F splat(float x) { return F{} + x; }
+[[gnu::always_inline]] inline F splat(float x) {
+  return F{} + x;
+}
 [[gnu::always_inline]] inline F load16(const float* p) {
   F v;
   std::memcpy(&v, p, sizeof v);
   return v;
 }
-[[gnu::always_inline]] inline F vmin(F a, F b) { return a < b ? a : b; }
-[[gnu::always_inline]] inline F vmax(F a, F b) { return a > b ? a : b; }
-[[gnu::always_inline]] inline uint32_t bits(I m) { return Wide::bits(m); }
+[[gnu::always_inline]] inline F vmin(F a, F b) {
+  return a < b ? a : b;
+}
+[[gnu::always_inline]] inline F vmax(F a, F b) {
+  return a > b ? a : b;
+}
+[[gnu::always_inline]] inline uint32_t bits(I m) {
+  return Wide::bits(m);
+}
 [[gnu::always_inline]] inline F blend(F a, uint32_t m, F b) {
   return (F)_mm512_mask_mov_ps((__m512)a, __mmask16(m), (__m512)b);
 }
@@ -66,7 +74,9 @@ using Wide = WatertightWide<16>;
   x = vmin(x, __builtin_shufflevector(x, x, 1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14));
   return x[0];
 }
-[[gnu::always_inline]] inline float lane_max(F v, uint32_t m) { return -lane_min(-v, m); }
+[[gnu::always_inline]] inline float lane_max(F v, uint32_t m) {
+  return -lane_min(-v, m);
+}
 
 }  // namespace
 
@@ -105,9 +115,9 @@ using hybrid::PacketRays;
 /// One triangle against the lanes `m` of the packet: WatertightTest::intersect's operations on
 /// each lane (WatertightWide's, with the lanes as rays instead of triangles).
 template <bool kAny>
-[[gnu::always_inline]] inline void test_triangle(const PacketRays& R, PacketHits& H,
-                                                 const Vec3& v0, const Vec3& v1, const Vec3& v2,
-                                                 uint32_t prim, uint32_t m) {
+[[gnu::always_inline]] inline void test_triangle(const PacketRays& R, PacketHits& H, const Vec3& v0,
+                                                 const Vec3& v1, const Vec3& v2, uint32_t prim,
+                                                 uint32_t m) {
   const F Az = splat(component(v0, R.kz)) - R.oz, Bz = splat(component(v1, R.kz)) - R.oz,
           Cz = splat(component(v2, R.kz)) - R.oz;
   const F ax = (splat(component(v0, R.kx)) - R.ox) - R.sx * Az,
@@ -207,7 +217,6 @@ template <bool kAny>
   return uint32_t(_mm512_testn_epi32_mask(all, all)) & lanes;
 }
 
-
 /// Rays i < n of `rays` by lane: f[k] holds float k of each (Ray: origin, tmin, direction,
 /// tmax), 0 in lanes n and up; rays past n are not read. Rays j and j + 8 are loaded into vector
 /// j, then three rounds of two-source permutes each swap a bit of the vector's index (the ray's
@@ -223,14 +232,18 @@ template <bool kAny>
     const __m256 hi = _mm256_maskz_loadu_ps(__mmask8(j + 8 < n ? 0xff : 0), p + 8 * (j + 8));
     v[j] = _mm512_insertf32x8(_mm512_castps256_ps512(lo), hi, 1);
   }
+  // Round k's lane indices for the vector whose ray bit k is 0 and for its partner: lane l takes
+  // lane l with bit k cleared (set) from the first source where lane l's bit k is 0, else from
+  // the second.
+  alignas(64) static constexpr int32_t kIndex[3][2][16] = {
+      {{0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30},
+       {1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31}},
+      {{0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29},
+       {2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31}},
+      {{0, 1, 2, 3, 16, 17, 18, 19, 8, 9, 10, 11, 24, 25, 26, 27},
+       {4, 5, 6, 7, 20, 21, 22, 23, 12, 13, 14, 15, 28, 29, 30, 31}}};
   for (int k = 0; k < 3; ++k) {
-    alignas(64) int32_t lo_idx[16], hi_idx[16];
-    for (int l = 0; l < 16; ++l) {
-      const int c = (l >> k) & 1;
-      lo_idx[l] = c << 4 | (l & ~(1 << k));
-      hi_idx[l] = c << 4 | (l | (1 << k));
-    }
-    const __m512i il = _mm512_load_si512(lo_idx), ih = _mm512_load_si512(hi_idx);
+    const __m512i il = _mm512_load_si512(kIndex[k][0]), ih = _mm512_load_si512(kIndex[k][1]);
     for (int j = 0; j < 8; ++j) {
       if (j >> k & 1) continue;
       const __m512 a = v[j], b = v[j | 1 << k];
@@ -240,7 +253,6 @@ template <bool kAny>
   }
   for (int j = 0; j < 8; ++j) f[j] = (F)v[j];
 }
-
 
 /// Sets up R for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
 /// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
@@ -352,7 +364,7 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
   // The groups of a leaf for packet k, culled against it, then each triangle left against the
   // lanes m.
   const auto groups = [&](int k, uint32_t first, uint32_t count, uint32_t m)
-                          __attribute__((always_inline)) {
+      __attribute__((always_inline)) {
     const PacketRays& r = *R[k];
     PacketHits& h = H[k];
     const float* p = groups_[0].f + first;
@@ -398,7 +410,7 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
   // A split on axis a at `plane`: whether the packets go to the near side, to the far side or
   // both (then `far` gets the far side's t's and s keeps the near side's).
   const auto split = [&](int a, float plane, Span& s, Span& far, bool& to_near, bool& to_far)
-                         __attribute__((always_inline)) {
+      __attribute__((always_inline)) {
     uint32_t need_near = 0, need_far = 0;
     F ts[K];
     for (int k = 0; k < K; ++k) {
@@ -543,7 +555,8 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
       const int i = __builtin_ctz(m);
       out[base + i] = (H[k].found >> i) & 1u;
       if constexpr (!kAny)
-        if (out[base + i]) hits[base + i] = {H[k].best[i], uint32_t(H[k].prim[i]), H[k].u[i], H[k].v[i]};
+        if (out[base + i])
+          hits[base + i] = {H[k].best[i], uint32_t(H[k].prim[i]), H[k].u[i], H[k].v[i]};
     }
   }
   return true;
@@ -551,7 +564,8 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
 
 void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
   if (!packets_ready()) return Accelerator::intersect_packet(rays, n, hits, found);
-  for (int b = 0; b < n; b += 64) packet64<false>(rays + b, std::min(64, n - b), hits + b, found + b);
+  for (int b = 0; b < n; b += 64)
+    packet64<false>(rays + b, std::min(64, n - b), hits + b, found + b);
 }
 
 void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) const {
@@ -572,6 +586,8 @@ void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) c
 
 #endif
 
-int GridKdHybrid::packet_width() const { return packets_ready() ? 64 : 1; }
+int GridKdHybrid::packet_width() const {
+  return packets_ready() ? 64 : 1;
+}
 
 }  // namespace kdgrid
