@@ -395,6 +395,19 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
     for (int k = 0; k < K; ++k) m |= active(k, s.t0[k], s.t1[k]);
     return m != 0;
   };
+  // A leaf's triangles (groups from `first`, `count` triangles) for every packet with lanes in
+  // it: the groups' first lines requested at once (up to hybrid::kFlatPrefetchLines), as the
+  // packets would otherwise wait for the header, then the corners, of each in turn.
+  const auto leaf = [&](uint32_t first, uint32_t count, const Span& s)
+      __attribute__((always_inline)) {
+    const char* g = reinterpret_cast<const char*>(groups_[0].f + first);
+    const uint32_t lines = std::min<uint32_t>(hybrid::kFlatPrefetchLines, (count * 48 + 127) / 64);
+    for (uint32_t l = 0; l < lines; ++l) __builtin_prefetch(g + 64 * l);
+    for (int k = 0; k < K; ++k) {
+      const uint32_t m = active(k, s.t0[k], s.t1[k]);
+      if (m != 0) groups(k, first, count, m);
+    }
+  };
   // Each packet's [t0, t1] clipped to a box (each slab widened by err, as kd_clip).
   const auto clip = [&](const float* lo, const float* hi, Span& s) __attribute__((always_inline)) {
     for (int k = 0; k < K; ++k)
@@ -457,10 +470,7 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
         node = to_near ? near : far;
         if (to_near || to_far) continue;
       } else if (nd.count() != 0) {
-        for (int k = 0; k < K; ++k) {
-          const uint32_t m = active(k, s.t0[k], s.t1[k]);
-          if (m != 0) groups(k, nd.prim_offset, nd.count(), m);
-        }
+        leaf(nd.prim_offset, nd.count(), s);
       }
       do {
         if (sp == 0) return;
@@ -481,17 +491,30 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
     const float* q = fb + 16;
     const uint32_t oct = uint32_t(neg[0]) | uint32_t(neg[1]) << 1 | uint32_t(neg[2]) << 2;
     const uint8_t* order = reinterpret_cast<const uint8_t*>(q + 8 * count) + oct * count;
+    // The leaves some packet meets, with their t's, in that order; their groups requested
+    // before the first is tested (as walk_flat does).
+    Span met[hybrid::kFlatLeaves];
+    uint32_t met_leaf[hybrid::kFlatLeaves], n_met = 0;
     for (uint32_t j = 0; j < count; ++j) {
       const uint32_t i = order[j];
       const float lo[3] = {q[i], q[count + i], q[2 * count + i]};
       const float hi[3] = {q[3 * count + i], q[4 * count + i], q[5 * count + i]};
-      Span l = s;
-      clip(lo, hi, l);
-      uint32_t first, n;  // stored as floats' bits (records.h)
+      met[n_met] = s;
+      clip(lo, hi, met[n_met]);
+      if (!any_active(met[n_met])) continue;
+      uint32_t first;  // stored as floats' bits (records.h)
+      std::memcpy(&first, q + 6 * count + i, sizeof first);
+      const char* g = reinterpret_cast<const char*>(groups_[0].f + first);
+      for (int l = 0; l < hybrid::kFlatPrefetchLines; ++l) __builtin_prefetch(g + 64 * l);
+      met_leaf[n_met++] = i;
+    }
+    for (uint32_t j = 0; j < n_met; ++j) {
+      const uint32_t i = met_leaf[j];
+      uint32_t first, n;
       std::memcpy(&first, q + 6 * count + i, sizeof first);
       std::memcpy(&n, q + 7 * count + i, sizeof n);
       for (int k = 0; k < K; ++k) {
-        const uint32_t m = active(k, l.t0[k], l.t1[k]);
+        const uint32_t m = active(k, met[j].t0[k], met[j].t1[k]);
         if (m != 0) groups(k, first, n, m);
       }
     }
@@ -518,7 +541,7 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
       const int a = int(nd.axis);
       if (sp == kStack) return false;
       bool to_near, to_far;
-      split(a, float(origin_[a] + double(nd.split) * cell_), s, top[sp].s, to_near, to_far);
+      split(a, planes_[node], s, top[sp].s, to_near, to_far);
       const uint32_t below = node + 1, above = nd.right;
       const uint32_t near = neg[a] ? above : below, far = neg[a] ? below : above;
       if (to_near && to_far) top[sp++].node = far;
@@ -533,10 +556,7 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
       } else if (L.count & kSubtreeFlag) {
         subtree(L.first, s);
       } else if (L.count != 0) {
-        for (int k = 0; k < K; ++k) {
-          const uint32_t m = active(k, s.t0[k], s.t1[k]);
-          if (m != 0) groups(k, L.first, L.count, m);
-        }
+        leaf(L.first, L.count, s);
       }
     }
     do {
