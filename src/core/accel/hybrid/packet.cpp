@@ -56,6 +56,24 @@ using Wide = WatertightWide<16>;
 [[gnu::always_inline]] inline F vmax(F a, F b) {
   return a > b ? a : b;
 }
+/// Comparisons straight to lane masks (a vector compare's result would go through a vector of
+/// all-ones lanes and back): ordered, so false where either side is NaN, except ne.
+template <int kPredicate>
+[[gnu::always_inline]] inline uint32_t cmp(F a, F b) {
+  return _mm512_cmp_ps_mask((__m512)a, (__m512)b, kPredicate);
+}
+[[gnu::always_inline]] inline uint32_t lt(F a, F b) {
+  return cmp<_CMP_LT_OQ>(a, b);
+}
+[[gnu::always_inline]] inline uint32_t le(F a, F b) {
+  return cmp<_CMP_LE_OQ>(a, b);
+}
+[[gnu::always_inline]] inline uint32_t eq(F a, F b) {
+  return cmp<_CMP_EQ_OQ>(a, b);
+}
+[[gnu::always_inline]] inline uint32_t ne(F a, F b) {
+  return cmp<_CMP_NEQ_UQ>(a, b);
+}
 [[gnu::always_inline]] inline uint32_t bits(I m) {
   return Wide::bits(m);
 }
@@ -130,18 +148,19 @@ template <bool kAny>
   const F V = ax * cy - ay * cx;
   const F Wf = bx * ay - by * ax;
   const F zero = {};
-  const I zero_edge = (U == zero) | (V == zero) | (Wf == zero);
-  const I mixed = ((U < zero) | (V < zero) | (Wf < zero)) & ((U > zero) | (V > zero) | (Wf > zero));
+  const uint32_t zero_edge = eq(U, zero) | eq(V, zero) | eq(Wf, zero);
+  const uint32_t mixed =
+      (lt(U, zero) | lt(V, zero) | lt(Wf, zero)) & (lt(zero, U) | lt(zero, V) | lt(zero, Wf));
   const F det = U + V + Wf;
   const F az = R.sz * Az, bz = R.sz * Bz, cz = R.sz * Cz;
   const F T = U * az + V * bz + Wf * cz;
   const F inv_det = 1.0f / det;
   const F t = T * inv_det;
-  const I live = ~mixed & (det != zero);
-  const I in_range = (t >= R.tmin) & (t < H.best);  // false for NaN
-  const I finite = (T - T) == zero;                 // false for inf and NaN
-  const uint32_t hit = bits(live & in_range & ~zero_edge) & m;
-  const uint32_t slow = bits(zero_edge | (live & ~in_range & ~finite)) & m;
+  const uint32_t live = ~mixed & ne(det, zero);
+  const uint32_t in_range = le(R.tmin, t) & lt(t, H.best);  // false for NaN
+  const uint32_t finite = eq(T - T, zero);                  // false for inf and NaN
+  const uint32_t hit = live & in_range & ~zero_edge & m;
+  const uint32_t slow = (zero_edge | (live & ~in_range & ~finite)) & m;
   if ((hit | slow) == 0) [[likely]]
     return;
   H.found |= hit;
@@ -188,10 +207,10 @@ template <bool kAny>
   const F yl = (vy - R.oyh) - pyh, yh = (vy - R.oyl) - pyl;
   const F zero = {};
   const __m512i one = _mm512_set1_epi32(1);
-  __m512i c = _mm512_maskz_mov_epi32(__mmask16(bits(xl > zero)), one);
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(bits(xh < zero)), _mm512_set1_epi32(2)));
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(bits(yl > zero)), _mm512_set1_epi32(4)));
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(bits(yh < zero)), _mm512_set1_epi32(8)));
+  __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(zero, xl)), one);
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(xh, zero)), _mm512_set1_epi32(2)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(zero, yl)), _mm512_set1_epi32(4)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(yh, zero)), _mm512_set1_epi32(8)));
   return c;
 }
 
@@ -386,8 +405,8 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
   };
   // The lanes of packet k that still have something to find in [t0, t1].
   const auto active = [&](int k, const F& t0, const F& t1) __attribute__((always_inline)) {
-    uint32_t m = bits(t0 <= t1) & alive[k];
-    if constexpr (!kAny) m &= bits(t0 <= H[k].best);
+    uint32_t m = le(t0, t1) & alive[k];
+    if constexpr (!kAny) m &= le(t0, H[k].best);
     return m;
   };
   const auto any_active = [&](const Span& s) __attribute__((always_inline)) {
@@ -429,8 +448,8 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
     for (int k = 0; k < K; ++k) {
       ts[k] = (splat(plane) - R[k]->o[a]) * R[k]->inv[a];
       const uint32_t m = active(k, s.t0[k], s.t1[k]);
-      need_near |= bits(ts[k] + R[k]->err[a] >= s.t0[k]) & m;
-      need_far |= bits(ts[k] - R[k]->err[a] <= s.t1[k]) & m;
+      need_near |= le(s.t0[k], ts[k] + R[k]->err[a]) & m;
+      need_far |= le(ts[k] - R[k]->err[a], s.t1[k]) & m;
     }
     to_near = need_near != 0;
     to_far = need_far != 0;
