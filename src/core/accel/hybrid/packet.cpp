@@ -273,6 +273,57 @@ template <bool kAny>
   for (int j = 0; j < 8; ++j) f[j] = (F)v[j];
 }
 
+/// hits[i] = {best, prim, u, v} of lane i for the lanes `found` (Hit's 16 bytes), the others
+/// untouched: the four vectors transposed into four vectors of four hits each, then stored with
+/// a mask.
+[[gnu::always_inline]] inline void store_hits(const PacketHits& H, uint32_t found, Hit* hits) {
+  static_assert(sizeof(Hit) == 16 && offsetof(Hit, prim) == 4 && offsetof(Hit, u) == 8 &&
+                offsetof(Hit, v) == 12);
+  const F t = H.best, p = (F)H.prim, u = H.u, v = H.v;
+  // Lane 4j + r's hit in 128-bit block j of h[r] (the unpacks' orders).
+  const F tp_lo =
+      __builtin_shufflevector(t, p, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
+  const F tp_hi =
+      __builtin_shufflevector(t, p, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
+  const F uv_lo =
+      __builtin_shufflevector(u, v, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
+  const F uv_hi =
+      __builtin_shufflevector(u, v, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
+  const auto lo = [](F x, F y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29);
+  };
+  const auto hi = [](F x, F y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30,
+                                   31);
+  };
+  const F h0 = lo(tp_lo, uv_lo), h1 = hi(tp_lo, uv_lo), h2 = lo(tp_hi, uv_hi),
+          h3 = hi(tp_hi, uv_hi);
+  // Hits 4q to 4q + 3 are block q of h0, h1, h2, h3.
+  const auto blocks01 = [](F x, F y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
+  };
+  const auto blocks23 = [](F x, F y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30,
+                                   31);
+  };
+  const auto even = [](F x, F y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27);
+  };
+  const auto odd = [](F x, F y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30,
+                                   31);
+  };
+  const F a = blocks01(h0, h1), b = blocks01(h2, h3), c = blocks23(h0, h1), d = blocks23(h2, h3);
+  const F q[4] = {even(a, b), odd(a, b), even(c, d), odd(c, d)};
+  float* out = reinterpret_cast<float*>(hits);
+  for (int j = 0; j < 4; ++j) {
+    const uint32_t four = found >> (4 * j) & 0xfu;
+    if (four == 0) continue;
+    const uint32_t mask = _pdep_u32(four, 0x1111u) * 0xfu;
+    _mm512_mask_storeu_ps(out + 16 * j, __mmask16(mask), (__m512)q[j]);
+  }
+}
+
 /// Sets up R for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
 /// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
 /// number (finite reciprocals and err), sharing the first one's direction signs and the
@@ -590,13 +641,10 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
   }
   for (int k = 0; k < K; ++k) {
     const int base = 16 * which[k];
-    for (uint32_t m = lanes_of[which[k]]; m != 0; m &= m - 1) {
-      const int i = __builtin_ctz(m);
-      out[base + i] = (H[k].found >> i) & 1u;
-      if constexpr (!kAny)
-        if (out[base + i])
-          hits[base + i] = {H[k].best[i], uint32_t(H[k].prim[i]), H[k].u[i], H[k].v[i]};
-    }
+    const uint32_t lanes = lanes_of[which[k]], found = H[k].found & lanes;
+    _mm_mask_storeu_epi8(out + base, __mmask16(lanes),
+                         _mm_maskz_mov_epi8(__mmask16(found), _mm_set1_epi8(1)));
+    if constexpr (!kAny) store_hits(H[k], found, hits + base);
   }
   return true;
 }
