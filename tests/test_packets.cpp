@@ -44,13 +44,33 @@ std::vector<PacketMesh> packet_meshes(const std::string& structure) {
 }
 
 /// Primary rays of a w x h image in 8x8 tile order (the renderer's packets), then random rays,
-/// then a packet sprinkled with invalid rays.
+/// then shadow-like rays in packets of 64 from nearby origins, then a packet sprinkled with
+/// invalid rays.
 std::vector<Ray> packet_rays(const Mesh& mesh) {
   const int w = 67, h = 45;  // not multiples of 8: cut tiles at the edges
   const std::vector<Ray> image = primary_rays(canonical_camera(mesh.bounds()), w, h);
   std::vector<Ray> rays;
   for (const uint32_t i : tile_order(w, h, 8)) rays.push_back(image[i]);
   for (const Ray& r : test::random_rays(mesh, 11, 2000)) rays.push_back(r);
+  // Shadow-like rays, 64 at a time from origins a thousandth of the mesh's extent apart (within
+  // one of the hybrid's cells, so that they share its packet walk) towards one point light,
+  // from tmin 1e-4 to the light.
+  const Box3 b = mesh.bounds();
+  const Vec3 ext = b.hi - b.lo, light = b.lo + ext * Vec3(0.8f, 1.7f, 0.6f);
+  uint32_t seed = 12345;
+  const auto next = [&seed] {
+    seed = seed * 1664525u + 1013904223u;
+    return float(seed >> 8) / float(1u << 24);
+  };
+  for (int p = 0; p < 40; ++p) {
+    const Vec3 base =
+        b.lo + ext * Vec3(0.1f + 0.8f * next(), 0.1f + 0.8f * next(), 0.1f + 0.8f * next());
+    for (int i = 0; i < 64; ++i) {
+      const Vec3 o =
+          base + ext * (1e-3f / 8.0f) * Vec3(float(i % 8), float(i / 8), float((i * 5) % 8));
+      rays.push_back(Ray{o, 1e-4f, light - o, 1.0f});
+    }
+  }
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const size_t start = rays.size();
   for (int i = 0; i < 64; ++i) rays.push_back(image[size_t(i) * 37 % image.size()]);
