@@ -20,7 +20,8 @@ def build_page(results_dir, md_dir, img_dir, root):
     if b:
         simd = b["meta"].get("simd")
         facts += [("CPU", run.get("cpu", b["meta"]["machine"])),
-                  ("SIMD, kdgrid", "%s build; one ray at a time, the hybrid's walk in %d-lane "
+                  ("SIMD, kdgrid", "%s build; one ray at a time outside the packet tables, the "
+                   "hybrid's walk in %d-lane "
                    "vectors, its leaves' triangles %s" % (
                        simd["kdgrid"]["isa"], simd["kdgrid"]["lanes"],
                        leaf_lanes_text(simd["kdgrid"])) if simd else "not recorded"),

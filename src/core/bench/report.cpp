@@ -12,55 +12,57 @@ namespace kdgrid {
 std::string bench_to_json(const BenchReport& r) {
   using nlohmann::json;
   json j;
-  j["meta"] = {{"suite", r.suite},
-               {"date", r.date},
-               {"machine", r.machine},
-               {"simd",
-                {{"kdgrid",
-                  {{"isa", r.kdgrid_isa},
-                   {"lanes", r.kdgrid_lanes},
-                   {"leaf_lanes", r.kdgrid_leaf_lanes},
-                   {"how",
-                    "the ISA the build targets (-march=native unless KDGRID_NATIVE=OFF); every "
-                    "structure traces one ray at a time, the hybrid's walk in vectors of this "
-                    "many lanes (three axes and padding), its leaves' triangles leaf_lanes at a "
-                    "time"}}},
-                 {"embree",
-                  {{"version", r.embree.version},
-                   {"isa", r.embree.isa},
-                   {"native_packet", r.embree.native_packet},
-                   {"how",
-                    "rtcGetDeviceProperty RTC_DEVICE_PROPERTY_NATIVE_RAY16/8/4_SUPPORTED: the "
-                    "widest ray packet Embree's enabled ISA runs natively (16 = AVX-512, 8 = AVX "
-                    "or AVX2, 4 = SSE); rtcIntersect1/rtcOccluded1 trace one ray at a time with "
-                    "those kernels"}}}}},
-               {"hardware_threads", r.hardware_threads},
-               {"threads", r.threads},
-               {"reps", r.reps},
-               {"clock", r.clock},
-               {"width", r.width},
-               {"height", r.height},
-               {"sets", r.sets},
-               {"packet_tile", r.packet_tile},
-               {"packet_note",
-                "results[].packet: primary rays in tiles of packet_tile x packet_tile pixels, one "
-                "packet a tile (shadow rays in runs of packet_tile^2), through each structure's "
-                "packet query (packet_width: the rays its walk holds at once, 1 = a loop over "
-                "single rays; Embree: rtcIntersect/rtcOccluded at its native packet with "
-                "RTC_INTERSECT_CONTEXT_FLAG_COHERENT); ratio_to_reference pairs it with the "
-                "reference's packet query per repetition, speedup_over_single_loop with the "
-                "structure's own single-ray loop on the same packets; mismatches: rays whose "
-                "packet answer is not bitwise the single-ray one (mismatched_ties: same t)"},
-               {"seconds", r.seconds},
-               {"bytes_note",
-                "bytes = BuildStats::bytes: the structure only, excluding the mesh (positions "
-                "and indices) that every structure shares; bytes_by_part breaks it down"},
-               {"peak_rss_note",
-                "peak_rss_bytes: VmHWM reset (after malloc_trim) before the build, so it covers "
-                "this structure's build and traces plus what was already resident "
-                "(rss_before_bytes: mesh, ray sets, reference hits); rss_growth_bytes = the "
-                "difference, what building and tracing this structure added at its peak; "
-                "process_peak_rss_bytes: getrusage ru_maxrss, the process's lifetime peak"}};
+  j["meta"] = {
+      {"suite", r.suite},
+      {"date", r.date},
+      {"machine", r.machine},
+      {"simd",
+       {{"kdgrid",
+         {{"isa", r.kdgrid_isa},
+          {"lanes", r.kdgrid_lanes},
+          {"leaf_lanes", r.kdgrid_leaf_lanes},
+          {"how",
+           "the ISA the build targets (-march=native unless KDGRID_NATIVE=OFF); every "
+           "structure traces one ray at a time outside the packet column, the hybrid's walk in "
+           "vectors of this "
+           "many lanes (three axes and padding), its leaves' triangles leaf_lanes at a "
+           "time"}}},
+        {"embree",
+         {{"version", r.embree.version},
+          {"isa", r.embree.isa},
+          {"native_packet", r.embree.native_packet},
+          {"how",
+           "rtcGetDeviceProperty RTC_DEVICE_PROPERTY_NATIVE_RAY16/8/4_SUPPORTED: the "
+           "widest ray packet Embree's enabled ISA runs natively (16 = AVX-512, 8 = AVX "
+           "or AVX2, 4 = SSE); rtcIntersect1/rtcOccluded1 trace one ray at a time with "
+           "those kernels"}}}}},
+      {"hardware_threads", r.hardware_threads},
+      {"threads", r.threads},
+      {"reps", r.reps},
+      {"clock", r.clock},
+      {"width", r.width},
+      {"height", r.height},
+      {"sets", r.sets},
+      {"packet_tile", r.packet_tile},
+      {"packet_note",
+       "results[].packet: primary rays in tiles of packet_tile x packet_tile pixels, one "
+       "packet a tile (shadow rays in runs of packet_tile^2), through each structure's "
+       "packet query (packet_width: the rays its walk holds at once, 1 = a loop over "
+       "single rays; Embree: rtcIntersect/rtcOccluded at its native packet with "
+       "RTC_INTERSECT_CONTEXT_FLAG_COHERENT); ratio_to_reference pairs it with the "
+       "reference's packet query per repetition, speedup_over_single_loop with the "
+       "structure's own single-ray loop on the same packets; mismatches: rays whose "
+       "packet answer is not bitwise the single-ray one (mismatched_ties: same t)"},
+      {"seconds", r.seconds},
+      {"bytes_note",
+       "bytes = BuildStats::bytes: the structure only, excluding the mesh (positions "
+       "and indices) that every structure shares; bytes_by_part breaks it down"},
+      {"peak_rss_note",
+       "peak_rss_bytes: VmHWM reset (after malloc_trim) before the build, so it covers "
+       "this structure's build and traces plus what was already resident "
+       "(rss_before_bytes: mesh, ray sets, reference hits); rss_growth_bytes = the "
+       "difference, what building and tracing this structure added at its peak; "
+       "process_peak_rss_bytes: getrusage ru_maxrss, the process's lifetime peak"}};
   j["scenes"] = json::array();
   j["builds"] = json::array();
   j["results"] = json::array();
@@ -169,7 +171,8 @@ std::string structure_label(const StructureFigures& a) {
 }
 
 std::string simd_line(const BenchReport& r) {
-  return "SIMD: kdgrid built for " + r.kdgrid_isa + " (one ray at a time, the hybrid's walk in " +
+  return "SIMD: kdgrid built for " + r.kdgrid_isa +
+         " (one ray at a time outside the packet tables, the hybrid's walk in " +
          std::to_string(r.kdgrid_lanes) + "-lane vectors, its leaves' triangles " +
          std::to_string(r.kdgrid_leaf_lanes) + " at a time); Embree " + r.embree.version +
          " with its " + r.embree.isa + " kernels (native ray packets of " +

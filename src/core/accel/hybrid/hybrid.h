@@ -9,6 +9,8 @@
 //   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
 //   walk.h            the ray walk: clip, entry cell, leaf steps with wide tests, and
 //                     the next-leaf cache (NextLeafCache)
+//   packet.cpp        the packet walk: up to 64 rays down the tree together, triangle groups
+//                     culled against them, then tested a triangle against 16 rays
 //   build.cpp         GridKdHybrid::build; choose_cell_size (explicit size or the auto rule)
 //   tree.cpp          the kd-tree on cell boundaries, its leaf subtrees, flattened
 //   widen.cpp         widened empty leaves

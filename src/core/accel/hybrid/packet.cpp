@@ -45,11 +45,6 @@ using Wide = WatertightWide<16>;
 [[gnu::always_inline]] inline F splat(float x) {
   return F{} + x;
 }
-[[gnu::always_inline]] inline F load16(const float* p) {
-  F v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
 [[gnu::always_inline]] inline F vmin(F a, F b) {
   return a < b ? a : b;
 }
@@ -151,6 +146,7 @@ template <bool kAny>
   const uint32_t zero_edge = eq(U, zero) | eq(V, zero) | eq(Wf, zero);
   const uint32_t mixed =
       (lt(U, zero) | lt(V, zero) | lt(Wf, zero)) & (lt(zero, U) | lt(zero, V) | lt(zero, Wf));
+  if (((~mixed | zero_edge) & m) == 0) return;
   const F det = U + V + Wf;
   const F az = R.sz * Az, bz = R.sz * Bz, cz = R.sz * Cz;
   const F T = U * az + V * bz + Wf * cz;
@@ -518,7 +514,11 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
       ts[k] = (splat(plane) - R[k]->o[a]) * R[k]->inv[a];
       const uint32_t m = active(k, s.t0[k], s.t1[k]);
       need_near |= le(s.t0[k], ts[k] + R[k]->err[a]) & m;
-      need_far |= le(ts[k] - R[k]->err[a], s.t1[k]) & m;
+      const F far_t0 = ts[k] - R[k]->err[a];
+      uint32_t far_lanes = le(far_t0, s.t1[k]) & m;
+      // Not for the lanes whose closest hit lies before the far side.
+      if constexpr (!kAny) far_lanes &= le(far_t0, H[k].best);
+      need_far |= far_lanes;
     }
     to_near = need_near != 0;
     to_far = need_far != 0;
