@@ -78,17 +78,32 @@ template <int kPredicate>
 [[gnu::always_inline]] inline I blend(I a, uint32_t m, I b) {
   return (I)_mm512_mask_mov_epi32((__m512i)a, __mmask16(m), (__m512i)b);
 }
-/// The least and the greatest of the lanes `m` of v.
-[[gnu::always_inline]] inline float lane_min(F v, uint32_t m) {
-  F x = blend(splat(kInf), m, v);
-  x = vmin(x, __builtin_shufflevector(x, x, 8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7));
-  x = vmin(x, __builtin_shufflevector(x, x, 4, 5, 6, 7, 0, 1, 2, 3, 12, 13, 14, 15, 8, 9, 10, 11));
+/// The least of each of four vectors' lanes `m`, at once: halves folded together, two vectors'
+/// eight to a vector, then quarters, then pairs.
+[[gnu::always_inline]] inline void lane_mins(F a, F b, F c, F d, uint32_t m, float (&out)[4]) {
+  const F inf = splat(kInf);
+  a = blend(inf, m, a), b = blend(inf, m, b), c = blend(inf, m, c), d = blend(inf, m, d);
+  // Lanes 0-7: a's (or c's) sixteen folded to eight; lanes 8-15: b's (or d's).
+  const F ab = vmin(
+      __builtin_shufflevector(a, b, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
+      __builtin_shufflevector(a, b, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
+  const F cd = vmin(
+      __builtin_shufflevector(c, d, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
+      __builtin_shufflevector(c, d, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
+  // Lanes 4q to 4q + 3: four candidates of vector q (a, b, c, d).
+  F x = vmin(
+      __builtin_shufflevector(ab, cd, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27),
+      __builtin_shufflevector(ab, cd, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30, 31));
   x = vmin(x, __builtin_shufflevector(x, x, 2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13));
   x = vmin(x, __builtin_shufflevector(x, x, 1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14));
-  return x[0];
+  out[0] = x[0], out[1] = x[4], out[2] = x[8], out[3] = x[12];
 }
-[[gnu::always_inline]] inline float lane_max(F v, uint32_t m) {
-  return -lane_min(-v, m);
+/// The least and the greatest of each of four vectors' lanes `m`.
+[[gnu::always_inline]] inline void lane_ranges(F a, F b, F c, F d, uint32_t m, float (&lo)[4],
+                                               float (&hi)[4]) {
+  lane_mins(a, b, c, d, m, lo);
+  lane_mins(-a, -b, -c, -d, m, hi);
+  for (float& h : hi) h = -h;
 }
 
 }  // namespace
@@ -362,12 +377,10 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, float max_spread,
   }
   // The origins' box (of these lanes: bounds for any of them), which the cull reads; a packet
   // whose origins lie further apart than max_spread along an axis is left to the single walk.
-  float lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) {
-    lo[a] = lane_min(o[a], lanes);
-    hi[a] = lane_max(o[a], lanes);
+  float lo[4], hi[4];
+  lane_ranges(o[0], o[1], o[2], zero, lanes, lo, hi);
+  for (int a = 0; a < 3; ++a)
     if (!(hi[a] - lo[a] <= max_spread)) return 0;
-  }
   R.kx = R.kz == 2 ? 0 : R.kz + 1;
   R.ky = R.kx == 2 ? 0 : R.kx + 1;
   if (R.neg[R.kz]) std::swap(R.kx, R.ky);  // WatertightTest::prepare's
@@ -382,14 +395,15 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, float max_spread,
   }
   lanes &= bits(finite);
   R.ox = o[R.kx], R.oy = o[R.ky], R.oz = o[R.kz];
-  R.sx = d[R.kx] / d[R.kz], R.sy = d[R.ky] / d[R.kz], R.sz = one / d[R.kz];
+  R.sx = d[R.kx] / d[R.kz], R.sy = d[R.ky] / d[R.kz], R.sz = R.inv[R.kz];  // prepare()'s 1 / d
   R.tmin = blend(splat(kInf), lanes, tmin);
   R.tmax = blend(splat(-kInf), lanes, tmax);
   R.oxl = lo[R.kx], R.oxh = hi[R.kx];
   R.oyl = lo[R.ky], R.oyh = hi[R.ky];
   R.ozl = lo[R.kz], R.ozh = hi[R.kz];
-  R.sxl = lane_min(R.sx, lanes), R.sxh = lane_max(R.sx, lanes);
-  R.syl = lane_min(R.sy, lanes), R.syh = lane_max(R.sy, lanes);
+  float sl[4], sh[4];
+  lane_ranges(R.sx, R.sy, zero, zero, lanes, sl, sh);
+  R.sxl = sl[0], R.sxh = sh[0], R.syl = sl[1], R.syh = sh[1];
   return lanes;
 }
 
