@@ -173,7 +173,6 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   triangle_test_ = params.triangle_test;
   next_leaf_cache_ = params.hybrid_next_leaf_cache;
   nodes_.clear();
-  planes_.clear();
   leaves_.clear();
   kd_boxes_.clear();
   leaf_depth_.clear();
@@ -321,12 +320,6 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
     check_cancel(params.cancel);
     const uint64_t matrix = map_.entries() * sizeof(uint32_t);
-    // The split planes in world space for the packet walk (packet.cpp), which reads one a node.
-    planes_.resize(nodes_.size());
-    for (size_t i = 0; i < nodes_.size(); ++i)
-      planes_[i] = nodes_[i].axis == 3
-                       ? 0.0f
-                       : float(origin_[nodes_[i].axis] + double(nodes_[i].split) * cell_);
     const auto t2 = std::chrono::steady_clock::now();
     // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
     // inside one names its leaf (the next-leaf cache's check, walk.h; not kept without the cache).
@@ -359,7 +352,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     largest_leaf = std::max(largest_leaf, l.count & ~kSubtreeFlag);
   }
   stats_.references = references;
-  const uint64_t b_tree = nodes_.size() * sizeof(Node) + planes_.size() * sizeof(float);
+  const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
   const uint64_t b_flat = flat_.size() * sizeof(hybrid::GroupLine);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte

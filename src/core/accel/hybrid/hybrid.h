@@ -349,9 +349,6 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   uint64_t max_steps_ = 0;
 
   std::vector<Node> nodes_;
-  /// Each node's split plane in world space, float(origin + split * cell) (0 for leaves): the
-  /// packet walk's (packet.cpp).
-  std::vector<float> planes_;
   std::vector<Leaf> leaves_;
   std::vector<KdBox> kd_boxes_;  ///< each leaf's kd box; kept only for the next-leaf cache
   std::vector<uint8_t> leaf_depth_;

@@ -643,7 +643,7 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
       const int a = int(nd.axis);
       if (sp == kStack) return false;
       bool to_near, to_far;
-      split(a, planes_[node], s, top[sp].s, to_near, to_far);
+      split(a, float(origin_[a] + double(nd.split) * cell_), s, top[sp].s, to_near, to_far);
       const uint32_t below = node + 1, above = nd.right;
       const uint32_t near = neg[a] ? above : below, far = neg[a] ? below : above;
       if (to_near && to_far) top[sp++].node = far;
