@@ -120,6 +120,7 @@ struct PacketRays {
   int kx, ky, kz;
   bool neg[3];  ///< the packet's directions point down axis a
   float oxl, oxh, oyl, oyh, ozl, ozh, sxl, sxh, syl, syh;
+  uint32_t missed;  ///< lanes whose ray misses the grid's box as the single walk clips it
   /// Lane i's WatertightTest::RayData (what prepare() gives: the same divisions).
   WatertightTest::RayData ray_data(int i) const {
     return {ox[i], oy[i], oz[i], kx, ky, kz, sx[i], sy[i], sz[i]};
@@ -347,8 +348,10 @@ constexpr double kPacketSpreadCells = 1.0;
 /// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
 /// number (finite reciprocals and err), sharing the first one's direction signs and the
 /// watertight test's axes; none when their origins lie more than max_spread apart along an
-/// axis. The others take the single walk.
-uint32_t prepare_packet(const Ray* rays, int n, float max_abs, float max_spread, PacketRays& R) {
+/// axis. The others take the single walk, except those that miss the grid's `box` as the
+/// single walk clips them (R.missed), which miss.
+uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& box,
+                        float max_spread, PacketRays& R) {
   F f[8];
   load_rays(rays, n, f);
   const F o[3] = {f[0], f[1], f[2]}, d[3] = {f[4], f[5], f[6]};
@@ -362,6 +365,22 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, float max_spread,
     ok &= (ao[a] <= big) & (ad[a] <= big) & (ad[a] >= tiny);
   }
   uint32_t lanes = bits(ok) & ((1u << n) - 1);
+  R.missed = 0;
+  if (lanes == 0) return 0;
+  // The single walk's first step (walk_begin's kd_begin): [tmin, tmax] clipped to the grid's
+  // box, each slab widened by err; the rays it rejects miss, whatever their packet.
+  const F one = splat(1.0f);
+  const F err_scale = vmax(vmax(ao[0], vmax(ao[1], ao[2])), splat(max_abs)) * splat(0x1p-20f);
+  F t0 = tmin, t1 = tmax;
+  for (int a = 0; a < 3; ++a) {
+    R.inv[a] = one / d[a];
+    R.err[a] = err_scale * (F)_mm512_abs_ps((__m512)R.inv[a]);
+    const F tl = (splat(box.lo[a]) - o[a]) * R.inv[a], th = (splat(box.hi[a]) - o[a]) * R.inv[a];
+    t0 = vmax(t0, vmin(tl, th) - R.err[a]);
+    t1 = vmin(t1, vmax(tl, th) + R.err[a]);
+  }
+  R.missed = lt(t1, t0) & lanes;
+  lanes &= ~R.missed;
   if (lanes == 0) return 0;
   // max_dimension's axis: the first largest component.
   const uint32_t k0 = bits((ad[0] > ad[1]) & (ad[0] > ad[2]));
@@ -384,13 +403,9 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, float max_spread,
   R.kx = R.kz == 2 ? 0 : R.kz + 1;
   R.ky = R.kx == 2 ? 0 : R.kx + 1;
   if (R.neg[R.kz]) std::swap(R.kx, R.ky);  // WatertightTest::prepare's
-  const F one = splat(1.0f);
-  const F err_scale = vmax(vmax(ao[0], vmax(ao[1], ao[2])), splat(max_abs)) * splat(0x1p-20f);
   I finite = ~I{};
   for (int a = 0; a < 3; ++a) {
     R.o[a] = o[a];
-    R.inv[a] = one / d[a];
-    R.err[a] = err_scale * (F)_mm512_abs_ps((__m512)R.inv[a]);
     finite &= R.err[a] <= splat(FLT_MAX);
   }
   lanes &= bits(finite);
@@ -417,7 +432,7 @@ void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const 
   uint32_t lanes[4] = {0, 0, 0, 0};
   const int parts = (n + 15) / 16;
   for (int k = 0; k < parts; ++k) {
-    lanes[k] = prepare_packet(rays + 16 * k, std::min(16, n - 16 * k), max_abs_,
+    lanes[k] = prepare_packet(rays + 16 * k, std::min(16, n - 16 * k), max_abs_, wclip_,
                               float(kPacketSpreadCells * cell_), R[k]);
     if ((lanes[k] & (lanes[k] - 1)) == 0) lanes[k] = 0;
   }
@@ -436,9 +451,13 @@ void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const 
     if (!done) continue;
     for (int j = 0; j < count; ++j) walked[which[j]] = lanes[which[j]];
   }
-  for (int i = 0; i < n; ++i)
-    if (!(walked[i / 16] >> (i % 16) & 1u))
+  for (int i = 0; i < n; ++i) {
+    const uint32_t bit = 1u << (i % 16);
+    if (R[i / 16].missed & bit)
+      out[i] = false;
+    else if (!(walked[i / 16] & bit))
       out[i] = kAny ? occluded(rays[i]) : intersect(rays[i], hits[i]);
+  }
 }
 
 template <bool kAny, int K>
