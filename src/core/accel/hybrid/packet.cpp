@@ -1,9 +1,9 @@
-// The hybrid's packet queries (GridKdHybrid::intersect_packet, occluded_packet): up to 16 rays
-// walked together, one ray a float lane of 512-bit vectors (builds for AVX-512 with
-// shared-corner groups; the others loop over the single-ray walk).
+// The hybrid's packet queries (GridKdHybrid::intersect_packet, occluded_packet): up to 64 rays
+// walked together as four packets of 16, one ray a float lane of 512-bit vectors (builds for
+// AVX-512 with shared-corner groups; the others loop over the single-ray walk).
 //
-// The rays of a packet go down the kd-tree whose splits lie on the grid's cell boundaries, and
-// down the leaves' subtrees, together: each lane keeps its own [t0, t1] within a node, widened
+// The packets go down the kd-tree whose splits lie on the grid's cell boundaries, and down the
+// leaves' subtrees, together: each lane keeps its own [t0, t1] within a node, widened
 // by the kd-tree's rounding bound err (KdRay) as the single-ray kd walk widens its own, and the
 // packet visits a child when any of its lanes does, front to back (the rays share their
 // directions' signs), until every lane's closest hit lies before the next node. In a leaf, each
@@ -13,8 +13,9 @@
 // all the lanes at once, each lane by WatertightTest's own float operations in its order (and
 // its double-precision cases by the scalar test), so each ray's t, u, v of a triangle are bit
 // for bit its single walk's. Each ray thus finds the closest of the same intersections as its
-// single walk; only of two triangles hit at exactly the same t may the packet keep the other
-// (the walks test them in other orders).
+// single walk; only of two triangles hit at exactly the same t could the packet keep the other,
+// where its intervals reach a leaf holding one of them before the single walk would (none seen
+// on the benchmark's rays; docs/HYBRID.md, "Packets").
 //
 // Why the cull is exact: a corner's sheared x for ray i is fl(fl(vx - ox_i) - fl(sx_i fl(vz -
 // oz_i))) (kx, ky, kz shared by the packet). Every float operation is monotone, so the same
@@ -197,10 +198,10 @@ template <bool kAny>
   }
 }
 
-/// Codes of a shared-corner group's corners from `at` on (16 of them, the lanes `corners`): bit
-/// 1, 2, 4, 8 set where every lane of the packet sees the corner at x > 0, x < 0, y > 0, y < 0
-/// in its shear space (bounds from the packet's extreme origins and shears; see the file's
-/// comment).
+/// Codes of 16 of a shared-corner group's corners (their coordinates on the test's axes from tx,
+/// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
+/// corner at x > 0, x < 0, y > 0, y < 0 in its shear space (bounds from the packet's extreme
+/// origins and shears; see the file's comment).
 [[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& R, const float* tx,
                                                    const float* ty, const float* tz,
                                                    __mmask16 corners) {
