@@ -41,7 +41,6 @@ namespace {
 
 using F = WideVectors<16>::F;
 using I = WideVectors<16>::I;
-using Wide = WatertightWide<16>;
 
 [[gnu::always_inline]] inline F splat(float x) {
   return F{} + x;
@@ -69,9 +68,6 @@ template <int kPredicate>
 }
 [[gnu::always_inline]] inline uint32_t ne(F a, F b) {
   return cmp<_CMP_NEQ_UQ>(a, b);
-}
-[[gnu::always_inline]] inline uint32_t bits(I m) {
-  return Wide::bits(m);
 }
 [[gnu::always_inline]] inline F blend(F a, uint32_t m, F b) {
   return (F)_mm512_mask_mov_ps((__m512)a, __mmask16(m), (__m512)b);
@@ -359,13 +355,13 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   const F tmin = f[3], tmax = f[7];
   const F zero = {}, big = splat(kMaxRayCoordinate), tiny = splat(FLT_MIN);
   F ao[3], ad[3];
-  I ok = (tmin >= zero) & (tmin <= tmax) & (tmin < splat(kInf));
+  uint32_t ok = le(zero, tmin) & le(tmin, tmax) & lt(tmin, splat(kInf));
   for (int a = 0; a < 3; ++a) {
     ao[a] = (F)_mm512_abs_ps((__m512)o[a]);
     ad[a] = (F)_mm512_abs_ps((__m512)d[a]);
-    ok &= (ao[a] <= big) & (ad[a] <= big) & (ad[a] >= tiny);
+    ok &= le(ao[a], big) & le(ad[a], big) & le(tiny, ad[a]);
   }
-  uint32_t lanes = bits(ok) & ((1u << n) - 1);
+  uint32_t lanes = ok & ((1u << n) - 1);
   R.missed = 0;
   if (lanes == 0) return 0;
   // The single walk's first step (walk_begin's kd_begin): [tmin, tmax] clipped to the grid's
@@ -384,14 +380,14 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   lanes &= ~R.missed;
   if (lanes == 0) return 0;
   // max_dimension's axis: the first largest component.
-  const uint32_t k0 = bits((ad[0] > ad[1]) & (ad[0] > ad[2]));
-  const uint32_t k1 = ~k0 & bits(ad[1] > ad[2]);
+  const uint32_t k0 = lt(ad[1], ad[0]) & lt(ad[2], ad[0]);
+  const uint32_t k1 = ~k0 & lt(ad[2], ad[1]);
   const uint32_t kz_of[3] = {k0, k1, ~(k0 | k1)};
   const int first = __builtin_ctz(lanes);
   R.kz = (k0 >> first & 1u) ? 0 : (k1 >> first & 1u) ? 1 : 2;
   lanes &= kz_of[R.kz];
   for (int a = 0; a < 3; ++a) {
-    const uint32_t neg = bits(d[a] < zero);
+    const uint32_t neg = lt(d[a], zero);
     R.neg[a] = neg >> first & 1u;
     lanes &= R.neg[a] ? neg : ~neg;
   }
@@ -404,12 +400,12 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   R.kx = R.kz == 2 ? 0 : R.kz + 1;
   R.ky = R.kx == 2 ? 0 : R.kx + 1;
   if (R.neg[R.kz]) std::swap(R.kx, R.ky);  // WatertightTest::prepare's
-  I finite = ~I{};
+  uint32_t finite = ~0u;
   for (int a = 0; a < 3; ++a) {
     R.o[a] = o[a];
-    finite &= R.err[a] <= splat(FLT_MAX);
+    finite &= le(R.err[a], splat(FLT_MAX));
   }
-  lanes &= bits(finite);
+  lanes &= finite;
   R.ox = o[R.kx], R.oy = o[R.ky], R.oz = o[R.kz];
   R.sx = d[R.kx] / d[R.kz], R.sy = d[R.ky] / d[R.kz], R.sz = R.inv[R.kz];  // prepare()'s 1 / d
   R.tmin = blend(splat(kInf), lanes, tmin);
