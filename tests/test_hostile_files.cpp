@@ -22,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include "png_bytes.h"
 #include "scene/load.h"
 #include "temp_dir.h"
 #include "test_util.h"
@@ -35,6 +36,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using test::load_error;
+using test::png_header_only;
 using test::TempDir;
 
 std::string read_all(const std::string& path) {
@@ -381,31 +383,6 @@ TEST(HostileFiles, ObjMaterialLibraryAndTextureOnDevicesAreWarnings) {
   r = run_cli("info \"" + b + "\"", tmp, "ulimit -t 10; ulimit -v 4000000;");
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_CONTAINS(r.err, "zero.png (texture): is not a regular file");
-}
-
-uint32_t crc32(const std::string& bytes) {
-  uint32_t c = 0xFFFFFFFFu;
-  for (unsigned char b : bytes) {
-    c ^= b;
-    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
-  }
-  return ~c;
-}
-
-std::string be32(uint32_t v) {
-  return {char(v >> 24), char(v >> 16), char(v >> 8), char(v)};
-}
-
-std::string png_chunk(const std::string& type, const std::string& data) {
-  return be32(uint32_t(data.size())) + type + data + be32(crc32(type + data));
-}
-
-/// A PNG whose header says `w` x `h` RGB pixels, with no pixel data: the header is all a
-/// reader needs to know what decoding would cost.
-std::string png_header_only(uint32_t w, uint32_t h) {
-  const std::string ihdr = be32(w) + be32(h) + std::string("\x08\x02\x00\x00\x00", 5);
-  return std::string("\x89PNG\r\n\x1a\n", 8) + png_chunk("IHDR", ihdr) + png_chunk("IDAT", "") +
-         png_chunk("IEND", "");
 }
 
 TEST(HostileFiles, HugeTextureIsRefusedFromItsHeaderBeforeDecoding) {

@@ -29,7 +29,9 @@ void add_info_command(CLI::App& app) {
   cmd->add_option("scene", *path, "Scene file (.gltf .glb .ply .obj)")->required();
   cmd->add_flag("--json", *json, "Print JSON instead of text");
   cmd->callback([path, json] {
-    const Scene s = load_scene(*path);
+    LoadOptions options;
+    options.decode_textures = false;  // info reports textures' count, not their pixels
+    const Scene s = load_scene(*path, options);
     const Box3 b = s.mesh.bounds();
     nlohmann::json j;
     j["file"] = *path;

@@ -35,10 +35,9 @@ int main(int argc, char** argv) {
   } catch (const std::bad_alloc&) {
     // Builds report their own (accel/guards.h); this is any other allocation that failed.
     std::fprintf(stderr,
-                 "kdgrid: error: ran out of memory (an allocation failed); %.0f MiB are available "
-                 "to kdgrid (the smallest of physical memory, the cgroup limit and ulimit -v): "
-                 "use a smaller scene, resolution or ray count, or run with more memory\n",
-                 double(kdgrid::available_memory_bytes()) / double(1 << 20));
+                 "kdgrid: error: %s: use a smaller scene, resolution or ray count, or run with "
+                 "more memory\n",
+                 kdgrid::out_of_memory_message().c_str());
     return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "kdgrid: internal error: %s\n", e.what());

@@ -10,12 +10,14 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <new>
 
 #include <tbb/global_control.h>
 
 #include "accel/hybrid/hybrid.h"
 #include "scene/load.h"
 #include "util/format.h"
+#include "util/memory.h"
 #include "viewer/viewer_internal.h"
 
 namespace kdgrid::viewer {
@@ -173,9 +175,14 @@ void Viewer::poll_tasks() {
                 task_->what.c_str(), rec.wall_seconds, rec.cancel_seconds);
     std::fflush(stdout);
   } catch (const std::exception& e) {
-    task_error_ = e.what();
-    rec.error = e.what();
-    std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(), e.what());
+    // A failed allocation outside the loaders and builds, which name their own, says only
+    // "std::bad_alloc": say what ran out.
+    task_error_ = dynamic_cast<const std::bad_alloc*>(&e)
+                      ? out_of_memory_message() + ": use a smaller scene or run with more memory"
+                      : std::string(e.what());
+    rec.error = task_error_;
+    std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(),
+                 task_error_.c_str());
     if (new_scene && !world_) {
       // The window stays with the error in its panel; its title names the file, as a loaded
       // scene's does.

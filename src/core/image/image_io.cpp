@@ -151,18 +151,67 @@ std::vector<uint8_t> to_rgb8(const uint8_t* pixels, size_t count, int channels) 
   return rgb;
 }
 
-bool texture_fits_budget(int width, int height, int channels, std::string& why) {
+bool texture_size_ok(int width, int height, int channels, std::string& why) {
+  const std::string size = std::to_string(width) + "x" + std::to_string(height) + " pixels";
   // While decoding: the pixels as read (`channels` bytes each) plus the RGB8 copy.
   const double bytes = double(width) * double(height) * double(channels + 3);
   const uint64_t budget = default_memory_budget_bytes();
-  if (bytes <= double(budget)) return true;
-  why = std::to_string(width) + "x" + std::to_string(height) + " pixels would take " +
-        format_bytes_iec(bytes) + " to decode, above the memory budget of " +
-        format_bytes_iec(double(budget)) + " (half of the memory available); scale the image down";
-  return false;
+  if (bytes > double(budget)) {
+    why = size + " would take " + format_bytes_iec(bytes) +
+          " to decode, above the memory budget of " + format_bytes_iec(double(budget)) +
+          " (half of the memory available); scale the image down";
+    return false;
+  }
+  if (width > kMaxTextureSide || height > kMaxTextureSide) {
+    why = size + ": above the limit of " + std::to_string(kMaxTextureSide) +
+          " a side (docs/LIMITS.md); scale the image down";
+    return false;
+  }
+  return true;
 }
 
-std::optional<Texture> read_texture_file(const std::string& path, std::string& why) {
+namespace {
+
+/// The texture of the image `in` has opened (its header read); see read_texture_file.
+std::optional<Texture> read_texture(OIIO::ImageInput& in, const std::string& name, std::string& why,
+                                    bool decode) {
+  const OIIO::ImageSpec spec = in.spec();
+  const int nch = spec.nchannels;
+  if (spec.width <= 0 || spec.height <= 0 || nch <= 0 || spec.depth > 1) {
+    why = "unsupported image layout";
+    return std::nullopt;
+  }
+  const int used = std::min(nch, 4);
+  // The header gives the size: refuse before decoding what would not fit.
+  if (!texture_size_ok(spec.width, spec.height, used, why)) return std::nullopt;
+  Texture t;
+  t.width = spec.width;
+  t.height = spec.height;
+  t.channels = 3;
+  // Float images (EXR, HDR) hold linear values; 8-bit colour images are conventionally sRGB.
+  t.srgb = !spec.format.is_floating_point();
+  t.name = name;
+  if (!decode) return t;
+  std::vector<uint8_t> px(size_t(spec.width) * size_t(spec.height) * size_t(used));
+  // libjpeg reports a truncated JPEG as a warning, fills the missing rows with grey and
+  // succeeds; OpenImageIO keeps the warning as an error message: either way the texture is
+  // refused, as a truncated PNG is.
+  const bool ok = in.read_image(0, 0, 0, used, OIIO::TypeDesc::UINT8, px.data());
+  if (!ok || in.has_error()) {
+    why = in.geterror();
+    while (!why.empty() && (why.back() == '\n' || why.back() == ' ')) why.pop_back();
+    std::replace(why.begin(), why.end(), '\n', ' ');
+    why = "cannot decode the pixels (" + printable(why.empty() ? "unknown error" : why, 200) +
+          "); the file is truncated or corrupt";
+    return std::nullopt;
+  }
+  t.pixels = to_rgb8(px.data(), size_t(t.width) * size_t(t.height), used);
+  return t;
+}
+
+}  // namespace
+
+std::optional<Texture> read_texture_file(const std::string& path, std::string& why, bool decode) {
   try {
     check_input_file(path, "texture");
   } catch (const LoadError& e) {
@@ -171,33 +220,29 @@ std::optional<Texture> read_texture_file(const std::string& path, std::string& w
   }
   auto in = OIIO::ImageInput::open(path);
   if (!in) {
-    why = OIIO::geterror();
+    why = printable(OIIO::geterror(), 200);
     if (why.empty()) why = "cannot open";
     return std::nullopt;
   }
-  const OIIO::ImageSpec& spec = in->spec();
-  const int nch = spec.nchannels;
-  if (spec.width <= 0 || spec.height <= 0 || nch <= 0 || spec.depth > 1) {
-    why = "unsupported image layout";
+  return read_texture(*in, path, why, decode);
+}
+
+std::optional<Texture> decode_texture(const unsigned char* bytes, size_t size,
+                                      const std::string& name, std::string& why, bool decode) {
+  const bool png = size >= 8 && std::memcmp(bytes, "\x89PNG", 4) == 0;
+  const bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8;
+  if (!png && !jpeg) {
+    why = "neither PNG nor JPEG";
     return std::nullopt;
   }
-  const int used = std::min(nch, 4);
-  // The header gives the size: refuse before decoding what would not fit.
-  if (!texture_fits_budget(spec.width, spec.height, used, why)) return std::nullopt;
-  std::vector<uint8_t> px(size_t(spec.width) * size_t(spec.height) * size_t(used));
-  if (!in->read_image(0, 0, 0, used, OIIO::TypeDesc::UINT8, px.data())) {
-    why = in->geterror();
+  const std::string format = png ? "x.png" : "x.jpg";
+  OIIO::Filesystem::IOMemReader reader(bytes, size);
+  auto in = OIIO::ImageInput::open(format, nullptr, &reader);
+  if (!in) {
+    why = "cannot decode (" + printable(OIIO::geterror(), 200) + ")";
     return std::nullopt;
   }
-  Texture t;
-  t.width = spec.width;
-  t.height = spec.height;
-  t.channels = 3;
-  t.pixels = to_rgb8(px.data(), size_t(t.width) * size_t(t.height), used);
-  // Float images (EXR, HDR) hold linear values; 8-bit colour images are conventionally sRGB.
-  t.srgb = !spec.format.is_floating_point();
-  t.name = path;
-  return t;
+  return read_texture(*in, name, why, decode);
 }
 
 }  // namespace kdgrid

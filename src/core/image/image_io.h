@@ -43,16 +43,32 @@ double rmse(const ImageRGB& a, const ImageRGB& b);
 
 // ---- textures -------------------------------------------------------------------------
 
+/// Largest width or height of a texture that is decoded: the largest texture GPUs load
+/// (GL_MAX_TEXTURE_SIZE is 16384 on most), far above what a render at the resolutions kdgrid
+/// is used for can show. A larger image costs seconds and gigabytes to decode (40000 x 40000
+/// is 4.8 GB as RGB8) from a file of a few megabytes; it is refused from its header.
+constexpr int kMaxTextureSide = 16384;
+
 /// Reads an image file (PNG, JPEG, TGA, EXR, ... whatever OpenImageIO reads) as an RGB8
 /// texture. 8-bit images are taken as sRGB, float images as linear. Returns nullopt and sets
 /// `why` when the file cannot be read, so callers can warn and go on untextured: also when it
-/// is not a regular file (util/input_file.h) or its header gives a size whose decoding would
-/// exceed the memory budget (checked before any pixel is read).
-std::optional<Texture> read_texture_file(const std::string& path, std::string& why);
+/// is not a regular file (util/input_file.h), when its header gives a size that
+/// texture_size_ok refuses (checked before any pixel is read), and when its data ends early
+/// (a truncated PNG or JPEG). With `decode` false only the header is read: the Texture has its
+/// size and no pixels.
+std::optional<Texture> read_texture_file(const std::string& path, std::string& why,
+                                         bool decode = true);
 
 /// True when a `width` x `height` image of `channels` 8-bit channels can be decoded within
-/// the default memory budget (util/memory.h); else false with `why` naming the sizes.
-bool texture_fits_budget(int width, int height, int channels, std::string& why);
+/// the default memory budget (util/memory.h) and neither side exceeds kMaxTextureSide; else
+/// false with `why` naming the sizes and the fix.
+bool texture_size_ok(int width, int height, int channels, std::string& why);
+
+/// read_texture_file for an encoded image in memory (`size` bytes, e.g. a glTF buffer view);
+/// `name` is the texture's name. The format is recognised from the bytes.
+std::optional<Texture> decode_texture(const unsigned char* bytes, size_t size,
+                                      const std::string& name, std::string& why,
+                                      bool decode = true);
 
 /// Converts interleaved 8-bit pixels with `channels` channels (1-4) to RGB8.
 std::vector<uint8_t> to_rgb8(const uint8_t* pixels, size_t count, int channels);

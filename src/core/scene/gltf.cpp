@@ -1,8 +1,6 @@
 // glTF 2.0 (.gltf/.glb) through tinygltf: the default scene's node tree is flattened into one
 // world-space mesh. tinygltf parses JSON and decodes images but does not check that accessors
 // stay inside their buffers, so every accessor is bounds-checked here before it is read.
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
 #include <tiny_gltf.h>
 
 #include <algorithm>
@@ -248,8 +246,8 @@ std::string number_text(double v) {
 
 class GltfBuilder {
  public:
-  GltfBuilder(const tinygltf::Model& model, const std::string& path, Scene& scene)
-      : model_(model), path_(path), scene_(scene), acc_(model, path) {}
+  GltfBuilder(const tinygltf::Model& model, const std::string& path, Scene& scene, bool decode)
+      : model_(model), path_(path), scene_(scene), acc_(model, path), decode_(decode) {}
 
   void build() {
     convert_materials();
@@ -280,18 +278,36 @@ class GltfBuilder {
   }
 
  private:
+  /// A colour factor (or strength) of material `mi` must be a finite number >= 0: a negative
+  /// one subtracts light (negative EXR values), as a negative light intensity would.
+  void check_factor(size_t mi, const tinygltf::Material& gm, const std::string& field,
+                    const std::vector<double>& values) const {
+    for (size_t i = 0; i < values.size(); ++i)
+      if (!(values[i] >= 0.0 && values[i] <= double(FLT_MAX)))
+        throw LoadError(
+            path_ + ": material " + std::to_string(mi) + " '" + printable(gm.name, 80) + "' has " +
+            field + (values.size() > 1 ? "[" + std::to_string(i) + "]" : "") + " " +
+            number_text(values[i]) + "; give finite numbers >= 0 (colours usually 0 to 1)");
+  }
+
   void convert_materials() {
-    for (const tinygltf::Material& gm : model_.materials) {
+    for (size_t mi = 0; mi < model_.materials.size(); ++mi) {
+      const tinygltf::Material& gm = model_.materials[mi];
       Material m;
       m.name = gm.name;
       const auto& pbr = gm.pbrMetallicRoughness;
+      check_factor(mi, gm, "pbrMetallicRoughness.baseColorFactor", pbr.baseColorFactor);
+      check_factor(mi, gm, "emissiveFactor", gm.emissiveFactor);
       m.base_color = factor3(pbr.baseColorFactor, Vec3(1.0f));
       m.metallic = std::clamp(float(pbr.metallicFactor), 0.0f, 1.0f);
       m.roughness = std::clamp(float(pbr.roughnessFactor), 0.0f, 1.0f);
       m.emission = factor3(gm.emissiveFactor, Vec3(0.0f));
       double v = 0;
-      if (extension_number(gm.extensions, "KHR_materials_emissive_strength", "emissiveStrength", v))
+      if (extension_number(gm.extensions, "KHR_materials_emissive_strength", "emissiveStrength",
+                           v)) {
+        check_factor(mi, gm, "KHR_materials_emissive_strength.emissiveStrength", {v});
         m.emission *= float(v);
+      }
       if (extension_number(gm.extensions, "KHR_materials_transmission", "transmissionFactor", v))
         m.transmission = std::clamp(float(v), 0.0f, 1.0f);
       if (extension_number(gm.extensions, "KHR_materials_ior", "ior", v) && v > 0) m.ior = float(v);
@@ -314,23 +330,18 @@ class GltfBuilder {
     if (found != image_texture_.end()) return found->second;
     const tinygltf::Image& img = model_.images[size_t(src)];
     int result = -1;
+    // decode_image leaves RGB8 pixels, or none with the size when textures are not decoded.
     const size_t px = img.width > 0 && img.height > 0 ? size_t(img.width) * size_t(img.height) : 0;
-    const int bytes = img.bits == 16 ? 2 : 1;
-    if (px == 0 || img.component < 1 || img.component > 4 || (img.bits != 8 && img.bits != 16) ||
-        img.image.size() < px * size_t(img.component) * size_t(bytes)) {
+    if (px == 0 || img.component != 3 || img.bits != 8 || (decode_ && img.image.size() != px * 3)) {
       std::fprintf(stderr,
                    "%s: warning: image %d ('%s') was not decoded; material left untextured\n",
-                   path_.c_str(), src, img.uri.c_str());
+                   path_.c_str(), src, printable(img.uri, 80).c_str());
     } else {
-      std::vector<uint8_t> eight(px * size_t(img.component));
-      for (size_t i = 0; i < eight.size(); ++i)
-        // 16-bit images are stored little-endian by stb_image; keep the high byte.
-        eight[i] = bytes == 2 ? img.image[2 * i + 1] : img.image[i];
       Texture t;
       t.width = img.width;
       t.height = img.height;
       t.channels = 3;
-      t.pixels = to_rgb8(eight.data(), px, img.component);
+      t.pixels.assign(img.image.begin(), img.image.end());
       t.srgb = true;  // glTF base colour textures are sRGB
       t.name = img.name.empty() ? img.uri : img.name;
       result = int(scene_.textures.size());
@@ -462,7 +473,7 @@ class GltfBuilder {
     c.name = gc.name.empty() ? "glTF camera " + std::to_string(node.camera) : gc.name;
     if (!is_finite(c.eye) || !is_finite(fwd) || !(c.fov_deg > 0.0f && c.fov_deg < 180.0f)) {
       std::fprintf(stderr, "%s: warning: camera '%s' is degenerate; ignoring it\n", path_.c_str(),
-                   c.name.c_str());
+                   printable(c.name, 80).c_str());
       return;
     }
     scene_.camera = c;
@@ -494,7 +505,7 @@ class GltfBuilder {
     l.color = factor3(gl.color, Vec3(1.0f));
     // A value outside a float's range would become infinite (a black image), a negative one
     // would subtract light (negative EXR values): both are refused, naming the light.
-    const std::string which = "light " + std::to_string(li) + " '" + gl.name + "'";
+    const std::string which = "light " + std::to_string(li) + " '" + printable(gl.name, 80) + "'";
     if (!(gl.intensity >= 0.0 && gl.intensity <= double(FLT_MAX)))
       throw LoadError(path_ + ": " + which + " has intensity " + number_text(gl.intensity) +
                       "; give a finite number between 0 and 3.4e38 (candela or lux)");
@@ -629,6 +640,7 @@ class GltfBuilder {
   AccessorReader acc_;
   std::map<int, int> image_texture_;
   std::vector<bool> on_path_;
+  bool decode_;
   int default_material_ = -1;
   size_t skipped_prims_ = 0;
 };
@@ -681,6 +693,17 @@ void check_glb_header(const std::string& d, const std::string& path) {
     if (chunk == 0 && type != 0x4E4F534Au)
       fail(which + " type (bytes 16-19) is '" + printable(std::string_view(d).substr(16, 4)) +
            "', not 'JSON'");
+    if (chunk == 0) {
+      // The JSON text ends in '}', padded with spaces: a length that ends elsewhere is wrong
+      // (what follows would be read as the next chunk's header, from inside the JSON).
+      size_t last = at + 8 + size_t(len);
+      while (last > at + 8 && (d[last - 1] == ' ' || d[last - 1] == '\0')) --last;
+      if (last == at + 8 || d[last - 1] != '}')
+        fail("the JSON chunk length (bytes 12-15) is " + std::to_string(len) +
+             ", which does not end at the end of the JSON text (its last byte there is '" +
+             printable(std::string_view(d).substr(last > at + 8 ? last - 1 : at + 8, 1)) +
+             "', not '}'); the JSON chunk length is wrong: re-export the file");
+    }
     if (chunk == 1 && type != 0x004E4942u)
       fail(which + " type (bytes " + std::to_string(at + 4) + "-" + std::to_string(at + 7) +
            ") is '" + printable(std::string_view(d).substr(at + 4, 4)) + "', not 'BIN'");
@@ -692,6 +715,7 @@ void check_glb_header(const std::string& d, const std::string& path) {
 /// What the file callbacks need: the scene's folder, outside which nothing is read.
 struct GltfFiles {
   std::filesystem::path folder;
+  bool decode_textures = true;  // LoadOptions::decode_textures
 };
 
 /// tinygltf's reader of buffer and image files: inside the scene's folder only (a URI of
@@ -727,51 +751,46 @@ bool refuse_write(std::string* err, const std::string&, const std::vector<unsign
 }
 
 /// Decodes a glTF image (PNG or JPEG bytes from a file, a data URI or a buffer view) with
-/// OpenImageIO: the header is read first and an image whose pixels would not fit the memory
-/// budget is refused before decoding (stb_image, tinygltf's default, has neither check nor a
-/// useful message for large images).
-bool decode_image(tinygltf::Image* image, const int index, std::string* err, std::string* warn, int,
-                  int, const unsigned char* bytes, int size, void*) {
-  const bool png = size >= 8 && std::memcmp(bytes, "\x89PNG", 4) == 0;
-  const bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8;
-  const std::string name = "image " + std::to_string(index);
-  if (!png && !jpeg) {
-    if (warn) *warn += name + ": neither PNG nor JPEG; material left untextured\n";
-    return true;  // an unusable image is a warning: the texture is dropped, not the scene
-  }
-  const std::string format = png ? "x.png" : "x.jpg";
-  OIIO::Filesystem::IOMemReader reader(bytes, size_t(size));
-  auto in = OIIO::ImageInput::open(format, nullptr, &reader);
-  if (!in) {
-    if (warn)
-      *warn += name + ": cannot decode (" + OIIO::geterror() + "); material left untextured\n";
-    return true;
-  }
-  const OIIO::ImageSpec& spec = in->spec();
-  const int used = std::min(spec.nchannels, 4);
+/// OpenImageIO into RGB8 (image/image_io.h, decode_texture): the header is read first and an
+/// image above the texture limits is refused before decoding (stb_image, tinygltf's default,
+/// has neither check nor a useful message for large images). `user` points to GltfFiles.
+bool decode_image(tinygltf::Image* image, const int index, std::string*, std::string* warn, int,
+                  int, const unsigned char* bytes, int size, void* user) {
+  const bool decode = static_cast<const GltfFiles*>(user)->decode_textures;
   std::string why;
-  if (spec.width <= 0 || spec.height <= 0 || used <= 0 || spec.depth > 1)
-    why = "unsupported image layout";
-  else if (!texture_fits_budget(spec.width, spec.height, used, why))
-    ;
-  else {
-    image->image.resize(size_t(spec.width) * size_t(spec.height) * size_t(used));
-    if (!in->read_image(0, 0, 0, used, OIIO::TypeDesc::UINT8, image->image.data())) {
-      why = in->geterror();
-      image->image.clear();
-    }
-  }
-  if (!why.empty()) {
-    if (warn) *warn += name + ": " + why + "; material left untextured\n";
+  auto tex = decode_texture(bytes, size_t(std::max(size, 0)), image->name, why, decode);
+  if (!tex) {
+    // An unusable image is a warning: the texture is dropped, not the scene.
+    if (warn)
+      *warn += "image " + std::to_string(index) + ": " + why + "; material left untextured\n";
     return true;
   }
-  image->width = spec.width;
-  image->height = spec.height;
-  image->component = used;
+  image->width = tex->width;
+  image->height = tex->height;
+  image->component = 3;
   image->bits = 8;
   image->pixel_type = TINYGLTF_COMPONENT_TYPE_UNSIGNED_BYTE;
-  (void)err;
+  image->image = std::move(tex->pixels);
   return true;
+}
+
+/// The extensions kdgrid reads (GltfBuilder): a file that requires any other one
+/// (extensionsRequired) cannot be shown as its author meant, so it is refused; an extension
+/// that is only used (extensionsUsed) is ignored, as glTF allows.
+void check_required_extensions(const tinygltf::Model& model, const std::string& path) {
+  static const char* const kRead[] = {
+      "KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_materials_ior",
+      "KHR_materials_transmission",
+      // Positions, normals and uvs of any component type (AccessorReader::component).
+      "KHR_mesh_quantization"};
+  for (const std::string& req : model.extensionsRequired) {
+    if (std::find(std::begin(kRead), std::end(kRead), req) != std::end(kRead)) continue;
+    std::string known;
+    for (const char* k : kRead) known += std::string(known.empty() ? "" : ", ") + k;
+    throw LoadError(path + ": requires the glTF extension '" + printable(req, 80) +
+                    "' (extensionsRequired), which kdgrid does not read (it reads " + known +
+                    "); re-export the file without it");
+  }
 }
 
 void print_lines(const std::string& path, const char* kind, const std::string& text) {
@@ -781,14 +800,14 @@ void print_lines(const std::string& path, const char* kind, const std::string& t
     if (end == std::string::npos) end = text.size();
     if (end > start)
       std::fprintf(stderr, "%s: %s: %s\n", path.c_str(), kind,
-                   text.substr(start, end - start).c_str());
+                   printable(std::string_view(text).substr(start, end - start), 300).c_str());
     start = end + 1;
   }
 }
 
 }  // namespace
 
-Scene load_gltf(const std::string& path) {
+Scene load_gltf(const std::string& path, const LoadOptions& options) {
   namespace fs = std::filesystem;
   const bool binary = lower_ext(path) == ".glb";
   const std::string data = read_input_file(path);
@@ -796,6 +815,7 @@ Scene load_gltf(const std::string& path) {
   GltfFiles files;
   std::error_code ec;
   files.folder = fs::weakly_canonical(fs::absolute(fs::path(path)).parent_path(), ec);
+  files.decode_textures = options.decode_textures;
   tinygltf::TinyGLTF loader;
   loader.SetFsCallbacks(
       {&tinygltf::FileExists, &tinygltf::ExpandFilePath, &read_scene_file, &refuse_write, &files});
@@ -813,15 +833,23 @@ Scene load_gltf(const std::string& path) {
     std::string e = err.empty() ? warn : err;
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
     std::replace(e.begin(), e.end(), '\n', ' ');
-    throw LoadError(path + ": cannot parse glTF: " + (e.empty() ? "unknown error" : e));
+    // tinygltf's own words for a stride outside 4..252 speak of multiples of 4 only.
+    const std::string bad_stride =
+        "Invalid `byteStride' value. `byteStride' must be the multiple of 4 : ";
+    const size_t at = e.find(bad_stride);
+    if (at != std::string::npos)
+      throw LoadError(path + ": a buffer view has byteStride " +
+                      printable(std::string_view(e).substr(at + bad_stride.size()), 24) +
+                      "; glTF allows a multiple of 4 from 4 to 252 (or none, for tightly packed "
+                      "elements): re-export the file");
+    // tinygltf quotes the file's text (a data: URI of megabytes): cut to a few hundred bytes.
+    throw LoadError(path +
+                    ": cannot parse glTF: " + (e.empty() ? "unknown error" : printable(e, 400)));
   }
   print_lines(path, "warning", warn);
-  for (const std::string& req : model.extensionsRequired)
-    if (req == "KHR_draco_mesh_compression" || req == "EXT_meshopt_compression")
-      throw LoadError(path + ": requires the extension " + req +
-                      ", which kdgrid does not read; re-export the file without it");
+  check_required_extensions(model, path);
   Scene scene;
-  GltfBuilder(model, path, scene).build();
+  GltfBuilder(model, path, scene, options.decode_textures).build();
   return scene;
 }
 

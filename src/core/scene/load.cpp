@@ -4,11 +4,13 @@
 #include <cstdlib>
 #include <filesystem>
 #include <limits>
+#include <new>
 #include <vector>
 
 #include "scene/procedural.h"
 #include "util/error.h"
 #include "util/input_file.h"
+#include "util/memory.h"
 #include "util/paths.h"
 
 namespace kdgrid {
@@ -53,7 +55,7 @@ Scene generate_from_spec(const std::string& spec) {
 
 }  // namespace
 
-Scene load_scene(const std::string& given) {
+Scene load_scene(const std::string& given, const LoadOptions& options) {
   if (given.rfind("gen:", 0) == 0) return generate_from_spec(given);
   // A path that does not exist as given is looked up in the shared scenes directory.
   const std::string path = resolve_scene_path(given);
@@ -69,19 +71,20 @@ Scene load_scene(const std::string& given) {
   std::string ext = fs::path(path).extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(),
                  [](unsigned char c) { return std::tolower(c); });
-  Scene s;
-  if (ext == ".ply")
-    s = load_ply(path);
-  else if (ext == ".obj")
-    s = load_obj(path);
-  else if (ext == ".gltf" || ext == ".glb")
-    s = load_gltf(path);
-  else
-    throw LoadError(path + ": unknown scene format '" + ext +
+  if (ext != ".ply" && ext != ".obj" && ext != ".gltf" && ext != ".glb")
+    throw LoadError(path + ": unknown scene format '" + printable(ext) +
                     "'; kdgrid reads .gltf, .glb, .ply and .obj");
-  s.source = path;
-  s.finalize();
-  return s;
+  try {
+    Scene s = ext == ".ply"   ? load_ply(path)
+              : ext == ".obj" ? load_obj(path, options)
+                              : load_gltf(path, options);
+    s.source = path;
+    s.finalize();
+    return s;
+  } catch (const std::bad_alloc&) {
+    throw LoadError(path + ": " + out_of_memory_message() +
+                    " while loading it: use a smaller scene or run with more memory");
+  }
 }
 
 }  // namespace kdgrid

@@ -17,28 +17,53 @@
 #include "image/image_io.h"
 #include "scene/load.h"
 #include "util/error.h"
+#include "util/format.h"
 #include "util/input_file.h"
+#include "util/memory.h"
 #include "util/text.h"
 
 namespace kdgrid {
 
 namespace {
 
-/// Prints tinyobjloader's warnings once each, prefixed with the file name.
+/// Prints warnings once each, prefixed with the file name, each line made printable and cut
+/// to a few hundred bytes (a warning may quote a name from the file), at most ten.
+/// tinyobjloader's warnings that kdgrid replaces with its own, which carry the line number,
+/// are dropped: "Degenerated face found" (with a stray "." line) and "material [ 'x' ] not
+/// found in .mtl".
 void print_warnings(const std::string& path, const std::string& text) {
   std::istringstream lines(text);
   std::string line;
   std::map<std::string, int> seen;
   int printed = 0;
   while (std::getline(lines, line)) {
-    if (line.empty() || seen[line]++) continue;
+    if (line.empty() || line == "." || line == "Degenerated face found" ||
+        (line.rfind("material [ ", 0) == 0 && line.find(" ] not found in .mtl") != line.npos) ||
+        seen[line]++)
+      continue;
     if (++printed > 10) {
       std::fprintf(stderr, "%s: warning: (further warnings suppressed)\n", path.c_str());
       return;
     }
-    std::fprintf(stderr, "%s: warning: %s\n", path.c_str(), line.c_str());
+    std::fprintf(stderr, "%s: warning: %s\n", path.c_str(), printable(line, 300).c_str());
   }
 }
+
+/// The UTF-8 byte-order mark some Windows tools write at the start of a text file; a reader
+/// that does not skip it misreads the first line.
+std::string_view without_bom(std::string_view text) {
+  if (text.substr(0, 3) == "\xEF\xBB\xBF") text.remove_prefix(3);
+  return text;
+}
+
+/// A read-only stream over text already in memory (std::istringstream would copy it).
+class ViewBuf : public std::streambuf {
+ public:
+  explicit ViewBuf(std::string_view text) {
+    char* p = const_cast<char*>(text.data());
+    setg(p, p, p + text.size());
+  }
+};
 
 Vec3 vec3(const tinyobj::real_t* v) {
   return {float(v[0]), float(v[1]), float(v[2])};
@@ -80,7 +105,8 @@ class CheckedMaterialReader : public tinyobj::MaterialReader {
       if (warn) *warn += std::string(e.what()) + "; materials left grey\n";
       return false;
     }
-    std::istringstream in(text);
+    ViewBuf buf(without_bom(text));
+    std::istream in(&buf);
     tinyobj::LoadMtl(names, materials, &in, warn, err);
     return true;
   }
@@ -89,11 +115,27 @@ class CheckedMaterialReader : public tinyobj::MaterialReader {
   std::string base_dir_;
 };
 
+/// What validate_obj_text learns about a file on its way: the counts the memory estimate
+/// needs, the faces tinyobjloader cannot hold as they are, the materials used.
+struct ObjScan {
+  size_t vertices = 0, texcoords = 0, normals = 0;  // v, vt, vn lines
+  size_t faces = 0, corners = 0;                    // f lines and their corners
+  size_t longest_line = 0;
+  bool long_faces = false;  // a face of more than kMaxTinyObjCorners corners
+  std::vector<std::string> warnings;
+  std::map<std::string, size_t, std::less<>> usemtl;  // material name -> first line using it
+};
+
+/// tinyobjloader stores a face's corner count in a byte (it wraps at 256): longer faces are
+/// split before parsing (split_long_faces) into fans of at most this many corners.
+constexpr size_t kMaxTinyObjCorners = 255;
+
 /// Checks what tinyobjloader reads leniently, with the line number: every number of a v, vt
 /// or vn line must be finite (it reads "nan" and "abc" as 0), every face index an integer
 /// that is not 0 and fits an int (it wraps 99999999999999999999), and a negative (relative)
 /// index must count back to an existing element (-1 is the last one defined above the line).
-void validate_obj_text(std::string_view text, const std::string& path) {
+ObjScan validate_obj_text(std::string_view text, const std::string& path) {
+  ObjScan scan;
   struct Kind {
     const char* name;
     const char* plural;
@@ -114,8 +156,10 @@ void validate_obj_text(std::string_view text, const std::string& path) {
     const std::string_view line = text.substr(pos, end - pos);
     pos = end + (end + 1 < text.size() && text[end] == '\r' && text[end + 1] == '\n' ? 2 : 1);
     ++line_no;
+    scan.longest_line = std::max(scan.longest_line, line.size());
     const auto w = split_words(line);
     if (w.empty()) continue;
+    if (w[0] == "usemtl" && w.size() > 1) scan.usemtl.try_emplace(std::string(w[1]), line_no);
     const int vk = w[0] == "v" ? 0 : w[0] == "vt" ? 1 : w[0] == "vn" ? 2 : -1;
     if (vk >= 0) {
       const size_t need = vk == 1 ? 1 : 3;
@@ -136,7 +180,20 @@ void validate_obj_text(std::string_view text, const std::string& path) {
                "' is not a finite number; fix or remove the line");
       }
       ++kinds[vk].defined;
+      (vk == 0 ? scan.vertices : vk == 1 ? scan.texcoords : scan.normals)++;
     } else if (w[0] == "f") {
+      const size_t corners = w.size() - 1;
+      if (corners < 3) {
+        // tinyobjloader skips it; a line or a point is not a surface to render.
+        if (scan.warnings.size() < 10)
+          scan.warnings.push_back(
+              "line " + std::to_string(line_no) + ": face with " + std::to_string(corners) +
+              (corners == 1 ? " vertex" : " vertices") + " skipped; a face needs at least 3");
+      } else {
+        ++scan.faces;
+        scan.corners += corners;
+        if (corners > kMaxTinyObjCorners) scan.long_faces = true;
+      }
       for (size_t i = 1; i < w.size(); ++i) {
         std::string_view corner = w[i];
         for (int k = 0; k < 3 && !corner.empty(); ++k) {
@@ -173,27 +230,107 @@ void validate_obj_text(std::string_view text, const std::string& path) {
            " but the file has " + std::to_string(kd.defined) + " " + kd.plural +
            " (OBJ indices count from 1)");
     }
+  return scan;
+}
+
+/// `text` with every face of more than kMaxTinyObjCorners corners written as several faces
+/// that share its first corner: (c0 c1 .. c254), (c0 c254 c255 .. c507), ... Their fan
+/// triangles are the long face's own, (c0, c_{j-1}, c_j) in file order.
+std::string split_long_faces(std::string_view text) {
+  std::string out;
+  out.reserve(text.size() + text.size() / 64);
+  size_t pos = 0;
+  while (pos < text.size()) {
+    size_t end = pos;
+    while (end < text.size() && text[end] != '\n' && text[end] != '\r') ++end;
+    const std::string_view line = text.substr(pos, end - pos);
+    const auto w = split_words(line);
+    if (w.size() > kMaxTinyObjCorners + 1 && w[0] == "f") {
+      // w[1] is c0; a piece is c0 and w[from..to], at most kMaxTinyObjCorners corners.
+      for (size_t from = 2; from + 1 < w.size();) {
+        const size_t to = std::min(w.size() - 1, from + kMaxTinyObjCorners - 2);
+        out += "f ";
+        out += w[1];
+        for (size_t i = from; i <= to; ++i) {
+          out += ' ';
+          out += w[i];
+        }
+        out += '\n';
+        from = to;  // the next piece starts with this piece's last corner
+      }
+    } else {
+      out += line;
+      out += '\n';
+    }
+    pos = end + (end + 1 < text.size() && text[end] == '\r' && text[end + 1] == '\n' ? 2 : 1);
+  }
+  return out;
+}
+
+/// Bytes loading an OBJ holds at its peak, from the counts of its lines: the file's text (and
+/// its rewritten copy), tinyobjloader's line buffer, its attribute arrays (it keeps a colour
+/// per vertex too), its faces (a vector of corners each) and the shapes made from them
+/// (copied once), then the mesh built here. Vectors grown by push_back are counted twice
+/// (their capacity, and the copy made while they grow).
+double obj_peak_bytes(const ObjScan& s, size_t text_bytes) {
+  const double v = double(s.vertices), t = double(s.texcoords), n = double(s.normals);
+  const double f = double(s.faces), c = double(s.corners), tris = c - 2 * f;
+  const double attributes = 2 * (24 * v + 8 * t + 12 * n);
+  const double face_group = f * 80 + c * 24;
+  const double shapes = 2 * 2 * (f * 9 + c * 12);
+  // Shared indices: the arrays as they are; otherwise a vertex (and a hash entry) per corner.
+  const double mesh_vertices = (t > 0 || n > 0) ? c * 96 : v * 32;
+  return double(text_bytes) * (s.long_faces ? 2.0 : 1.0) + double(s.longest_line) + attributes +
+         face_group + shapes + tris * 16 + mesh_vertices;
 }
 
 }  // namespace
 
-Scene load_obj(const std::string& path) {
+Scene load_obj(const std::string& path, const LoadOptions& options) {
   namespace fs = std::filesystem;
   tinyobj::attrib_t attrib;
   std::vector<tinyobj::shape_t> shapes;
   std::vector<tinyobj::material_t> mats;
   std::string warn, err;
   const std::string base_dir = fs::path(path).parent_path().string();
-  const std::string text = read_input_file(path);
-  validate_obj_text(text, path);
-  std::istringstream in(text);
+  const std::string file = read_input_file(path);
+  std::string_view text = without_bom(file);
+  ObjScan scan = validate_obj_text(text, path);
+  // Refused before tinyobjloader holds several bytes for each byte of the file.
+  const double peak = obj_peak_bytes(scan, file.size());
+  const uint64_t budget =
+      options.memory_budget ? options.memory_budget : default_memory_budget_bytes();
+  if (peak > double(budget))
+    throw LoadError(path + ": loading it would take about " + format_bytes_iec(peak) + " (" +
+                    std::to_string(scan.vertices) + " vertices, " + std::to_string(scan.faces) +
+                    " faces), above the memory budget of " + format_bytes_iec(double(budget)) +
+                    (options.memory_budget ? "" : " (half of the memory available)") +
+                    "; convert it to PLY or glTF, which load with far less, or run with more "
+                    "memory");
+  std::string split;
+  if (scan.long_faces) {
+    split = split_long_faces(text);
+    text = split;
+  }
+  ViewBuf buf(text);
+  std::istream in(&buf);
   CheckedMaterialReader materials(base_dir);
   const bool ok = tinyobj::LoadObj(&attrib, &shapes, &mats, &warn, &err, &in, &materials,
                                    /*triangulate=*/false, /*default_vcols_fallback=*/false);
   if (!ok) {
     std::string e = err.empty() ? warn : err;
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
-    throw LoadError(path + ": cannot parse OBJ: " + e);
+    std::replace(e.begin(), e.end(), '\n', ' ');
+    throw LoadError(path + ": cannot parse OBJ: " + printable(e, 300));
+  }
+  split = std::string();
+  for (const auto& [name, line] : scan.usemtl) {
+    bool found = false;
+    for (const auto& m : mats) found = found || m.name == name;
+    if (!found && scan.warnings.size() < 10)
+      scan.warnings.push_back("line " + std::to_string(line) + ": usemtl '" + printable(name, 80) +
+                              "': no material of that name in the material libraries; its "
+                              "faces are rendered grey");
   }
 
   Scene scene;
@@ -242,7 +379,9 @@ Scene load_obj(const std::string& path) {
   }
   // With a successful parse, err holds non-fatal problems (e.g. a missing .mtl file); they
   // are printed only once the faces are known to be valid, so a fatal error stands alone.
-  print_warnings(path, warn + err);
+  std::string own;
+  for (const std::string& w : scan.warnings) own += w + "\n";
+  print_warnings(path, own + warn + err);
 
   // Normals are used only when every corner has one (the renderer falls back to the
   // geometric normal otherwise); missing uvs read as (0, 0).
@@ -329,14 +468,15 @@ Scene load_obj(const std::string& path) {
       if (it == texture_of.end()) {
         std::string why;
         int index = -1;
-        if (auto tex = read_texture_file(tex_path, why)) {
+        if (auto tex = read_texture_file(tex_path, why, options.decode_textures)) {
           index = int(scene.textures.size());
           scene.textures.push_back(std::move(*tex));
         } else {
           std::fprintf(stderr,
                        "%s: warning: material '%s': cannot read texture %s (%s); "
                        "rendering it untextured\n",
-                       path.c_str(), m.name.c_str(), tex_path.c_str(), why.c_str());
+                       path.c_str(), printable(m.name, 80).c_str(),
+                       printable(tex_path, 300).c_str(), printable(why, 400).c_str());
         }
         it = texture_of.emplace(tex_path, index).first;
       }

@@ -256,6 +256,11 @@ void skip_property(Reader& r, const Property& p) {
 }  // namespace
 
 Scene parse_ply(const char* data, size_t size, const std::string& name) {
+  // A UTF-8 byte-order mark (written by some Windows editors) before the 'ply' line.
+  if (size >= 3 && std::memcmp(data, "\xEF\xBB\xBF", 3) == 0) {
+    data += 3;
+    size -= 3;
+  }
   const char* const end = data + size;
   // --- Header: text lines up to "end_header". ---
   const char* p = data;

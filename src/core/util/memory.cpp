@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <fstream>
 #include <string>
 
@@ -65,6 +66,15 @@ uint64_t default_memory_budget_bytes() {
   const uint64_t avail = available_memory_bytes();
   if (avail == UINT64_MAX) return uint64_t(4) << 30;
   return avail / 2;
+}
+
+std::string out_of_memory_message() {
+  char buf[200];
+  std::snprintf(buf, sizeof buf,
+                "ran out of memory (an allocation failed); %.0f MiB are available to kdgrid (the "
+                "smallest of physical memory, the cgroup limit and ulimit -v)",
+                double(available_memory_bytes()) / double(1 << 20));
+  return buf;
 }
 
 }  // namespace kdgrid

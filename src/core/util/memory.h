@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <string>
 
 namespace kdgrid {
 
@@ -15,6 +16,10 @@ uint64_t available_memory_bytes();
 /// Half of available_memory_bytes() (the rest for the scene, the renderer and the system);
 /// 4 GiB if nothing can be read.
 uint64_t default_memory_budget_bytes();
+
+/// "ran out of memory (an allocation failed); N MiB are available to kdgrid (...)": the
+/// start of the message for a std::bad_alloc caught outside a build; callers add the fix.
+std::string out_of_memory_message();
 
 /// A parallel build's running account of the memory it holds (reference lists alive in the
 /// recursion, nodes, leaf lists), charged and refunded from any thread. Straddling triangles
