@@ -132,8 +132,7 @@ TEST(HostileLoaders, ByteOrderMarksAreSkipped) {
 
 TEST(HostileLoaders, TruncatedJpegTextureWarnsAsATruncatedPngDoes) {
   Scene s;
-  const std::string out =
-      capture_stderr([&] { s = load_scene(hostile("truncated_texture.obj")); });
+  const std::string out = capture_stderr([&] { s = load_scene(hostile("truncated_texture.obj")); });
   EXPECT_CONTAINS(out, "truncated.jpg");
   EXPECT_CONTAINS(out, "the file is truncated or corrupt");
   EXPECT_CONTAINS(out, "rendering it untextured");
@@ -231,8 +230,8 @@ TEST(HostileLoaders, ObjAboveTheMemoryBudgetIsRefusedBeforeParsing) {
   std::string text;
   for (int i = 0; i < 1000; ++i) text += "v " + std::to_string(i) + " 0 0\n";
   for (int i = 1; i + 2 <= 1000; ++i)
-    text += "f " + std::to_string(i) + " " + std::to_string(i + 1) + " " + std::to_string(i + 2) +
-            "\n";
+    text +=
+        "f " + std::to_string(i) + " " + std::to_string(i + 1) + " " + std::to_string(i + 2) + "\n";
   const std::string p = tmp.write("many.obj", text);
   EXPECT_EQ(load_scene(p).mesh.num_triangles(), 998u);
   LoadOptions small;

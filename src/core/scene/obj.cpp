@@ -270,14 +270,14 @@ std::string split_long_faces(std::string_view text) {
 /// Bytes loading an OBJ holds at its peak, from the counts of its lines: the file's text (and
 /// its rewritten copy), tinyobjloader's line buffer, its attribute arrays (it keeps a colour
 /// per vertex too), its faces (a vector of corners each) and the shapes made from them
-/// (copied once), then the mesh built here. Vectors grown by push_back are counted twice
-/// (their capacity, and the copy made while they grow).
+/// (copied once), then the mesh built here. Vectors grown by push_back are counted at 1.5
+/// times their size (their capacity on average).
 double obj_peak_bytes(const ObjScan& s, size_t text_bytes) {
   const double v = double(s.vertices), t = double(s.texcoords), n = double(s.normals);
   const double f = double(s.faces), c = double(s.corners), tris = c - 2 * f;
-  const double attributes = 2 * (24 * v + 8 * t + 12 * n);
-  const double face_group = f * 80 + c * 24;
-  const double shapes = 2 * 2 * (f * 9 + c * 12);
+  const double attributes = 1.5 * (24 * v + 8 * t + 12 * n);
+  const double face_group = f * (1.5 * 32 + 16) + c * 16;
+  const double shapes = 2 * 1.5 * (f * 9 + c * 12);
   // Shared indices: the arrays as they are; otherwise a vertex (and a hash entry) per corner.
   const double mesh_vertices = (t > 0 || n > 0) ? c * 96 : v * 32;
   return double(text_bytes) * (s.long_faces ? 2.0 : 1.0) + double(s.longest_line) + attributes +
