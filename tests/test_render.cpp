@@ -489,7 +489,7 @@ TEST(Offset, SecondaryRaysNeverReHitTheirTriangle) {
       if (dot(dir, sn) < 0.0f) dir = -dir;
       if (i % 5 == 0) dir = normalize(dir - sn * (dot(dir, sn) * 0.999f));  // grazing
       if (!(dot(dir, sn) > 0.0f)) continue;
-      const Ray ray{offset_ray_origin(p, sn), 0.0f, dir, kInf};
+      const Ray ray{offset_ray_origin(p, sn, {a, b, c}), 0.0f, dir, kInf};
       float t, hu, hv;
       const bool wt = WatertightTest::intersect(WatertightTest::prepare(ray), a, b, c, ray.tmin,
                                                 ray.tmax, t, hu, hv);
@@ -503,18 +503,24 @@ TEST(Offset, SecondaryRaysNeverReHitTheirTriangle) {
 
 TEST(Offset, MovesTowardsTheNormalSideByAFewUlps) {
   const Vec3 n(0, 0, 1);
+  // A unit right triangle in the plane z = p.z with one corner at p.
+  auto tri = [](const Vec3& p) {
+    return std::array<Vec3, 3>{p, p + Vec3(1, 0, 0), p + Vec3(0, 1, 0)};
+  };
   const Vec3 p(1000.0f, -1000.0f, 1000.0f);
-  const Vec3 q = offset_ray_origin(p, n);
+  const Vec3 q = offset_ray_origin(p, n, tri(p));
   EXPECT_EQ(q.x, p.x);
   EXPECT_EQ(q.y, p.y);
   EXPECT_GT(q.z, p.z);
   EXPECT_LT(q.z - p.z, 1e-1f);
-  EXPECT_LT(offset_ray_origin({0, 0, -1000.0f}, n).z - -1000.0f, 1e-1f);
-  EXPECT_GT(offset_ray_origin({0, 0, -1000.0f}, n).z, -1000.0f);
-  EXPECT_LT(offset_ray_origin({0, 0, 1000.0f}, -n).z, 1000.0f);
-  // Near the origin a fixed offset applies (ULPs would be far too small there).
-  EXPECT_GT(offset_ray_origin({0, 0, 0}, n).z, 1e-6f);
-  EXPECT_GT(offset_ray_origin({0, 0, 0}, n * 1e6f).z, 0.0f) << "normal need not be unit";
+  const Vec3 below(0, 0, -1000.0f), above(0, 0, 1000.0f);
+  EXPECT_LT(offset_ray_origin(below, n, tri(below)).z - -1000.0f, 1e-1f);
+  EXPECT_GT(offset_ray_origin(below, n, tri(below)).z, -1000.0f);
+  EXPECT_LT(offset_ray_origin(above, -n, tri(above)).z, 1000.0f);
+  // In the plane z = 0 (exact there) any step leaves the plane.
+  EXPECT_GT(offset_ray_origin({0, 0, 0}, n, tri({0, 0, 0})).z, 0.0f);
+  EXPECT_GT(offset_ray_origin({0, 0, 0}, n * 1e6f, tri({0, 0, 0})).z, 0.0f)
+      << "normal need not be unit";
 }
 
 // ---- image I/O ---------------------------------------------------------------------------

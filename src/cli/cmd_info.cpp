@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
+#include "cli/common.h"
 #include "scene/load.h"
 
 namespace kdgrid::cli {
@@ -26,11 +27,14 @@ void add_info_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("info", "Print what a scene holds: triangles, bounds, materials");
   auto path = std::make_shared<std::string>();
   auto json = std::make_shared<bool>(false);
+  auto scale = std::make_shared<double>(1.0);
   cmd->add_option("scene", *path, "Scene file (.gltf .glb .ply .obj)")->required();
   cmd->add_flag("--json", *json, "Print JSON instead of text");
-  cmd->callback([path, json] {
+  add_scale_option(cmd, *scale);
+  cmd->callback([path, json, scale] {
     LoadOptions options;
     options.decode_textures = false;  // info reports textures' count, not their pixels
+    options.scale = *scale;
     const Scene s = load_scene(*path, options);
     const Box3 b = s.mesh.bounds();
     nlohmann::json j;

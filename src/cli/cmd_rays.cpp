@@ -27,6 +27,7 @@ struct RaysArgs {
   size_t count = 100000;
   AccelOptions accel;
   CameraOptions camera;
+  double scale = 1.0;
 };
 }  // namespace
 
@@ -54,6 +55,7 @@ void add_rays_command(CLI::App& app) {
   cmd->add_option("-o,--output", a->out, "Output .rays file")->required();
   a->accel.add_to(cmd, "bvh");
   a->camera.add_to(cmd);
+  add_scale_option(cmd, a->scale);
   cmd->callback([a] {
     RaySetSpec spec;
     spec.kind = parse_ray_set(a->set);
@@ -67,7 +69,7 @@ void add_rays_command(CLI::App& app) {
     const BuildParams params = a->accel.resolve();
     const std::string scene_path = resolve_scene_path(a->scene);
     check_output_path(a->out, "-o", {".rays"}, {scene_path});
-    const Scene scene = load_scene(scene_path);
+    const Scene scene = load_scene(scene_path, a->scale);
     const Camera cam = a->camera.apply(canonical_camera(scene.mesh.bounds()));
     spec.camera = cam;
     if (!a->pixel.empty()) {

@@ -49,6 +49,7 @@ struct RenderArgs {
   std::string heatmap;
   std::string stats_json;
   bool no_packets = false;
+  double scale = 1.0;
 };
 
 /// Heat maps as PNG: counts / max through a blue-cyan-green-yellow-red ramp (EXR keeps raw
@@ -105,7 +106,7 @@ void run_render(const RenderArgs& a) {
   if (!a.stats_json.empty())
     check_output_path(a.stats_json, "--stats-json", {".json"}, {scene_path, a.output});
 
-  const Scene scene = load_scene(scene_path);
+  const Scene scene = load_scene(scene_path, a.scale);
   // One pass: passes are progressive and Ctrl-C keeps the finished ones, but a single pass
   // of brute force over millions of triangles would look like a hang.
   check_brute_force_work(a.accel.accel, uint64_t(settings.width) * uint64_t(settings.height),
@@ -245,6 +246,7 @@ void add_render_command(CLI::App& app) {
                       std::to_string(kMaxRenderDepth))
       ->capture_default_str();
   cmd->add_option("--seed", a->seed, "Sample pattern seed")->capture_default_str();
+  add_scale_option(cmd, a->scale);
   cmd->add_option("--heatmap", a->heatmap,
                   "Render traversal cost of primary rays instead: steps or tests (PNG: colour "
                   "ramp scaled to the maximum; EXR: raw counts)");

@@ -37,24 +37,26 @@ void add_sweep_command(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "sweep",
       "Vary one knob and measure: cellsize (hybrid), lambda (grid), kdcost (kd-tree), triangle "
-      "(watertight vs Moller: speed and leaks), spp (render samples vs RMSE vs time)");
+      "(watertight vs Moller: speed and leaks), scale (the scene scaled by 10^-20 .. 10^16: "
+      "image difference from scale 1 and speed per structure), spp (render samples vs RMSE vs "
+      "time)");
   auto a = std::make_shared<SweepArgs>();
-  cmd->add_option("kind", a->kind, "cellsize, lambda, kdcost, triangle or spp")->required();
+  cmd->add_option("kind", a->kind, "cellsize, lambda, kdcost, triangle, scale or spp")->required();
   cmd->add_option("scene", a->scene,
                   "Scene file (spp: default assets/cornell.gltf; triangle: optional, for speed)");
   cmd->add_option("--out,-o", a->out, "Write FILE.csv and FILE.json (either extension given)");
   cmd->add_option("--values", a->values,
                   "Comma-separated values of the knob (cellsize: multiples of the auto size; "
-                  "spp: sample counts)");
+                  "scale: factors, e.g. 1e-6,1,1e6; spp: sample counts)");
   cmd->add_option(
       "--structures", a->accel,
       "triangle: comma-separated structures (default all but brute and Embree's configurations); "
-      "spp: the renderer's structure (default bvh)");
+      "scale: the structures (default bvh,hybrid); spp: the renderer's structure (default bvh)");
   cmd->add_option("--threads", a->threads, "Threads; 0 = all")->capture_default_str();
   cmd->add_option("--reps", a->reps, "Timed repetitions per row (median reported)")
       ->capture_default_str();
   cmd->add_option("--res", a->res,
-                  "Primary rays / spp image size: W or WxH (default 512; spp 200)");
+                  "Primary rays / spp image size: W or WxH (default 512; spp 200; scale 128)");
   cmd->add_option("--spp-max", a->spp_max, "spp: largest sample count (powers of two from 1)")
       ->capture_default_str();
   cmd->add_option("--spp-reference", a->spp_reference, "spp: samples of the reference image")

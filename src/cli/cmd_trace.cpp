@@ -38,6 +38,7 @@ struct TraceArgs {
   bool traversal_only = false;
   AccelOptions accel;
   CameraOptions camera;
+  double scale = 1.0;
 };
 
 struct Counted {
@@ -310,6 +311,7 @@ void add_trace_command(CLI::App& app) {
   rays_opt->excludes(pixel_opt);
   a->accel.add_to(cmd, "bvh");
   a->camera.add_to(cmd);
+  add_scale_option(cmd, a->scale);
   cmd->callback([a] {
     if (a->rays.empty() && a->pixel.empty())
       throw ParamError(
@@ -328,7 +330,7 @@ void add_trace_command(CLI::App& app) {
     }
     std::vector<Ray> rays;
     if (!a->rays.empty()) rays = read_rays(a->rays);
-    const Scene scene = load_scene(scene_path);
+    const Scene scene = load_scene(scene_path, a->scale);
     BuildParams p = params;
     if (p.threads == 0) p.threads = a->threads;
     if (a->traversal_only) {

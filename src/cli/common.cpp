@@ -174,6 +174,15 @@ std::string accel_flags(const std::string& accel, const BuildParams& p) {
   return s;
 }
 
+void add_scale_option(CLI::App* cmd, double& scale) {
+  cmd->add_option("--scale", scale,
+                  "Multiply the scene's coordinates (its vertices, camera and light positions; "
+                  "point and spot light intensities by S squared, so the picture stays the same) "
+                  "by S when it loads, e.g. 1e-6. --eye and --target are in the scaled "
+                  "coordinates. docs/LIMITS.md gives the scene sizes accepted")
+      ->capture_default_str();
+}
+
 void CameraOptions::add_to(CLI::App* cmd) {
   const std::string g = "Camera (default: the scene's, else the canonical camera)";
   cmd->add_option("--eye", eye, "Camera position x,y,z")->group(g);

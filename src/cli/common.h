@@ -35,6 +35,9 @@ struct AccelOptions {
 /// pick) builds the very same structure. Floats are written so they read back unchanged.
 std::string accel_flags(const std::string& accel, const BuildParams& p);
 
+/// --scale S: the scene's coordinates multiplied by S when it loads (load_scene's scale).
+void add_scale_option(CLI::App* cmd, double& scale);
+
 /// --eye x,y,z --target x,y,z --fov DEG overriding the scene's camera.
 struct CameraOptions {
   std::string eye, target;

@@ -597,8 +597,8 @@ std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float 
       }
       // The two policies: the robust offset moves the origin off the surface along the
       // normal; the fixed epsilon keeps the origin and skips hits closer than tmin.
-      auto robust_ray = [](const Sample& s) {
-        return Ray{offset_ray_origin(s.p, s.ng), 0.0f, s.d, kInf};
+      auto robust_ray = [&m](const Sample& s) {
+        return Ray{offset_ray_origin(s.p, s.ng, m.corners(s.prim)), 0.0f, s.d, kInf};
       };
       auto epsilon_ray = [epsilon](const Sample& s) { return Ray{s.p, epsilon, s.d, kInf}; };
       r.rays = samples.size();

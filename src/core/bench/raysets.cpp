@@ -122,7 +122,8 @@ std::vector<Ray> shadow_rays(const Mesh& mesh, const std::vector<Ray>& primary,
   for (size_t i = 0; i < primary.size() && i < hits.size(); ++i) {
     if (!hits[i].valid()) continue;
     const Vec3 o =
-        offset_ray_origin(hit_point(mesh, hits[i]), facing_normal(mesh, hits[i], primary[i].dir));
+        offset_ray_origin(hit_point(mesh, hits[i]), facing_normal(mesh, hits[i], primary[i].dir),
+                          mesh.corners(hits[i].prim));
     out.push_back({o, 0.0f, light - o, 1.0f});
   }
   return out;
@@ -134,7 +135,7 @@ std::vector<Ray> diffuse_rays(const Mesh& mesh, const std::vector<Ray>& primary,
   for (size_t i = 0; i < primary.size() && i < hits.size(); ++i) {
     if (!hits[i].valid()) continue;
     const Vec3 n = facing_normal(mesh, hits[i], primary[i].dir);
-    const Vec3 o = offset_ray_origin(hit_point(mesh, hits[i]), n);
+    const Vec3 o = offset_ray_origin(hit_point(mesh, hits[i]), n, mesh.corners(hits[i].prim));
     // Orthonormal basis about n (Duff et al. 2017), then a cosine-weighted hemisphere sample.
     const float sign = std::copysign(1.0f, n.z);
     const float a = -1.0f / (sign + n.z), b = n.x * n.y * a;
@@ -153,7 +154,8 @@ std::vector<Ray> diffuse_rays(const Mesh& mesh, const std::vector<Ray>& primary,
 std::vector<Ray> random_rays(const Box3& bounds, size_t count, uint64_t seed) {
   std::vector<Ray> rays(count);
   Vec3 ext = bounds.empty() ? Vec3(1.0f) : bounds.extent();
-  const float big = std::max(max_component(ext), 1e-6f);
+  // A flat axis gets the largest extent (relative, so a tiny scene keeps its proportions).
+  const float big = max_component(ext) > 0.0f ? max_component(ext) : 1.0f;
   for (int a = 0; a < 3; ++a)
     if (!(ext[a] > 0.0f)) ext[a] = big;
   const Vec3 lo = bounds.empty() ? Vec3(-0.5f) : bounds.lo;

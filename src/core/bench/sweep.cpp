@@ -17,6 +17,7 @@
 #include "bench/bench.h"
 #include "bench/raysets.h"
 #include "image/image_io.h"
+#include "math/simd.h"
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "scene/procedural.h"
@@ -333,6 +334,79 @@ void sweep_triangle(const SweepOptions& o, SweepTable& t) {
   }
 }
 
+// ---- scale -------------------------------------------------------------------------------------
+
+void sweep_scale(const SweepOptions& o, SweepTable& t) {
+  if (o.scene.empty())
+    throw ParamError(
+        "sweep scale needs a scene file: kdgrid sweep scale SCENE (e.g. "
+        "$KDGRID_SCENES/bunny/bun_zipper.ply)");
+  const std::vector<std::string> accels =
+      o.accels.empty() ? std::vector<std::string>{"bvh", "hybrid"} : o.accels;
+  const int spp = 1;
+  t.notes.emplace_back("render", std::to_string(o.width) + "x" + std::to_string(o.height) + ", " +
+                                     std::to_string(spp) +
+                                     " spp, seed 1, the scene's camera and lights, scaled");
+  t.notes.emplace_back("pixels_differing",
+                       "fraction of pixels whose 8-bit sRGB value differs in any channel from "
+                       "the same structure's render at scale 1");
+  t.notes.emplace_back("mad_levels",
+                       "mean absolute difference from that render over all channels, in 8-bit "
+                       "levels (1 level = 1/255)");
+  t.notes.emplace_back("mrays", "primary rays (the scene's camera) per second, in millions");
+  t.notes.emplace_back("refused", "the scaled scene is outside the range of docs/LIMITS.md");
+  t.notes.emplace_back("simd", std::string(kBuildIsa) + " build, " +
+                                   std::to_string(kTraversalLanes) + "-lane traversal vectors");
+  const Scene unit = load_scene(o.scene);
+  std::map<std::string, std::vector<uint8_t>> reference;
+  for (const auto& a : accels)
+    reference[a] = render_scaled(unit, a, o.width, o.height, spp, o.params).srgb8;
+  for (const double scale : o.values) {
+    Scene scene;
+    std::string refused;
+    try {
+      scene = load_scene(o.scene, scale);
+    } catch (const LoadError& e) {
+      refused = e.what();
+    }
+    for (const auto& a : accels) {
+      auto cells = std::vector<std::pair<std::string, SweepValue>>{{"scale", scale}, {"accel", a}};
+      if (!refused.empty()) {
+        cells.emplace_back("status", "refused");
+        cells.emplace_back("error", refused);
+        t.add_row(cells);
+        if (o.progress) o.progress("  " + format_double("%g", scale) + " " + a + ": refused");
+        continue;
+      }
+      try {
+        const ScaledRender r = render_scaled(scene, a, o.width, o.height, spp, o.params);
+        const ImageDifference d = srgb8_difference(reference[a], r.srgb8);
+        const std::vector<Ray> rays = primary_rays(*scene.camera, o.width, o.height);
+        const Measured m = measure_primary(a, scene.mesh, o.params, rays, o.reps);
+        cells.emplace_back("status", "rendered");
+        cells.emplace_back("pixels_differing", d.pixels_differing);
+        cells.emplace_back("mad_levels", d.mean_abs * 255.0);
+        if (!m.error.empty()) {
+          cells.emplace_back("error", m.error);
+        } else {
+          cells.emplace_back("mrays", m.mrays);
+          cells.emplace_back("hit_fraction",
+                             double(m.hits) / double(std::max<size_t>(1, rays.size())));
+        }
+        if (o.progress)
+          o.progress("  " + format_double("%g", scale) + " " + a + ": " +
+                     format_double("%.4f", d.pixels_differing) + " of pixels differ, mad " +
+                     format_double("%.4f", d.mean_abs * 255.0) + " levels, " +
+                     format_double("%.3g", m.mrays) + " Mrays/s");
+      } catch (const std::exception& e) {
+        cells.emplace_back("status", "error");
+        cells.emplace_back("error", e.what());
+      }
+      t.add_row(cells);
+    }
+  }
+}
+
 // ---- spp ---------------------------------------------------------------------------------------
 
 std::string find_cornell() {
@@ -425,6 +499,24 @@ std::string now_iso8601() {
 
 // ---- public ------------------------------------------------------------------------------------
 
+ScaledRender render_scaled(const Scene& scene, const std::string& accel, int width, int height,
+                           int spp, const BuildParams& params) {
+  const auto acc = build_accelerator(accel, scene.mesh, params);
+  RenderSettings rs;
+  rs.width = width;
+  rs.height = height;
+  rs.seed = 1;
+  Renderer r(scene, *acc, rs);
+  for (int i = 0; i < spp; ++i) r.render_pass();
+  std::vector<float> rgb;
+  r.resolve(rgb);
+  ScaledRender out;
+  tonemap_srgb8(rgb, out.srgb8);
+  out.seconds = r.seconds();
+  out.rays = r.counters().total();
+  return out;
+}
+
 void SweepTable::add_row(const std::vector<std::pair<std::string, SweepValue>>& cells) {
   std::vector<SweepValue> row(columns.size());
   for (const auto& [k, v] : cells) {
@@ -442,7 +534,7 @@ void SweepTable::add_row(const std::vector<std::pair<std::string, SweepValue>>& 
 }
 
 std::vector<std::string> sweep_kinds() {
-  return {"cellsize", "lambda", "kdcost", "triangle", "spp"};
+  return {"cellsize", "lambda", "kdcost", "triangle", "scale", "spp"};
 }
 
 std::vector<double> sweep_default_values(const std::string& kind) {
@@ -451,6 +543,11 @@ std::vector<double> sweep_default_values(const std::string& kind) {
   if (kind == "lambda") return {0.5, 1, 2, 4, 8, 16};
   if (kind == "kdcost") return {0.5, 0.75, 1, 1.5, 2, 3, 4, 6, 8};
   if (kind == "spp") return {1, 2, 4, 8, 16, 32, 64};
+  if (kind == "scale") {
+    std::vector<double> v;
+    for (int k = -20; k <= 16; ++k) v.push_back(std::pow(10.0, k));
+    return v;
+  }
   return {};
 }
 
@@ -459,10 +556,11 @@ SweepTable run_sweep(const SweepOptions& in) {
   const auto kinds = sweep_kinds();
   if (std::find(kinds.begin(), kinds.end(), o.kind) == kinds.end())
     throw ParamError("unknown sweep '" + o.kind +
-                     "': choose cellsize, lambda, kdcost, triangle or spp");
+                     "': choose cellsize, lambda, kdcost, triangle, scale or spp");
   if (o.reps < 1) throw ParamError("--reps must be at least 1");
   if (o.threads < 0) throw ParamError("--threads must be >= 0 (0 = all hardware threads)");
-  if (o.width == 0 && o.height == 0) o.width = o.height = o.kind == "spp" ? 200 : 512;
+  if (o.width == 0 && o.height == 0)
+    o.width = o.height = o.kind == "spp" ? 200 : o.kind == "scale" ? 128 : 512;
   if (o.width < 1 || o.height < 1 || o.width > 16384 || o.height > 16384)
     throw ParamError("--res must be between 1 and 16384 pixels per side");
   if (o.values.empty()) {
@@ -504,6 +602,8 @@ SweepTable run_sweep(const SweepOptions& in) {
     });
   } else if (o.kind == "triangle") {
     sweep_triangle(o, t);
+  } else if (o.kind == "scale") {
+    sweep_scale(o, t);
   } else {
     sweep_spp(o, t);
   }

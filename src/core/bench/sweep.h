@@ -8,10 +8,15 @@
 //   triangle  watertight vs Möller-Trumbore: Mrays/s on primary rays per structure, and the
 //             leak rate of rays aimed exactly at shared edges and vertices of closed meshes
 //             (procedural sphere and torus at scales 1e-3, 1, 1e3 and translated by 1e4)
+//   scale     the scene scaled by each value (default 10^-20 .. 10^16): per structure
+//             (default bvh and hybrid), its render's difference from the scale-1 render, the
+//             primary rays' speed and hit fraction; scales outside docs/LIMITS.md's range are
+//             rows marked refused
 //   spp       progressive render: samples per pixel vs RMSE against a high-spp reference vs
 //             time (default scene assets/cornell.gltf)
 #pragma once
 
+#include <cstdint>
 #include <functional>
 #include <optional>
 #include <string>
@@ -83,6 +88,17 @@ std::string sweep_to_csv(const SweepTable& t);
 std::string sweep_to_json(const SweepTable& t);
 
 // ---- building blocks, public for the tests ----------------------------------------------
+
+/// A scene loaded at a scale (load_scene's `scale`) and rendered with one structure.
+struct ScaledRender {
+  std::vector<uint8_t> srgb8;  ///< the PNG's pixels: tone-mapped 8-bit sRGB, 3 bytes each
+  double seconds = 0;          ///< rendering time, build excluded
+  uint64_t rays = 0;           ///< rays traced, all kinds
+};
+/// Renders `spp` passes of width x height of a loaded scene (load_scene(path, scale)) with
+/// `accel` from the scene's camera, seed 1.
+ScaledRender render_scaled(const Scene& scene, const std::string& accel, int width, int height,
+                           int spp, const BuildParams& params);
 
 /// Rays aimed exactly at the shared edges (at 1/4, 1/2, 3/4 of each edge used by two
 /// triangles) and vertices of a closed mesh, `per_target` rays per point, each from a point

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 
 #include "accel/guards.h"
@@ -135,6 +136,28 @@ double rmse(const ImageRGB& a, const ImageRGB& b) {
     sum += d * d;
   }
   return std::sqrt(sum / double(a.rgb.size()));
+}
+
+ImageDifference srgb8_difference(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b,
+                                 int tolerance) {
+  if (a.size() != b.size() || a.size() % 3 != 0)
+    throw ParamError("cannot compare 8-bit images of " + std::to_string(a.size()) + " and " +
+                     std::to_string(b.size()) + " bytes");
+  ImageDifference d;
+  if (a.empty()) return d;
+  uint64_t differing = 0, sum = 0;
+  for (size_t i = 0; i < a.size(); i += 3) {
+    int most = 0;
+    for (size_t c = i; c < i + 3; ++c) {
+      const int e = std::abs(int(a[c]) - int(b[c]));
+      most = std::max(most, e);
+      sum += uint64_t(e);
+    }
+    differing += most > tolerance ? 1 : 0;
+  }
+  d.pixels_differing = double(differing) / double(a.size() / 3);
+  d.mean_abs = double(sum) / (255.0 * double(a.size()));
+  return d;
 }
 
 // ---- textures -------------------------------------------------------------------------

@@ -41,6 +41,17 @@ ImageRGB read_image(const std::string& path);
 /// Throws ParamError if the sizes differ.
 double rmse(const ImageRGB& a, const ImageRGB& b);
 
+/// How two 8-bit RGB images (3 bytes per pixel, as written to PNG) differ: the fraction of
+/// pixels with any channel apart by more than `tolerance` levels, and the mean absolute
+/// difference over all channels in units of full scale (1 level = 1/255). Throws ParamError
+/// if the sizes differ.
+struct ImageDifference {
+  double pixels_differing = 0;
+  double mean_abs = 0;
+};
+ImageDifference srgb8_difference(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b,
+                                 int tolerance = 0);
+
 // ---- textures -------------------------------------------------------------------------
 
 /// Largest width or height of a texture that is decoded: the largest texture GPUs load

@@ -43,6 +43,13 @@ constexpr float kMaxRayCoordinate = 1.844e18f;
 /// they and every ray the renderer traces stay inside kMaxRayCoordinate. docs/LIMITS.md.
 constexpr float kMaxSceneCoordinate = 1e17f;
 
+/// Smallest size of a scene (the largest side of its bounding box) that Scene::finalize
+/// accepts. The watertight test's depth term is a product of three coordinate differences
+/// about the ray origin; for the triangles of a scene smaller than this it leaves float's
+/// normal range (1.2e-38) and loses its bits in denormals (Embree's test as well), and the
+/// squared distances of shading follow. docs/LIMITS.md.
+constexpr float kMinSceneSize = 1e-9f;
+
 /// True if every coordinate of v lies in [-limit, limit] (false for NaN and infinities).
 inline bool within(const Vec3& v, float limit) {
   return std::fabs(v.x) <= limit && std::fabs(v.y) <= limit && std::fabs(v.z) <= limit;

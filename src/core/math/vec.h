@@ -66,12 +66,32 @@ constexpr float dot(const Vec3& a, const Vec3& b) {
 constexpr Vec3 cross(const Vec3& a, const Vec3& b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
 }
-inline float length(const Vec3& v) {
-  return std::sqrt(dot(v, v));
+inline float max_abs_component(const Vec3& v) {
+  return std::max(std::fabs(v.x), std::max(std::fabs(v.y), std::fabs(v.z)));
 }
+/// |v| for any finite v: where the squared length would leave float's normal range (vectors
+/// shorter than about 1e-18 or longer than 1e18) v is first divided by its largest
+/// component, so the length does not underflow to 0 (or lose its bits in denormals) or
+/// overflow; in range it is sqrt(dot(v, v)) bit for bit.
+inline float length(const Vec3& v) {
+  const float l2 = dot(v, v);
+  if (l2 >= 1e-36f && l2 <= 1e36f) return std::sqrt(l2);
+  const float m = max_abs_component(v);
+  if (!(m > 0.0f) || !std::isfinite(m)) return std::sqrt(l2);
+  const Vec3 w(v.x / m, v.y / m, v.z / m);
+  return m * std::sqrt(dot(w, w));
+}
+/// v / |v|, scale invariant as length() is; a zero vector is returned unchanged.
 inline Vec3 normalize(const Vec3& v) {
-  const float l = length(v);
-  return l > 0 ? v / l : v;
+  const float l2 = dot(v, v);
+  if (l2 >= 1e-36f && l2 <= 1e36f) return v / std::sqrt(l2);
+  const float m = max_abs_component(v);
+  if (!(m > 0.0f) || !std::isfinite(m)) {
+    const float l = std::sqrt(l2);
+    return l > 0 ? v / l : v;
+  }
+  const Vec3 w(v.x / m, v.y / m, v.z / m);
+  return w / std::sqrt(dot(w, w));
 }
 inline Vec3 min(const Vec3& a, const Vec3& b) {
   return {std::min(a.x, b.x), std::min(a.y, b.y), std::min(a.z, b.z)};

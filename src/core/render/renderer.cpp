@@ -314,6 +314,7 @@ Renderer::Surface Renderer::surface_at(const Ray& ray, const Hit& hit) const {
   const Mesh& mesh = scene_->mesh;
   const auto& tri = mesh.triangles[hit.prim];
   const auto c = mesh.corners(hit.prim);
+  s.corners = c;
   const float b0 = 1.0f - hit.u - hit.v, b1 = hit.u, b2 = hit.v;
   // The hit point from barycentrics is accurate relative to the triangle's coordinates
   // (what offset_ray_origin assumes), unlike org + t*dir.
@@ -351,7 +352,7 @@ Renderer::Surface Renderer::surface_at(const Ray& ray, const Hit& hit) const {
   s.diffuse = s.albedo * ((1.0f - saturate(m.metallic)) * (1.0f - s.transmission));
   s.spec = specular_color(m, s.albedo);
   s.exponent = highlight_exponent(m);
-  s.shadow_org = offset_ray_origin(s.p, s.ng);
+  s.shadow_org = offset_ray_origin(s.p, s.ng, c);
   return s;
 }
 
@@ -424,7 +425,8 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
   if (need_reflection_ && m.reflects()) {
     Vec3 r = reflect(d, n);
     if (dot(r, ng) <= 0.0f) r = reflect(d, ng);  // shading normal bent it below the surface
-    secondary(m.reflectance(), Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, counters.reflection);
+    secondary(m.reflectance(), Ray{offset_ray_origin(p, ng, s.corners), 0.0f, r, kInf},
+              counters.reflection);
   }
 
   // Refraction with Fresnel (Schlick) and total internal reflection.
@@ -443,12 +445,14 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
       const Vec3 t = normalize(d * eta + n * (eta * cos_i - cos_t));
       const Vec3 tweight = albedo * (transmission * (1.0f - fresnel));
       if (dot(t, ng) < 0.0f)
-        secondary(tweight, Ray{offset_ray_origin(p, -ng), 0.0f, t, kInf}, counters.refraction);
+        secondary(tweight, Ray{offset_ray_origin(p, -ng, s.corners), 0.0f, t, kInf},
+                  counters.refraction);
     }
     // Fresnel reflection of transparent surfaces (all of it under total internal reflection).
     Vec3 r = reflect(d, n);
     if (dot(r, ng) <= 0.0f) r = reflect(d, ng);
-    secondary(reflect_weight, Ray{offset_ray_origin(p, ng), 0.0f, r, kInf}, counters.reflection);
+    secondary(reflect_weight, Ray{offset_ray_origin(p, ng, s.corners), 0.0f, r, kInf},
+              counters.reflection);
   }
   return result;
 }

@@ -5,6 +5,7 @@
 // calls it on every camera move).
 #pragma once
 
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <vector>
@@ -116,6 +117,7 @@ class Renderer {
     const Material* m;
     Vec3 p, d, ng, n;  ///< hit point, unit ray direction, geometric and shading normals
     Vec3 albedo, diffuse, spec, shadow_org;
+    std::array<Vec3, 3> corners;  ///< the hit triangle's, for offset_ray_origin
     float exponent, transmission;
     bool front;  ///< the ray entered through the outside (ng was not flipped)
   };
@@ -161,9 +163,13 @@ class Renderer {
 /// Maps linear RGB to 8-bit sRGB with a simple exposure + clamp (PNG output, viewer).
 void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure = 1.0f);
 
-/// Offsets a hit point along the geometric normal so that a ray leaving it cannot re-hit
-/// the same surface (Wächter & Binder, Ray Tracing Gems ch. 6: integer ULP offset scaled
-/// with the magnitude of the coordinates, fixed offset near the origin).
-Vec3 offset_ray_origin(const Vec3& p, const Vec3& geometric_normal);
+/// Offsets a hit point p on the triangle with the given corners along its geometric normal
+/// so that a ray leaving it cannot re-hit the same surface (Wächter & Binder, Ray Tracing
+/// Gems ch. 6: an integer ULP offset of each coordinate, and a fixed offset where a
+/// coordinate is near 0). The fixed offset and the threshold are relative to the corners'
+/// magnitude on each axis, so the offset is scale invariant: scaling the triangle and p by a
+/// power of two scales the result by it exactly.
+Vec3 offset_ray_origin(const Vec3& p, const Vec3& geometric_normal,
+                       const std::array<Vec3, 3>& corners);
 
 }  // namespace kdgrid

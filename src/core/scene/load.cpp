@@ -18,7 +18,7 @@ namespace kdgrid {
 namespace {
 
 /// "gen:NAME[:COUNT[:SEED]]": a procedural scene built in memory, no file involved.
-Scene generate_from_spec(const std::string& spec) {
+Scene generate_from_spec(const std::string& spec, double scale) {
   std::vector<std::string> parts;
   size_t start = 4;
   while (true) {
@@ -49,6 +49,7 @@ Scene generate_from_spec(const std::string& spec) {
   if (parts.size() > 2) p.seed = number(2, "seed");
   Scene s = generate_scene(parts[0], p);
   s.source = spec;
+  s.scale_by(scale, "--scale");
   s.finalize();
   return s;
 }
@@ -56,7 +57,7 @@ Scene generate_from_spec(const std::string& spec) {
 }  // namespace
 
 Scene load_scene(const std::string& given, const LoadOptions& options) {
-  if (given.rfind("gen:", 0) == 0) return generate_from_spec(given);
+  if (given.rfind("gen:", 0) == 0) return generate_from_spec(given, options.scale);
   // A path that does not exist as given is looked up in the shared scenes directory.
   const std::string path = resolve_scene_path(given);
   namespace fs = std::filesystem;
@@ -79,6 +80,7 @@ Scene load_scene(const std::string& given, const LoadOptions& options) {
               : ext == ".obj" ? load_obj(path, options)
                               : load_gltf(path, options);
     s.source = path;
+    s.scale_by(options.scale, "--scale");
     s.finalize();
     return s;
   } catch (const std::bad_alloc&) {

@@ -17,6 +17,9 @@ struct LoadOptions {
   /// decoded; each Texture keeps its size and has no pixels (it samples as white). For
   /// commands that report on a scene without rendering it (kdgrid info).
   bool decode_textures = true;
+  /// != 1: the scene's coordinates are multiplied by it before finalize() (Scene::scale_by,
+  /// `--scale`), so the scale limits of docs/LIMITS.md apply to the scaled scene.
+  double scale = 1.0;
 };
 
 /// Loads .gltf/.glb (tinygltf), .ply (own reader) or .obj (tinyobjloader), then
@@ -25,6 +28,12 @@ struct LoadOptions {
 /// in memory instead (scene/procedural.h), so large test scenes need no file. An allocation
 /// that fails while loading is reported as a LoadError naming the file and the memory.
 Scene load_scene(const std::string& path, const LoadOptions& options = {});
+/// load_scene with the default options but `scale` (LoadOptions::scale).
+inline Scene load_scene(const std::string& path, double scale) {
+  LoadOptions options;
+  options.scale = scale;
+  return load_scene(path, options);
+}
 
 /// Individual readers; each fills a Scene without finalizing it.
 Scene load_ply(const std::string& path);

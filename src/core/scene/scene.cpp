@@ -88,6 +88,20 @@ void Scene::finalize() {
     throw LoadError(source + ": " + buf +
                     " (docs/LIMITS.md); scale the scene down or translate it near the origin");
   }
+  const Box3 bounds = mesh.bounds();
+  const float size = bounds.empty() ? 0.0f : max_component(bounds.hi - bounds.lo);
+  // A scene of size 0 (a single point) is left to the camera, which names it.
+  if (size > 0.0f && size < kMinSceneSize) {
+    char buf[320];
+    std::snprintf(buf, sizeof buf,
+                  "the scene's size %g (the largest side of its bounds) is below the supported "
+                  "minimum %g (docs/LIMITS.md): float products of its coordinates would "
+                  "underflow; scale the scene up by a factor of %g or more (--scale multiplies "
+                  "the coordinates of the file)",
+                  double(size), double(kMinSceneSize),
+                  std::pow(10.0, std::ceil(std::log10(double(kMinSceneSize) / double(size)))));
+    throw LoadError(source + ": " + buf);
+  }
   if (materials.empty()) {
     Material grey;
     grey.name = "default grey diffuse";
@@ -110,6 +124,28 @@ void Scene::finalize() {
     l.intensity = dist * dist;
     l.name = r > 0 ? "default point light" : "default light";
     lights.push_back(l);
+  }
+}
+
+void Scene::scale_by(double factor, const std::string& what) {
+  const auto f = float(factor);
+  if (!(factor > 0.0 && std::isnormal(f))) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%g", factor);
+    throw ParamError(what + " " + buf +
+                     ": a scale factor must be a positive number in float's range (1e-37 to "
+                     "1e38), e.g. 1e-3");
+  }
+  if (factor == 1.0) return;
+  for (Vec3& p : mesh.positions) p = p * f;
+  if (camera) {
+    camera->eye = camera->eye * f;
+    camera->target = camera->target * f;
+  }
+  for (Light& l : lights) {
+    l.position = l.position * f;
+    if (l.type != LightType::Directional)
+      l.intensity = float(double(l.intensity) * factor * factor);
   }
 }
 

@@ -78,6 +78,11 @@ struct Scene {
   /// Fills what the file did not give: a grey diffuse material, the canonical camera
   /// (docs/RAYSETS.md), a default light; then validates the mesh. Throws LoadError.
   void finalize();
+  /// Multiplies every coordinate of the scene (vertices, camera, light positions) by
+  /// `factor` and point and spot light intensities by factor squared, so the scene renders
+  /// the same picture at its new size; call before finalize(). Throws ParamError naming
+  /// `what` unless factor is finite and positive.
+  void scale_by(double factor, const std::string& what);
   bool has_reflective_material() const;
   bool has_refractive_material() const;
 };
