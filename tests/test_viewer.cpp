@@ -5,6 +5,7 @@
 #include <sys/wait.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -20,6 +21,7 @@
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
+#include "closed_room.h"
 #include "image/image_io.h"
 #include "scene/load.h"
 #include "test_util.h"
@@ -1029,6 +1031,334 @@ TEST(Viewer, CtrlQDuringTheFirstBuildExitsWithinASecond) {
   EXPECT_EQ(rc, 0) << r.output;
   EXPECT_LT(ms, 1000) << "Ctrl+Q took " << ms << " ms to end the viewer during a build\n"
                       << r.output;
+}
+
+// ---- readable anywhere (shading without scene light) and the panel's defects ------------------
+
+/// Grabs the screen `n` times, `gap` seconds apart, while W is held (the first grab before it
+/// goes down); prints how many grabs differ from the one before (over 0.2% of the pixels).
+const char* kGrabScript = R"py(
+import subprocess, sys, time
+from PIL import ImageGrab, ImageChops
+n = int(sys.argv[1]); gap = float(sys.argv[2])
+shots = [ImageGrab.grab().convert("RGB")]
+subprocess.run(["xdotool", "keydown", "w"])
+for i in range(n):
+    time.sleep(gap)
+    shots.append(ImageGrab.grab().convert("RGB"))
+subprocess.run(["xdotool", "keyup", "w"])
+changed = 0
+for a, b in zip(shots, shots[1:]):
+    d = ImageChops.difference(a, b).convert("L").point(lambda v: 255 if v > 8 else 0)
+    if d.histogram()[255] > 0.002 * a.width * a.height: changed += 1
+shots[-1].save("last.png")
+print("grabs changed: %d of %d" % (changed, n))
+)py";
+
+int grabs_changed(const std::string& output) {
+  const size_t at = output.find("grabs changed: ");
+  return at == std::string::npos ? -1 : std::atoi(output.c_str() + at + 15);
+}
+
+TEST(Viewer, ShadingAutoMakesAnInteriorLitFromOutsideReadableWhileFlying) {
+  KDGRID_REQUIRE_FLY_TEST();
+  const std::string dir = scratch_dir();
+  const std::string room = write_closed_room(dir + "/room.obj");
+  std::ofstream(dir + "/grab.py") << kGrabScript;
+  // Inside the room, looking along it past the pillars; 7 grabs 0.3 s apart while W is held.
+  const Driven d =
+      drive_viewer(dir,
+                   "'" + room +
+                       "' --accel bvh --width 640 --height 360 --hide-ui --max-samples 4 --hold 60 "
+                       "--eye 0,3,9 --target 0,2.5,0 --fov 70",
+                   "room.obj", "sleep 1\n/usr/bin/python3 grab.py 7 0.3", "", "640x360");
+  ASSERT_DRIVEN_OK(d);
+  const int changed = grabs_changed(d.run.output);
+  std::printf("[ grabs    ] %d of 7 grabs changed\n", changed);
+  EXPECT_GE(changed, 5) << "the picture stayed uniform while flying inside the room\n"
+                        << d.run.output;
+  EXPECT_EQ(d.stats["state"]["shading"], "auto");
+  EXPECT_EQ(d.stats["state"]["shading_shown"], "eye") << d.stats["state"].dump();
+  EXPECT_LT(d.stats["state"]["lit_fraction"].get<double>(), 0.01);
+}
+
+/// The panel's text fields (ui.rects: x, y, w, h) of a first run with `args`, for a second run
+/// to click into.
+nlohmann::json field_rects(const std::string& dir, const std::string& args,
+                           const std::string& title) {
+  const Driven d = drive_viewer(dir, args + " --hold 30", title, "sleep 0.3");
+  if (d.run.code != 0 || !d.stats.is_object()) {
+    ADD_FAILURE() << d.run.output << d.viewer_log;
+    return nullptr;
+  }
+  return d.stats;
+}
+
+/// "click X Y" at the middle of the field `name` of `stats`' ui.rects.
+std::string click_field(const nlohmann::json& stats, const std::string& name) {
+  const auto& r = stats["ui"]["rects"][name];
+  if (!r.is_array()) return "echo 'driver: no field " + name + "'";
+  return "click " + std::to_string(int(r[0].get<double>() + r[2].get<double>() * 0.5)) + " " +
+         std::to_string(int(r[1].get<double>() + r[3].get<double>() * 0.5));
+}
+
+/// Presses Ctrl+Q and prints "driver: exit_ms N", how long the viewer took to end.
+const char* kTimedCtrlQ = R"sh(
+t0=$(date +%s%N); xdotool key --clearmodifiers ctrl+q
+for i in $(seq 1 300); do kill -0 $pid 2>/dev/null || break; sleep 0.01; done
+echo "driver: exit_ms $(( ($(date +%s%N) - t0) / 1000000 ))"
+)sh";
+
+int exit_ms(const std::string& output) {
+  const size_t at = output.find("driver: exit_ms ");
+  return at == std::string::npos ? -1 : std::atoi(output.c_str() + at + 16);
+}
+
+const std::string kFieldArgs =
+    " --accel hybrid --width 1280 --height 720 --threads 2 --max-samples 1 ";
+
+TEST(Viewer, InputCtrlQExitsWithinASecondWithATextFieldFocused) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const std::string args = "'" + kDefaultScene + "'" + kFieldArgs;
+  const auto rects = field_rects(dir, args, "cornell.gltf");
+  ASSERT_TRUE(rects.is_object());
+  // An interactive run: the field has the keyboard, a digit typed into it.
+  const Driven d = drive_viewer(dir, args, "cornell.gltf",
+                                click_field(rects, "units") + "\nxdotool type 5\n" + kTimedCtrlQ);
+  ASSERT_DRIVEN_OK(d);
+  const int ms = exit_ms(d.run.output);
+  EXPECT_GE(ms, 0) << d.run.output;
+  EXPECT_LT(ms, 1000) << "Ctrl+Q took " << ms << " ms with a text field focused";
+  EXPECT_EQ(d.stats["builds"].size(), 1u) << "the typed digit was built";
+}
+
+TEST(Viewer, InputEscInACellSizeFieldCancelsTheRunningBuildWithoutRestartingIt) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  const std::string args = "'" + bunny + "'" + kFieldArgs;
+  const auto rects = field_rects(dir, args, "bun_zipper.ply");
+  ASSERT_TRUE(rects.is_object());
+  // A fine cell (several seconds to build) starts after the first picture; in the units field
+  // a digit is typed and Esc pressed while it builds.
+  const Driven d = drive_viewer(
+      dir, args + " --hold 60 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5",
+      "bun_zipper.ply",
+      "sleep 1.5\n" + click_field(rects, "units") + "\nxdotool type 5\nkey Escape\nsleep 1");
+  ASSERT_DRIVEN_OK(d);
+  const auto& builds = d.stats["builds"];
+  ASSERT_EQ(builds.size(), 2u) << "Esc restarted the build: " << builds.dump();
+  EXPECT_EQ(builds[1].value("error", ""), "cancelled") << builds.dump();
+  ASSERT_TRUE(builds[1]["cancel_seconds"].is_number()) << builds.dump();
+  EXPECT_LT(builds[1]["cancel_seconds"].get<double>(), 1.0);
+  EXPECT_EQ(d.stats["state"]["cell_size"], 0.0f) << "the auto size stays";
+}
+
+/// The grid of an estimate ("a 88x87x68 grid ..."): its three axes.
+std::array<int, 3> estimate_dims(const std::string& estimate) {
+  std::array<int, 3> d{0, 0, 0};
+  std::sscanf(estimate.c_str(), "a %dx%dx%d", &d[0], &d[1], &d[2]);
+  return d;
+}
+
+TEST(Viewer, InputATypedCellSizeShowsItsEstimateBeforeEnterAndAShortEnterBuildsIt) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  const std::string args = "'" + bunny + "'" + kFieldArgs;
+  const auto rects = field_rects(dir, args, "bun_zipper.ply");
+  ASSERT_TRUE(rects.is_object());
+  const auto auto_dims = estimate_dims(rects["state"]["cell_estimate"].get<std::string>());
+  ASSERT_GT(auto_dims[0], 0) << rects["state"].dump();
+  // 0.5x typed, no Enter: the estimate names the finer grid and nothing is built.
+  Driven d =
+      drive_viewer(dir, args + " --hold 30", "bun_zipper.ply",
+                   click_field(rects, "x auto") + "\nxdotool type 0.5\nsleep 0.5\n" + kTimedCtrlQ);
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_EQ(d.stats["builds"].size(), 1u);
+  const auto dims = estimate_dims(d.stats["state"]["cell_estimate"].get<std::string>());
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NEAR(dims[size_t(a)], 2 * auto_dims[size_t(a)], 2) << d.stats["state"].dump();
+  // 2x typed and Enter pressed and released at once (within one frame): it is built.
+  d = drive_viewer(dir, args + " --hold 30", "bun_zipper.ply",
+                   click_field(rects, "x auto") +
+                       "\nxdotool type 2\nxdotool keydown Return keyup Return\nsleep 3");
+  ASSERT_DRIVEN_OK(d);
+  ASSERT_EQ(d.stats["builds"].size(), 2u) << "the short Enter was lost";
+  EXPECT_NEAR(d.stats["state"]["built_cell_size"].get<double>(),
+              2 * d.stats["state"]["auto_cell_size"].get<double>(), 1e-6);
+}
+
+TEST(Viewer, InputACancelledCellSizeIsNeitherShownNorSavedAndAChosenOneStaysWithItsScene) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  // Interactive runs: they read and write the remembered settings.
+  const std::string args = "'" + bunny + "'" + kFieldArgs + " --hybrid-max-build-seconds 0";
+  const auto rects = field_rects(dir, args, "bun_zipper.ply");
+  ASSERT_TRUE(rects.is_object());
+  // 0.05x (seconds to build) typed and entered, Esc 1 s later.
+  Driven d = drive_viewer(dir, args, "bun_zipper.ply",
+                          click_field(rects, "x auto") +
+                              "\nxdotool type 0.05\nxdotool key Return\nsleep 1\nkey Escape\n"
+                              "sleep 0.5");
+  ASSERT_DRIVEN_OK(d);
+  const auto& st = d.stats["state"];
+  ASSERT_EQ(d.stats["builds"].size(), 2u) << d.stats["builds"].dump();
+  EXPECT_EQ(d.stats["builds"][1].value("error", ""), "cancelled");
+  EXPECT_EQ(st["cell_choice"], "auto");
+  EXPECT_NEAR(st["cell_size_shown"].get<double>(), st["built_cell_size"].get<double>(), 1e-6)
+      << "the panel shows the cancelled size";
+  auto saved = read_json(dir + "/kdgrid/viewer.json");
+  ASSERT_TRUE(saved.is_object());
+  EXPECT_EQ(saved["cell_size"], "auto") << saved.dump();
+  EXPECT_FALSE(saved["cell_size_by_scene"].contains(fs::canonical(bunny).string())) << saved.dump();
+  // 2x built: remembered for the bunny only, not for every scene.
+  d = drive_viewer(dir, args, "bun_zipper.ply",
+                   click_field(rects, "x auto") + "\nxdotool type 2\nxdotool key Return\nsleep 3");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_EQ(d.stats["state"]["cell_choice"], "2x");
+  saved = read_json(dir + "/kdgrid/viewer.json");
+  EXPECT_EQ(saved["cell_size"], "auto") << saved.dump();
+  EXPECT_EQ(saved["cell_size_by_scene"][fs::canonical(bunny).string()], "2x") << saved.dump();
+}
+
+/// The position of [Window][name] in an imgui.ini ("Pos=x,y"); {-1e9, -1e9} if absent.
+std::array<int, 2> ini_pos(const std::string& path, const std::string& name) {
+  std::ifstream in(path);
+  std::string line;
+  bool in_window = false;
+  while (std::getline(in, line)) {
+    if (!line.empty() && line[0] == '[') in_window = line == "[Window][" + name + "]";
+    int x, y;
+    if (in_window && std::sscanf(line.c_str(), "Pos=%d,%d", &x, &y) == 2) return {x, y};
+  }
+  return {-1000000000, -1000000000};
+}
+
+TEST(Viewer, InputThePanelStaysInsideAWindowShrunkTo50x50AndRResetsTheLayout) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const std::string args =
+      "'" + kDefaultScene + "' --accel bvh --width 1280 --height 720 --threads 1 --max-samples 1";
+  // An interactive run (it writes imgui.ini): the panel dragged by its title bar 140 units
+  // past the window's left edge, the window shrunk to 50x50 and back.
+  Driven d = drive_viewer(dir, args, "cornell.gltf",
+                          "drag 1 150 17 10 17\n"
+                          "xdotool windowsize $wid 50 50; sleep 1\n"
+                          "xdotool windowsize $wid 1280 720; sleep 1");
+  ASSERT_DRIVEN_OK(d);
+  const auto& p = d.stats["display"]["panel"];
+  EXPECT_GE(p["x"].get<double>(), 0.0) << p.dump();
+  EXPECT_GE(p["y"].get<double>(), 0.0) << p.dump();
+  const auto pos = ini_pos(dir + "/kdgrid/imgui.ini", "kdgrid");
+  EXPECT_GE(pos[0], 0) << "imgui.ini remembers the panel outside the window";
+  EXPECT_GE(pos[1], 0);
+  // Dragged by its title bar to the middle, then R: back at (8, 8).
+  d = drive_viewer(dir, args, "cornell.gltf", "drag 1 150 17 650 317\nmv 900 500\nkey r");
+  ASSERT_DRIVEN_OK(d);
+  EXPECT_NEAR(d.stats["display"]["panel"]["x"].get<double>(), 8.0, 1.0)
+      << d.stats["display"]["panel"].dump();
+  EXPECT_NEAR(d.stats["display"]["panel"]["y"].get<double>(), 8.0, 1.0);
+}
+
+TEST(Viewer, InputTwoScreenshotsInOneSecondAreBothKept) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const Driven d = drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven + "--hide-ui",
+                                "cornell.gltf", "mv 500 400\nxdotool key p p\nsleep 0.5");
+  ASSERT_DRIVEN_OK(d);
+  int shots = 0;
+  for (const auto& e : fs::directory_iterator(dir))
+    shots += e.path().filename().string().rfind("kdgrid-screenshot-", 0) == 0;
+  EXPECT_EQ(shots, 2) << d.viewer_log;
+}
+
+/// Whether `stats`' ui.items holds an item starting with `prefix`.
+bool has_item(const nlohmann::json& stats, const std::string& prefix) {
+  for (const auto& i : stats["ui"]["items"])
+    if (i.get<std::string>().rfind(prefix, 0) == 0) return true;
+  return false;
+}
+
+TEST(Viewer, InputF1ListsEscAndTheRenderSectionShowsPreviewsPerSecond) {
+  KDGRID_REQUIRE_INPUT_TEST();
+  const std::string dir = scratch_dir();
+  const Driven d =
+      drive_viewer(dir, "'" + kDefaultScene + "'" + kDriven, "cornell.gltf", "mv 500 400; key F1");
+  ASSERT_DRIVEN_OK(d);
+  for (const char* k : {"Esc", "L", "R", "Ctrl+Q", "F1"})
+    EXPECT_TRUE(has_item(d.stats, std::string("key ") + k)) << k << d.stats["ui"].dump();
+  EXPECT_TRUE(has_item(d.stats, "previews/s")) << d.stats["ui"].dump();
+}
+
+TEST(Viewer, EmbreePickSaysEmbreeExposesNoTraversal) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const auto names = accelerator_names();
+  if (std::find(names.begin(), names.end(), "embree") == names.end())
+    GTEST_SKIP() << "Embree is not built in";
+  const std::string dir = scratch_dir();
+  const RunResult r =
+      run_viewer(dir, "'" + kDefaultScene + "' --accel embree --width 640 --height 480 " +
+                          "--frames 3 --max-samples 1 --pick 320,300 --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  EXPECT_TRUE(has_item(st, "embree exposes no traversal")) << st["ui"].dump();
+}
+
+TEST(Viewer, TheBuildProgressBarRisesMonotonically) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  // A build of a few seconds, its bar recorded every frame.
+  const RunResult r = run_viewer(dir, "'" + bunny +
+                                          "' --accel hybrid --width 640 --height 480 --frames 3 "
+                                          "--max-samples 1 --hybrid-max-build-seconds 0 "
+                                          "--rebuild-cell-size 1e-4 --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  const auto& bar = st["build_progress"];
+  ASSERT_GE(bar.size(), 10u) << bar.dump();
+  double last = -1;
+  for (const auto& e : bar) {
+    const double f = e[1].get<double>();
+    EXPECT_GE(f, last) << "the bar moved back at " << e.dump();
+    EXPECT_LT(f, 1.0);
+    last = f;
+  }
+  EXPECT_GT(last, 0.2) << bar.dump();
+}
+
+TEST(Viewer, PickStepTableShowsEveryColumnAndLeavesThePickAndTheLegendUncovered) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
+  const std::string dir = scratch_dir();
+  // A pick in the lower half of a heat map: the table's default place is the bottom edge.
+  const RunResult r = run_viewer(
+      dir, "'" + bunny +
+               "' --accel kdtree --width 1280 --height 720 --frames 3 --heatmap steps "
+               "--min-samples 1 --max-samples 1 --threads 2 --timeout 120 --pick 640,560 "
+               "--stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const auto st = read_json(dir + "/stats.json");
+  ASSERT_TRUE(st.is_object()) << r.output;
+  const auto& rects = st["ui"]["rects"];
+  ASSERT_TRUE(rects["pick steps"].is_array()) << st["ui"].dump();
+  ASSERT_TRUE(rects["legend"].is_array()) << st["ui"].dump();
+  const auto rect = [&](const char* n) {
+    std::array<double, 4> v{};
+    for (size_t i = 0; i < 4; ++i) v[i] = rects[n][i].get<double>();
+    return v;
+  };
+  const auto s = rect("pick steps"), l = rect("legend");
+  const bool overlap =
+      s[0] < l[0] + l[2] && l[0] < s[0] + s[2] && s[1] < l[1] + l[3] && l[1] < s[1] + s[3];
+  EXPECT_FALSE(overlap) << "the step table covers the legend: " << st["ui"].dump();
+  EXPECT_GE(s[2] + 1, st["ui"]["steps_table_width"].get<double>()) << "columns cut";
+  const bool covers_pick = 640 >= s[0] && 640 <= s[0] + s[2] && 560 >= s[1] && 560 <= s[1] + s[3];
+  EXPECT_FALSE(covers_pick) << "the step table covers the picked pixel: " << st["ui"].dump();
 }
 
 // ---- cell sizes: remembered per scene, built size shown, estimate and refusal --------------

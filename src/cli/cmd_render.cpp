@@ -47,6 +47,7 @@ struct RenderArgs {
   int max_depth = 5;
   uint64_t seed = 1;
   std::string heatmap;
+  std::string shading = "lights";
   std::string stats_json;
   bool no_packets = false;
   double scale = 1.0;
@@ -98,6 +99,7 @@ void run_render(const RenderArgs& a) {
     settings.mode = RenderMode::HeatTests;
   else if (!a.heatmap.empty())
     throw ParamError("--heatmap '" + a.heatmap + "': choose steps or tests");
+  settings.shading = parse_shading(a.shading, "--shading");
 
   std::optional<tbb::global_control> threads;
   if (a.threads > 0)
@@ -174,6 +176,7 @@ void run_render(const RenderArgs& a) {
                {"seed", std::to_string(settings.seed)},
                {"max_depth", std::to_string(settings.max_depth)},
                {"mode", a.heatmap.empty() ? "shaded" : "heatmap-" + a.heatmap},
+               {"shading", to_string(settings.shading)},
                {"rays", std::to_string(c.total())}});
 
   const double mrays = renderer.seconds() > 0 ? double(c.total()) / renderer.seconds() / 1e6 : 0.0;
@@ -218,6 +221,10 @@ void run_render(const RenderArgs& a) {
     j["height"] = settings.height;
     j["spp"] = renderer.samples();
     j["rays"] = c.total();
+    j["shading"] = to_string(settings.shading);
+    // Primary hits checked for direct light and those a scene light reaches (RenderCounters).
+    j["lit_probed"] = c.probed;
+    j["lit"] = c.lit;
     j["interrupted"] = interrupted;
     write_file_atomically(a.stats_json, j.dump(2) + "\n");
   }
@@ -250,6 +257,10 @@ void add_render_command(CLI::App& app) {
   cmd->add_option("--heatmap", a->heatmap,
                   "Render traversal cost of primary rays instead: steps or tests (PNG: colour "
                   "ramp scaled to the maximum; EXR: raw counts)");
+  cmd->add_option("--shading", a->shading,
+                  "How surfaces are lit: lights (the scene's lights and shadows), eye (a light "
+                  "at the eye, no scene light needed) or normals (the normal as a colour)")
+      ->capture_default_str();
   cmd->add_flag("--no-packets", a->no_packets,
                 "Trace primary rays and their shadow rays one at a time instead of in "
                 "packets of a tile's rays (the same image; for timing the packet queries)");

@@ -67,7 +67,7 @@ BuildParams Viewer::params_with_cell_size(const std::string& name, float cs) con
   if (name == "grid" && cs > 0 && world_) {
     // The uniform grid has no cell size knob; pick the density that gives cells of about
     // this edge: cells = volume / cs^3 = lambda * triangles.
-    const Vec3 e = world_->scene->mesh.bounds().extent();
+    const Vec3 e = scene_bounds_.extent();
     const double v = double(std::max(e.x, cs)) * std::max(e.y, cs) * std::max(e.z, cs);
     const double cells = v / (double(cs) * cs * cs);
     p.grid_lambda =
@@ -101,15 +101,21 @@ void Viewer::start_load(const std::string& path) {
   t.kind = "load";
   t.new_scene = true;
   t.started = Clock::now();
+  progress_log_.clear();
   t.cancel = std::make_shared<CancelToken>();
   t.result = std::async(std::launch::async, [path, name, params, choice, cancel = t.cancel] {
     const WakeUiOnExit wake;
     auto scene = std::make_shared<Scene>(load_scene(path));
+    // The hybrid's auto size (the panel's "x auto") is found here, off the UI thread: it
+    // sorts every triangle's extent.
+    BuildParams a = params;
+    a.cell_size = 0.0f;
+    const double auto_cell = GridKdHybrid::estimate(scene->mesh, a).auto_cell;
     BuildParams p = params;
-    p.cell_size = choice.resolve(choice.kind == CellChoice::Kind::Multiple
-                                     ? GridKdHybrid::estimate(scene->mesh, params).auto_cell
-                                     : 0.0);
-    return build_world(std::move(scene), name, p, *cancel);
+    p.cell_size = choice.resolve(choice.kind == CellChoice::Kind::Multiple ? auto_cell : 0.0);
+    auto w = build_world(std::move(scene), name, p, *cancel);
+    w->auto_cell = auto_cell;
+    return w;
   });
   task_ = std::move(t);
 }
@@ -128,13 +134,41 @@ void Viewer::start_build(const std::string& name, const BuildParams& params) {
   Task t;
   t.what = "building " + name;
   t.kind = name == accel_name_ ? "rebuild" : "build";
+  t.expected_seconds = expected_build_seconds(name, params);
   t.started = Clock::now();
+  progress_log_.clear();
   t.cancel = std::make_shared<CancelToken>();
   t.result = std::async(std::launch::async, [scene, name, params, cancel = t.cancel] {
     const WakeUiOnExit wake;
     return build_world(scene, name, params, *cancel);
   });
   task_ = std::move(t);
+}
+
+double Viewer::expected_build_seconds(const std::string& name, const BuildParams& params) const {
+  if (name == "hybrid") {
+    // The estimate the panel showed, on the threads the background build gets.
+    BuildParams p = params;
+    p.threads = background_build_threads();
+    try {
+      return GridKdHybrid::estimate(world_->scene->mesh, p).seconds;
+    } catch (const std::exception&) {
+      return 0;
+    }
+  }
+  // Another structure: as long as its last build on this scene took.
+  for (auto it = builds_.rbegin(); it != builds_.rend(); ++it)
+    if (it->accel == name && it->scene == world_->scene->source && it->error.empty())
+      return it->build_seconds;
+  return 0;
+}
+
+double Viewer::task_progress(double seconds, double expected) {
+  // Linear up to 80% of the expected time, then easing towards 1 (same slope at 80%), so that
+  // a build that takes longer than expected slows the bar down but never moves it back.
+  if (expected <= 0) expected = 3.0;  // unknown: a few seconds
+  const double p = seconds / expected;
+  return p < 0.8 ? p : 0.8 + 0.2 * (1.0 - std::exp(-(p - 0.8) / 0.2));
 }
 
 void Viewer::cancel_task() {
@@ -171,6 +205,7 @@ void Viewer::poll_tasks() {
     rec.error = "cancelled";
     rec.cancel_seconds = std::chrono::duration<double>(Clock::now() - task_->cancelled_at).count();
     message_ = "cancelled " + task_->what + (world_ ? "; showing " + world_->name : "");
+    if (!pending_build_) show_built_cell_size();
     std::printf("kdgrid-viewer: cancelled %s after %.3f s (it stopped %.3f s after the request)\n",
                 task_->what.c_str(), rec.wall_seconds, rec.cancel_seconds);
     std::fflush(stdout);
@@ -181,6 +216,7 @@ void Viewer::poll_tasks() {
                       ? out_of_memory_message() + ": use a smaller scene or run with more memory"
                       : std::string(e.what());
     rec.error = task_error_;
+    if (!new_scene) show_built_cell_size();
     std::fprintf(stderr, "kdgrid-viewer: %s failed: %s\n", task_->what.c_str(),
                  task_error_.c_str());
     if (new_scene && !world_) {
@@ -203,6 +239,14 @@ void Viewer::poll_tasks() {
   }
 }
 
+void Viewer::show_built_cell_size() {
+  requested_choice_.reset();
+  if (!world_) return;
+  if (const auto* h = dynamic_cast<const GridKdHybrid*>(world_->accel.get()))
+    cell_size_slider_ = float(h->cell_size());
+  cell_estimated_for_ = -1;  // the estimate follows the built size again
+}
+
 void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
   if (new_scene) {
     const bool first = !world_;
@@ -210,7 +254,8 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
     Camera c = *w->scene->camera;
     // Command-line camera flags apply to the scene given on the command line only.
     if (first) c = opts_.camera.apply(c);
-    cam_.reset(c, w->scene->mesh.bounds());
+    scene_bounds_ = w->scene->mesh.bounds();
+    cam_.reset(c, scene_bounds_);
     start_camera_ = cam_.camera();
     pick_.reset();
     // The title names the scene; input tests wait for it (xdotool search --sync --name)
@@ -221,15 +266,17 @@ void Viewer::install_world(std::shared_ptr<const World> w, bool new_scene) {
   }
   if (new_scene) {
     cell_choice_ = loading_choice_;
-    BuildParams a = w->params;
-    a.cell_size = 0.0f;
-    auto_cell_ = GridKdHybrid::estimate(w->scene->mesh, a).auto_cell;
+    auto_cell_ = w->auto_cell;
     cell_refusal_.clear();
   }
   // The choice follows what was built (a scripted rebuild, a build from the panel), and the
   // slider shows the built size, the auto rule's included.
   const float cs = w->params.cell_size;
   if (w->name == "hybrid") {
+    if (requested_choice_ && !new_scene &&
+        std::fabs(requested_choice_->resolve(auto_cell_) - cs) <= 1e-6f * std::max(cs, 1e-30f))
+      cell_choice_ = *requested_choice_;  // what the panel asked for, as it asked (auto, 2x)
+    requested_choice_.reset();
     if (cs <= 0.0f)
       cell_choice_ = {};
     else if (cell_choice_.kind != CellChoice::Kind::Multiple ||

@@ -104,6 +104,12 @@ int main(int argc, char** argv) {
   app.add_option("--heatmap", o.heatmap, "Show per-pixel traversal steps or triangle tests")
       ->group(gs)
       ->check(CLI::IsMember({"steps", "tests"}));
+  app.add_option("--shading", o.shading,
+                 "How the shaded picture is lit: auto (the scene's lights, or the eye light when "
+                 "they leave the view dark), lights, eye (a light at the eye) or normals")
+      ->group(gs)
+      ->check(CLI::IsMember({"auto", "lights", "eye", "normals"}))
+      ->capture_default_str();
   app.add_option("--overlay", o.overlays, "Overlay: splits, cells or boxes (repeatable)")
       ->group(gs)
       ->check(CLI::IsMember({"splits", "cells", "boxes"}));

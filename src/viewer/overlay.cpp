@@ -123,14 +123,18 @@ size_t build_split_overlay(const Accelerator& a, int lo, int hi, LineBatch& out,
   return n;
 }
 
-size_t build_cell_overlay(const Accelerator& a, LineBatch& out) {
+size_t build_cell_overlay(const Accelerator& a, LineBatch& out, size_t* wanted) {
   uint32_t max_tris = 1;
+  size_t leaves = 0;
   a.for_each_box([&](const StructureBox& b) {
-    if (b.leaf) max_tris = std::max(max_tris, b.num_triangles);
+    if (!b.leaf) return;
+    max_tris = std::max(max_tris, b.num_triangles);
+    ++leaves;
   });
+  if (wanted) *wanted += leaves;
   size_t n = 0;
   a.for_each_box([&](const StructureBox& b) {
-    if (!b.leaf || out.segments() >= kMaxOverlaySegments) return;
+    if (!b.leaf || out.segments() + 12 > kMaxOverlaySegments) return;
     // Colour by occupancy on a log scale: most cells hold few triangles.
     const float t = std::log1p(float(b.num_triangles)) / std::log1p(float(max_tris));
     out.box(b.box, ramp(t, 0.7f));
@@ -139,13 +143,27 @@ size_t build_cell_overlay(const Accelerator& a, LineBatch& out) {
   return n;
 }
 
-size_t build_box_overlay(const Accelerator& a, int lo, int hi, LineBatch& out) {
-  int max_depth = 1;
-  a.for_each_box([&](const StructureBox& b) { max_depth = std::max(max_depth, b.depth); });
+size_t build_box_overlay(const Accelerator& a, int lo, int hi, LineBatch& out, size_t* wanted) {
+  // Boxes per depth: when the range holds more than the cap allows, the deepest levels are
+  // left out whole (the shallow ones drawn completely), not an arbitrary part of every level.
+  std::vector<size_t> per_depth;
+  a.for_each_box([&](const StructureBox& b) {
+    if (b.depth < 0) return;
+    if (size_t(b.depth) >= per_depth.size()) per_depth.resize(size_t(b.depth) + 1, 0);
+    ++per_depth[size_t(b.depth)];
+  });
+  const int max_depth = std::max(1, int(per_depth.size()) - 1);
   const float top = float(std::max(lo + 1, std::min(hi, max_depth)));
+  size_t in_range = 0, room = (kMaxOverlaySegments - out.segments()) / 12;
+  int last = lo - 1;
+  for (int d = std::max(lo, 0); d <= std::min(hi, int(per_depth.size()) - 1); ++d) {
+    in_range += per_depth[size_t(d)];
+    if (in_range <= room) last = d;
+  }
+  if (wanted) *wanted += in_range;
   size_t n = 0;
   a.for_each_box([&](const StructureBox& b) {
-    if (b.depth < lo || b.depth > hi || out.segments() >= kMaxOverlaySegments) return;
+    if (b.depth < lo || b.depth > last) return;
     out.box(b.box, ramp((float(b.depth) - float(lo)) / (top - float(lo)), 0.7f));
     ++n;
   });
@@ -175,11 +193,29 @@ void LineRenderer::destroy() {
   vbo_ = vao_ = program_ = 0;
 }
 
-void LineRenderer::upload(const LineBatch& batch) {
-  count_ = batch.vertices().size();
+void LineRenderer::upload(LineBatch&& batch) {
+  pending_ = batch.take();
+  uploaded_ = 0;
+  count_ = 0;
   GL_CHECK(glBindBuffer(GL_ARRAY_BUFFER, vbo_));
-  GL_CHECK(glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(count_ * sizeof(LineVertex)),
-                        count_ ? batch.vertices().data() : nullptr, GL_STATIC_DRAW));
+  GL_CHECK(glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(pending_.size() * sizeof(LineVertex)), nullptr,
+                        GL_STATIC_DRAW));
+  upload_step(kUploadVerticesPerFrame);
+}
+
+bool LineRenderer::upload_step(size_t max_vertices) {
+  if (uploaded_ < pending_.size()) {
+    const size_t n = std::min(max_vertices, pending_.size() - uploaded_);
+    GL_CHECK(glBindBuffer(GL_ARRAY_BUFFER, vbo_));
+    GL_CHECK(glBufferSubData(GL_ARRAY_BUFFER, GLintptr(uploaded_ * sizeof(LineVertex)),
+                             GLsizeiptr(n * sizeof(LineVertex)), pending_.data() + uploaded_));
+    uploaded_ += n;
+    count_ = uploaded_;
+  }
+  if (uploaded_ < pending_.size()) return false;
+  pending_ = {};
+  uploaded_ = 0;
+  return true;
 }
 
 void LineRenderer::draw(const std::array<float, 16>& vp, float alpha) const {

@@ -39,6 +39,7 @@ class LineBatch {
   /// Three axis-aligned strokes of half-length `size` through p.
   void cross3(const Vec3& p, float size, const Color& c);
   const std::vector<LineVertex>& vertices() const { return verts_; }
+  std::vector<LineVertex> take() { return std::move(verts_); }
   size_t segments() const { return verts_.size() / 2; }
 
  private:
@@ -54,7 +55,12 @@ std::array<float, 16> view_projection(const CameraFrame& f, float near_dist, flo
 bool project_to_pixel(const CameraFrame& f, const Vec3& p, float& px, float& py);
 
 /// Limits that keep overlays of huge structures drawable; reported in the panel when hit.
-inline constexpr size_t kMaxOverlaySegments = 3'000'000;
+/// Every frame draws every segment: with a software GL (Mesa llvmpipe) 250,000 lines cost
+/// about 40 ms a frame, and 1.5 million took up to 270 ms.
+inline constexpr size_t kMaxOverlaySegments = 250'000;
+/// Vertices sent to the GPU per frame when an overlay is uploaded, so that no frame stalls on
+/// one large upload (the overlay fills in over a few frames).
+inline constexpr size_t kUploadVerticesPerFrame = 100'000;
 
 /// A stretch [t0, t1] of a ray: the part of a picked ray its traversal covered.
 struct RaySegment {
@@ -70,16 +76,24 @@ bool crosses_split(const RaySegment& seg, const SplitPlane& s);
 /// those that segment crosses. Returns planes drawn.
 size_t build_split_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out,
                            const RaySegment* crossed_by = nullptr);
-/// Leaf boxes / non-empty cells (StructureBox::leaf), coloured by triangle count.
-size_t build_cell_overlay(const Accelerator& a, LineBatch& out);
-/// All boxes (BVH nodes) with depth in [depth_lo, depth_hi], coloured by depth.
-size_t build_box_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out);
+/// Leaf boxes / non-empty cells (StructureBox::leaf), coloured by triangle count. Returns
+/// those drawn; `wanted` (if given) grows by how many there are, drawn or cut by the cap.
+size_t build_cell_overlay(const Accelerator& a, LineBatch& out, size_t* wanted = nullptr);
+/// All boxes (BVH nodes) with depth in [depth_lo, depth_hi], coloured by depth; returns and
+/// counts as build_cell_overlay.
+size_t build_box_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out,
+                         size_t* wanted = nullptr);
 /// GL side: one VBO of lines and the lines shader.
 class LineRenderer {
  public:
   void init();
   void destroy();
-  void upload(const LineBatch& batch);
+  /// Starts replacing the lines with `batch`'s: the first kUploadVerticesPerFrame are sent at
+  /// once, the rest by upload_step(); until then only what has been sent is drawn.
+  void upload(LineBatch&& batch);
+  /// Sends up to `max_vertices` more; true when every vertex is on the GPU.
+  bool upload_step(size_t max_vertices);
+  bool uploading() const { return uploaded_ < pending_.size(); }
   void draw(const std::array<float, 16>& view_proj, float alpha) const;
   size_t vertex_count() const { return count_; }
 
@@ -87,6 +101,8 @@ class LineRenderer {
   GLuint program_ = 0, vao_ = 0, vbo_ = 0;
   GLint u_view_proj_ = -1, u_alpha_ = -1;
   size_t count_ = 0;
+  std::vector<LineVertex> pending_;  ///< the lines being uploaded
+  size_t uploaded_ = 0;              ///< how many of pending_ are on the GPU
 };
 
 }  // namespace kdgrid::viewer

@@ -33,8 +33,20 @@ void Viewer::request_cell_choice(const CellChoice& c) {
     return;
   }
   cell_refusal_.clear();
-  cell_choice_ = c;
+  // cell_choice_ follows what is built (install_world): a build that is cancelled or fails
+  // leaves the choice, the controls and what is remembered at exit on the built size.
+  requested_choice_ = c;
   start_build("hybrid", p);
+}
+
+void Viewer::note_rect(const char* label) {
+  const ImVec2 lo = ImGui::GetItemRectMin(), hi = ImGui::GetItemRectMax();
+  item_rects_[label] = {lo.x, lo.y, hi.x - lo.x, hi.y - lo.y};
+}
+
+bool Viewer::committed_edit() const {
+  // Esc leaves a text field with its value restored: not a request.
+  return ImGui::IsItemDeactivatedAfterEdit() && !escape_this_frame_;
 }
 
 void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
@@ -50,21 +62,23 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
   const float lo = std::min(r * 1e-3f, cell_size_slider_),
               hi = std::max(r * 2.0f, cell_size_slider_);
   ImGui::SliderFloat("cell", &cell_size_slider_, lo, hi, "%.4g", ImGuiSliderFlags_Logarithmic);
-  if (ImGui::IsItemDeactivatedAfterEdit())
-    request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
+  if (committed_edit()) request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
   chk("cell");
   ImGui::InputFloat("units", &cell_size_slider_, 0, 0, "%.6g");
   chk("units");
-  if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0)
+  note_rect("units");
+  if (committed_edit() && cell_size_slider_ > 0)
     request_cell_choice({CellChoice::Kind::Units, double(cell_size_slider_)});
   if (auto_cell_ > 0) {
     float mult = float(cell_size_slider_ / auto_cell_);
-    ImGui::InputFloat("x auto", &mult, 0, 0, "%.4g");
-    chk("x auto");
-    if (ImGui::IsItemDeactivatedAfterEdit() && mult > 0) {
+    // The size follows the typed multiple as it is typed, so its estimate (below) is shown
+    // before Enter builds it.
+    if (ImGui::InputFloat("x auto", &mult, 0, 0, "%.4g") && mult > 0)
       cell_size_slider_ = float(mult * auto_cell_);
+    chk("x auto");
+    note_rect("x auto");
+    if (committed_edit() && mult > 0)
       request_cell_choice({CellChoice::Kind::Multiple, double(mult)});
-    }
   }
   // The estimate of the size on the slider, updated while it moves (O(triangles)).
   if (cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 && world_) {
@@ -104,9 +118,12 @@ void Viewer::draw_panels() {
   const float ph = std::max(
       std::min(io.DisplaySize.y - 2 * margin, io.DisplaySize.x * io.DisplaySize.y * 0.25f / pw),
       ImGui::GetFrameHeight() * 4);
-  ImGui::SetNextWindowPos(ImVec2(margin, margin), ImGuiCond_FirstUseEver);
-  ImGui::SetNextWindowSize(ImVec2(pw, ph), ImGuiCond_FirstUseEver);
+  const ImGuiCond cond = reset_layout_ ? ImGuiCond_Always : ImGuiCond_FirstUseEver;
+  ImGui::SetNextWindowPos(ImVec2(margin, margin), cond);
+  ImGui::SetNextWindowSize(ImVec2(pw, ph), cond);
+  if (reset_layout_) ImGui::SetNextWindowCollapsed(false, ImGuiCond_Always);
   ImGui::Begin("kdgrid");
+  keep_in_window();
   const ImVec2 panel_pos = ImGui::GetWindowPos(), panel_size = ImGui::GetWindowSize();
   panel_rect_[0] = panel_pos.x;
   panel_rect_[1] = panel_pos.y;
@@ -129,7 +146,11 @@ void Viewer::draw_panels() {
   const std::string render_error = worker_ ? worker_->error() : std::string();
   if (task_) {
     const double secs = std::chrono::duration<double>(Clock::now() - task_->started).count();
-    ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
+    if (task_->expected_seconds > 0)
+      ImGui::Text("%s ... %.1f s of about %.2g s", task_->what.c_str(), secs,
+                  task_->expected_seconds);
+    else
+      ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
     chk(task_->what.c_str());
     same_line_if_fits(task_->cancel->cancelled() ? "cancelling" : "cancel (Esc)");
     if (task_->cancel->cancelled())
@@ -137,8 +158,11 @@ void Viewer::draw_panels() {
     else if (ImGui::SmallButton("cancel (Esc)"))
       cancel_task();
     chk("cancel (Esc)");
-    // Builds report no progress, so show motion rather than a fraction.
-    ImGui::ProgressBar(float(std::fmod(secs, 1.0)), ImVec2(-1, 0), "");
+    // Builds report no progress: the bar runs towards the expected time, monotonically.
+    const double f = task_progress(secs, task_->expected_seconds);
+    if (progress_log_.empty() || progress_log_.back()[0] != secs)
+      progress_log_.push_back({secs, f});
+    ImGui::ProgressBar(float(f), ImVec2(-1, 0), "");
   } else if (task_error_.empty() && render_error.empty() && brute_refusal_.empty()) {
     ImGui::TextDisabled("%s", world_ ? ("showing " + world_->name).c_str() : "no scene");
   }
@@ -173,7 +197,7 @@ void Viewer::draw_panels() {
                        s.mesh.num_vertices());
     ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(),
                        s.lights.size(), s.textures.size());
-    const Box3 b = s.mesh.bounds();
+    const Box3& b = scene_bounds_;
     ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x,
                        b.hi.y, b.hi.z);
     ImGui::PushTextWrapPos(0.0f);
@@ -203,12 +227,12 @@ void Viewer::draw_panels() {
     const float r = scene_radius();
     if (accel_name_ == "bvh") {
       ImGui::SliderInt("max leaf size", &p.bvh_max_leaf, 1, 32);
-      rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      rebuild = committed_edit();
       chk("max leaf size");
     } else if (accel_name_ == "kdtree") {
       ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
                          ImGuiSliderFlags_Logarithmic);
-      rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      rebuild = committed_edit();
       chk("test/step cost");
     } else if (accel_name_ == "hybrid") {
       draw_cell_size_controls(p, rebuild);
@@ -216,11 +240,11 @@ void Viewer::draw_panels() {
       // The irregular grid has no cell size: its two densities (BuildParams) set its cells.
       ImGui::SliderFloat("top density", &p.irregular_top_density, 0.01f, 2.0f, "%.3g",
                          ImGuiSliderFlags_Logarithmic);
-      rebuild = ImGui::IsItemDeactivatedAfterEdit();
+      rebuild = committed_edit();
       chk("top density");
       ImGui::SliderFloat("sub density", &p.irregular_sub_density, 0.25f, 16.0f, "%.3g",
                          ImGuiSliderFlags_Logarithmic);
-      rebuild = rebuild || ImGui::IsItemDeactivatedAfterEdit();
+      rebuild = rebuild || committed_edit();
       chk("sub density");
     } else if (accel_name_ == "grid") {
       if (cell_size_slider_ <= 0)
@@ -228,12 +252,12 @@ void Viewer::draw_panels() {
       ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
                          ImGuiSliderFlags_Logarithmic);
       audit_.item("cell size");
-      if (ImGui::IsItemDeactivatedAfterEdit()) {
+      if (committed_edit()) {
         p = params_with_cell_size(accel_name_, cell_size_slider_);
         rebuild = true;
       }
       ImGui::InputFloat("##cellvalue", &cell_size_slider_, 0, 0, "%.6g");
-      if (ImGui::IsItemDeactivatedAfterEdit() && cell_size_slider_ > 0) {
+      if (committed_edit() && cell_size_slider_ > 0) {
         p = params_with_cell_size(accel_name_, cell_size_slider_);
         rebuild = true;
       }
@@ -277,8 +301,35 @@ void Viewer::draw_panels() {
     ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
     mode_ = RenderMode(m);
     chk("tri tests");
-    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s", posted_w_, posted_h_,
-                       have_image_ ? image_.samples : 0, last_mrays_);
+    if (mode_ == RenderMode::Shaded) {
+      // The shading (key L): auto shows the eye light where the scene's lights leave the view
+      // dark (update_auto_shading).
+      int sc = int(shading_choice_);
+      ImGui::PushID("shading");
+      ImGui::TextUnformatted("light (L):");
+      for (const auto& [v, label] :
+           {std::pair{ShadingChoice::Auto, "auto"}, std::pair{ShadingChoice::Lights, "lights"},
+            std::pair{ShadingChoice::Eye, "eye"}, std::pair{ShadingChoice::Normals, "normals"}}) {
+        same_line_if_fits(label);
+        ImGui::RadioButton(label, &sc, int(v));
+      }
+      ImGui::PopID();
+      shading_choice_ = ShadingChoice(sc);
+      chk("normals");
+      if (shading_choice_ == ShadingChoice::Auto) {
+        ImGui::PushTextWrapPos(0.0f);
+        if (lit_fraction_ < 0)
+          ImGui::TextDisabled("auto: the scene's lights");
+        else
+          ImGui::TextDisabled("auto: %s (the lights reach %.1f%% of the view)",
+                              auto_eye_ ? "eye light" : "the scene's lights",
+                              100.0 * lit_fraction_);
+        ImGui::PopTextWrapPos();
+      }
+    }
+    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s, %d previews/s", posted_w_, posted_h_,
+                       have_image_ ? image_.samples : 0, last_mrays_, previews_last_second());
+    chk("previews/s");
     ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d",
                      ImGuiSliderFlags_Logarithmic);
     chk("max samples");
@@ -312,6 +363,9 @@ void Viewer::draw_panels() {
     if (ImGui::Button("screenshot (P)"))
       save_screenshot(default_output_name("kdgrid-screenshot", "png"));
     chk("screenshot (P)");
+    same_line_if_fits("reset layout (R)");
+    if (ImGui::Button("reset layout (R)")) reset_layout_ = true;
+    chk("reset layout (R)");
   }
 
   if (mode_ != RenderMode::Shaded &&
@@ -345,7 +399,7 @@ void Viewer::draw_panels() {
     // A depth-range slider with its colour ramp; the legend is recorded for --stats-json.
     const auto depth_range = [&](const char* label, const char* what, int range[2]) {
       ImGui::SliderInt2(label, range, 0, 64);
-      dirty |= ImGui::IsItemDeactivatedAfterEdit();
+      dirty |= committed_edit();
       chk(label);
       char l0[32], l2[32];
       std::snprintf(l0, sizeof l0, "depth %d", range[0]);
@@ -372,9 +426,19 @@ void Viewer::draw_panels() {
     ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
     chk("opacity");
     if (dirty) overlay_dirty_ = true;
-    ImGui::TextWrapped(
-        "%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
-        structure_lines_.vertex_count() / 2 >= kMaxOverlaySegments ? " (capped)" : "");
+    ImGui::TextWrapped("%zu items, %zu lines%s", overlay_items_,
+                       structure_lines_.vertex_count() / 2,
+                       overlay_job_.valid() ? " (building the overlay ...)" : "");
+    if (overlay_items_ < overlay_wanted_) {
+      // The cap keeps the overlay drawable: say what it left out and how to see the rest.
+      ImGui::PushTextWrapPos(0.0f);
+      ImGui::TextColored(kRefusalColor,
+                         "capped at %zu lines: %zu of %zu boxes drawn (the deepest levels left "
+                         "out); narrow the depth range to see them",
+                         kMaxOverlaySegments, overlay_items_, overlay_wanted_);
+      ImGui::PopTextWrapPos();
+      chk("capped");
+    }
   }
 
   if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
@@ -384,18 +448,38 @@ void Viewer::draw_panels() {
 
   draw_pick_steps();
   if (have_image_ && image_.mode != RenderMode::Shaded) draw_heat_legend();
+  reset_layout_ = false;
+}
+
+void Viewer::keep_in_window() {
+  // A window made smaller (down to a few pixels) leaves a panel where ImGui put it, partly
+  // or wholly outside, and imgui.ini would remember that place: every frame the panel is put
+  // back inside, at the top left when it is larger than the window.
+  const ImVec2 d = ImGui::GetIO().DisplaySize, pos = ImGui::GetWindowPos(),
+               size = ImGui::GetWindowSize();
+  if (d.x <= 0 || d.y <= 0) return;  // minimised
+  const ImVec2 in(std::clamp(pos.x, 0.0f, std::max(0.0f, d.x - size.x)),
+                  std::clamp(pos.y, 0.0f, std::max(0.0f, d.y - size.y)));
+  if (in.x != pos.x || in.y != pos.y) ImGui::SetWindowPos(in);
 }
 
 void Viewer::draw_heat_legend() {
   const ImGuiIO& io = ImGui::GetIO();
   const float s = ui_scale_;
-  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - 8, io.DisplaySize.y - 8), ImGuiCond_Always,
-                          ImVec2(1, 1));
+  // Bottom right, or above the pick's step table where that reaches the right edge's corner.
+  float bottom = io.DisplaySize.y - 8;
+  const float legend_w = 260 * s;
+  if (steps_rect_[2] > 0 && steps_rect_[0] + steps_rect_[2] > io.DisplaySize.x - legend_w &&
+      steps_rect_[1] + steps_rect_[3] > bottom - 80 * s)
+    bottom = std::max(80 * s, steps_rect_[1] - 8);
+  ImGui::SetNextWindowPos(ImVec2(io.DisplaySize.x - 8, bottom), ImGuiCond_Always, ImVec2(1, 1));
   ImGui::SetNextWindowBgAlpha(0.7f);
   ImGui::Begin("legend", nullptr,
                ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize |
                    ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoFocusOnAppearing |
                    ImGuiWindowFlags_NoNav);
+  const ImVec2 lp = ImGui::GetWindowPos(), ls = ImGui::GetWindowSize();
+  item_rects_["legend"] = {lp.x, lp.y, ls.x, ls.y};
   if (world_ && !world_->accel->has_counters()) {
     // Embree counts nothing: a ramp with a 0..1 scale would read as "no work at all".
     ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f),
@@ -453,6 +537,7 @@ void Viewer::draw_key_list() {
     ImGui::End();
     return;
   }
+  keep_in_window();
   static const char* const kKeys[][2] = {
       {"left drag", "orbit about the target"},
       {"right drag", "look around from the eye"},
@@ -466,11 +551,15 @@ void Viewer::draw_key_list() {
       {"C", "print the camera as command-line flags"},
       {"P or F12", "save a screenshot"},
       {"H", "hide / show the panels"},
+      {"L", "light: auto, the scene's lights, eye light, normals"},
+      {"R", "reset the panels' layout (place, size, open)"},
+      {"Esc", "cancel the running build (the built structure stays)"},
       {"F1", "this list"},
-      {"Ctrl+Q", "quit"},
+      {"Ctrl+Q", "quit (also from a text field)"},
   };
   if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingFixedFit | ImGuiTableFlags_RowBg)) {
     for (const auto& k : kKeys) {
+      audit_.items.push_back(std::string("key ") + k[0]);
       ImGui::TableNextRow();
       ImGui::TableNextColumn();
       ImGui::TextUnformatted(k[0]);

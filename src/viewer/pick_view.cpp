@@ -296,6 +296,11 @@ void Viewer::draw_pick_overlay() {
              pick_->segment, world_->scene->mesh, ui_scale_, scene_radius() * 4.0f);
 }
 
+std::string Viewer::no_traversal_note() const {
+  return world_->name + " exposes no traversal (its steps and tests are not counted): only " +
+         "the hit is shown; choose a kdgrid structure to see the ray's steps";
+}
+
 void Viewer::draw_pick_panel() {
   if (!pick_) {
     ImGui::PushTextWrapPos(0.0f);
@@ -308,6 +313,12 @@ void Viewer::draw_pick_panel() {
   const Trace& t = p.trace;
   ImGui::TextWrapped("pixel %d,%d: %zu steps, %llu tests, %s", p.x, p.y, t.steps.size(),
                      (unsigned long long)t.counters.tri_tests, t.hit.valid() ? "hit" : "miss");
+  if (world_ && !world_->accel->has_counters()) {
+    ImGui::PushTextWrapPos(0.0f);
+    ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f), "%s", no_traversal_note().c_str());
+    ImGui::PopTextWrapPos();
+    audit_.item(no_traversal_note().c_str());
+  }
   if (t.hit.valid()) ImGui::TextWrapped("hit triangle %u at t = %.6g", t.hit.prim, t.hit.t);
   ImGui::TextWrapped("%s", p.command.c_str());
   if (ImGui::SmallButton("copy command")) ImGui::SetClipboardText(p.command.c_str());
@@ -336,6 +347,7 @@ void Viewer::draw_pick_panel() {
 }
 
 void Viewer::draw_pick_steps() {
+  steps_rect_ = {0, 0, 0, 0};
   if (!pick_) return;
   Pick& p = *pick_;
   const Trace& t = p.trace;
@@ -374,17 +386,34 @@ void Viewer::draw_pick_steps() {
     p.widths_for_font = font;
   }
   const ImGuiIO& io = ImGui::GetIO();
+  const ImGuiStyle& style = ImGui::GetStyle();
   const float m = 8 * ui_scale_, left = panel_rect_[0] + panel_rect_[2] + m;
-  ImGui::SetNextWindowPos(ImVec2(left, io.DisplaySize.y - m), ImGuiCond_FirstUseEver, ImVec2(0, 1));
-  // Up to 720 wide, leaving the heat map's legend (bottom right, about 260 wide) uncovered.
-  const float room =
-      io.DisplaySize.x - left - m - (mode_ != RenderMode::Shaded ? 270 * ui_scale_ : 0.0f);
-  ImGui::SetNextWindowSize(ImVec2(std::max(160 * ui_scale_, std::min(720 * ui_scale_, room)),
+  const ImGuiCond cond = reset_layout_ ? ImGuiCond_Always : ImGuiCond_FirstUseEver;
+  // Beside the panel, at the bottom, or at the top when the picked pixel is in the lower
+  // half of the window (the table would hide it).
+  const bool pick_low = posted_h_ > 0 && float(p.y) > 0.5f * float(posted_h_);
+  ImGui::SetNextWindowPos(ImVec2(left, pick_low ? m : io.DisplaySize.y - m), cond,
+                          ImVec2(0, pick_low ? 0.0f : 1.0f));
+  // As wide as every column needs (no column cut), within the room right of the panel.
+  float table_w = style.WindowPadding.x * 2 + style.ScrollbarSize;
+  for (float w : p.widths) table_w += w + style.CellPadding.x * 2 + 1;
+  const float room = io.DisplaySize.x - left - m;
+  steps_table_w_ = table_w;
+  ImGui::SetNextWindowSize(ImVec2(std::max(160 * ui_scale_, std::min(table_w, room)),
                                   std::min(220 * ui_scale_, io.DisplaySize.y * 0.4f)),
-                           ImGuiCond_FirstUseEver);
+                           cond);
   char title[64];
   std::snprintf(title, sizeof title, "pick steps: %zu###pick steps", n);
   if (!ImGui::Begin(title)) {
+    ImGui::End();
+    return;
+  }
+  keep_in_window();
+  const ImVec2 sp = ImGui::GetWindowPos(), ss = ImGui::GetWindowSize();
+  steps_rect_ = {sp.x, sp.y, ss.x, ss.y};
+  item_rects_["pick steps"] = steps_rect_;
+  if (n == 0 && world_ && !world_->accel->has_counters()) {
+    ImGui::TextWrapped("%s", no_traversal_note().c_str());
     ImGui::End();
     return;
   }

@@ -111,6 +111,7 @@ void RenderWorker::loop() {
       local.height = job.settings.height;
       local.samples = renderer->samples();
       local.mode = job.settings.mode;
+      local.shading = job.settings.shading;
       local.job_id = id;
       local.preview = job.preview;
       local.pass_seconds = secs;
@@ -119,6 +120,8 @@ void RenderWorker::loop() {
       local.pass_counters.shadow = rc.shadow - rays_before.shadow;
       local.pass_counters.reflection = rc.reflection - rays_before.reflection;
       local.pass_counters.refraction = rc.refraction - rays_before.refraction;
+      local.pass_counters.probed = rc.probed - rays_before.probed;
+      local.pass_counters.lit = rc.lit - rays_before.lit;
       local.pass_rays = local.pass_counters.total();
       rays_before = rc;
       {

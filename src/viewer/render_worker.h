@@ -33,6 +33,7 @@ struct World {
   std::unique_ptr<Accelerator> accel;
   BuildParams params;  ///< what accel was built with
   double build_seconds = 0;
+  double auto_cell = 0;  ///< the hybrid's auto cell size for the scene (set by a scene load)
 };
 
 /// What the worker renders.
@@ -52,11 +53,12 @@ struct RenderedImage {
   int width = 0, height = 0;
   int samples = 0;
   RenderMode mode = RenderMode::Shaded;
-  uint64_t job_id = 0;           ///< which post() produced it
-  bool preview = false;          ///< RenderJob::preview of that job
-  double pass_seconds = 0;       ///< wall time of the pass that completed it
-  uint64_t pass_rays = 0;        ///< rays traced by that pass
-  RenderCounters pass_counters;  ///< the same, by kind (primary, shadow, ...)
+  Shading shading = Shading::Lights;  ///< RenderSettings::shading of that job
+  uint64_t job_id = 0;                ///< which post() produced it
+  bool preview = false;               ///< RenderJob::preview of that job
+  double pass_seconds = 0;            ///< wall time of the pass that completed it
+  uint64_t pass_rays = 0;             ///< rays traced by that pass
+  RenderCounters pass_counters;       ///< the same, by kind (primary, shadow, ...)
 };
 
 class RenderWorker {

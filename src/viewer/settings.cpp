@@ -156,10 +156,8 @@ static std::string scene_key(const std::string& path) {
 CellChoice remembered_cell_choice(const Settings& s, const std::string& path) {
   const auto it = s.cell_size_by_scene.find(scene_key(path));
   try {
-    if (it != s.cell_size_by_scene.end()) {
-      const CellChoice c = CellChoice::parse(it->second, "cell_size_by_scene");
-      if (c.kind == CellChoice::Kind::Units) return c;
-    }
+    if (it != s.cell_size_by_scene.end())
+      return CellChoice::parse(it->second, "cell_size_by_scene");
     const CellChoice g = CellChoice::parse(s.cell_size, "cell_size");
     if (g.kind != CellChoice::Kind::Units) return g;
   } catch (const std::exception&) {
@@ -168,12 +166,10 @@ CellChoice remembered_cell_choice(const Settings& s, const std::string& path) {
 }
 
 void remember_cell_choice(Settings& s, const std::string& path, const CellChoice& c) {
-  if (c.kind == CellChoice::Kind::Units) {
-    s.cell_size_by_scene[scene_key(path)] = c.text();
-  } else {
+  if (c.kind == CellChoice::Kind::Auto)
     s.cell_size_by_scene.erase(scene_key(path));
-    s.cell_size = c.text();
-  }
+  else
+    s.cell_size_by_scene[scene_key(path)] = c.text();
 }
 
 }  // namespace kdgrid::viewer

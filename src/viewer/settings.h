@@ -11,12 +11,13 @@ enum class HeatScale { Auto, Fixed, Log };
 
 struct Settings {
   std::string accel;  ///< last structure; empty = the command line's default
-  /// The hybrid's cell size for any scene: "auto" or a multiple of the auto size ("0.5x").
-  /// A size in scene units is remembered per scene only (cell_size_by_scene): one scene's
-  /// 0.0008 is a 43526x20701x19501 grid on another. A bare number here (an older file) is
-  /// ignored with a warning.
+  /// The hybrid's cell size for any scene without its own: "auto" or a multiple of the auto
+  /// size ("0.5x"), set by hand (the viewer remembers its choices per scene). A size in scene
+  /// units is remembered per scene only (cell_size_by_scene): one scene's 0.0008 is a
+  /// 43526x20701x19501 grid on another. A bare number here (an older file) is ignored with a
+  /// warning.
   std::string cell_size = "auto";
-  /// Sizes in scene units by the scene file's absolute path.
+  /// Choices (sizes in scene units or multiples of auto) by the scene file's absolute path.
   std::map<std::string, std::string> cell_size_by_scene;
   int window_width = 1280, window_height = 800;
   HeatScale heat_scale = HeatScale::Auto;
@@ -47,11 +48,13 @@ struct CellChoice {
   float resolve(double auto_cell) const;
 };
 
-/// The remembered choice for the scene at `path` (absolute or relative): its own size in
-/// scene units if one is remembered, else the global auto or multiple.
+/// The remembered choice for the scene at `path` (absolute or relative): its own choice (a
+/// size in scene units or a multiple of auto) if one is remembered, else the global auto or
+/// multiple.
 CellChoice remembered_cell_choice(const Settings& s, const std::string& path);
-/// Remembers `c` for the scene at `path`: a size in scene units under that scene only; auto
-/// or a multiple globally (and the scene's own size forgotten).
+/// Remembers `c` for the scene at `path` only: a size or a multiple under that scene, auto by
+/// forgetting the scene's own choice. The global cell_size is never written here: a choice
+/// made on one scene does not apply to every other.
 void remember_cell_choice(Settings& s, const std::string& path, const CellChoice& c);
 
 }  // namespace kdgrid::viewer

@@ -84,6 +84,10 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   } else {
     st["scene"] = nullptr;
   }
+  static const char* const kShadingChoices[] = {"auto", "lights", "eye", "normals"};
+  st["shading"] = kShadingChoices[int(shading_choice_)];
+  st["shading_shown"] = to_string(shading_shown());
+  st["lit_fraction"] = lit_fraction_;
   st["camera"] = camera_json(cam_.camera());
   st["ui_hidden"] = opts_.hide_ui;
   st["keys_shown"] = show_keys_;
@@ -108,6 +112,7 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
                    {"splits_of_pick", splits_of_pick_},
                    {"split_depths", {split_depth_[0], split_depth_[1]}},
                    {"items", overlay_items_},
+                   {"wanted", overlay_wanted_},
                    {"lines", structure_lines_.vertex_count() / 2}};
   st["message"] = message_;
   st["error"] = task_error_;
@@ -122,7 +127,9 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
              {"status_top", audit_.status_top},
              {"below_status_y", audit_.below_status_y},
              {"table_cells", audit_.table_cells},
-             {"below_status_y_by_state", below_status_y_by_state_}};
+             {"below_status_y_by_state", below_status_y_by_state_},
+             {"rects", item_rects_},
+             {"steps_table_width", steps_table_w_}};
 
   j["frames"] = {{"count", frame_count_},
                  {"interval_ms", frame_interval_ms_},
@@ -144,6 +151,9 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
                       {"shadow", p.rays.shadow},
                       {"reflection", p.rays.reflection},
                       {"refraction", p.rays.refraction},
+                      {"shading", to_string(p.shading)},
+                      {"lit_probed", p.rays.probed},
+                      {"lit", p.rays.lit},
                       {"mrays", p.seconds > 0 ? double(rays) / p.seconds * 1e-6 : 0.0}});
   }
   j["passes"] = passes;
@@ -170,6 +180,7 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
     builds.push_back(e);
   }
   j["builds"] = builds;
+  j["build_progress"] = progress_log_;  // the last task's bar: (seconds, fraction) per frame
 
   std::ofstream out(path);
   // Error texts can quote a file's bytes (a PLY with garbage after its header): invalid UTF-8

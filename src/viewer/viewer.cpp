@@ -96,6 +96,9 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
       cell_choice_.kind == CellChoice::Kind::Units ? float(cell_choice_.value) : 0.0f;
   if (opts_.heatmap == "steps") mode_ = RenderMode::HeatSteps;
   if (opts_.heatmap == "tests") mode_ = RenderMode::HeatTests;
+  if (opts_.shading == "lights") shading_choice_ = ShadingChoice::Lights;
+  if (opts_.shading == "eye") shading_choice_ = ShadingChoice::Eye;
+  if (opts_.shading == "normals") shading_choice_ = ShadingChoice::Normals;
   for (const auto& o : opts_.overlays) {
     if (o == "splits") show_splits_ = true;
     if (o == "cells") show_cells_ = true;
@@ -205,6 +208,7 @@ void Viewer::apply_ui_scale(float scale) {
 void Viewer::shutdown() {
   // The worker goes first: it may hold the last reference to a world.
   worker_.reset();
+  if (overlay_job_.valid()) overlay_job_.wait();
   if (task_) {
     cancel_task();  // a build stops within about 100 ms (a scene still loading finishes first)
     task_->result.wait();
@@ -243,7 +247,7 @@ void Viewer::shutdown() {
 
 float Viewer::scene_radius() const {
   if (!world_) return 1.0f;
-  return std::max(length(world_->scene->mesh.bounds().extent()) * 0.5f, 1e-6f);
+  return std::max(length(scene_bounds_.extent()) * 0.5f, 1e-6f);
 }
 
 // ---- input ----------------------------------------------------------------------------------
@@ -256,7 +260,13 @@ void Viewer::print_camera() {
 
 void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
   note_input();
-  if (action != GLFW_PRESS || ImGui::GetIO().WantCaptureKeyboard) return;
+  // ImGui 1.86 reads a key's state once per frame, so a press and its release within one
+  // frame would never reach it (a short Enter in a text field on a slow frame was lost): such
+  // a key is held down through one frame (hold_short_presses).
+  if (action == GLFW_PRESS && key >= 0) pressed_this_frame_.insert(key);
+  if (action == GLFW_RELEASE && pressed_this_frame_.count(key)) short_presses_.insert(key);
+  if (action != GLFW_PRESS) return;
+  // Ctrl+Q and Esc work wherever the keyboard focus is, a panel's text field included.
   if (key == GLFW_KEY_Q && (mods & GLFW_MOD_CONTROL)) {
     // Ctrl+Q quits (plain Q is "down"); a --hold run then finishes like a closed window.
     glfwSetWindowShouldClose(window_, GLFW_TRUE);
@@ -264,12 +274,16 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
     cancel_task();  // a running build stops rather than delaying the exit
     return;
   }
+  if (key == GLFW_KEY_ESCAPE) {
+    // Cancels the running build; its old structure stays. The start-up scene's first build
+    // has none, so it is not cancelled (Ctrl+Q quits). In a text field Esc also drops the
+    // edit (ImGui restores the value), and the panel must not take that as a new request.
+    escape_this_frame_ = true;
+    if (world_) cancel_task();
+    return;
+  }
+  if (ImGui::GetIO().WantCaptureKeyboard) return;
   switch (key) {
-    case GLFW_KEY_ESCAPE:
-      // Cancels the running build; its old structure stays. The start-up scene's first build
-      // has none, so it is not cancelled (Ctrl+Q quits).
-      if (world_) cancel_task();
-      break;
     case GLFW_KEY_TAB:
       cam_.toggle_mode();
       break;
@@ -300,9 +314,35 @@ void Viewer::on_key(int key, int /*scancode*/, int action, int mods) {
     case GLFW_KEY_F:
       frame_pick();
       break;
+    case GLFW_KEY_R:
+      reset_layout_ = true;
+      break;
+    case GLFW_KEY_L:
+      // auto -> lights -> eye light -> normals -> auto
+      shading_choice_ = ShadingChoice((int(shading_choice_) + 1) % 4);
+      break;
     default:
       break;
   }
+}
+
+void Viewer::hold_short_presses() {
+  ImGuiIO& io = ImGui::GetIO();
+  for (int k : short_presses_)
+    if (k < int(IM_ARRAYSIZE(io.KeysDown))) {
+      io.KeysDown[k] = true;  // ImGui sees the key down in this frame...
+      held_keys_.insert(k);
+    }
+  short_presses_.clear();
+  pressed_this_frame_.clear();
+}
+
+void Viewer::release_held_keys() {
+  ImGuiIO& io = ImGui::GetIO();
+  for (int k : held_keys_)  // ...and released in the next, unless it is down again
+    if (glfwGetKey(window_, k) != GLFW_PRESS) io.KeysDown[k] = false;
+  held_keys_.clear();
+  escape_this_frame_ = false;
 }
 
 void Viewer::on_mouse_button(int button, int action, int mods) {
@@ -381,6 +421,7 @@ bool Viewer::wants_continuous_frames() const {
   if (settle_frames_ > 0 || glfwWindowShouldClose(window_) || posted_preview_) return true;
   if (ImGui::GetCurrentContext() && (ImGui::GetIO().WantTextInput || ImGui::IsAnyItemActive()))
     return true;
+  if (structure_lines_.uploading()) return true;  // an overlay goes up a part per frame
   // Held keys move the camera every frame without sending events.
   for (int k : {GLFW_KEY_W, GLFW_KEY_A, GLFW_KEY_S, GLFW_KEY_D, GLFW_KEY_Q, GLFW_KEY_E})
     if (glfwGetKey(window_, k) == GLFW_PRESS) return true;
@@ -400,6 +441,38 @@ void Viewer::handle_continuous_input(float dt) {
     const float boost = (down(GLFW_KEY_LEFT_SHIFT) + down(GLFW_KEY_RIGHT_SHIFT)) > 0 ? 4.0f : 1.0f;
     cam_.move(right, up, fwd, dt * boost);
   }
+}
+
+// ---- shading ----------------------------------------------------------------------------
+
+Shading Viewer::shading_shown() const {
+  switch (shading_choice_) {
+    case ShadingChoice::Lights:
+      return Shading::Lights;
+    case ShadingChoice::Eye:
+      return Shading::EyeLight;
+    case ShadingChoice::Normals:
+      return Shading::Normals;
+    case ShadingChoice::Auto:
+      break;
+  }
+  return auto_eye_ ? Shading::EyeLight : Shading::Lights;
+}
+
+void Viewer::update_auto_shading(const RenderedImage& img) {
+  // The rule (docs/VIEWER.md, "Shading"): a shaded pass checks which of its primary hits a
+  // scene light reaches (every hit with the lights, one pixel in 16 with the eye light or the
+  // normals). Where the lights reach under 1% of them the picture is ambient light alone, a
+  // uniform grey whatever the camera does; auto then shows the eye light, and goes back to
+  // the lights once they reach 5% of the view. A view of background alone decides nothing.
+  if (img.mode != RenderMode::Shaded) return;
+  const RenderCounters& c = img.pass_counters;
+  if (c.probed < kAutoMinProbed) return;
+  lit_fraction_ = double(c.lit) / double(c.probed);
+  if (!auto_eye_ && lit_fraction_ < kAutoLitFractionOn)
+    auto_eye_ = true;
+  else if (auto_eye_ && lit_fraction_ >= kAutoLitFractionOff)
+    auto_eye_ = false;
 }
 
 // ---- render hand-over -----------------------------------------------------------------------
@@ -450,8 +523,10 @@ void Viewer::sync_render_job() {
   // A moving camera is posted however little it moved; a preview whose size alone changed
   // (the speed estimate moved) is not reposted for that.
   const bool same_size = (w == posted_w_ && h == posted_h_) || (preview && posted_preview_job_);
+  const Shading shading = shading_shown();
   if (world_.get() == posted_world_ && same_size && mode_ == posted_mode_ &&
-      opts_.max_samples == posted_max_samples_ && same_camera(c, posted_camera_))
+      shading == posted_shading_ && opts_.max_samples == posted_max_samples_ &&
+      same_camera(c, posted_camera_))
     return;
   RenderJob job;
   job.world = world_;
@@ -459,6 +534,7 @@ void Viewer::sync_render_job() {
   job.settings.width = w;
   job.settings.height = h;
   job.settings.mode = mode_;
+  job.settings.shading = shading;
   job.max_samples = opts_.max_samples;
   job.preview = preview;
   posted_job_ = worker_->post(std::move(job));
@@ -469,6 +545,7 @@ void Viewer::sync_render_job() {
   posted_w_ = w;
   posted_h_ = h;
   posted_mode_ = mode_;
+  posted_shading_ = shading;
   posted_max_samples_ = opts_.max_samples;
   posted_camera_ = c;
 }
@@ -476,6 +553,7 @@ void Viewer::sync_render_job() {
 void Viewer::receive_image() {
   if (worker_ && worker_->take_image(image_)) {
     have_image_ = true;
+    update_auto_shading(image_);
     recolor_ = true;
     if (image_.pass_seconds > 0) {
       last_mrays_ = float(double(image_.pass_rays) / image_.pass_seconds * 1e-6);
@@ -491,6 +569,7 @@ void Viewer::receive_image() {
     PassRecord pr;
     pr.job = image_.job_id;
     pr.preview = image_.preview;
+    pr.shading = image_.shading;
     const auto now = Clock::now();
     pr.shown_at = std::chrono::duration<double>(now - run_started_).count();
     // Motion to photon: the job was posted in the frame that handled the input that moved
@@ -548,7 +627,7 @@ void Viewer::draw_scene() {
     // The live camera (not the displayed image's) so overlays follow the mouse at once.
     const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
     const float r = scene_radius();
-    const float dist = length(f.eye - world_->scene->mesh.bounds().center());
+    const float dist = length(f.eye - scene_bounds_.center());
     const auto vp = view_projection(f, r * 1e-4f, (dist + r) * 10.0f);
     GL_CHECK(glEnable(GL_BLEND));
     GL_CHECK(glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA));
@@ -560,18 +639,41 @@ void Viewer::draw_scene() {
 // ---- overlays and pick ----------------------------------------------------------------------
 
 void Viewer::rebuild_structure_overlay() {
+  // Built off the UI thread (a BVH over the full dragon is 1.7M boxes): a newer request waits
+  // for the running one and replaces its result; the old lines stay on screen meanwhile.
+  if (overlay_job_.valid()) return;
   overlay_dirty_ = false;
-  LineBatch b;
-  overlay_items_ = 0;
-  if (world_) {
-    const Accelerator& a = *world_->accel;
-    if (show_splits_ && (!splits_of_pick_ || pick_))
-      overlay_items_ += build_split_overlay(a, split_depth_[0], split_depth_[1], b,
-                                            splits_of_pick_ ? &pick_->segment : nullptr);
-    if (show_cells_) overlay_items_ += build_cell_overlay(a, b);
-    if (show_boxes_) overlay_items_ += build_box_overlay(a, box_depth_[0], box_depth_[1], b);
-  }
-  structure_lines_.upload(b);
+  const std::shared_ptr<const World> w = world_;
+  const bool splits = show_splits_ && (!splits_of_pick_ || pick_), cells = show_cells_,
+             boxes = show_boxes_;
+  const std::optional<RaySegment> seg =
+      splits_of_pick_ && pick_ ? std::optional<RaySegment>(pick_->segment) : std::nullopt;
+  const std::array<int, 4> depths = {split_depth_[0], split_depth_[1], box_depth_[0],
+                                     box_depth_[1]};
+  overlay_job_ = std::async(std::launch::async, [=] {
+    OverlayResult r;
+    if (w) {
+      const Accelerator& a = *w->accel;
+      if (splits)
+        r.items += build_split_overlay(a, depths[0], depths[1], r.batch, seg ? &*seg : nullptr);
+      if (cells) r.items += build_cell_overlay(a, r.batch, &r.wanted);
+      if (boxes) r.items += build_box_overlay(a, depths[2], depths[3], r.batch, &r.wanted);
+    }
+    glfwPostEmptyEvent();  // the UI thread uploads it at once
+    return r;
+  });
+}
+
+void Viewer::poll_structure_overlay() {
+  if (structure_lines_.uploading()) structure_lines_.upload_step(kUploadVerticesPerFrame);
+  if (!overlay_job_.valid() ||
+      overlay_job_.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
+    return;
+  OverlayResult r = overlay_job_.get();
+  if (overlay_dirty_) return;  // settings changed meanwhile: the next build replaces it
+  overlay_items_ = r.items;
+  overlay_wanted_ = r.wanted;
+  structure_lines_.upload(std::move(r.batch));
 }
 
 void Viewer::do_pick(int px, int py) {
@@ -598,7 +700,7 @@ void Viewer::retrace_pick() {
   if (!pick_ || !world_) return;
   Pick& p = *pick_;
   p.trace = world_->accel->trace(p.ray);
-  p.segment = pick_segment(p.ray, p.trace, world_->scene->mesh.bounds());
+  p.segment = pick_segment(p.ray, p.trace, scene_bounds_);
   p.widths_for_font = 0;  // the step table's text and widths follow the new trace
   p.serial = ++pick_serial_;
   CameraControl at_pick;
@@ -616,7 +718,20 @@ std::string Viewer::default_output_name(const char* prefix, const char* ext) con
   const std::time_t now = std::time(nullptr);
   char stamp[32];
   std::strftime(stamp, sizeof stamp, "%Y%m%d-%H%M%S", std::localtime(&now));
-  return std::string(prefix) + "-" + stamp + "." + ext;
+  // Two files within one second get -2, -3, ...: none overwrites another.
+  const std::string base = std::string(prefix) + "-" + stamp;
+  std::string name = base + "." + ext;
+  for (int n = 2; std::filesystem::exists(name); ++n)
+    name = base + "-" + std::to_string(n) + "." + ext;
+  return name;
+}
+
+int Viewer::previews_last_second() const {
+  const double now = std::chrono::duration<double>(Clock::now() - run_started_).count();
+  int n = 0;
+  for (auto it = passes_.rbegin(); it != passes_.rend() && it->shown_at > now - 1.0; ++it)
+    n += it->preview;
+  return n;
 }
 
 void Viewer::save_screenshot(const std::string& path) {
@@ -662,6 +777,7 @@ int Viewer::run() {
     // input, a finished pass (the worker posts an empty event) or a finished build wakes it;
     // the timeout keeps a build's progress bar moving and catches anything else. Busy, scripted
     // runs (which swap without vsync) wait out the rest of a 60 Hz frame instead of spinning.
+    release_held_keys();
     const double since = std::chrono::duration<double>(Clock::now() - last).count();
     if (!wants_continuous_frames()) {
       const double idle_s = task_ ? kBusyIdleSeconds : kIdleSeconds;
@@ -671,6 +787,7 @@ int Viewer::run() {
     }
     if (settle_frames_ > 0) --settle_frames_;
     glfwPollEvents();
+    hold_short_presses();
     const auto now = Clock::now();
     const float dt = std::chrono::duration<float>(now - last).count();
     last = now;
@@ -704,6 +821,7 @@ int Viewer::run() {
     handle_continuous_input(dt);
     sync_render_job();
     receive_image();
+    poll_structure_overlay();
     if (overlay_dirty_) rebuild_structure_overlay();
 
     if (opts_.scripted()) {
@@ -776,7 +894,9 @@ int Viewer::run() {
       }
       const bool rebuild_ok = (opts_.rebuild_cell_size.empty() || scripted_rebuild_done_) &&
                               (opts_.supersede_cell_size.empty() || supersede_started_);
+      // Auto shading may have just chosen another light: its picture is still to come.
       const bool image_ok = have_image_ && image_.job_id == posted_job_ &&
+                            (mode_ != RenderMode::Shaded || shading_shown() == posted_shading_) &&
                             image_.samples >= std::min(opts_.min_samples, opts_.max_samples);
       const bool script_done = opts_.hold > 0 ? closing : frame_count_ >= opts_.frames;
       if (script_done && world_ && !task_ && !brute_refusal_.empty()) {
@@ -793,8 +913,10 @@ int Viewer::run() {
         if (!opts_.screenshot.empty()) save_screenshot(opts_.screenshot);
         break;
       }
+      const bool overlay_ok =
+          !overlay_dirty_ && !overlay_job_.valid() && !structure_lines_.uploading();
       if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
-          !recolor_) {
+          overlay_ok && !recolor_) {
         if (end_reason_.empty()) end_reason_ = "frames done";
         if (!task_error_.empty()) {
           std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());

@@ -12,6 +12,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -47,6 +48,7 @@ struct ViewerOptions {
   bool frame_pick = false;            ///< scripted: frame the --pick ray's traversal (key F)
   bool splits_of_pick = false;        ///< split overlay: only the planes the picked ray crossed
   std::string heatmap;                ///< "", "steps" or "tests"
+  std::string shading = "auto";       ///< "auto", "lights", "eye" or "normals"
   std::vector<std::string> overlays;  ///< "splits", "cells", "boxes"
   std::string rebuild_cell_size;      ///< scripted live rebuild after start-up
   /// Scripted: the cell size requested (as the panel's cell-size box requests it) while the
@@ -89,6 +91,10 @@ class Viewer {
   void shutdown();
   float scene_radius() const;
   void note_input();
+  /// A key pressed and released within one frame is shown to ImGui as down in this frame
+  /// (ImGui 1.86 samples key states once per frame) and released before the next.
+  void hold_short_presses();
+  void release_held_keys();
   bool wants_continuous_frames() const;
   void handle_continuous_input(float dt);
   void print_camera();
@@ -106,6 +112,8 @@ class Viewer {
   void start_load(const std::string& path);
   void start_build(const std::string& name, const BuildParams& params);
   void cancel_task();
+  /// Task::expected_seconds of a build of `name` with `params` over the current scene.
+  double expected_build_seconds(const std::string& name, const BuildParams& params) const;
   void poll_tasks();
   void install_world(std::shared_ptr<const World> w, bool new_scene);
   BuildParams params_with_cell_size(const std::string& name, float cell_size) const;
@@ -115,7 +123,19 @@ class Viewer {
   /// the structure and shows the refusal with the size that fits.
   void request_cell_choice(const CellChoice& c);
   void draw_cell_size_controls(BuildParams& p, bool& rebuild);
+  /// The last item's edit ended and is a request: not left by Esc (which restores the value).
+  bool committed_edit() const;
+  /// Records the last item's rectangle under `label` (--stats-json ui.rects: where the input
+  /// tests click).
+  void note_rect(const char* label);
+  /// The cell-size controls show the built size again (a requested build was cancelled or
+  /// failed).
+  void show_built_cell_size();
   void draw_panels();
+  /// Moves the current ImGui window back inside the display (after the OS window shrank).
+  void keep_in_window();
+  /// Preview pictures shown in the last second (the Render section's previews/s).
+  int previews_last_second() const;
   void draw_heat_legend();
   /// The key list (F1): every key and mouse action of the viewer.
   void draw_key_list();
@@ -132,6 +152,8 @@ class Viewer {
   void draw_pick_panel();
   /// The picked ray's steps, a table in a window of its own.
   void draw_pick_steps();
+  /// Why a pick through a structure without counters (Embree) shows no steps.
+  std::string no_traversal_note() const;
 
   // ---- stats_json.cpp: --stats-json
   void write_stats(const std::string& path, int exit_code) const;
@@ -144,12 +166,18 @@ class Viewer {
 
   // What is shown and rendered (UI thread only).
   std::shared_ptr<const World> world_;
+  /// The scene's bounds, computed once when it is installed (Mesh::bounds() walks every
+  /// vertex: the UI thread does no scene-wide work per frame).
+  Box3 scene_bounds_;
   std::string accel_name_;
   BuildParams params_;
   std::string cell_size_text_ = "auto";
-  float cell_size_slider_ = 0;     ///< the built cell size, or the one being dragged
-  CellChoice cell_choice_;         ///< the current scene's choice (remembered at exit)
-  CellChoice loading_choice_;      ///< the choice the scene being loaded is built with
+  float cell_size_slider_ = 0;  ///< the built cell size, or the one being dragged
+  CellChoice cell_choice_;      ///< the current scene's choice (remembered at exit)
+  CellChoice loading_choice_;   ///< the choice the scene being loaded is built with
+  /// The choice the panel's last hybrid build request asked for; it becomes cell_choice_ if
+  /// that build is installed.
+  std::optional<CellChoice> requested_choice_;
   double auto_cell_ = 0;           ///< the auto rule's size for the current scene (hybrid)
   std::string cell_estimate_;      ///< the estimate of the last requested or dragged size
   std::string cell_refusal_;       ///< why the last requested size was refused ("" if not)
@@ -158,6 +186,24 @@ class Viewer {
   std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
   CameraControl cam_;
   RenderMode mode_ = RenderMode::Shaded;
+  /// The shading chosen (key L, the Render section): the scene's lights, the eye light, the
+  /// normals, or auto: the lights unless they leave the view dark (update_auto_shading).
+  enum class ShadingChoice { Auto, Lights, Eye, Normals } shading_choice_ = ShadingChoice::Auto;
+  /// Auto shading shows the eye light: the last passes found the lights reach almost none
+  /// of the view.
+  bool auto_eye_ = false;
+  /// The share of the view's primary hits a scene light reaches, from the last shaded pass
+  /// that checked (RenderCounters::lit / probed); -1 before any.
+  double lit_fraction_ = -1;
+  /// Below this lit fraction auto shading switches to the eye light; it switches back above
+  /// kAutoLitFractionOff (hysteresis, so a view at the threshold does not flicker).
+  static constexpr double kAutoLitFractionOn = 0.01, kAutoLitFractionOff = 0.05;
+  /// Fewest checked hits that decide: a view that is mostly background keeps its shading.
+  static constexpr uint64_t kAutoMinProbed = 16;
+  /// The shading posted to the worker now.
+  Shading shading_shown() const;
+  /// Follows a finished shaded pass's lit fraction (auto shading).
+  void update_auto_shading(const RenderedImage& img);
   std::unique_ptr<RenderWorker> worker_;
 
   // Background tasks: one build/load at a time; a newer build request cancels a running build
@@ -169,10 +215,18 @@ class Viewer {
     std::string kind;  // "load", "rebuild" or "build", for the statistics
     bool new_scene = false;
     std::chrono::steady_clock::time_point started;
+    /// The expected build time (the hybrid's estimate, else the last build of the same
+    /// structure on this scene); 0 = unknown. The progress bar runs towards it.
+    double expected_seconds = 0;
     std::shared_ptr<CancelToken> cancel;                 // the build's BuildParams::cancel
     std::chrono::steady_clock::time_point cancelled_at;  // when cancel_task() set it
   };
   std::optional<Task> task_;
+  /// The progress bar of the running task: a fraction of its expected time, rising
+  /// monotonically and never reaching 1 before the task ends (Task::expected_seconds).
+  static double task_progress(double seconds, double expected);
+  /// The fractions the progress bar showed for the last task, (seconds, fraction) per frame.
+  std::vector<std::array<double, 2>> progress_log_;
   std::optional<std::pair<std::string, BuildParams>> pending_build_;
   std::string task_error_;
   /// Why brute force renders nothing (its work limit, --brute-work-limit); "" when it renders.
@@ -207,6 +261,7 @@ class Viewer {
   Camera posted_camera_;
   int posted_w_ = 0, posted_h_ = 0;
   RenderMode posted_mode_ = RenderMode::Shaded;
+  Shading posted_shading_ = Shading::Lights;
   const World* posted_world_ = nullptr;
   int posted_max_samples_ = 0;
   uint64_t posted_job_ = 0;
@@ -234,6 +289,7 @@ class Viewer {
   struct PassRecord {
     uint64_t job = 0;
     bool preview = false;
+    Shading shading = Shading::Lights;
     double latency_ms = 0;  // the job's post (its camera's input) to its image's upload
     double shown_at = 0;    // seconds since start-up, for the intervals between pictures
     int width = 0, height = 0, samples = 0;
@@ -262,6 +318,15 @@ class Viewer {
   int split_depth_[2] = {0, 6}, box_depth_[2] = {0, 64};
   bool overlay_dirty_ = true;
   size_t overlay_items_ = 0;
+  /// Boxes or cells the overlays would draw without the kMaxOverlaySegments cap.
+  size_t overlay_wanted_ = 0;
+  struct OverlayResult {
+    LineBatch batch;
+    size_t items = 0, wanted = 0;
+  };
+  std::future<OverlayResult> overlay_job_;  ///< the overlay being built off the UI thread
+  /// Uploads the overlay built off the UI thread once it is ready.
+  void poll_structure_overlay();
   LineRenderer structure_lines_;
   float overlay_alpha_ = 1.0f;
   /// The split overlay shows only the planes the picked ray crossed ("splits of the picked
@@ -288,6 +353,8 @@ class Viewer {
   /// Space left around the framed pick, as a fraction of the view's half-extent.
   static constexpr float kPickFrameMargin = 0.1f;
   UiAudit audit_;  ///< what the last frame's panels showed (--stats-json)
+  /// Window-unit rectangles (x, y, w, h) of the panel's text fields, as last drawn.
+  std::map<std::string, std::array<float, 4>> item_rects_;
   /// The panel's y of the first widget under the status area in every frame, by what the
   /// status area showed ("idle", "build", "error"): one value each when nothing jumps.
   std::map<std::string, std::vector<float>> below_status_y_by_state_;
@@ -298,6 +365,12 @@ class Viewer {
   /// error; longer errors scroll inside it.
   static constexpr float kStatusLines = 3.0f;
 
+  // Keys pressed during this frame's events, those also released in them, and those
+  // hold_short_presses() holds down for ImGui until the next frame (GLFW key codes).
+  std::set<int> pressed_this_frame_, short_presses_, held_keys_;
+  /// Esc was pressed in this frame's events: a text field it left is not a request.
+  bool escape_this_frame_ = false;
+
   // Mouse state. The cursor position is the last one GLFW reported through its callback (not a
   // live query), so a press, motion and release queued within one frame replay in order.
   bool left_down_ = false, right_down_ = false, dragged_ = false;
@@ -307,6 +380,10 @@ class Viewer {
   float content_scale_[2] = {1, 1};
   float ui_scale_ = 1.0f;
   float panel_rect_[4] = {0, 0, 0, 0};  // x, y, w, h of the main panel; w = 0 when hidden
+  /// x, y, w, h of the pick's step table as last drawn; w = 0 when not shown. The heat map's
+  /// legend keeps clear of it.
+  std::array<float, 4> steps_rect_ = {0, 0, 0, 0};
+  float steps_table_w_ = 0;  ///< the window width the step table needs for every column
 
   // Scripted run progress.
   int frame_count_ = 0;
@@ -315,7 +392,9 @@ class Viewer {
   std::string end_reason_;  // why the run ended, for --stats-json
   Camera start_camera_;     // the camera when the current scene was installed
   bool show_keys_ = false;  ///< the key list (F1) is open
-  std::string message_;     // last status line (screenshot written, camera printed, ...)
+  /// The panels go back to their default place and size this frame (key R, "reset layout").
+  bool reset_layout_ = false;
+  std::string message_;  // last status line (screenshot written, camera printed, ...)
 };
 
 }  // namespace kdgrid::viewer

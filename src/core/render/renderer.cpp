@@ -23,6 +23,10 @@ constexpr float kPi = 3.14159265358979f;
 // rather than pure black (useful when inspecting geometry). Units: radiance, same as lights.
 constexpr float kAmbient = 0.03f;
 
+// Eye light (Shading::EyeLight): the share of a surface's albedo it shows when seen edge-on;
+// face-on it shows all of it.
+constexpr float kEyeLightFloor = 0.2f;
+
 // Secondary rays whose path weight (the product of the reflection/transmission weights from
 // the camera down to them) is below this are not traced: they could change a pixel by less
 // than 1e-4 of the light they carry. Being a product, it also bounds the ray tree of glass.
@@ -141,6 +145,8 @@ bool Renderer::render_pass(const std::atomic<bool>* cancel) {
 
   for (size_t i = 0; i < accum_.size(); ++i) accum_[i] += scratch[i];
   for (const RenderCounters& c : tile_counters) {
+    counters_.probed += c.probed;
+    counters_.lit += c.lit;
     counters_.primary += c.primary;
     counters_.shadow += c.shadow;
     counters_.reflection += c.reflection;
@@ -180,6 +186,12 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
       }
     return;
   }
+  // Without scene lights (eye light, normals) a hit is coloured by itself; the probe pixels
+  // also ask whether a scene light would reach it.
+  const bool unlit_mode = settings_.shading != Shading::Lights;
+  const auto probe = [](int x, int y) {
+    return x % kLitProbeStride == 0 && y % kLitProbeStride == 0;
+  };
   if (!settings_.packets) {
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
@@ -188,7 +200,8 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
         Hit hit;
         const bool found = accel_->intersect(ray, hit);
         uint32_t budget = kMaxSecondaryRaysPerSample;
-        const Vec3 value = shade_hit(ray, found, hit, 0, Vec3(1.0f), budget, c);
+        const Vec3 value = unlit_mode ? shade_unlit_mode(ray, found, hit, probe(x, y), c)
+                                      : shade_hit(ray, found, hit, 0, Vec3(1.0f), budget, c);
         // Never let one bad sample poison the film.
         store(x, y, is_finite(value) ? value : Vec3(0.0f));
       }
@@ -211,12 +224,14 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
       for (int y = py; y < py1; ++y)
         for (int x = px; x < px1; ++x) rays[n++] = camera_ray(x, y);
       accel_->intersect_packet(rays, n, hits, found);
-      shade_packet(rays, hits, found, n, values, c);
+      if (!unlit_mode) shade_packet(rays, hits, found, n, values, c);
       c.primary += uint64_t(n);
       n = 0;
       for (int y = py; y < py1; ++y)
-        for (int x = px; x < px1; ++x, ++n)
+        for (int x = px; x < px1; ++x, ++n) {
+          if (unlit_mode) values[n] = shade_unlit_mode(rays[n], found[n], hits[n], probe(x, y), c);
           store(x, y, is_finite(values[n]) ? values[n] : Vec3(0.0f));
+        }
     }
   }
 }
@@ -245,6 +260,7 @@ Vec3 Renderer::shade_hit(const Ray& ray, bool found, const Hit& hit, int depth,
   if (!found) return scene_->background;
   const Surface s = surface_at(ray, hit);
   Vec3 result = unlit(s);
+  bool lit = max_component(s.m->emission) > 0.0f;
   for (const Light& light : scene_->lights) {
     LightTerm t;
     if (!light_term(s, light, t)) continue;
@@ -253,6 +269,11 @@ Vec3 Renderer::shade_hit(const Ray& ray, bool found, const Hit& hit, int depth,
       if (accel_->occluded(shadow_ray(s, light, t))) continue;
     }
     add_light(s, t, result);
+    lit = true;
+  }
+  if (depth == 0) {
+    ++counters.probed;
+    counters.lit += lit;
   }
   return finish_hit(s, result, depth, path_weight, budget, counters);
 }
@@ -302,11 +323,70 @@ void Renderer::shade_packet(const Ray* rays, const Hit* hits, const bool* found,
     }
     const Surface& s = surfaces[size_t(i)];
     Vec3 result = unlit(s);
+    bool reached = max_component(s.m->emission) > 0.0f;
     for (; next < lit.size() && lit[next].hit == i; ++next)
-      if (!lit[next].blocked) add_light(s, lit[next].term, result);
+      if (!lit[next].blocked) {
+        add_light(s, lit[next].term, result);
+        reached = true;
+      }
+    ++counters.probed;
+    counters.lit += reached;
     uint32_t budget = kMaxSecondaryRaysPerSample;
     out[i] = finish_hit(s, result, 0, Vec3(1.0f), budget, counters);
   }
+}
+
+bool Renderer::any_light_reaches(const Surface& s, RenderCounters& counters) const {
+  if (max_component(s.m->emission) > 0.0f) return true;
+  for (const Light& light : scene_->lights) {
+    LightTerm t;
+    if (!light_term(s, light, t)) continue;
+    if (!settings_.shadows) return true;
+    ++counters.shadow;
+    if (!accel_->occluded(shadow_ray(s, light, t))) return true;
+  }
+  return false;
+}
+
+Vec3 Renderer::shade_unlit_mode(const Ray& ray, bool found, const Hit& hit, bool probe,
+                                RenderCounters& counters) const {
+  if (!found) return scene_->background;
+  const Surface s = surface_at(ray, hit);
+  if (probe) {
+    ++counters.probed;
+    counters.lit += any_light_reaches(s, counters);
+  }
+  if (settings_.shading == Shading::Normals) {
+    // The normal as the mesh orients it (surface_at turned it towards the viewer).
+    const Vec3 n = s.front ? s.n : -s.n;
+    return (n + Vec3(1.0f)) * 0.5f;
+  }
+  // Eye light: a light at the eye, so every visible surface is lit and its brightness follows
+  // the angle it is seen at; a floor of kEyeLightFloor keeps grazing faces readable. Emission
+  // is shown as in Lights mode; metals and glass show their base colour.
+  const float cos_v = std::fabs(dot(s.n, s.d));
+  return s.m->emission + s.albedo * (kEyeLightFloor + (1.0f - kEyeLightFloor) * cos_v);
+}
+
+Shading parse_shading(const std::string& s, const std::string& what) {
+  if (s == "lights") return Shading::Lights;
+  if (s == "eye") return Shading::EyeLight;
+  if (s == "normals") return Shading::Normals;
+  throw ParamError(what + " '" + s +
+                   "': choose lights (the scene's lights), eye (a light at "
+                   "the eye) or normals (the surface normal as a colour)");
+}
+
+const char* to_string(Shading s) {
+  switch (s) {
+    case Shading::Lights:
+      return "lights";
+    case Shading::EyeLight:
+      return "eye";
+    case Shading::Normals:
+      return "normals";
+  }
+  return "lights";
 }
 
 Renderer::Surface Renderer::surface_at(const Ray& ray, const Hit& hit) const {

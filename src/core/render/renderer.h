@@ -8,6 +8,7 @@
 #include <array>
 #include <atomic>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "accel/accelerator.h"
@@ -21,6 +22,23 @@ enum class RenderMode {
   HeatSteps,  ///< per-pixel traversal steps of the primary ray (counted traversal)
   HeatTests,  ///< per-pixel triangle tests of the primary ray
 };
+
+/// How RenderMode::Shaded lights a surface.
+enum class Shading {
+  Lights,    ///< the scene's lights, shadows, reflection and refraction (Whitted)
+  EyeLight,  ///< a light at the eye: albedo times the cosine to the view ray; no scene light
+  Normals,   ///< the surface's shading normal as a colour, (n + 1) / 2; no scene light
+};
+
+/// "lights", "eye" or "normals"; ParamError naming `what` for anything else.
+Shading parse_shading(const std::string& s, const std::string& what);
+const char* to_string(Shading s);
+
+/// One in kLitProbeStride x kLitProbeStride pixels (x and y multiples of it) of an
+/// EyeLight or Normals pass probes whether a scene light reaches its primary hit
+/// (RenderCounters::probed, lit), so that the viewer can tell whether the scene's lights would
+/// show anything without rendering with them.
+constexpr int kLitProbeStride = 4;
 
 /// Highest RenderSettings::max_depth (`--max-depth`) accepted. Shading recurses once per
 /// bounce, so the limit bounds the stack (a few hundred bytes a level, well inside a worker
@@ -63,6 +81,7 @@ struct RenderSettings {
   /// single rays (docs/HYBRID.md, "Packets").
   bool packets = true;
   RenderMode mode = RenderMode::Shaded;
+  Shading shading = Shading::Lights;  ///< how RenderMode::Shaded lights a surface
 };
 
 /// Rays traced so far, by kind; updated after every pass. Reflection rays come from
@@ -70,6 +89,11 @@ struct RenderSettings {
 /// internal reflection of refractive ones; a scene with neither traces none.
 struct RenderCounters {
   uint64_t primary = 0, shadow = 0, reflection = 0, refraction = 0;
+  /// Shaded passes only: primary hits checked for direct light (every hit with
+  /// Shading::Lights, the probe pixels' with the others; kLitProbeStride), and those of them
+  /// that a scene light reaches (unblocked) or that emit light. lit / probed near 0 means the
+  /// scene's lights leave the view uniformly dark (ambient light only).
+  uint64_t probed = 0, lit = 0;
   uint64_t total() const { return primary + shadow + reflection + refraction; }
 };
 
@@ -127,6 +151,12 @@ class Renderer {
     float cos_l;
   };
   Surface surface_at(const Ray& ray, const Hit& hit) const;
+  /// The colour of a primary hit without scene lights (Shading::EyeLight, Normals); at the
+  /// probe pixels (`probe`) also counts whether a scene light reaches it.
+  Vec3 shade_unlit_mode(const Ray& ray, bool found, const Hit& hit, bool probe,
+                        RenderCounters& counters) const;
+  /// Whether some scene light reaches `s` (a shadow ray per light until one is unblocked).
+  bool any_light_reaches(const Surface& s, RenderCounters& counters) const;
   /// False when `light` cannot light `s` whatever lies between them (behind the surface,
   /// outside a spot's cone, at the point itself).
   bool light_term(const Surface& s, const Light& light, LightTerm& t) const;
