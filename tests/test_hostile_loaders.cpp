@@ -183,6 +183,28 @@ TEST(HostileLoaders, GltfMessagesStateTheRuleAndBlameTheRightPart) {
   EXPECT_LT(e.size(), 1024u) << e;
 }
 
+TEST(HostileLoaders, GltfWarningsAreCappedAtTen) {
+  // 30 images that are neither PNG nor JPEG, each used by a material: one warning each.
+  std::string images, textures, materials;
+  for (int i = 0; i < 30; ++i) {
+    const std::string sep = i ? "," : "";
+    images += sep + R"({"uri":"data:image/png;base64,AAAA"})";
+    textures += sep + R"({"source":)" + std::to_string(i) + "}";
+    materials += sep + R"({"pbrMetallicRoughness":{"baseColorTexture":{"index":)" +
+                 std::to_string(i) + "}}}";
+  }
+  std::string text = read_all(hostile("uses_unknown.gltf"));
+  text.insert(text.rfind('}'), R"(,"images":[)" + images + R"(],"textures":[)" + textures +
+                                   R"(],"materials":[)" + materials + "]");
+  TempDir tmp;
+  const std::string p = tmp.write("many.gltf", text);
+  const std::string out = capture_stderr([&] { load_scene(p); });
+  size_t lines = 0;
+  for (char c : out) lines += c == '\n';
+  EXPECT_LE(lines, 12u) << out;
+  EXPECT_CONTAINS(out, "further warnings suppressed");
+}
+
 TEST(HostileLoaders, ObjWarningsHaveLineNumbersAndReadWell) {
   const std::string out = capture_stderr(
       [] { EXPECT_EQ(load_scene(hostile("degenerate_face.obj")).mesh.num_triangles(), 1u); });

@@ -271,6 +271,17 @@ class GltfBuilder {
     check_expansion(roots);
     on_path_.assign(model_.nodes.size(), false);
     for (int r : roots) visit(r, Mat4(), 0);
+    if (!undecoded_.empty()) {
+      // One line for all of them: the reasons, one per image, were the parser's warnings.
+      std::string list;
+      for (size_t i = 0; i < undecoded_.size() && i < 8; ++i)
+        list += (i ? ", " : "") + std::to_string(undecoded_[i]);
+      if (undecoded_.size() > 8) list += ", ...";
+      std::fprintf(stderr,
+                   "%s: warning: %zu image(s) not decoded (%s); their materials are left "
+                   "untextured\n",
+                   path_.c_str(), undecoded_.size(), list.c_str());
+    }
     if (skipped_prims_ > 0)
       std::fprintf(stderr,
                    "%s: note: skipped %zu point/line primitives (kdgrid renders triangles)\n",
@@ -333,9 +344,7 @@ class GltfBuilder {
     // decode_image leaves RGB8 pixels, or none with the size when textures are not decoded.
     const size_t px = img.width > 0 && img.height > 0 ? size_t(img.width) * size_t(img.height) : 0;
     if (px == 0 || img.component != 3 || img.bits != 8 || (decode_ && img.image.size() != px * 3)) {
-      std::fprintf(stderr,
-                   "%s: warning: image %d ('%s') was not decoded; material left untextured\n",
-                   path_.c_str(), src, printable(img.uri, 80).c_str());
+      undecoded_.push_back(src);
     } else {
       Texture t;
       t.width = img.width;
@@ -641,6 +650,7 @@ class GltfBuilder {
   std::map<int, int> image_texture_;
   std::vector<bool> on_path_;
   bool decode_;
+  std::vector<int> undecoded_;  // images that could not be used as textures
   int default_material_ = -1;
   size_t skipped_prims_ = 0;
 };
@@ -793,16 +803,23 @@ void check_required_extensions(const tinygltf::Model& model, const std::string& 
   }
 }
 
-void print_lines(const std::string& path, const char* kind, const std::string& text) {
-  size_t start = 0;
+/// Prints tinygltf's warnings, one line each, cut to a few hundred bytes; at most ten (a file
+/// of many broken images would otherwise print a line for each).
+void print_warnings(const std::string& path, const std::string& text) {
+  size_t start = 0, printed = 0, suppressed = 0;
   while (start < text.size()) {
     size_t end = text.find('\n', start);
     if (end == std::string::npos) end = text.size();
-    if (end > start)
-      std::fprintf(stderr, "%s: %s: %s\n", path.c_str(), kind,
+    if (end > start && ++printed <= 10)
+      std::fprintf(stderr, "%s: warning: %s\n", path.c_str(),
                    printable(std::string_view(text).substr(start, end - start), 300).c_str());
+    else if (end > start)
+      ++suppressed;
     start = end + 1;
   }
+  if (suppressed > 0)
+    std::fprintf(stderr, "%s: warning: (%zu further warnings suppressed)\n", path.c_str(),
+                 suppressed);
 }
 
 }  // namespace
@@ -846,7 +863,7 @@ Scene load_gltf(const std::string& path, const LoadOptions& options) {
     throw LoadError(path +
                     ": cannot parse glTF: " + (e.empty() ? "unknown error" : printable(e, 400)));
   }
-  print_lines(path, "warning", warn);
+  print_warnings(path, warn);
   check_required_extensions(model, path);
   Scene scene;
   GltfBuilder(model, path, scene, options.decode_textures).build();
