@@ -204,8 +204,10 @@ class Builder {
  private:
   static int bin_of(float c, float lo, float scale, int k) {
     const float f = (c - lo) * scale;
-    // NaN and negatives go to bin 0; the cast only sees values in [0, k).
-    return f > 0.0f ? std::min(int(f), k - 1) : 0;
+    // NaN and negatives go to bin 0, values at or past k (inf where a subnormal centroid
+    // extent made the scale overflow) to bin k - 1; the cast only sees values in [0, k).
+    if (!(f > 0.0f)) return 0;
+    return f < float(k) ? std::min(int(f), k - 1) : k - 1;
   }
 
   const BuildParams& p_;

@@ -1,12 +1,14 @@
 #include "accel/grid.h"
 
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <functional>
 #include <string>
 
 #include "accel/guards.h"
@@ -124,12 +126,51 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
     if (!changed) break;
   }
   uint64_t cells = 1;
-  for (int a = 0; a < 3; ++a) {
-    const double n = active[a] ? std::round(double(ext[a]) * k) : 1.0;
-    res_[a] = int(std::clamp(n, 1.0, double(params.grid_max_resolution)));
-    cells *= uint64_t(res_[a]);
-    cell_[a] = ext[a] / float(res_[a]);
-    inv_cell_[a] = float(res_[a]) / ext[a];
+  auto set_resolution = [&](const int(&res)[3]) {
+    cells = 1;
+    for (int a = 0; a < 3; ++a) {
+      res_[a] = res[a];
+      cells *= uint64_t(res_[a]);
+      cell_[a] = ext[a] / float(res_[a]);
+      inv_cell_[a] = float(res_[a]) / ext[a];
+    }
+  };
+  {
+    int res[3];
+    for (int a = 0; a < 3; ++a) {
+      const double n = active[a] ? std::round(double(ext[a]) * k) : 1.0;
+      res[a] = int(std::clamp(n, 1.0, double(params.grid_max_resolution)));
+    }
+    set_resolution(res);
+  }
+
+  // Work guard (accel/guards.h): the count and fill passes test every cell of each
+  // triangle's box and store a reference per overlapped cell. Estimate the references first,
+  // in one pass over the triangles, and halve the resolution while they pile up.
+  tbb::task_arena arena(effective_threads(params.threads));
+  auto estimate = [&] {
+    const double lo[3] = {box_.lo[0], box_.lo[1], box_.lo[2]};
+    const double h[3] = {cell_[0], cell_[1], cell_[2]};
+    double e = 0;
+    arena.execute([&] {
+      e = tbb::parallel_reduce(
+          tbb::blocked_range<size_t>(0, n_tris, 4096), 0.0,
+          [&](const tbb::blocked_range<size_t>& r, double sum) {
+            check_cancel(params.cancel);
+            return sum +
+                   estimate_grid_references(mesh, nullptr, r.begin(), r.end(), lo, h, res_.data());
+          },
+          std::plus<double>());
+    });
+    return e;
+  };
+  const std::string wanted_res =
+      std::to_string(res_[0]) + "x" + std::to_string(res_[1]) + "x" + std::to_string(res_[2]);
+  while ((res_[0] > 1 || res_[1] > 1 || res_[2] > 1) &&
+         grid_references_pile_up(estimate(), double(n_tris), double(cells))) {
+    const int res[3] = {std::max(1, res_[0] / 2), std::max(1, res_[1] / 2),
+                        std::max(1, res_[2] / 2)};
+    set_resolution(res);
   }
 
   // Memory guard: refuse before allocating anything proportional to the cell count. The
@@ -165,7 +206,6 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
                   "the references alone (4 bytes per triangle) exceed it: split the scene"));
   }
 
-  tbb::task_arena arena(effective_threads(params.threads));
   std::vector<uint32_t> counts(cells + 1, 0);
   double pad[3];
   for (int a = 0; a < 3; ++a) pad[a] = kCellPad * double(cell_[a]) + kCoordPad * double(max_abs);
@@ -202,11 +242,12 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   // Count pass.
   arena.execute([&] {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tris, 256), [&](const auto& r) {
-      check_cancel(params.cancel);
-      for (size_t i = r.begin(); i < r.end(); ++i)
+      for (size_t i = r.begin(); i < r.end(); ++i) {
+        check_cancel(params.cancel);  // one triangle may cover many cells
         for_cells_of(i, [&](uint64_t cidx) {
           std::atomic_ref<uint32_t>(counts[cidx]).fetch_add(1, std::memory_order_relaxed);
         });
+      }
     });
   });
   // Prefix sum into offsets (counts becomes the offsets array in place).
@@ -239,19 +280,22 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   std::vector<uint32_t> cursor(offsets_.begin(), offsets_.end() - 1);
   arena.execute([&] {
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_tris, 256), [&](const auto& r) {
-      check_cancel(params.cancel);
-      for (size_t i = r.begin(); i < r.end(); ++i)
+      for (size_t i = r.begin(); i < r.end(); ++i) {
+        check_cancel(params.cancel);
         for_cells_of(i, [&](uint64_t cidx) {
           const uint32_t at =
               std::atomic_ref<uint32_t>(cursor[cidx]).fetch_add(1, std::memory_order_relaxed);
           refs_[at] = uint32_t(i);
         });
+      }
     });
     tbb::parallel_for(tbb::blocked_range<uint64_t>(0, cells, 1024), [&](const auto& r) {
       check_cancel(params.cancel);
       for (uint64_t c = r.begin(); c < r.end(); ++c)
-        if (offsets_[c + 1] - offsets_[c] > 1)
+        if (offsets_[c + 1] - offsets_[c] > 1) {
+          check_cancel(params.cancel);
           std::sort(refs_.begin() + offsets_[c], refs_.begin() + offsets_[c + 1]);
+        }
     });
   });
   std::vector<uint32_t>().swap(cursor);
@@ -265,6 +309,9 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.bytes = b_cells + b_refs;
   stats_.bytes_by_part = {{"cells", b_cells}, {"references", b_refs}};
   stats_.extra = {{"resolution", res_str}};
+  if (res_str != wanted_res)
+    stats_.extra.push_back(
+        {"coarsened from", wanted_res + " (triangles piled up in the same cells)"});
   stats_.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;

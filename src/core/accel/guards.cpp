@@ -1,5 +1,6 @@
 #include "accel/guards.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
@@ -34,6 +35,33 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
                      "memory available) if the machine has the memory");
   }
   return uint64_t(std::ceil(need));
+}
+
+double estimate_grid_references(const Mesh& mesh, const uint32_t* tris, size_t begin, size_t end,
+                                const double lo[3], const double cell[3], const int32_t res[3]) {
+  double sum = 0;
+  for (size_t k = begin; k < end; ++k) {
+    const size_t i = tris ? tris[k] : k;
+    const auto c = mesh.corners(i);
+    const Vec3d e1 = Vec3d(c[1]) - Vec3d(c[0]), e2 = Vec3d(c[2]) - Vec3d(c[0]);
+    const Vec3d nrm = cross(e1, e2);
+    double in_box = 1.0, surface = 1.0;
+    for (int a = 0; a < 3; ++a) {
+      const int b = (a + 1) % 3, d = (a + 2) % 3;
+      const double mn = std::min({double(c[0][a]), double(c[1][a]), double(c[2][a])});
+      const double mx = std::max({double(c[0][a]), double(c[1][a]), double(c[2][a])});
+      const double top = double(res[a] - 1);
+      in_box *= std::clamp(std::floor((mx - lo[a]) / cell[a]), 0.0, top) -
+                std::clamp(std::floor((mn - lo[a]) / cell[a]), 0.0, top) + 1.0;
+      surface += 0.5 * std::fabs(nrm[a]) / (cell[b] * cell[d]) + (mx - mn) / cell[a];
+    }
+    if (std::isfinite(surface)) sum += std::min(in_box, surface);
+  }
+  return sum;
+}
+
+bool grid_references_pile_up(double refs, double triangles, double cells) {
+  return refs > std::max(64.0 * triangles, 8.0 * cells) || refs > 0.25 * triangles * cells;
 }
 
 void throw_build_out_of_memory(const std::string& structure, size_t triangles,

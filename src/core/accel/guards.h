@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "accel/params.h"
+#include "scene/mesh.h"
 #include "util/format.h"
 
 namespace kdgrid {
@@ -39,6 +40,22 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
 /// one progressive pass (later passes can be interrupted), `kdgrid bench` all its rays.
 void check_brute_force_work(const std::string& accel, uint64_t primary_rays, size_t triangles,
                             const BuildParams& params);
+
+/// Work guard of the grids (uniform and irregular): the references a grid of res[a] cells of
+/// size cell[a] from lo[a] would hold for triangles tris[begin, end) (triangle i itself when
+/// `tris` is null), estimated per triangle as the smaller of the cells of its box and a surface
+/// estimate (its area projected on each axis plane over that plane's cell face, plus its extent
+/// in cells along each axis, plus one).
+double estimate_grid_references(const Mesh& mesh, const uint32_t* tris, size_t begin, size_t end,
+                                const double lo[3], const double cell[3], const int32_t res[3]);
+
+/// Whether `refs` estimated references pile up in a grid of `cells` cells over `triangles`
+/// triangles: more than 64 per triangle and 8 per cell, or each triangle in more than a quarter
+/// of the cells on average. A density heuristic assumes triangles
+/// spread over the box; where they pile up (coincident or stacked copies, surfaces covering the
+/// whole grid many times over) each overlaps a fixed fraction of the cells, the references
+/// grow as triangles x cells, and a coarser grid answers every ray as well for far less work.
+bool grid_references_pile_up(double refs, double triangles, double cells);
 
 /// Throws ParamError saying that building `structure` over `triangles` triangles ran out of
 /// memory (an allocation failed), with the memory budget, the memory available to the process

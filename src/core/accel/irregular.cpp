@@ -2,11 +2,13 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
 #include <tbb/task_arena.h>
 
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <functional>
 #include <limits>
 #include <string>
 
@@ -212,6 +214,27 @@ struct IrregularGrid::Builder {
       r[a] = std::max(1.0, std::round(ext[a] * k));
       top_cells *= r[a];
     }
+    // Work guard (accel/guards.h): halve the resolution while the references pile up.
+    for (;;) {
+      const int32_t res[3] = {int32_t(std::min(r[0], 1e9)), int32_t(std::min(r[1], 1e9)),
+                              int32_t(std::min(r[2], 1e9))};
+      if (res[0] == 1 && res[1] == 1 && res[2] == 1) break;
+      const double cs[3] = {ext[0] / r[0], ext[1] / r[1], ext[2] / r[2]};
+      const double estimated = tbb::parallel_reduce(
+          tbb::blocked_range<size_t>(0, valid.size(), 4096), 0.0,
+          [&](const tbb::blocked_range<size_t>& rg, double sum) {
+            check_cancel(params.cancel);
+            return sum + estimate_grid_references(mesh, valid.data(), rg.begin(), rg.end(), g.lo_,
+                                                  cs, res);
+          },
+          std::plus<double>());
+      if (!grid_references_pile_up(estimated, n, top_cells)) break;
+      top_cells = 1;
+      for (int a = 0; a < 3; ++a) {
+        r[a] = std::max(1.0, std::floor(r[a] / 2));
+        top_cells *= r[a];
+      }
+    }
     // Every top cell costs at least its voxel-map entry and one build cell.
     const double need = top_cells * double(sizeof(TopEntry) + sizeof(BCell) + sizeof(Cell));
     if (need > double(budget) || std::max({r[0], r[1], r[2]}) > double(1 << 24))
@@ -333,21 +356,42 @@ struct IrregularGrid::Builder {
     const size_t num_top = count.size();
     std::vector<std::array<uint8_t, 3>> logs(num_top, {0, 0, 0});
     const double top_volume = top_vs[0] * top_vs[1] * top_vs[2];
+    tbb::parallel_for(size_t(0), num_top, [&](size_t t) {
+      if (count[t] == 0) return;
+      const double k = std::cbrt(double(params.irregular_sub_density) * count[t] / top_volume);
+      int l[3];
+      for (int a = 0; a < 3; ++a) {
+        const double d = top_vs[a] * k;
+        l[a] = d <= 1.0 ? 0 : std::min(kMaxSubLog, int(std::lround(std::log2(d))));
+      }
+      // Work guard (accel/guards.h): halve the sub-resolution while the cell's references
+      // pile up (its triangles coincide or cover it many times over).
+      const int32_t tc[3] = {int32_t(t % r[0]), int32_t((t / r[0]) % r[1]),
+                             int32_t(t / (size_t(r[0]) * r[1]))};
+      while (l[0] + l[1] + l[2] > 0) {
+        check_cancel(params.cancel);
+        double o[3], cs[3];
+        int32_t sres[3];
+        for (int a = 0; a < 3; ++a) {
+          o[a] = g.lo_[a] + double(tc[a]) * top_vs[a];
+          sres[a] = 1 << l[a];
+          cs[a] = top_vs[a] / double(sres[a]);
+        }
+        const double estimated = estimate_grid_references(mesh, top_refs.data(), begin[t],
+                                                          begin[t] + count[t], o, cs, sres);
+        if (!grid_references_pile_up(estimated, count[t], double(sres[0]) * sres[1] * sres[2]))
+          break;
+        for (int a = 0; a < 3; ++a) l[a] = std::max(0, l[a] - 1);
+      }
+      for (int a = 0; a < 3; ++a) logs[t][a] = uint8_t(l[a]);
+    });
     int shift = 0;
     double sub_cells = 0;
     for (size_t t = 0; t < num_top; ++t) {
-      if (count[t] == 0) {
-        sub_cells += 1;
-        continue;
-      }
-      const double k = std::cbrt(double(params.irregular_sub_density) * count[t] / top_volume);
       int total_log = 0;
       for (int a = 0; a < 3; ++a) {
-        const double d = top_vs[a] * k;
-        const int l = d <= 1.0 ? 0 : std::min(kMaxSubLog, int(std::lround(std::log2(d))));
-        logs[t][a] = uint8_t(l);
-        shift = std::max(shift, l);
-        total_log += l;
+        shift = std::max(shift, int(logs[t][a]));
+        total_log += logs[t][a];
       }
       sub_cells += double(uint64_t(1) << total_log);
     }
