@@ -165,9 +165,9 @@ TEST_P(DegenerateBuild, BuildsQuicklyWithinItsEstimateAndAgreesWithBruteForce) {
       if (ia != ib || oa != ib || (ia && std::fabs(ha.t - hb.t) > 1e-5f * hb.t)) {
         if (++differ <= 3)
           ADD_FAILURE() << "ray org " << r.org.x << " " << r.org.y << " " << r.org.z << " dir "
-                        << r.dir.x << " " << r.dir.y << " " << r.dir.z << ": " << name << " "
-                        << ia << " t=" << ha.t << " prim " << ha.prim << " occluded " << oa
-                        << "; brute " << ib << " t=" << hb.t << " prim " << hb.prim;
+                        << r.dir.x << " " << r.dir.y << " " << r.dir.z << ": " << name << " " << ia
+                        << " t=" << ha.t << " prim " << ha.prim << " occluded " << oa << "; brute "
+                        << ib << " t=" << hb.t << " prim " << hb.prim;
       }
     }
     EXPECT_EQ(differ, 0) << differ << " of 200 rays differ from brute force";

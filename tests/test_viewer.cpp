@@ -24,6 +24,7 @@
 #include "closed_room.h"
 #include "image/image_io.h"
 #include "scene/load.h"
+#include "temp_dir.h"
 #include "test_util.h"
 
 #ifdef KDGRID_VIEWER_PATH
@@ -76,11 +77,13 @@ std::string scratch_dir() {
 /// cleaning up temporary directory", exit code 5: its cleanup races the X server's exit, seen
 /// about once in 20 runs on a loaded machine), replacing the program's exit code with its own.
 /// The runs below record the viewer's own exit code and take it from there.
-RunResult run_viewer(const std::string& dir, const std::string& args) {
+/// `prefix` runs in the viewer's shell first (e.g. "ulimit -f 4;").
+RunResult run_viewer(const std::string& dir, const std::string& args,
+                     const std::string& prefix = "") {
   const std::string script = dir + "/run-viewer.sh", code_file = dir + "/viewer-exit-code";
   fs::remove(code_file);
-  std::ofstream(script) << "'" << KDGRID_VIEWER_PATH << "' " << args << "\necho $? > '" << code_file
-                        << "'\n";
+  std::ofstream(script) << prefix << "'" << KDGRID_VIEWER_PATH << "' " << args << "\necho $? > '"
+                        << code_file << "'\n";
   const std::string cmd = "cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
                           "' LIBGL_ALWAYS_SOFTWARE=1 xvfb-run -a -s '-screen 0 1280x1024x24' sh '" +
                           script + "'";
@@ -145,7 +148,8 @@ const std::string kSmall = " --width 320 --height 240 --frames 3 --min-samples 1
 
 TEST(Viewer, NoDisplayGivesClearMessageAndExitCode3) {
   const std::string cmd = "env -u DISPLAY -u WAYLAND_DISPLAY '" + std::string(KDGRID_VIEWER_PATH) +
-                          "' --frames 1 --screenshot /dev/null";
+                          "' --frames 1 --screenshot " +
+                          (fs::temp_directory_path() / "kdgrid-no-display.png").string();
   const RunResult r = run_command(cmd);
   EXPECT_EQ(r.code, 3) << r.output;
   EXPECT_NE(r.output.find("DISPLAY"), std::string::npos) << r.output;
@@ -295,6 +299,41 @@ TEST(Viewer, HeatMapExportsRawCountsAsExr) {
   EXPECT_GE(lo, 0.0f);
   EXPECT_GE(hi, 1.0f) << "no pixel tested a triangle";
   EXPECT_GT(hi, lo) << "the heat map is flat";
+}
+
+TEST(Viewer, OutputsAreCheckedBeforeTheWindowOpens) {
+  // No display is needed: the refusal comes first (exit code 2, not 3 for no display).
+  const std::string dir = scratch_dir();
+  for (const auto& [args, says] : std::initializer_list<std::pair<std::string, std::string>>{
+           {"--frames 1 --screenshot /dev/null", "--screenshot /dev/null: exists and is not"},
+           {"--frames 1 --stats-json no/such/folder/s.json", "does not exist"}}) {
+    const RunResult r = run_command("cd '" + dir + "' && env -u DISPLAY -u WAYLAND_DISPLAY '" +
+                                    std::string(KDGRID_VIEWER_PATH) + "' " + args);
+    EXPECT_EQ(r.code, 2) << args << ": " << r.output;
+    EXPECT_NE(r.output.find(says), std::string::npos) << args << ": " << r.output;
+  }
+}
+
+TEST(Viewer, FullDiskKeepsTheOldScreenshotAndStatsAndFails) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  const std::string args = "--accel bvh" + kSmall + "--screenshot shot.png --stats-json stats.json";
+  RunResult r = run_viewer(dir, args);
+  ASSERT_EQ(r.code, 0) << r.output;
+  const std::string shot = read_file_bytes(dir + "/shot.png"),
+                    stats = read_file_bytes(dir + "/stats.json");
+  ASSERT_GT(shot.size(), 2048u);
+  ASSERT_GT(stats.size(), 2048u);
+  // A 2 KiB file-size limit, SIGXFSZ ignored: every write past it fails as on a full disk.
+  r = run_viewer(dir, args, "trap '' XFSZ; ulimit -f 2; ");
+  EXPECT_EQ(r.code, 1) << r.output;
+  EXPECT_EQ(r.output.find("wrote shot.png"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("shot.png: writing failed"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("--stats-json stats.json: writing failed"), std::string::npos)
+      << r.output;
+  EXPECT_EQ(read_file_bytes(dir + "/shot.png"), shot) << "the old screenshot was replaced";
+  EXPECT_EQ(read_file_bytes(dir + "/stats.json"), stats) << "the old statistics were replaced";
 }
 
 TEST(Viewer, LiveRebuildCompletes) {
@@ -1411,6 +1450,24 @@ TEST(Viewer, CellSizeInSceneUnitsIsRememberedPerSceneOnly) {
   ASSERT_DRIVEN_OK(d);
   EXPECT_NEAR(d.stats["state"]["built_cell_size"].get<double>(), 0.004, 1e-7);
   EXPECT_NEAR(d.stats["state"]["cell_size_shown"].get<double>(), 0.004, 1e-7);
+}
+
+TEST(Viewer, ARememberedCellSizeTheSceneRefusesFallsBackToAutoNamingTheSettings) {
+  KDGRID_REQUIRE_XVFB();
+  KDGRID_REQUIRE_XDOTOOL();
+  KDGRID_REQUIRE_DEFAULT_SCENE();
+  const std::string dir = scratch_dir();
+  // A multiple of auto chosen on another scene, far too fine a grid for this one.
+  const Driven d =
+      run_with_settings(dir, kDefaultScene, {{"accel", "hybrid"}, {"cell_size", "1e-30x"}});
+  ASSERT_DRIVEN_OK(d);
+  const auto& st = d.stats["state"];
+  EXPECT_EQ(st["cell_choice"], "auto");
+  EXPECT_NEAR(st["built_cell_size"].get<double>(), st["auto_cell_size"].get<double>(), 1e-9);
+  const std::string log = d.run.output + d.viewer_log;
+  EXPECT_NE(log.find(dir + "/kdgrid/viewer.json: the remembered cell size 1e-30x does not suit"),
+            std::string::npos)
+      << log;
 }
 
 /// Two scripted screenshots of the bunny (UI hidden, one sample, two threads) that differ by

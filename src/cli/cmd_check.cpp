@@ -103,9 +103,7 @@ void add_check_command(CLI::App& app) {
     if (o->rays < 1 || o->rays > 1000000)
       throw ParamError("--rays " + std::to_string(o->rays) + " must be between 1 and 1000000");
     if (!(o->timeout > 0)) throw ParamError("--timeout must be a positive number of seconds");
-    if (o->threads < 0)
-      throw ParamError("--threads " + std::to_string(o->threads) +
-                       " must be >= 0 (0 = all hardware threads)");
+    check_threads(o->threads);
     if (o->acne_rays < 1 || o->acne_rays > 10000000)
       throw ParamError("--acne-rays " + std::to_string(o->acne_rays) +
                        " must be between 1 and 10000000 (rays per scale of the acne study)");

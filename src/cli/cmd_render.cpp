@@ -77,9 +77,11 @@ std::string mega(uint64_t n) {
 
 void run_render(const RenderArgs& a) {
   // ---- validate everything before any expensive work ----
-  if (a.spp < 1)
-    throw ParamError("--spp " + std::to_string(a.spp) + ": samples per pixel must be >= 1");
-  if (a.threads < 0) throw ParamError("--threads must be >= 0 (0 = all cores)");
+  if (a.spp < 1 || a.spp > kMaxSamplesPerPixel)
+    throw ParamError("--spp " + std::to_string(a.spp) +
+                     ": samples per pixel must be between 1 and " +
+                     std::to_string(kMaxSamplesPerPixel));
+  check_threads(a.threads);
   if (a.max_depth < 0 || a.max_depth > kMaxRenderDepth)
     throw ParamError("--max-depth " + std::to_string(a.max_depth) + " must be between 0 and " +
                      std::to_string(kMaxRenderDepth) +

@@ -316,7 +316,7 @@ void add_trace_command(CLI::App& app) {
     if (a->rays.empty() && a->pixel.empty())
       throw ParamError(
           "trace needs --rays FILE.rays (write one with `kdgrid rays`) or --pixel X,Y");
-    if (a->threads < 0) throw ParamError("--threads must be >= 0 (0 = all hardware threads)");
+    check_threads(a->threads);
     if (a->repeat < 1) throw ParamError("--repeat must be >= 1");
     const BuildParams params = a->accel.resolve();
     tbb::global_control gc(tbb::global_control::max_allowed_parallelism,

@@ -1,14 +1,39 @@
 // `kdgrid`: the command-line front end of kdgrid_core (render, info, rays, trace, bench, gen).
+#include <cerrno>
 #include <cstdio>
 #include <exception>
+#include <iostream>
 #include <new>
+#include <string>
 
 #include "cli/commands.h"
+#include "util/atomic_file.h"
 #include "util/cancel.h"
 #include "util/error.h"
 #include "util/memory.h"
 
-int main(int argc, char** argv) {
+namespace {
+
+/// Every command's standard output (tables, JSON, CSV, help) is checked here, in one place: a
+/// write that failed (a full disk, /dev/full, a closed pipe's EIO) turns a successful exit
+/// into status 1 with a message, so a caller never takes a truncated or empty output for a
+/// result.
+int check_stdout(int code) {
+  errno = 0;
+  const bool flush_failed = std::fflush(stdout) != 0;
+  const int err = errno;
+  std::cout.flush();  // through stdout (synced with stdio): already flushed, its state checked
+  if (!flush_failed && !std::ferror(stdout) && !std::cout.fail()) return code;
+  const std::string cause =
+      flush_failed && err != 0 ? kdgrid::write_error_text(err) : std::string("a write failed");
+  std::fprintf(stderr,
+               "kdgrid: error: writing to standard output failed (%s): the output is incomplete; "
+               "free space or redirect it to another file, then run again\n",
+               cause.c_str());
+  return code == 0 ? 1 : code;
+}
+
+int run(int argc, char** argv) {
   CLI::App app{"kdgrid: a ray tracer for studying acceleration structures (hybrid grid/kd-tree)"};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "Show help for every subcommand");
@@ -44,4 +69,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  return check_stdout(run(argc, argv));
 }

@@ -103,7 +103,14 @@ void Viewer::start_load(const std::string& path) {
   t.started = Clock::now();
   progress_log_.clear();
   t.cancel = std::make_shared<CancelToken>();
-  t.result = std::async(std::launch::async, [path, name, params, choice, cancel = t.cancel] {
+  // A size remembered in the settings file suited the scene it was chosen on; one that this
+  // scene refuses (too fine a grid for the memory budget, too long a build) falls back to the
+  // auto size with a warning naming the file, instead of failing every load.
+  const std::string remembered_in = own || name != "hybrid" || choice.kind == CellChoice::Kind::Auto
+                                        ? ""
+                                        : settings_file(config_dir_);
+  t.result = std::async(std::launch::async, [path, name, params, choice, remembered_in,
+                                             cancel = t.cancel] {
     const WakeUiOnExit wake;
     auto scene = std::make_shared<Scene>(load_scene(path));
     // The hybrid's auto size (the panel's "x auto") is found here, off the UI thread: it
@@ -113,7 +120,19 @@ void Viewer::start_load(const std::string& path) {
     const double auto_cell = GridKdHybrid::estimate(scene->mesh, a).auto_cell;
     BuildParams p = params;
     p.cell_size = choice.resolve(choice.kind == CellChoice::Kind::Multiple ? auto_cell : 0.0);
-    auto w = build_world(std::move(scene), name, p, *cancel);
+    std::shared_ptr<World> w;
+    try {
+      w = build_world(scene, name, p, *cancel);
+    } catch (const ParamError& e) {
+      if (remembered_in.empty() || p.cell_size <= 0.0f) throw;
+      std::fprintf(stderr,
+                   "kdgrid-viewer: %s: the remembered cell size %s does not suit %s (%s); built "
+                   "with the auto size instead\n",
+                   remembered_in.c_str(), choice.text().c_str(),
+                   std::filesystem::path(path).filename().c_str(), e.what());
+      p.cell_size = 0.0f;
+      w = build_world(std::move(scene), name, p, *cancel);
+    }
     w->auto_cell = auto_cell;
     return w;
   });

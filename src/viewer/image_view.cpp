@@ -97,14 +97,11 @@ void colorize(const RenderedImage& img, HeatScale scale, HeatRange range,
 }
 
 std::string write_png(const std::string& path, int w, int h, const std::vector<uint8_t>& rgb) {
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out) return path + ": cannot create an image writer (" + OIIO::geterror() + ")";
-  const OIIO::ImageSpec spec(w, h, 3, OIIO::TypeDesc::UINT8);
-  if (!out->open(path, spec) || !out->write_image(OIIO::TypeDesc::UINT8, rgb.data())) {
-    const std::string err = out->geterror();
-    return path + ": write failed (" + err + ")";
+  try {
+    write_png_rgb8(path, w, h, rgb);
+  } catch (const std::exception& e) {
+    return e.what();
   }
-  out->close();
   return "";
 }
 

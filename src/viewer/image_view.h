@@ -51,8 +51,9 @@ class SrgbEncoder {
 void colorize(const RenderedImage& img, HeatScale scale, HeatRange range,
               std::vector<uint8_t>& rgba);
 
-/// Writes RGB8 (row 0 at the top) as PNG, byte for byte (write_image would round-trip the
-/// bytes through linear floats); returns an error message or "".
+/// Writes RGB8 (row 0 at the top) as PNG, byte for byte, through the atomic writer
+/// (write_png_rgb8: a failed write leaves the old file as it was); returns an error message or
+/// "".
 std::string write_png(const std::string& path, int w, int h, const std::vector<uint8_t>& rgb);
 /// Writes the raw per-pixel counts (the same count in R, G and B) as EXR via write_image.
 std::string write_counts_exr(const std::string& path, const RenderedImage& img,

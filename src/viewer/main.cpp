@@ -13,6 +13,8 @@
 
 #include "accel/accelerator.h"
 #include "image/image_io.h"
+#include "render/renderer.h"
+#include "util/atomic_file.h"
 #include "util/error.h"
 #include "util/paths.h"
 #include "viewer/viewer.h"
@@ -68,14 +70,13 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--max-samples", o.max_samples, "Stop refining at this many samples per pixel")
       ->group(gw)
-      ->check(CLI::Range(1, 1 << 20))
+      ->check(CLI::Range(1, kdgrid::kMaxSamplesPerPixel))
       ->capture_default_str();
   int threads = 0;
   app.add_option("--threads", threads,
                  "Threads for rendering and builds; 0 = all. 1 runs everything on the calling "
                  "threads, which ThreadSanitizer can follow (libtbb itself is not instrumented)")
       ->group(gw)
-      ->check(CLI::Range(0, 4096))
       ->capture_default_str();
   const std::string gs = "Scripted runs (tests, reports)";
   app.add_option("--frames", o.frames, "Run at least N frames, then write --screenshot and exit 0")
@@ -86,7 +87,7 @@ int main(int argc, char** argv) {
       ->group(gs);
   app.add_option("--min-samples", o.min_samples, "Scripted: wait for this many samples per pixel")
       ->group(gs)
-      ->check(CLI::Range(1, 1 << 20))
+      ->check(CLI::Range(1, kdgrid::kMaxSamplesPerPixel))
       ->capture_default_str();
   app.add_option("--timeout", o.timeout,
                  "Scripted: give up with exit code 4 after this many seconds")
@@ -183,6 +184,7 @@ int main(int argc, char** argv) {
                                  "' must be X,Y image pixel coordinates, e.g. 320,240");
       o.pick = std::array<int, 2>{x, y};
     }
+    kdgrid::check_threads(threads);
     if (o.frame_pick && !o.pick)
       throw kdgrid::ParamError("--frame-pick frames the --pick X,Y ray: give --pick too");
     if (o.frames > 0 && o.hold > 0)
@@ -192,7 +194,15 @@ int main(int argc, char** argv) {
           "--screenshot needs --frames N (the number of frames to run first) or --hold SECONDS");
     if (!o.export_heatmap.empty() && (o.heatmap.empty() || !o.scripted()))
       throw kdgrid::ParamError("--export-heatmap needs --heatmap steps|tests and --frames N");
-    if (!o.export_heatmap.empty()) kdgrid::check_image_extension(o.export_heatmap);
+    // The outputs are checked before the window opens, as the CLI checks its own: a missing
+    // folder, a name the file system refuses or a device (written through the atomic writer,
+    // /dev/null would be replaced) fails now, not after the frames.
+    if (!o.export_heatmap.empty())
+      kdgrid::check_output_path(o.export_heatmap, "--export-heatmap", {".png", ".exr"}, {o.scene});
+    if (!o.screenshot.empty())
+      kdgrid::check_output_path(o.screenshot, "--screenshot", {".png"}, {o.scene});
+    if (!o.stats_json.empty())
+      kdgrid::check_output_path(o.stats_json, "--stats-json", {".json"}, {o.scene});
     if (o.max_samples < o.min_samples) o.max_samples = o.min_samples;
   } catch (const CLI::ParseError& e) {
     return app.exit(e);

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <map>
+#include <optional>
 #include <string>
 
 namespace kdgrid::viewer {
@@ -28,10 +29,31 @@ struct Settings {
 /// variable is set or the directory cannot be created (then nothing is remembered).
 std::string config_dir();
 
-/// Reads viewer.json from `dir`; missing or malformed files give defaults (with a warning
-/// for malformed ones, naming the file).
+/// Largest remembered window side (a larger one is not used); the window itself is clamped to
+/// 64..16384 when it opens.
+inline constexpr int kMaxWindowSide = 16384;
+
+/// ImGui's window layout, in the settings folder.
+inline constexpr const char* kLayoutFile = "imgui.ini";
+
+/// viewer.json in `dir` ("" if `dir` is).
+std::string settings_file(const std::string& dir);
+
+/// The text of the file `name` in `dir`, read only when it is a regular file of at most
+/// 16 MiB (a FIFO would block the start); nullopt when it does not exist, and with a warning
+/// naming the file when it cannot be read.
+std::optional<std::string> read_config_file(const std::string& dir, const std::string& name);
+/// Writes the file `name` in `dir` through the atomic writer (a full disk leaves the old file
+/// as it was); a failure, or an existing non-regular file of that name, is a warning on
+/// stderr, never fatal.
+void write_config_file(const std::string& dir, const std::string& name, const std::string& text);
+
+/// Reads viewer.json from `dir` field by field: a missing file gives the defaults; a field of
+/// the wrong type or out of range keeps its default, alone, with a warning naming the file,
+/// the field and the value; a file that is not JSON (or not an object) gives every default,
+/// with a warning.
 Settings load_settings(const std::string& dir);
-/// Writes viewer.json into `dir`; failures are reported on stderr, never fatal.
+/// Writes viewer.json into `dir` (write_config_file); failures are warnings, never fatal.
 void save_settings(const std::string& dir, const Settings& s);
 
 const char* to_string(HeatScale s);

@@ -8,12 +8,12 @@
 #include <imgui.h>
 
 #include <cstdio>
-#include <fstream>
 
 #include <tbb/global_control.h>
 #include <nlohmann/json.hpp>
 
 #include "accel/hybrid/hybrid.h"
+#include "util/atomic_file.h"
 #include "viewer/viewer_internal.h"
 
 namespace kdgrid::viewer {
@@ -33,7 +33,7 @@ nlohmann::json camera_json(const Camera& c) {
 
 }  // namespace
 
-void Viewer::write_stats(const std::string& path, int exit_code) const {
+bool Viewer::write_stats(const std::string& path, int exit_code) const {
   using nlohmann::json;
   int ww = 0, wh = 0, fw = 0, fh = 0;
   glfwGetWindowSize(window_, &ww, &wh);
@@ -182,15 +182,17 @@ void Viewer::write_stats(const std::string& path, int exit_code) const {
   j["builds"] = builds;
   j["build_progress"] = progress_log_;  // the last task's bar: (seconds, fraction) per frame
 
-  std::ofstream out(path);
   // Error texts can quote a file's bytes (a PLY with garbage after its header): invalid UTF-8
   // is replaced (U+FFFD) instead of throwing out of dump() and leaving the file empty.
-  out << j.dump(1, ' ', false, json::error_handler_t::replace) << "\n";
-  if (!out)
-    std::fprintf(stderr, "kdgrid-viewer: could not write --stats-json %s\n", path.c_str());
-  else
-    std::printf("kdgrid-viewer: wrote %s\n", path.c_str());
+  try {
+    write_file_atomically(path, j.dump(1, ' ', false, json::error_handler_t::replace) + "\n");
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "kdgrid-viewer: error: --stats-json %s\n", e.what());
+    return false;
+  }
+  std::printf("kdgrid-viewer: wrote %s\n", path.c_str());
   std::fflush(stdout);
+  return true;
 }
 
 }  // namespace kdgrid::viewer

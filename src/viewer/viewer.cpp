@@ -178,11 +178,13 @@ void Viewer::init_gl() {
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();
   ImGuiIO& io = ImGui::GetIO();
+  // The layout is read and written here, not by ImGui (io.IniFilename): read only from a
+  // regular file, written through the atomic writer at exit. Scripted runs use the default.
+  io.IniFilename = nullptr;
   if (!opts_.scripted() && !config_dir_.empty()) {
-    ini_path_ = (std::filesystem::path(config_dir_) / "imgui.ini").string();
-    io.IniFilename = ini_path_.c_str();
-  } else {
-    io.IniFilename = nullptr;  // scripted runs use the default layout
+    save_layout_ = true;
+    if (const auto ini = read_config_file(config_dir_, kLayoutFile))
+      ImGui::LoadIniSettingsFromMemory(ini->data(), ini->size());
   }
   apply_ui_scale(std::max(content_scale_[0], content_scale_[1]));
   ImGui_ImplGlfw_InitForOpenGL(window_, true);
@@ -233,6 +235,11 @@ void Viewer::shutdown() {
     settings_.accel = accel_name_;
     if (world_) remember_cell_choice(settings_, world_->scene->source, cell_choice_);
     save_settings(config_dir_, settings_);
+    if (save_layout_) {
+      size_t n = 0;
+      const char* ini = ImGui::SaveIniSettingsToMemory(&n);
+      write_config_file(config_dir_, kLayoutFile, std::string(ini, n));
+    }
   }
   ImGui_ImplOpenGL3_Shutdown();
   ImGui_ImplGlfw_Shutdown();
@@ -747,7 +754,10 @@ void Viewer::save_screenshot(const std::string& path) {
     std::copy_n(pixels.data() + size_t(fh - 1 - y) * row, row, flipped.data() + size_t(y) * row);
   const std::string err = write_png(path, fw, fh, flipped);
   message_ = err.empty() ? "wrote " + path : err;
-  std::printf("kdgrid-viewer: %s\n", message_.c_str());
+  if (err.empty())
+    std::printf("kdgrid-viewer: %s\n", message_.c_str());
+  else
+    std::fprintf(stderr, "kdgrid-viewer: error: %s\n", err.c_str());
   std::fflush(stdout);
 }
 
@@ -960,7 +970,8 @@ int Viewer::run() {
     frame_work_ms_.push_back(work_ms);
     push_history(frame_ms_hist_, work_ms);
   }
-  if (!opts_.stats_json.empty()) write_stats(opts_.stats_json, exit_code);
+  if (!opts_.stats_json.empty() && !write_stats(opts_.stats_json, exit_code) && exit_code == 0)
+    exit_code = 1;
   shutdown();
   return exit_code;
 }

@@ -156,13 +156,15 @@ class Viewer {
   std::string no_traversal_note() const;
 
   // ---- stats_json.cpp: --stats-json
-  void write_stats(const std::string& path, int exit_code) const;
+  /// Writes the statistics through the atomic writer; false (after an error on stderr) when
+  /// the file could not be written.
+  bool write_stats(const std::string& path, int exit_code) const;
 
   ViewerOptions opts_;
   GLFWwindow* window_ = nullptr;
   std::string config_dir_;
   Settings settings_;
-  std::string ini_path_;
+  bool save_layout_ = false;  ///< write the ImGui layout (kLayoutFile) at exit
 
   // What is shown and rendered (UI thread only).
   std::shared_ptr<const World> world_;

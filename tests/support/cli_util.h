@@ -19,9 +19,8 @@ struct CliResult {
   std::string output;  ///< stdout and stderr together
 };
 
-/// Runs the built `kdgrid` with `args` (shell syntax) and collects its output.
-inline CliResult run_cli(const std::string& args) {
-  const std::string cmd = std::string(KDGRID_CLI_PATH) + " " + args + " 2>&1";
+/// Runs the shell command `cmd` and collects what it writes to the pipe and its exit status.
+inline CliResult run_shell_command(const std::string& cmd) {
   CliResult r;
   FILE* pipe = ::popen(cmd.c_str(), "r");
   if (!pipe) return r;
@@ -31,6 +30,18 @@ inline CliResult run_cli(const std::string& args) {
   const int status = ::pclose(pipe);
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
+}
+
+/// Runs the built `kdgrid` with `args` (shell syntax) and collects its output.
+inline CliResult run_cli(const std::string& args) {
+  return run_shell_command(std::string(KDGRID_CLI_PATH) + " " + args + " 2>&1");
+}
+
+/// Runs the built `kdgrid` with `args` (shell syntax), its standard output sent to
+/// `stdout_target` (a file, /dev/full, /dev/null); `output` collects its standard error.
+inline CliResult run_cli_stdout_to(const std::string& args, const std::string& stdout_target) {
+  return run_shell_command(std::string(KDGRID_CLI_PATH) + " " + args + " 2>&1 >'" + stdout_target +
+                           "'");
 }
 
 inline bool contains(const std::string& s, const std::string& what) {

@@ -1,5 +1,6 @@
 #include "accel/params.h"
 
+#include <algorithm>
 #include <thread>
 
 #include "util/error.h"
@@ -12,10 +13,24 @@ uint64_t effective_memory_budget(const BuildParams& p) {
   return default_memory_budget_bytes();
 }
 
-int effective_threads(int threads) {
-  if (threads > 0) return threads;
+namespace {
+int hardware_threads() {
   const unsigned n = std::thread::hardware_concurrency();
   return n ? int(n) : 1;
+}
+}  // namespace
+
+void check_threads(int threads, const std::string& option) {
+  const int most = std::max(kMaxThreads, hardware_threads());
+  if (threads < 0 || threads > most)
+    throw ParamError(option + " " + std::to_string(threads) + " is out of range: give 0 (all " +
+                     std::to_string(hardware_threads()) + " hardware threads) up to " +
+                     std::to_string(most));
+}
+
+int effective_threads(int threads) {
+  check_threads(threads);
+  return threads > 0 ? threads : hardware_threads();
 }
 
 TriangleTestKind parse_triangle_test(const std::string& s) {

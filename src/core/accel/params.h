@@ -140,7 +140,16 @@ struct BuildParams {
 
 /// Resolves memory_budget = 0 to default_memory_budget_bytes() (util/memory.h).
 uint64_t effective_memory_budget(const BuildParams& p);
-/// Resolves threads = 0 to the hardware thread count.
+/// The most threads `--threads` (and BuildParams::threads) may ask for. Every thread has its
+/// own stack and per-thread build buffers (bins, classification flags) sized by the scene, so
+/// millions of threads exhaust memory before any work is done; more threads than this gain
+/// nothing on any machine that runs kdgrid today.
+inline constexpr int kMaxThreads = 1024;
+/// ParamError naming `option` unless 0 <= threads <= kMaxThreads, or up to the hardware
+/// thread count on a machine that has more (0 = all hardware threads).
+void check_threads(int threads, const std::string& option = "--threads");
+/// Resolves threads = 0 to the hardware thread count (check_threads first: ParamError when
+/// `threads` is out of range).
 int effective_threads(int threads);
 /// Parses "watertight" / "moller" (ParamError otherwise).
 TriangleTestKind parse_triangle_test(const std::string& s);

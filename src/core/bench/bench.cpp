@@ -321,7 +321,7 @@ bool BenchReport::any_failed() const {
 
 BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   if (o.reps < 1) throw ParamError("--reps " + std::to_string(o.reps) + " must be at least 1");
-  if (o.threads < 0) throw ParamError("--threads must be >= 0 (0 = all hardware threads)");
+  check_threads(o.threads);
   if (o.width < 1 || o.height < 1 || o.width > 16384 || o.height > 16384)
     throw ParamError("--res must be between 1 and 16384 pixels per side");
   if (o.sets.empty()) throw ParamError("--sets is empty: give primary, shadow and/or diffuse");
@@ -331,6 +331,7 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
                      "packet column) and " +
                      std::to_string(kMaxPacketTile) + " pixels");
   for (const auto& s : o.sets) parse_ray_set(s);  // ParamError naming the valid sets
+  check_suite_names(suite);                       // names become ray file names in --rays-dir
   const auto names = accelerator_names();
   auto registered = [&](const std::string& n) {
     return std::find(names.begin(), names.end(), n) != names.end();

@@ -90,6 +90,38 @@ SuiteScene parse_entry(const json& e, size_t index, const fs::path& base, const 
 
 }  // namespace
 
+std::string suite_name_problem(const std::string& name) {
+  if (name.empty()) return "is empty";
+  if (name.size() > kMaxSuiteNameBytes)
+    return "is " + std::to_string(name.size()) + " bytes long, more than " +
+           std::to_string(kMaxSuiteNameBytes);
+  if (name == "." || name == "..") return "is a folder reference, not a name";
+  for (const char c : name) {
+    if (c == '/' || c == '\\') return std::string("contains a path separator '") + c + "'";
+    if (static_cast<unsigned char>(c) < 32 || c == 127) return "contains a control character";
+  }
+  return "";
+}
+
+void check_suite_names(const Suite& suite) {
+  for (size_t i = 0; i < suite.scenes.size(); ++i) {
+    const SuiteScene& s = suite.scenes[i];
+    if (!s.error.empty()) continue;
+    const std::string problem = suite_name_problem(s.name);
+    if (!problem.empty())
+      throw ParamError("scene name '" + printable(s.name) + "' (" + printable(s.file, 200) + ") " +
+                       problem +
+                       "; a name labels the tables and names its ray files: give the scene a "
+                       "plain name in a suite file");
+    for (size_t k = 0; k < i; ++k)
+      if (suite.scenes[k].error.empty() && suite.scenes[k].name == s.name)
+        throw ParamError("two scenes are named '" + printable(s.name) + "' (" +
+                         printable(suite.scenes[k].file, 200) + " and " + printable(s.file, 200) +
+                         "): they would share their ray files and table rows; give each its "
+                         "own name in a suite file");
+  }
+}
+
 Suite parse_suite(const std::string& text, const std::string& base_dir, const std::string& source) {
   json j;
   try {
@@ -107,7 +139,25 @@ Suite parse_suite(const std::string& text, const std::string& base_dir, const st
   suite.path = source;
   const fs::path base = base_dir.empty() ? fs::path(".") : fs::path(base_dir);
   size_t i = 0;
-  for (const json& e : j["scenes"]) suite.scenes.push_back(parse_entry(e, i++, base, source));
+  for (const json& e : j["scenes"]) {
+    SuiteScene entry = parse_entry(e, i, base, source);
+    if (entry.error.empty()) {
+      const std::string where = source + ": scene " + std::to_string(i) + " (\"name\": \"" +
+                                printable(entry.name) + "\")";
+      const std::string problem = suite_name_problem(entry.name);
+      if (!problem.empty())
+        entry.error = where + ": the name " + problem +
+                      "; a name labels the tables and names the scene's ray files, give a "
+                      "plain name such as \"bunny\"";
+      for (size_t k = 0; k < suite.scenes.size() && entry.error.empty(); ++k)
+        if (suite.scenes[k].error.empty() && suite.scenes[k].name == entry.name)
+          entry.error = where + ": scene " + std::to_string(k) +
+                        " has the same name; the two would share their ray files and table "
+                        "rows, give each scene its own name";
+    }
+    suite.scenes.push_back(std::move(entry));
+    ++i;
+  }
   return suite;
 }
 

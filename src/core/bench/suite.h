@@ -29,9 +29,24 @@ struct Suite {
   std::vector<SuiteScene> scenes;
 };
 
+/// Longest scene name of a suite, in bytes: NAME.SET.rays must fit a file name (255 bytes).
+inline constexpr size_t kMaxSuiteNameBytes = 200;
+
+/// "" when `name` can name a suite scene, else what is wrong with it. A name labels the
+/// tables and names the scene's ray files in --rays-dir (NAME.SET.rays), so it must be a plain
+/// file-name part: not empty, at most kMaxSuiteNameBytes bytes, no '/' or '\\', not "." or
+/// "..", no control characters (bytes below 32, and 127).
+std::string suite_name_problem(const std::string& name);
+
+/// ParamError before any work when two usable scenes (no `error`) of `suite` share a name or a
+/// usable scene's name is not a name (suite_name_problem): they would share one ray file in
+/// --rays-dir and one row label. Names both scenes' files.
+void check_suite_names(const Suite& suite);
+
 /// Parses suite JSON text. Scene files are resolved relative to `base_dir`. `source` names
 /// the text in error messages. Throws LoadError if the text is not JSON or has no "scenes"
-/// array; problems of a single entry go to that entry's `error` instead.
+/// array; problems of a single entry go to that entry's `error` instead: a name that is not a
+/// name (suite_name_problem) or the name of an earlier entry is such a problem.
 Suite parse_suite(const std::string& text, const std::string& base_dir, const std::string& source);
 
 /// Reads and parses a suite file (LoadError naming the file if it cannot be read or parsed).

@@ -558,11 +558,18 @@ SweepTable run_sweep(const SweepOptions& in) {
     throw ParamError("unknown sweep '" + o.kind +
                      "': choose cellsize, lambda, kdcost, triangle, scale or spp");
   if (o.reps < 1) throw ParamError("--reps must be at least 1");
-  if (o.threads < 0) throw ParamError("--threads must be >= 0 (0 = all hardware threads)");
+  check_threads(o.threads);
   if (o.width == 0 && o.height == 0)
     o.width = o.height = o.kind == "spp" ? 200 : o.kind == "scale" ? 128 : 512;
   if (o.width < 1 || o.height < 1 || o.width > 16384 || o.height > 16384)
     throw ParamError("--res must be between 1 and 16384 pixels per side");
+  const std::string most_spp = std::to_string(kMaxSamplesPerPixel);
+  if (o.kind == "spp" && (o.spp_max < 1 || o.spp_max > kMaxSamplesPerPixel))
+    throw ParamError("--spp-max " + std::to_string(o.spp_max) + " must be between 1 and " +
+                     most_spp + " samples per pixel");
+  if (o.kind == "spp" && (o.spp_reference < 1 || o.spp_reference > kMaxSamplesPerPixel))
+    throw ParamError("--spp-reference " + std::to_string(o.spp_reference) +
+                     " must be between 1 and " + most_spp + " samples per pixel");
   if (o.values.empty()) {
     o.values = sweep_default_values(o.kind);
     if (o.kind == "spp") {
@@ -574,7 +581,11 @@ SweepTable run_sweep(const SweepOptions& in) {
     if (!(v > 0) || !std::isfinite(v))
       throw ParamError("sweep value " + format_double("%g", v) +
                        " must be a positive finite number");
-  if (o.kind == "spp" && o.spp_reference < 1) throw ParamError("--spp-reference must be >= 1");
+  if (o.kind == "spp")
+    for (double v : o.values)
+      if (v != std::floor(v) || v > kMaxSamplesPerPixel)
+        throw ParamError("--values: " + format_double("%g", v) +
+                         " is not a sample count: give whole numbers from 1 to " + most_spp);
   for (const auto& a : o.accels) make_accelerator(a);
   const int threads = effective_threads(o.threads);
   o.params.threads = threads;

@@ -52,22 +52,16 @@ void check_image_extension(const std::string& path) {
                      "'; kdgrid writes .png (8-bit sRGB) and .exr (linear float)");
 }
 
-void write_image(const std::string& path, int width, int height, const std::vector<float>& rgb,
-                 const std::map<std::string, std::string>& metadata) {
+namespace {
+
+/// Encodes `pixels` (3 channels of `type`, row 0 at the top) as `spec` in memory (OpenImageIO's
+/// PNG writer does not report a failed write to a file), checks the encoding by decoding its
+/// header back, then writes it through AtomicFile, whose writes and close are all checked: a
+/// full disk leaves the old image in place.
+void encode_and_write(const std::string& path, const OIIO::ImageSpec& spec, OIIO::TypeDesc type,
+                      const void* pixels) {
   using namespace OIIO;
-  check_image_extension(path);
-  if (width < 1 || height < 1 || rgb.size() != size_t(width) * size_t(height) * 3)
-    throw ParamError(path + ": image data does not match " + std::to_string(width) + "x" +
-                     std::to_string(height) + " RGB");
   const bool png = lower_extension(path) == ".png";
-
-  // Encoded in memory (OpenImageIO's PNG writer does not report a failed write to a file),
-  // checked by decoding the header back, then written through AtomicFile, whose writes and
-  // close are all checked: a full disk leaves the old image in place.
-  ImageSpec spec(width, height, 3, png ? TypeDesc::UINT8 : TypeDesc::FLOAT);
-  for (const auto& [key, value] : metadata) spec.attribute(kMetaPrefix + key, value);
-  if (!png) spec.attribute("compression", "zip");
-
   const std::string format_name = png ? "x.png" : "x.exr";  // picks the encoder
   auto out = ImageOutput::create(format_name);
   if (!out) throw Error(path + ": cannot create an image writer: " + OIIO::geterror());
@@ -76,23 +70,49 @@ void write_image(const std::string& path, int width, int height, const std::vect
   out->set_ioproxy(&sink);
   if (!out->open(format_name, spec))
     throw Error(path + ": cannot start encoding the image: " + out->geterror());
-  bool ok;
-  if (png) {
-    std::vector<uint8_t> bytes;
-    tonemap_srgb8(rgb, bytes);
-    ok = out->write_image(TypeDesc::UINT8, bytes.data());
-  } else {
-    ok = out->write_image(TypeDesc::FLOAT, rgb.data());
-  }
+  bool ok = out->write_image(type, pixels);
   std::string err = ok ? "" : out->geterror();
   if (!out->close() && ok) {
     ok = false;
     err = out->geterror();
   }
   if (!ok) throw Error(path + ": encoding the image failed: " + err + "; the file was not changed");
-  verify_encoded_image(path, format_name, encoded, width, height);
+  verify_encoded_image(path, format_name, encoded, spec.width, spec.height);
   write_file_atomically(
       path, std::string_view(reinterpret_cast<const char*>(encoded.data()), encoded.size()));
+}
+
+}  // namespace
+
+void write_image(const std::string& path, int width, int height, const std::vector<float>& rgb,
+                 const std::map<std::string, std::string>& metadata) {
+  using namespace OIIO;
+  check_image_extension(path);
+  if (width < 1 || height < 1 || rgb.size() != size_t(width) * size_t(height) * 3)
+    throw ParamError(path + ": image data does not match " + std::to_string(width) + "x" +
+                     std::to_string(height) + " RGB");
+  const bool png = lower_extension(path) == ".png";
+  ImageSpec spec(width, height, 3, png ? TypeDesc::UINT8 : TypeDesc::FLOAT);
+  for (const auto& [key, value] : metadata) spec.attribute(kMetaPrefix + key, value);
+  if (!png) spec.attribute("compression", "zip");
+  if (png) {
+    std::vector<uint8_t> bytes;
+    tonemap_srgb8(rgb, bytes);
+    encode_and_write(path, spec, TypeDesc::UINT8, bytes.data());
+  } else {
+    encode_and_write(path, spec, TypeDesc::FLOAT, rgb.data());
+  }
+}
+
+void write_png_rgb8(const std::string& path, int width, int height,
+                    const std::vector<uint8_t>& rgb) {
+  using namespace OIIO;
+  if (lower_extension(path) != ".png")
+    throw ParamError(path + ": a screenshot is a PNG; name the file with the .png extension");
+  if (width < 1 || height < 1 || rgb.size() != size_t(width) * size_t(height) * 3)
+    throw ParamError(path + ": image data does not match " + std::to_string(width) + "x" +
+                     std::to_string(height) + " RGB");
+  encode_and_write(path, ImageSpec(width, height, 3, TypeDesc::UINT8), TypeDesc::UINT8, rgb.data());
 }
 
 ImageRGB read_image(const std::string& path) {

@@ -30,6 +30,13 @@ struct ImageRGB {
 void write_image(const std::string& path, int width, int height, const std::vector<float>& rgb,
                  const std::map<std::string, std::string>& metadata = {});
 
+/// Writes 8-bit RGB bytes (width*height*3, row 0 at the top) as a PNG, byte for byte, encoded
+/// and checked in memory and written through the atomic writer as write_image does. Throws
+/// ParamError unless `path` ends in .png, Error naming the path when encoding or writing fails
+/// (the old file is then unchanged).
+void write_png_rgb8(const std::string& path, int width, int height,
+                    const std::vector<uint8_t>& rgb);
+
 /// Throws ParamError unless `path` ends in an extension write_image supports (.png, .exr).
 void check_image_extension(const std::string& path);
 

@@ -46,6 +46,12 @@ constexpr int kLitProbeStride = 4;
 /// reflections is a hall of mirrors no image needs deeper. docs/LIMITS.md.
 constexpr int kMaxRenderDepth = 256;
 
+/// Most samples per pixel (render --spp, sweep spp's sample counts, the viewer's
+/// --max-samples): each is a pass over the whole image, so 2^20 passes of even a 64x64 image
+/// take hours, and the per-pixel sums stay far from float's 2^24 integer precision. Counts
+/// past it are refused before any work. docs/LIMITS.md.
+constexpr int kMaxSamplesPerPixel = 1 << 20;
+
 /// Most reflection and refraction rays traced for one camera sample (its whole ray tree,
 /// shadow rays not counted). Glass splits every path in two at each bounce, so a deep
 /// --max-depth would otherwise trace up to 2^depth rays per sample; past the budget further

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
+#include <climits>
 #include <csignal>
 #include <cstring>
 #include <filesystem>
@@ -79,14 +80,52 @@ void unregister_temporary(int slot) {
       }
 }
 
-std::string errno_text(int err) {
+}  // namespace
+
+std::string write_error_text(int err) {
   if (err == EFBIG) return "file too large (the file-size limit, ulimit -f, was reached)";
   if (err == ENOSPC) return "no space left on the device";
   if (err == EDQUOT) return "disk quota exceeded";
   return std::strerror(err);
 }
 
+namespace {
+
 constexpr size_t kBufferBytes = size_t(1) << 20;
+
+fs::path folder_of(const fs::path& target) {
+  const fs::path dir = target.parent_path();
+  return dir.empty() ? fs::path(".") : dir;
+}
+
+/// The longest file name the file system holding `dir` takes (NAME_MAX where it cannot say).
+size_t max_name_bytes(const fs::path& dir) {
+  const long n = ::pathconf(dir.c_str(), _PC_NAME_MAX);
+  return n > 0 ? size_t(n) : size_t(NAME_MAX);
+}
+
+/// The hidden temporary beside `target`: ".STEM" + `tag` + ".EXT". Where that would be longer
+/// than a file name may be (a valid target name of up to NAME_MAX bytes plus the tag) or would
+/// make the path longer than PATH_MAX, the stem is shortened (never inside a UTF-8 character)
+/// and the extension dropped if it must be: the tag, unique to this process and file, keeps
+/// the name unique, the rest only tells a person whose temporary it is.
+std::string temp_path_for(const fs::path& target, const std::string& tag) {
+  const fs::path dir = target.parent_path();
+  const std::string stem = target.stem().string();
+  std::string ext = target.extension().string();
+  size_t room = max_name_bytes(folder_of(target));
+  const size_t dir_bytes = dir.empty() ? 0 : dir.string().size() + 1;
+  room = std::min(room, dir_bytes + 1 < size_t(PATH_MAX) ? size_t(PATH_MAX) - 1 - dir_bytes : 0);
+  if (1 + tag.size() + ext.size() > room) ext.clear();
+  size_t keep = 1 + tag.size() + ext.size() > room ? 0 : room - 1 - tag.size() - ext.size();
+  if (keep < stem.size())
+    while (keep > 0 && (static_cast<unsigned char>(stem[keep]) & 0xC0) == 0x80) --keep;
+  std::string name = ".";  // built stepwise: GCC 12 warns falsely on "." + std::string
+  name += stem.substr(0, std::min(keep, stem.size()));
+  name += tag;
+  name += ext;
+  return (dir / name).string();
+}
 
 }  // namespace
 
@@ -107,21 +146,21 @@ AtomicFile::AtomicFile(const std::string& path) : path_(path) {
   (void)xfsz_ignored;
   static std::atomic<unsigned> counter{0};
   const fs::path target(path);
-  std::string name = ".";  // built stepwise: GCC 12 warns falsely on "." + std::string
-  name += target.stem().string();
-  name += ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
-  name += target.extension().string();
-  temp_ = (target.parent_path() / name).string();
+  temp_ =
+      temp_path_for(target, ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++));
   slot_ = register_temporary(temp_);
   fd_ = ::open(temp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
   if (fd_ < 0) {
     const int err = errno;
     unregister_temporary(slot_);
     slot_ = -1;
-    fs::path dir = target.parent_path();
-    if (dir.empty()) dir = ".";
-    throw Error(path + ": cannot create a file in '" + dir.string() + "' (" + errno_text(err) +
-                "); check that the folder exists and is writable");
+    const fs::path dir = folder_of(target);
+    if (err == ENAMETOOLONG)
+      throw Error(path + ": cannot create a file in '" + dir.string() +
+                  "': the path is too long (" + std::to_string(temp_.size()) +
+                  " bytes with the temporary's name); write to a folder with a shorter path");
+    throw Error(path + ": cannot create a file in '" + dir.string() + "' (" +
+                write_error_text(err) + "); check that the folder exists and is writable");
   }
   buffer_.reserve(kBufferBytes);
 }
@@ -137,7 +176,7 @@ void AtomicFile::fail(const std::string& what, int err) {
   fd_ = -1;
   ::unlink(temp_.c_str());
   throw Error(path_ + ": " + what + " failed after " + std::to_string(written_) +
-              " bytes: " + errno_text(err) +
+              " bytes: " + write_error_text(err) +
               "; the file was not changed (free space or raise the limit, "
               "then run again)");
 }
@@ -180,7 +219,7 @@ void AtomicFile::commit() {
     fd_ = -1;
     const int err = errno;
     ::unlink(temp_.c_str());
-    throw Error(path_ + ": closing the written file failed: " + errno_text(err) +
+    throw Error(path_ + ": closing the written file failed: " + write_error_text(err) +
                 "; the file was not changed");
   }
   // The temporary holds exactly what was written: a short file means lost data.
@@ -193,7 +232,7 @@ void AtomicFile::commit() {
   if (::rename(temp_.c_str(), path_.c_str()) != 0) {
     const int err = errno;
     ::unlink(temp_.c_str());
-    throw Error(path_ + ": cannot move the written file into place: " + errno_text(err));
+    throw Error(path_ + ": cannot move the written file into place: " + write_error_text(err));
   }
   committed_ = true;
   // The rename is durable once the folder is synced; a failure here loses nothing written.
@@ -244,6 +283,23 @@ void check_output_path(const std::string& path, const std::string& option,
                      "' does not exist; create it first (mkdir -p " + dir.string() + ")");
   if (::access(dir.c_str(), W_OK) != 0)
     throw ParamError(name + ": output folder '" + dir.string() + "' is not writable");
+  const size_t name_bytes = fs::path(path).filename().string().size(),
+               max_bytes = max_name_bytes(dir);
+  if (name_bytes > max_bytes)
+    throw ParamError(name + ": the file name is " + std::to_string(name_bytes) +
+                     " bytes long and the file system of '" + dir.string() + "' takes at most " +
+                     std::to_string(max_bytes) + "; choose a shorter name");
+  if (path.size() >= size_t(PATH_MAX))
+    throw ParamError(name + ": the path is " + std::to_string(path.size()) +
+                     " bytes long, at most " + std::to_string(PATH_MAX - 1) +
+                     " are allowed; write to a folder with a shorter path");
+  // The very temporary the writer will create, created and removed: whatever would stop the
+  // write at its start (a name the file system refuses, no free inode) stops it now.
+  try {
+    AtomicFile probe(path);
+  } catch (const Error& e) {
+    throw ParamError((option.empty() ? "" : option + " ") + e.what());
+  }
   if (fs::exists(st))
     for (const std::string& in : inputs) {
       if (in.empty()) continue;

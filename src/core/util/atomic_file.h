@@ -63,6 +63,10 @@ void check_output_path(const std::string& path, const std::string& option,
                        const std::vector<std::string>& extensions,
                        const std::vector<std::string>& inputs = {});
 
+/// errno's text for a failed write, in words a user acts on ("no space left on the device",
+/// "file too large (the file-size limit, ulimit -f, was reached)", ...).
+std::string write_error_text(int err);
+
 /// The extension of `path` in lower case, with its dot ("" if none).
 std::string lower_extension(const std::string& path);
 
