@@ -165,8 +165,8 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   const RTCBuildQuality quality = parse_quality(quality_name);
   const auto t_start = std::chrono::steady_clock::now();
   // Memory guard before anything is allocated: the padded vertex copy plus what Embree's
-  // own allocations reached at their peak on the scenes measured (about 70-100 bytes per
-  // triangle for the BVH and its build temporaries at every quality; 110 keeps a margin).
+  // own allocations reach at their peak, with a margin (docs/LIMITS.md, "The guards'
+  // constants").
   // The memory monitor enforces the budget during the build as well.
   const double copy_estimate = (3.0 * double(mesh.num_vertices()) + 1.0) * sizeof(float);
   const uint64_t estimate =

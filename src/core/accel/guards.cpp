@@ -81,7 +81,7 @@ void check_brute_force_work(const std::string& accel, uint64_t primary_rays, siz
   const double work = double(primary_rays) * double(triangles);
   if (work <= params.brute_work_limit) return;
   char buf[512];
-  // At ~5e7 ray/triangle tests per second per core (measured on the 10M landscape).
+  // At the brute-force rate of docs/LIMITS.md, "The guards' constants".
   const int side =
       int(std::floor(std::sqrt(params.brute_work_limit / std::max(1.0, double(triangles)))));
   std::snprintf(buf, sizeof buf,

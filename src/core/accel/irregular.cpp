@@ -745,11 +745,11 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   if (!(std::isfinite(sub) && sub > 0.0f))
     throw ParamError("irregular_sub_density = " + std::to_string(sub) +
                      ": must be a positive number of cells per reference (default 2.4)");
-  // Memory guard before any allocation, from the lowest per-triangle peak measured at
-  // default densities (310 bytes per triangle on the 10M landscape; 435-465 on the 1M
-  // landscape and the dragon), mostly the reference lists of the merge passes. The top and
-  // second levels are checked again once their cell and reference counts are known
-  // (Builder), and every later phase checks what it holds before allocating (require()).
+  // Memory guard before any allocation, from the lowest per-triangle peak at default
+  // densities (docs/LIMITS.md, "The guards' constants"), mostly the reference lists of the
+  // merge passes. The top and second levels are checked again once their cell and reference
+  // counts are known (Builder), and every later phase checks what it holds before allocating
+  // (require()).
   const uint64_t estimate = check_memory_budget(
       "irregular", mesh.num_triangles(),
       {{"cells, references and merge buffers (~300 bytes per triangle at default densities, "

@@ -65,9 +65,9 @@ struct BuildParams {
   /// matrix's bricks along the surface and the per-cell binning, beyond the triangles' own
   /// share) exceeds this many seconds is refused before the build starts, with the estimate
   /// and the smallest cell size that fits: cells a thousand times finer than the triangles
-  /// otherwise build for hours. 10 s is 10-50x the auto size's build on the suite's scenes at
-  /// two threads; 0 = no limit (the memory budget still applies). The auto size is never
-  /// refused by it.
+  /// otherwise build for hours. 10 s is many times the auto size's build on the suite's scenes
+  /// (docs/LIMITS.md, "The guards' constants"); 0 = no limit (the memory budget still
+  /// applies). The auto size is never refused by it.
   double hybrid_max_build_seconds = 10.0;
   /// Hybrid traversal/intersection costs for its SAH; defaults match the kd-tree's.
   float hybrid_traversal_cost = 1.0f;
@@ -86,7 +86,7 @@ struct BuildParams {
   bool hybrid_flat_subtrees = true;
   /// Empty-leaf boxes (an extension of the paper): the walk steps over each empty leaf's box
   /// widened over the empty cells around it, so a ray crosses empty space in fewer steps
-  /// (primary rays on Sponza: 9.2 -> 6.8 steps; the dragon: 2.8 -> 2.4). The leaves, the
+  /// (docs/HYBRID.md, "Widened empty leaves"). The leaves, the
   /// matrix and the triangle tests are unchanged. false = the paper's kd leaf boxes.
   bool hybrid_expand_empty = true;
   /// Next-leaf cache (an extension of the paper): each thread remembers the leaf reached
@@ -126,8 +126,8 @@ struct BuildParams {
   /// Brute force tests every triangle for every ray, so a render (per progressive pass) or a
   /// benchmark (all its rays) refuses up front when rays x triangles exceeds this many
   /// ray/triangle tests, instead of appearing to hang. 5e9 is under a minute of primary rays
-  /// on 2 cores at the ~5e7 tests per second per core measured on the 10M-triangle landscape
-  /// (shadow rays can double it); 0 = no limit. Other structures ignore it.
+  /// on 2 cores (docs/LIMITS.md, "The guards' constants"; shadow rays can double it); 0 = no
+  /// limit. Other structures ignore it.
   double brute_work_limit = 5e9;
 
   // ---- cancellation ----------------------------------------------------------------------

@@ -37,8 +37,8 @@ inline constexpr int kWideLanes =
 static_assert(kWideLanes == 1 || kWideLanes == 4 || kWideLanes == 8 || kWideLanes == 16,
               "KDGRID_WIDE_LANES: 1, 4, 8 or 16");
 #if !defined(__AVX512F__)
-// Without AVX-512 a 16-lane vector is two 256-bit halves passed through memory: groups of 16 ran
-// at 0.3-0.4 of Embree where groups of 8 ran at 0.5-1.4 (docs/HYBRID.md, "Wide leaves").
+// Without AVX-512 a 16-lane vector is two 256-bit halves passed through memory, far slower
+// than groups of 8 (docs/HYBRID.md, "Wide leaves"; docs/EXPERIMENTS.md, "Wide leaves").
 static_assert(kWideLanes != 16, "KDGRID_WIDE_LANES=16 needs a build for AVX-512");
 #endif
 

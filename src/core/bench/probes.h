@@ -33,7 +33,7 @@ bool reset_peak_rss();
 uint64_t peak_rss_since_reset();
 /// VmRSS from /proc/self/status in bytes (0 if unavailable).
 uint64_t current_rss_bytes();
-/// CPU model name ("AMD EPYC ...") from /proc/cpuinfo, or "unknown".
+/// The CPU's model name from /proc/cpuinfo ("model name"), or "unknown".
 std::string cpu_model_name();
 
 /// Times `rays` through `accel` (intersect or occluded) with tbb::parallel_for over chunks;

@@ -82,9 +82,9 @@ struct RenderSettings {
   /// The packet answers are bitwise the single-ray ones, so the image is the same (with Embree,
   /// up to a pixel whose ray hits two triangles at exactly the same t or, with its default
   /// flags, grazes a shared edge: its packet kernels may pick the other triangle). On by
-  /// default: Embree's packets and the hybrid's packet walk trace primary rays 1.7-4.6x and
-  /// 1.8-3.6x as fast as their single rays; the other structures' packet queries loop over their
-  /// single rays (docs/HYBRID.md, "Packets").
+  /// default: Embree's packets and the hybrid's packet walk trace primary rays several times
+  /// as fast as their single rays; the other structures' packet queries loop over their single
+  /// rays (docs/HYBRID.md, "Packets").
   bool packets = true;
   RenderMode mode = RenderMode::Shaded;
   Shading shading = Shading::Lights;  ///< how RenderMode::Shaded lights a surface

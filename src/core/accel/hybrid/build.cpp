@@ -108,7 +108,7 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
     // A cell larger than the scene is one cell of the scene's size: the same single cell,
     // but a grid box reaching far beyond the scene would widen the walk's rounding bound
     // (KdRay::err grows with the box's coordinates) until every ray crossed every node of the
-    // cell's subtree (a cell of 1e9 on the bunny: 108,828 triangle tests for one ray).
+    // cell's subtree (HybridEstimate.CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree).
     const double max_ext = std::max({ext[0], ext[1], ext[2]});
     if (double(params.cell_size) > max_ext && max_ext > 0.0) {
       rule += format_double(" %g", params.cell_size);
@@ -150,8 +150,8 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   // Memory guard before any allocation: what the build needs at least, whatever the scene —
   // the root's reference list and its children's at the first split (28 bytes per
   // reference), then at least one reference and the corners and id of every triangle. How many
-  // references a triangle ends in depends on the scene (2.9 on the 1M landscape and the
-  // dragon, 1.2 on the 10M landscape, hundreds for long thin triangles), so the kd build
+  // references a triangle ends in depends on the scene (a few on scans and landscapes,
+  // hundreds for long thin triangles), so the kd build
   // keeps a running account (TreeBuilder::charge), the exact reference count is checked
   // before the per-reference arrays are allocated, and the matrices are checked once the grid
   // is known.

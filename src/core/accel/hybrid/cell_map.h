@@ -54,8 +54,8 @@ class BrickedCellMap {
   static constexpr int kMaxNodeEntryLeaves = 8;
   static constexpr int kMaxNodeEntryDepth = 16;
   /// The top array's blocks are 4^k cells, k >= 1 the smallest giving at most this many
-  /// blocks (1 MiB), so a lookup skips the upper levels (the dragon's lookups read one brick
-  /// level instead of two; docs/HYBRID.md, "The cell map").
+  /// blocks (1 MiB), so a lookup skips the upper levels (a scan's lookups read one brick level
+  /// instead of two; docs/EXPERIMENTS.md, "The cell map").
   static constexpr int kMaxTopEntries = 262144;
   static constexpr int kBrickLog = 2;  ///< 4 cells per brick axis
   static constexpr int kBrickSide = 1 << kBrickLog;

@@ -64,9 +64,8 @@ constexpr double kHybridAutoCellsPerTriangle = 16.0;
 /// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
 constexpr int64_t kHybridAutoMaxAxisCells = 2048;
 /// Auto rule cap on the total cell count with leaf subtrees: the subtrees resolve the geometry,
-/// and a small grid keeps lookups in the caches and references few. With wide leaves 2^16 cells
-/// made every suite scene 25-37% smaller than 2^19 and its shadow and diffuse rays faster, at 8%
-/// of Sponza's primary rays (docs/HYBRID.md, "The cell size").
+/// and a small grid keeps lookups in the caches and references few; a coarser cap saves memory
+/// but costs rays of scenes like Sponza (docs/HYBRID.md, "The cell size"; docs/EXPERIMENTS.md).
 constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 16);
 /// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
 /// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
@@ -86,16 +85,15 @@ struct HybridEstimate {
   double dims[3] = {1, 1, 1};
   double cells = 1;
   /// Peak bytes of the build, estimated: the cell matrix (dense: 4 bytes a cell; bricked:
-  /// 256-byte bricks along the surface, about kHybridBricksPerArea x area / (4 cells)^2, the
-  /// figure measured on the bunny at 1-18x finer cells than auto), the per-cell binning
+  /// 256-byte bricks along the surface, about kHybridBricksPerArea x area / (4 cells)^2), the
+  /// per-cell binning
   /// arrays, the empty-leaf table, and the tree (kHybridBytesPerTriangle a triangle).
   double bytes = 0;
   /// The built structure's bytes (BuildStats::bytes), estimated: bytes less what the build
   /// frees before it returns (the binning arrays, the empty-leaf table).
   double structure_bytes = 0;
-  /// Build time in seconds on BuildParams::threads threads at the rates kHybridSecondsPer*
-  /// (measured on a shared 2-core machine): an order of magnitude, for the refusal and the
-  /// viewer.
+  /// Build time in seconds on BuildParams::threads threads at the rates kHybridSecondsPer*: an
+  /// order of magnitude, for the refusal and the viewer.
   double seconds = 0;
   uint64_t budget = 0;       ///< the memory budget it was checked against
   double seconds_limit = 0;  ///< BuildParams::hybrid_max_build_seconds (0 = none)
@@ -109,14 +107,10 @@ struct HybridEstimate {
   std::string refusal() const;
 };
 
-/// Estimate model constants (see HybridEstimate), measured with `kdgrid render --threads 1
-/// --stats-json` ("build phases") on the 2-core AMD EPYC this project is developed on while other
-/// builds shared it, so on the slow side: the bunny's matrix took 10-11 us a brick at 3.4x and
-/// 6.7x finer cells than auto (174K and 716K bricks, 4.4 and 4.5 bricks per (4-cell)^2 of
-/// area); the tree took 16 (Sponza) and 26 (the dragon) us a triangle at the auto size. Bytes a
-/// triangle, matrix excluded (the bunny, dragon-200k, Sponza): with groups by lane 110-150 at
-/// the auto size and 216-312 at 18x finer cells (groups of 8); with shared-corner groups
-/// (records.h) 47-71 at the auto size, 100-119 at 6x and 108-140 at 18x finer cells.
+/// Estimate model constants (see HybridEstimate), fitted to the build phases that `kdgrid
+/// render --threads 1 --stats-json` reports, on the slow side: the rates of a shared machine,
+/// and the bytes a triangle of the finest cells the suite's scenes were built at
+/// (docs/EXPERIMENTS.md, "The build estimate", has the figures).
 constexpr double kHybridBricksPerArea = 4.5;  ///< bricks per (4-cell)^2 of triangle area
 /// Tree, leaves, subtrees and triangle groups, a triangle.
 constexpr double kHybridBytesPerTriangle = hybrid::kSharedCorners ? 150 : 300;
@@ -144,8 +138,8 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   static constexpr int kSubMaxDepth = 6;
   /// A leaf with more references than this gets the kd-tree's whole depth rule (8 + 1.3
   /// log2 n) instead of kSubMaxDepth levels: 64 leaves of 16 triangles or more would be
-  /// tested in bulk. Few leaves of the auto grid are so large (its largest hold 48, 1147 and 470
-  /// references on the bunny, the dragon and Sponza); with one cell the whole scene is one leaf,
+  /// tested in bulk. Few leaves of the auto grid are so large (the build's "largest leaf");
+  /// with one cell the whole scene is one leaf,
   /// whose subtree is then the kd-tree itself.
   static constexpr uint32_t kSubDeepMin = 1024;
   /// Reference ranges are widened by this many cells so that geometry on a cell boundary is
@@ -159,18 +153,16 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// Triangles a colliding one pushed out of the mailbox are kept too, up to this many per ray;
   /// a ray that would evict more is walked again by the exact walk (walk.h, tested_before), so
   /// no ray tests a triangle twice. 64 (256 bytes of the ray's state) covers every ray of the
-  /// dragon's, the bunny's and Sponza's ray sets on their default grids (docs/HYBRID.md).
+  /// suite's ray sets on their default grids (docs/HYBRID.md, "The walk").
   static constexpr int kEvicted = 64;
   /// Empty-leaf boxes are computed when the occupied-cell table has at most this many
   /// entries ((nx+1)(ny+1)(nz+1), 4 bytes each: 128 MiB); the auto rule stays below 2^24 cells.
   static constexpr uint64_t kMaxExpandEntries = uint64_t(1) << 25;
   /// The top-level SAH's cost of a leaf of n triangles, in triangle tests:
   /// ceil(n / kWideLanes) group tests plus this much per triangle (with kWideLanes 1, n tests).
-  /// Measured with a mailbox per lane and the subtrees costed the same way (tree.cpp,
-  /// kSubtreeLaneCost): the groups' count alone (0) made Sponza's leaves so large
-  /// that primary rays ran 20.7 tests and 0.68 of Embree instead of 1.16; 0.25 and 0.5 made
-  /// more, smaller leaves (+50 and +250 bytes a triangle on Sponza) for no more speed
-  /// (docs/HYBRID.md, "Wide leaves").
+  /// The groups' count alone (0) makes leaves too large for rays that stop early (Sponza's
+  /// primary rays); a larger cost makes more, smaller leaves and more copies for no more speed
+  /// (docs/HYBRID.md, "Wide leaves"; docs/EXPERIMENTS.md, "Wide leaves").
   static constexpr float kWideLaneCost = kWideLanes > 1 ? 0.125f : 0.0f;
   /// Whether leaves are tested by WatertightWide, a group's lanes at once: for WatertightTest
   /// where groups have more than one lane. Every other test (WatertightScalar, the reference the
@@ -270,12 +262,12 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   [[gnu::always_inline]] inline bool over_step_bound(WalkState<TriangleTest>& w) const;
   /// Clips the ray to the grid and finds its entry cell's leaf; false if it misses the grid.
   /// Inlined into traverse(): out of line, every ray pays a call and the stores that build the
-  /// walk's state (3% of a dragon ray's instructions; docs/HYBRID.md, "The walk").
+  /// walk's state (docs/EXPERIMENTS.md, "The walk").
   template <class TriangleTest>
   [[gnu::always_inline]] inline bool walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const;
   /// One leaf step: tests the leaf's triangles and moves to the next leaf. Out of line on
   /// purpose: as its own function, with the ray's state in memory, the step compiled better
-  /// than inlined in the ray's loop (5-8% faster primary rays; docs/HYBRID.md, "The walk").
+  /// than inlined in the ray's loop (docs/EXPERIMENTS.md, "The walk").
   /// Empty leaves do not come here (traced walks excepted): traverse() steps over them inline,
   /// with nothing to test.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>

@@ -335,10 +335,8 @@ template <bool kAny>
 
 /// The packet walk takes rays whose origins lie at most this many cells apart along each axis.
 /// The cull bounds every ray's view of a corner by the origins' box, so rays from spread
-/// origins keep most triangles: the hit points' shadow rays of an 8x8 tile (docs/HYBRID.md,
-/// "Packets") ran at 0.66-0.82 of the single-ray loop on the dragons with no limit, 0.94-0.97
-/// with this one, and 1.6-1.8x its speed on Sponza either way. A pinhole camera's rays share
-/// their origin.
+/// origins keep most triangles and the packet walk is slower than the single walk for them
+/// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin.
 constexpr double kPacketSpreadCells = 1.0;
 
 /// Sets up R for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:

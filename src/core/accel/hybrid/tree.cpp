@@ -29,9 +29,8 @@ using hybrid::Ref;
 
 /// The leaf subtrees' SAH cost of a leaf per triangle, on top of its groups (KdSubtreeBuilder;
 /// the top level's is GridKdHybrid::kWideLaneCost): 0, leaves costed by their groups alone.
-/// GridKdHybrid::kWideLaneCost there too (0.125) made the bunny's, dragon-200k's and Sponza's
-/// subtrees larger (225, 198 and 239 bytes a triangle against 209, 166 and 203) at the same
-/// speed within the noise (docs/HYBRID.md, "Wide leaves").
+/// GridKdHybrid::kWideLaneCost there too makes the subtrees larger for no speed
+/// (docs/EXPERIMENTS.md, "Wide leaves").
 constexpr float kSubtreeLaneCost = 0.0f;
 
 /// Nodes with more references than this build their children as parallel tasks.
@@ -471,8 +470,8 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
     return uint32_t(first);
   };
   // A subtree's leaves with triangles as one flat list (records.h, "Flat subtrees"), when it
-  // has kFlatMinLeaves to kFlatLeaves of them; returns its float offset in flat_ (0: none).
-  // `sub` is the relocated subtree in sub_nodes_ (its box, then its nodes).
+  // has kFlatMinLeaves to kFlatLeaves of them; returns its float offset in flat_ (0:
+  // none). `sub` is the relocated subtree in sub_nodes_ (its box, then its nodes).
   flat_.clear();
   std::vector<float> flat_list(16, 0.0f);  // offset 0 means "no flat list"
   const bool want_flat = hybrid::kFlatSubtrees && params.hybrid_flat_subtrees;

@@ -36,12 +36,12 @@ namespace kdgrid::hybrid {
 struct NextLeafCache {
   /// Score: +1 per right prediction, -kMissCost per wrong one, within [kScoreMin, kScoreMax];
   /// the cache is used while it is >= 0 (more right predictions than wrong ones keep it on). A
-  /// miss cost of 3 (on above 3 right in 4) kept the cache off on most of the dragon's primary
-  /// rays (71% right): a cost of 1 makes them 4-6% faster (one thread), with diffuse rays
-  /// (about 20% right) within the noise; no score at all cost the dragon's diffuse rays 5%.
+  /// miss cost of 1 keeps it on for rays that are right most of the time but not nearly always
+  /// (a scan's primary rays); a higher cost turns it off for them, no score at all leaves it on
+  /// for diffuse rays, whose guesses mostly fail (docs/EXPERIMENTS.md, "The next-leaf cache").
   static constexpr int32_t kScoreMax = 64, kScoreMin = -64, kMissCost = 1;
-  /// Entries per thread (direct-mapped by leaf and exit axis; 16 KiB). 65536 entries would
-  /// catch 1% more on Sponza's primary rays and 3% more on the dragon's.
+  /// Entries per thread (direct-mapped by leaf and exit axis; 16 KiB): a larger table catches
+  /// few more (docs/EXPERIMENTS.md, "The next-leaf cache").
   static constexpr uint64_t kEntries = 4096;
 
   /// The leaf last reached across each leaf face, by a hash of the leaf and the exit axis (the
@@ -145,9 +145,8 @@ constexpr uint32_t kAbandoned = uint32_t(GridKdHybrid::kEvicted) + 1;
 /// GridKdHybrid::traverse gives the ray to rewalk, which runs it again with the exact walk
 /// (kExact), whose record holds every triangle tested. So no ray tests a triangle twice, and the
 /// fast walk keeps everything inline and its triangle loop with no exit for closest hits: a call
-/// anywhere in walk_step makes it save registers on every step (+58 instructions a ray on the
-/// dragon), and leaving the loop at the abandonment made it spill registers (the dragon's primary
-/// rays: +5.7 instructions a ray over a walk that can test twice, against +3.6 this way).
+/// anywhere in walk_step makes it save registers on every step, and leaving the loop at the
+/// abandonment makes it spill registers (docs/EXPERIMENTS.md, "The walk").
 template <bool kExact, class W>
 [[gnu::always_inline]] inline bool tested_before(W& w, uint32_t prim) {
   if constexpr (kExact) {
@@ -342,11 +341,11 @@ bool GridKdHybrid::rewalk(const Ray& ray, Hit* hit, Probe& s,
 template <class TriangleTest>
 bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const {
   // Cheap rejection first, in float as the kd-tree clips (most primary rays of a scanned model
-  // miss its box; `kdgrid profile` of the dragon: those rays 17.6 -> 12.9 ns), against the
+  // miss its box, and they cost only this clip), against the
   // grid's world box (wbox_, widened beyond the grid's rounding) with each slab widened as the
   // kd-tree widens its own, by err (KdRay): the rounding of (lo - o) grows with the origin's
-  // coordinates, so a ray from far away that grazes the box at an edge or a corner was lost
-  // without it (origins 1e4 away from a unit cube: 99 rays in 6000). So this clip never
+  // coordinates, so a ray from far away that grazes the box at an edge or a corner would be
+  // lost without it (tests/test_hybrid.cpp holds far origins to it). So this clip never
   // rejects a ray that reaches the grid, and its entry t is never later than the ray's entry
   // into the grid: the walk starts there (below). Its reciprocals and err serve the leaf
   // subtrees' traversal. kd_begin computes the three axes at once, as the grid-space ray
@@ -383,8 +382,8 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   // in a cell the ray reaches at or after that cell on every axis (a point at an earlier t lies
   // behind along each axis it moves on), and its steps, monotone on every axis, cross all the
   // cells the ray does. Past the grid the walk ends at the face it leaves by (out_of_grid in
-  // leaf_exit), so a t1 beyond the grid's exit changes nothing. (An exact clip in double cost
-  // 50 instructions a ray, 3% of a dragon ray's, and lost rays touching the box at an edge.)
+  // leaf_exit), so a t1 beyond the grid's exit changes nothing. (An exact clip in double costs
+  // more instructions and loses rays touching the box at an edge: docs/EXPERIMENTS.md.)
   // The entry cell: clamped into the grid in double, then truncated (the floor, as the value
   // is >= 0; a NaN clamps to 0).
   const double t0 = f0, t1 = f1;
@@ -414,9 +413,9 @@ GridKdHybrid::Exit GridKdHybrid::leaf_exit(const WalkState<TriangleTest>& w, con
   // the first axis winning ties, found by compares on the three lanes that GCC turns into
   // branches: on coherent rays they are predicted, so the CPU computes the exit cell and starts
   // the next lookup (whose cache entry is keyed by the exit axis) before the compares resolve. The
-  // axis is a constant in each branch (exit_through<A>). (The scalar form that computed all
-  // three exit cells and then overrode the exit axis's compiled to selects, whose chain the
-  // lookup had to wait for: Sponza's primary rays were 7% slower.)
+  // axis is a constant in each branch (exit_through<A>). (A form that computes all three exit
+  // cells and then overrides the exit axis's compiles to selects, whose chain the lookup has
+  // to wait for: docs/EXPERIMENTS.md, "The walk".)
   static_assert(offsetof(Leaf, first) == 24 && offsetof(Leaf, hi) == 32 &&
                 offsetof(Leaf, pad) == 56 && sizeof(Leaf) == 64);
   Double4 lo, hi;
@@ -640,8 +639,8 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
   }
   // The next cell's leaf is looked up before this leaf's triangles are tested, so the
   // dependent loads of the lookup (top array, bricks, leaf record) overlap with the tests
-  // instead of following them; most leaves entered are left again (2.8 steps per primary
-  // ray on the dragon), so the lookup is rarely wasted.
+  // instead of following them; most leaves entered are left again (a ray takes several steps:
+  // docs/HYBRID.md, "The walk"), so the lookup is rarely wasted.
   uint32_t next_id = 0;
   if (!last) {
     next_id = next_leaf(ex.n, leaf_id, ex.axis);
@@ -693,8 +692,8 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
         s.visit(
             TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
       };
-      // The closest hit in the walk's own locals here (through w, primary rays on the dragon
-      // were 5% slower).
+      // The closest hit in the walk's own locals here: through w, the compiler keeps it in
+      // memory across the subtree's steps.
       float best = w.best;
       bool found = w.found;
       if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found,
