@@ -26,6 +26,7 @@
 #include "scene/load.h"
 #include "temp_dir.h"
 #include "test_util.h"
+#include "viewer_run.h"
 
 #ifdef KDGRID_VIEWER_PATH
 
@@ -41,27 +42,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct RunResult {
-  int code = -1;
-  std::string output;  // stdout and stderr together
-};
-
-RunResult run_command(const std::string& cmd) {
-  RunResult r;
-  FILE* p = popen((cmd + " 2>&1").c_str(), "r");
-  if (!p) return r;
-  char buf[4096];
-  size_t n;
-  while ((n = fread(buf, 1, sizeof buf, p)) > 0) r.output.append(buf, n);
-  const int status = pclose(p);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
-
-bool have_xvfb() {
-  return std::system("command -v xvfb-run >/dev/null 2>&1") == 0;
-}
-
 /// A scratch directory per test (also the viewer's config directory, so no user settings leak
 /// in and none are written to the user's home).
 std::string scratch_dir() {
@@ -70,28 +50,6 @@ std::string scratch_dir() {
   fs::remove_all(d);
   fs::create_directories(d);
   return d.string();
-}
-
-/// Runs the viewer under a fresh virtual X server with software GL.
-/// xvfb-run can fail after the program it ran has exited ("xvfb-run: error: problem while
-/// cleaning up temporary directory", exit code 5: its cleanup races the X server's exit, seen
-/// about once in 20 runs on a loaded machine), replacing the program's exit code with its own.
-/// The runs below record the viewer's own exit code and take it from there.
-/// `prefix` runs in the viewer's shell first (e.g. "ulimit -f 4;").
-RunResult run_viewer(const std::string& dir, const std::string& args,
-                     const std::string& prefix = "") {
-  const std::string script = dir + "/run-viewer.sh", code_file = dir + "/viewer-exit-code";
-  fs::remove(code_file);
-  std::ofstream(script) << prefix << "'" << KDGRID_VIEWER_PATH << "' " << args << "\necho $? > '"
-                        << code_file << "'\n";
-  const std::string cmd = "cd '" + dir + "' && XDG_CONFIG_HOME='" + dir +
-                          "' LIBGL_ALWAYS_SOFTWARE=1 xvfb-run -a -s '-screen 0 1280x1024x24' sh '" +
-                          script + "'";
-  RunResult r = run_command(cmd);
-  std::ifstream recorded(code_file);
-  int code = 0;
-  if (recorded >> code) r.code = code;
-  return r;
 }
 
 /// The fastest structure built into this binary for scenes too big for brute force.
@@ -128,11 +86,6 @@ int changed_pixels_near(const ImageRGB& a, const ImageRGB& b, int cx, int cy, in
     }
   return n;
 }
-
-#define KDGRID_REQUIRE_XVFB()                                                                 \
-  if (!have_xvfb())                                                                           \
-  GTEST_SKIP() << "xvfb-run is not installed (Debian package xvfb): the viewer tests need a " \
-                  "virtual X display"
 
 const std::string kDefaultScene = source_path("assets/cornell.gltf");
 

@@ -1,6 +1,7 @@
 // `kdgrid trace`: traces a .rays file with one structure and reports speed, per-ray
 // traversal counts and build figures; or, with --pixel, prints the step-by-step traversal
-// of one primary ray (the command line the viewer prints for a picked pixel).
+// of one primary ray, and with --origin/--dir of any ray (the command lines the viewer prints
+// for a picked pixel and for every ray of its ray tree).
 #include <tbb/blocked_range.h>
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
@@ -31,6 +32,7 @@ namespace {
 
 struct TraceArgs {
   std::string scene, rays, hits, pixel, res = "1024x1024";
+  std::string origin, dir, tmin = "0", tmax = "inf";
   int threads = 0;
   int repeat = 5;
   bool json = false;
@@ -68,16 +70,29 @@ nlohmann::json build_json(const BuildStats& st, size_t tris) {
   return j;
 }
 
-void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& accel) {
-  int w = 0, h = 0;
-  parse_resolution(a.res, w, h);
-  const Camera cam = a.camera.apply(*scene.camera);
-  const Ray ray = pixel_ray(cam, a.res, a.pixel);
-  const Trace tr = accel.trace(ray);
+/// Parses --tmin / --tmax: a number, "inf" allowed for --tmax.
+float parse_ray_bound(const std::string& s, const char* what) {
+  char* end = nullptr;
+  const float f = std::strtof(s.c_str(), &end);
+  if (end == s.c_str() || *end != '\0' || std::isnan(f) || f == -kInf)
+    throw ParamError(std::string(what) + " '" + s + "' is not a number (inf is allowed)");
+  return f;
+}
+
+/// Prints one ray's step-by-step traversal (the closest-hit one, or with --any the any-hit
+/// one), after `header` (text only).
+void print_ray_trace(const TraceArgs& a, const Ray& ray, const Accelerator& accel,
+                     const std::string& header) {
+  const Trace tr = a.any ? accel.trace_occluded(ray) : accel.trace(ray);
   if (a.json) {
     nlohmann::json j;
-    j["ray"] = {{"org", {ray.org.x, ray.org.y, ray.org.z}},
-                {"dir", {ray.dir.x, ray.dir.y, ray.dir.z}}};
+    j["ray"] = {
+        {"org", {ray.org.x, ray.org.y, ray.org.z}},
+        {"dir", {ray.dir.x, ray.dir.y, ray.dir.z}},
+        {"tmin", ray.tmin},
+        {"tmax", std::isfinite(ray.tmax) ? nlohmann::json(ray.tmax) : nlohmann::json("inf")}};
+    j["query"] = a.any ? "any" : "closest";
+    if (a.any) j["occluded"] = tr.occluded;
     for (const TraceStep& s : tr.steps) {
       nlohmann::json js;
       js["kind"] =
@@ -101,11 +116,9 @@ void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& acce
     std::printf("%s\n", j.dump(2).c_str());
     return;
   }
-  std::printf("%s, pixel %s of %dx%d, camera --eye %g,%g,%g --target %g,%g,%g --fov %g\n",
-              accel.name().c_str(), a.pixel.c_str(), w, h, cam.eye.x, cam.eye.y, cam.eye.z,
-              cam.target.x, cam.target.y, cam.target.z, cam.fov_deg);
-  std::printf("ray org (%.9g %.9g %.9g) dir (%.9g %.9g %.9g)\n", ray.org.x, ray.org.y, ray.org.z,
-              ray.dir.x, ray.dir.y, ray.dir.z);
+  std::printf("%s\n", header.c_str());
+  std::printf("ray org (%.9g %.9g %.9g) dir (%.9g %.9g %.9g) t [%.9g, %.9g]\n", ray.org.x,
+              ray.org.y, ray.org.z, ray.dir.x, ray.dir.y, ray.dir.z, ray.tmin, ray.tmax);
   for (size_t k = 0; k < tr.steps.size(); ++k) {
     const TraceStep& s = tr.steps[k];
     std::printf("%4zu %-5s depth %-3d id %-8llu box ", k,
@@ -119,7 +132,9 @@ void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& acce
     }
     std::printf("\n");
   }
-  if (tr.hit.valid())
+  if (a.any)
+    std::printf("%s\n", tr.occluded ? "occluded" : "not occluded");
+  else if (tr.hit.valid())
     std::printf("hit triangle %u at t %.9g (u %.4g v %.4g)\n", tr.hit.prim, tr.hit.t, tr.hit.u,
                 tr.hit.v);
   else
@@ -129,6 +144,33 @@ void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& acce
               (unsigned long long)tr.counters.tri_tests,
               (unsigned long long)tr.counters.mailbox_skips,
               (unsigned long long)tr.counters.lookups);
+}
+
+void trace_pixel(const TraceArgs& a, const Scene& scene, const Accelerator& accel) {
+  int w = 0, h = 0;
+  parse_resolution(a.res, w, h);
+  const Camera cam = a.camera.apply(*scene.camera);
+  char header[512];
+  std::snprintf(header, sizeof header,
+                "%s, pixel %s of %dx%d, camera --eye %g,%g,%g --target %g,%g,%g --fov %g",
+                accel.name().c_str(), a.pixel.c_str(), w, h, cam.eye.x, cam.eye.y, cam.eye.z,
+                cam.target.x, cam.target.y, cam.target.z, cam.fov_deg);
+  print_ray_trace(a, pixel_ray(cam, a.res, a.pixel), accel, header);
+}
+
+/// The ray of --origin, --dir, --tmin and --tmax (checked before the scene is loaded).
+Ray given_ray(const TraceArgs& a) {
+  Ray r;
+  r.org = parse_vec3(a.origin, "--origin");
+  r.dir = parse_vec3(a.dir, "--dir");
+  if (r.dir.x == 0 && r.dir.y == 0 && r.dir.z == 0)
+    throw ParamError("--dir '" + a.dir + "' is the zero vector: give a direction");
+  r.tmin = parse_ray_bound(a.tmin, "--tmin");
+  r.tmax = parse_ray_bound(a.tmax, "--tmax");
+  if (!std::isfinite(r.tmin) || r.tmin < 0 || !(r.tmax > r.tmin))
+    throw ParamError("--tmin " + a.tmin + " and --tmax " + a.tmax +
+                     " must satisfy 0 <= tmin < tmax (tmin finite)");
+  return r;
 }
 
 void trace_file(const TraceArgs& a, const Scene& scene, const Accelerator& accel,
@@ -289,12 +331,15 @@ void add_trace_command(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "trace",
       "Trace a .rays file with one structure (speed, per-ray counts, build figures), or print "
-      "the step-by-step traversal of one primary ray with --pixel X,Y");
+      "the step-by-step traversal of one primary ray with --pixel X,Y, or of any ray with "
+      "--origin X,Y,Z --dir X,Y,Z [--tmin T --tmax T] [--any]");
   auto a = std::make_shared<TraceArgs>();
   cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
   auto* rays_opt = cmd->add_option("--rays", a->rays, "Ray file (.rays) to trace");
   cmd->add_option("--hits", a->hits, "Write the closest hits of the rays to this .hits file");
-  cmd->add_flag("--any", a->any, "Time any-hit (occluded) queries instead of closest hits");
+  cmd->add_flag("--any", a->any,
+                "Any-hit (occluded) queries instead of closest hits: timed over --rays, or the "
+                "any-hit traversal of the --origin ray or --pixel ray");
   cmd->add_flag("--traversal-only", a->traversal_only,
                 "Time the traversal alone: no triangle is tested, so every ray misses and crosses "
                 "the whole structure; reports ns per ray and per traversal step");
@@ -308,14 +353,29 @@ void add_trace_command(CLI::App& app) {
       "Print the traversal of the primary ray through pixel X,Y (integers: the pixel centre) of "
       "the scene's camera, changed by the camera flags");
   cmd->add_option("--res", a->res, "Image size W or WxH for --pixel")->capture_default_str();
+  auto* origin_opt = cmd->add_option(
+      "--origin", a->origin,
+      "Print the traversal of the ray from x,y,z along --dir (a secondary ray the viewer's ray "
+      "tree shows, replayed); --any for a shadow ray's any-hit traversal");
+  cmd->add_option("--dir", a->dir, "Direction x,y,z of the --origin ray");
+  cmd->add_option("--tmin", a->tmin, "Start of the --origin ray's segment")->capture_default_str();
+  cmd->add_option("--tmax", a->tmax, "End of the --origin ray's segment (inf allowed)")
+      ->capture_default_str();
   rays_opt->excludes(pixel_opt);
+  origin_opt->excludes(pixel_opt);
+  origin_opt->excludes(rays_opt);
   a->accel.add_to(cmd, "bvh");
   a->camera.add_to(cmd);
   add_scale_option(cmd, a->scale);
   cmd->callback([a] {
-    if (a->rays.empty() && a->pixel.empty())
+    if (a->rays.empty() && a->pixel.empty() && a->origin.empty())
       throw ParamError(
-          "trace needs --rays FILE.rays (write one with `kdgrid rays`) or --pixel X,Y");
+          "trace needs --rays FILE.rays (write one with `kdgrid rays`), --pixel X,Y or "
+          "--origin X,Y,Z --dir X,Y,Z");
+    if (a->origin.empty() != a->dir.empty())
+      throw ParamError("--origin and --dir give one ray together: give both");
+    Ray one_ray;
+    if (!a->origin.empty()) one_ray = given_ray(*a);
     check_threads(a->threads);
     if (a->repeat < 1) throw ParamError("--repeat must be >= 1");
     const BuildParams params = a->accel.resolve();
@@ -334,14 +394,20 @@ void add_trace_command(CLI::App& app) {
     BuildParams p = params;
     if (p.threads == 0) p.threads = a->threads;
     if (a->traversal_only) {
-      if (!a->pixel.empty())
-        throw ParamError("--traversal-only times a .rays file: use it with --rays, not --pixel");
+      if (!a->pixel.empty() || !a->origin.empty())
+        throw ParamError(
+            "--traversal-only times a .rays file: use it with --rays, not --pixel or --origin");
       if (!a->hits.empty()) throw ParamError("--traversal-only finds no hits: drop --hits");
       p.triangle_test = TriangleTestKind::None;
     }
     const auto accel = build_interruptible(a->accel.accel, scene.mesh, p);
     if (!a->pixel.empty())
       trace_pixel(*a, scene, *accel);
+    else if (!a->origin.empty())
+      print_ray_trace(*a, one_ray, *accel,
+                      accel->name() + ", ray --origin " + a->origin + " --dir " + a->dir +
+                          " --tmin " + a->tmin + " --tmax " + a->tmax +
+                          (a->any ? " (any hit)" : " (closest hit)"));
     else
       trace_file(*a, scene, *accel, rays);
   });

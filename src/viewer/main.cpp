@@ -96,6 +96,11 @@ int main(int argc, char** argv) {
   std::string pick;
   app.add_option("--pick", pick, "Trace image pixel X,Y (0,0 = top left) and show its traversal")
       ->group(gs);
+  app.add_option("--pick-ray", o.pick_ray,
+                 "Scripted: after --pick, show ray N of the pixel's ray tree (0 = the primary; "
+                 "--stats-json lists the tree as state.pick.tree)")
+      ->group(gs)
+      ->check(CLI::Range(0, 1 << 20));
   app.add_flag("--frame-pick", o.frame_pick,
                "Scripted: after --pick, frame its ray's traversal as the F key does")
       ->group(gs);
@@ -132,6 +137,24 @@ int main(int argc, char** argv) {
   app.add_option(
          "--export-heatmap", o.export_heatmap,
          "Scripted: write the heat map's raw per-pixel counts to this EXR (needs --heatmap)")
+      ->group(gs);
+  app.add_flag("--pin-heatmap", o.pin_heatmap,
+               "Scripted: pin the first complete heat map (needs --heatmap), before "
+               "--rebuild-cell-size starts, so the end shows the difference")
+      ->group(gs);
+  app.add_option("--diff-exr", o.diff_exr,
+                 "Scripted: at the end write the difference with the pinned heat map as EXR: "
+                 "R = current - pinned, G = current, B = pinned (needs --pin-heatmap)")
+      ->group(gs);
+  app.add_option("--diff-view", o.diff_view,
+                 "With a pinned heat map, show the current map, the pinned one, their "
+                 "difference or both side by side")
+      ->group(gs)
+      ->check(CLI::IsMember({"current", "pinned", "difference", "split"}))
+      ->capture_default_str();
+  app.add_flag("--accuracy", o.accuracy,
+               "Show the accuracy map (every pixel's ray tree against a double-precision "
+               "reference); a scripted run waits until every pixel is judged")
       ->group(gs);
   app.add_flag("--hide-ui", o.hide_ui, "Hide the ImGui panels (reproducible screenshots)")
       ->group(gs);
@@ -185,6 +208,8 @@ int main(int argc, char** argv) {
       o.pick = std::array<int, 2>{x, y};
     }
     kdgrid::check_threads(threads);
+    if (o.pick_ray > 0 && !o.pick)
+      throw kdgrid::ParamError("--pick-ray selects a ray of the --pick X,Y pixel: give --pick too");
     if (o.frame_pick && !o.pick)
       throw kdgrid::ParamError("--frame-pick frames the --pick X,Y ray: give --pick too");
     if (o.frames > 0 && o.hold > 0)
@@ -203,6 +228,15 @@ int main(int argc, char** argv) {
       kdgrid::check_output_path(o.screenshot, "--screenshot", {".png"}, {o.scene});
     if (!o.stats_json.empty())
       kdgrid::check_output_path(o.stats_json, "--stats-json", {".json"}, {o.scene});
+    if (o.pin_heatmap && (o.heatmap.empty() || !o.scripted()))
+      throw kdgrid::ParamError(
+          "--pin-heatmap pins a heat map: give --heatmap steps|tests and "
+          "--frames N");
+    if (!o.diff_exr.empty() && !o.pin_heatmap)
+      throw kdgrid::ParamError(
+          "--diff-exr writes the difference with the pinned heat map: give "
+          "--pin-heatmap (and --rebuild-cell-size or another change)");
+    if (!o.diff_exr.empty()) kdgrid::check_image_extension(o.diff_exr);
     if (o.max_samples < o.min_samples) o.max_samples = o.min_samples;
   } catch (const CLI::ParseError& e) {
     return app.exit(e);

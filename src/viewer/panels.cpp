@@ -368,6 +368,8 @@ void Viewer::draw_panels() {
     chk("reset layout (R)");
   }
 
+  if (ImGui::CollapsingHeader("Accuracy")) draw_accuracy_panel();
+
   if (mode_ != RenderMode::Shaded &&
       ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
     int s = int(settings_.heat_scale);
@@ -392,6 +394,7 @@ void Viewer::draw_panels() {
       message_ = err.empty() ? "wrote " + path : err;
       std::printf("kdgrid-viewer: %s\n", message_.c_str());
     }
+    draw_diff_panel();
   }
 
   if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) {
@@ -486,6 +489,10 @@ void Viewer::draw_heat_legend() {
                        "%s keeps no traversal counters: no %s heat map", world_->name.c_str(),
                        image_.mode == RenderMode::HeatSteps ? "step" : "test");
     ImGui::TextDisabled("choose a kdgrid structure to see its work per pixel");
+    ImGui::End();
+    return;
+  }
+  if (draw_diff_legend()) {
     ImGui::End();
     return;
   }

@@ -344,6 +344,7 @@ void Viewer::draw_pick_panel() {
   audit_.item("visit order (first .. last step)");
   draw_ramp_bar(std::min(ImGui::GetContentRegionAvail().x, 240 * ui_scale_), l0, l1, l2);
   audit_.legends.push_back(std::string("visit order: ") + l0 + " .. " + l2);
+  draw_ray_tree();
 }
 
 void Viewer::draw_pick_steps() {
@@ -356,7 +357,9 @@ void Viewer::draw_pick_steps() {
   // all rows, not only those on screen), scrolling both ways, columns resizable, in a window
   // of its own (resizable, collapsible) beside the panel: the box column alone is wider than
   // the panel.
-  static const char* const kHeads[6] = {"#", "kind", "box", "t in", "t out", "tests"};
+  static const char* const kHeads[7] = {"#", "kind", "id", "box", "t in", "t out", "tested"};
+  // The tested triangles' ids, up to this many per step (a brute-force step tests them all).
+  constexpr uint32_t kMaxIds = 16;
   const float font = ImGui::GetFontSize();
   if (p.widths_for_font == 0) {
     p.rows.assign(n, {});
@@ -367,18 +370,25 @@ void Viewer::draw_pick_steps() {
       r[0] = std::to_string(i);
       std::snprintf(buf, sizeof buf, "%s d%d", kind_name(s.kind), s.depth);
       r[1] = buf;
+      // The node's index (inner nodes, leaves) or the linear cell index (cells).
+      r[2] = std::to_string(s.id);
       std::snprintf(buf, sizeof buf, "(%.5g %.5g %.5g)-(%.5g %.5g %.5g)", s.box.lo.x, s.box.lo.y,
                     s.box.lo.z, s.box.hi.x, s.box.hi.y, s.box.hi.z);
-      r[2] = buf;
-      std::snprintf(buf, sizeof buf, "%.6g", s.t_in);
       r[3] = buf;
-      std::snprintf(buf, sizeof buf, "%.6g", s.t_out);
+      std::snprintf(buf, sizeof buf, "%.6g", s.t_in);
       r[4] = buf;
-      r[5] = std::to_string(s.num_tested);
+      std::snprintf(buf, sizeof buf, "%.6g", s.t_out);
+      r[5] = buf;
+      std::string ids = std::to_string(s.num_tested);
+      for (uint32_t k = 0; k < std::min(s.num_tested, kMaxIds); ++k)
+        ids += (k == 0 ? ": " : " ") + std::to_string(t.tested[s.first_tested + k]);
+      if (s.num_tested > kMaxIds)
+        ids += " ... (" + std::to_string(s.num_tested - kMaxIds) + " more)";
+      r[6] = std::move(ids);
     }
   }
   if (p.widths_for_font != font) {
-    for (int c = 0; c < 6; ++c) {
+    for (int c = 0; c < 7; ++c) {
       float w = ImGui::CalcTextSize(kHeads[c]).x;
       for (const auto& r : p.rows) w = std::max(w, ImGui::CalcTextSize(r[size_t(c)].c_str()).x);
       p.widths[c] = std::ceil(w) + 1.0f;
@@ -422,9 +432,9 @@ void Viewer::draw_pick_steps() {
                                 ImGuiTableFlags_RowBg | ImGuiTableFlags_Borders;
   // A table per pick: its columns take their initial widths from this pick's values.
   ImGui::PushID(int(p.serial));
-  if (ImGui::BeginTable("steps", 6, flags, ImVec2(0, ImGui::GetContentRegionAvail().y))) {
+  if (ImGui::BeginTable("steps", 7, flags, ImVec2(0, ImGui::GetContentRegionAvail().y))) {
     ImGui::TableSetupScrollFreeze(1, 1);
-    for (int c = 0; c < 6; ++c)
+    for (int c = 0; c < 7; ++c)
       ImGui::TableSetupColumn(kHeads[c], ImGuiTableColumnFlags_WidthFixed, p.widths[c]);
     ImGui::TableHeadersRow();
     ImGuiListClipper clip;
@@ -434,7 +444,7 @@ void Viewer::draw_pick_steps() {
         const auto& r = p.rows[size_t(i)];
         const Color c = ramp(n > 1 ? float(i) / float(n - 1) : 1.0f);
         ImGui::TableNextRow();
-        for (int k = 0; k < 6; ++k) {
+        for (int k = 0; k < 7; ++k) {
           ImGui::TableNextColumn();
           audit_.cell(r[size_t(k)].c_str());
           if (k == 0)

@@ -7,6 +7,7 @@
 #include <GLFW/glfw3.h>
 #include <imgui.h>
 
+#include <cmath>
 #include <cstdio>
 
 #include <tbb/global_control.h>
@@ -96,16 +97,44 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
   st["speed_scale"] = cam_.speed_scale();
   st["speed"] = cam_.speed();
   st["camera_flags"] = cam_.cli_flags();
-  if (pick_)
+  if (pick_) {
     st["pick"] = {{"x", pick_->x},
                   {"y", pick_->y},
                   {"steps", pick_->trace.steps.size()},
                   {"hit", pick_->trace.hit.valid()},
                   {"command", pick_->command},
                   {"framed", pick_->framed},
-                  {"segment", {pick_->segment.t0, pick_->segment.t1}}};
-  else
+                  {"segment", {pick_->segment.t0, pick_->segment.t1}},
+                  {"selected", pick_->selected}};
+    // The pixel's ray tree, in the order the renderer traced it.
+    json tree = json::array();
+    for (size_t k = 0; k < pick_->tree.nodes.size(); ++k) {
+      const RayTreeNode& n = pick_->tree.nodes[k];
+      const Trace& t = n.trace;
+      json e = {{"kind", to_string(n.kind)},
+                {"parent", n.parent},
+                {"depth", n.depth},
+                {"origin", vec_json(n.ray.org)},
+                {"dir", vec_json(n.ray.dir)},
+                {"tmin", n.ray.tmin},
+                {"tmax", std::isfinite(n.ray.tmax) ? json(n.ray.tmax) : json("inf")},
+                {"steps", t.steps.size()},
+                {"leaves", t.counters.leaves},
+                {"tests", t.counters.tri_tests},
+                {"seconds", n.seconds},
+                {"command", pick_->commands[k]}};
+      if (n.kind == RayKind::Shadow) {
+        e["light"] = n.light;
+        e["occluded"] = t.occluded;
+      } else {
+        e["hit"] = t.hit.valid() ? json{{"prim", t.hit.prim}, {"t", t.hit.t}} : json(nullptr);
+      }
+      tree.push_back(e);
+    }
+    st["pick"]["tree"] = tree;
+  } else {
     st["pick"] = nullptr;
+  }
   st["overlay"] = {{"splits", show_splits_},
                    {"cells", show_cells_},
                    {"boxes", show_boxes_},
@@ -114,6 +143,47 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
                    {"items", overlay_items_},
                    {"wanted", overlay_wanted_},
                    {"lines", structure_lines_.vertex_count() / 2}};
+  if (pinned_) {
+    DiffStats ds;
+    diff_stats(ds);
+    st["diff"] = {{"pinned", pinned_->label},
+                  {"mode", mode_name(pinned_->image.mode)},
+                  {"view", to_string(diff_view_)},
+                  {"ready", diff_ready()},
+                  {"pinned_total", ds.pinned_total},
+                  {"current_total", ds.current_total},
+                  {"more", ds.more},
+                  {"fewer", ds.fewer},
+                  {"max_abs", ds.max_abs}};
+  } else {
+    st["diff"] = nullptr;
+  }
+  st["hover"] = hover_.valid
+                    ? json{{"x", hover_.x},
+                           {"y", hover_.y},
+                           {"current", hover_.current},
+                           {"pinned", hover_.has_pinned ? json(hover_.pinned) : json(nullptr)}}
+                    : json(nullptr);
+  if (show_accuracy_) {
+    const AccuracySummary a = accuracy_summary();
+    json by_kind = json::object();
+    const char* kinds[2] = {"primary", "secondary"};
+    for (int i = 0; i < 2; ++i)
+      for (int v = 0; v < 4; ++v) by_kind[kinds[i]][to_string(AccuracyVerdict(v))] = a.counts[i][v];
+    json pixels = json::object();
+    for (int v = 0; v < 4; ++v) pixels[to_string(AccuracyVerdict(v))] = a.pixel_verdicts[v];
+    st["accuracy"] = {{"triangle_test", world_ ? to_string(world_->params.triangle_test) : ""},
+                      {"pixels", a.pixels},
+                      {"judged", a.judged},
+                      {"complete", accuracy_complete()},
+                      {"rays", a.rays},
+                      {"rays_by_kind", by_kind},
+                      {"pixels_by_verdict", pixels},
+                      {"disagreement_rate", a.disagreement_rate},
+                      {"mrays", a.mrays}};
+  } else {
+    st["accuracy"] = nullptr;
+  }
   st["message"] = message_;
   st["error"] = task_error_;
   st["render_error"] = worker_ ? worker_->error() : std::string();

@@ -42,18 +42,6 @@ Viewer* self(GLFWwindow* w) {
   return static_cast<Viewer*>(glfwGetWindowUserPointer(w));
 }
 
-bool same_camera(const Camera& a, const Camera& b) {
-  return a.eye == b.eye && a.target == b.target && a.up == b.up && a.fov_deg == b.fov_deg;
-}
-
-/// Quotes a path for a shell command line when it needs it.
-std::string shell_quote(const std::string& s) {
-  if (s.find_first_of(" \t'\"\\$`()&;|<>*?") == std::string::npos) return s;
-  std::string q = "'";
-  for (char c : s) q += (c == '\'') ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
 /// Appends `v` to a plot's history, which keeps the last 120 values.
 void push_history(std::deque<float>& h, float v) {
   h.push_back(v);
@@ -105,6 +93,9 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
     if (o == "boxes") show_boxes_ = true;
   }
   splits_of_pick_ = opts_.splits_of_pick;
+  show_accuracy_ = opts_.accuracy;
+  for (DiffView v : {DiffView::Current, DiffView::Pinned, DiffView::Difference, DiffView::Split})
+    if (opts_.diff_view == to_string(v)) diff_view_ = v;
 }
 
 Viewer::~Viewer() {
@@ -597,6 +588,8 @@ void Viewer::receive_image() {
   heat_range_ =
       heat_range(image_, settings_.heat_scale, settings_.heat_fixed_min, settings_.heat_fixed_max);
   colorize(image_, settings_.heat_scale, heat_range_, rgba_);
+  if (image_.mode != RenderMode::Shaded) colorize_diff(rgba_);
+  colorize_accuracy(rgba_);
   const auto t1 = Clock::now();
   colorize_ms_.push_back(std::chrono::duration<float, std::milli>(t1 - t0).count());
   GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
@@ -694,29 +687,20 @@ void Viewer::do_pick(int px, int py) {
   const CameraFrame f = CameraFrame::make(p.camera, p.w, p.h);
   p.ray = f.ray(float(p.x) + 0.5f, float(p.y) + 0.5f);  // the pixel centre, as `trace --pixel`
   pick_ = std::move(p);
-  retrace_pick();
+  trace_pick_tree(0);
   const Trace& t = pick_->trace;
-  std::printf("kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s\n  %s\n", pick_->x,
-              pick_->y, t.steps.size(), (unsigned long long)t.counters.tri_tests,
-              t.hit.valid() ? ("hit triangle " + std::to_string(t.hit.prim)).c_str() : "miss",
-              pick_->command.c_str());
+  std::printf(
+      "kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s; %zu rays in its ray "
+      "tree\n  %s\n",
+      pick_->x, pick_->y, t.steps.size(), (unsigned long long)t.counters.tri_tests,
+      t.hit.valid() ? ("hit triangle " + std::to_string(t.hit.prim)).c_str() : "miss",
+      pick_->tree.nodes.size(), pick_->command.c_str());
   std::fflush(stdout);
 }
 
 void Viewer::retrace_pick() {
   if (!pick_ || !world_) return;
-  Pick& p = *pick_;
-  p.trace = world_->accel->trace(p.ray);
-  p.segment = pick_segment(p.ray, p.trace, scene_bounds_);
-  p.widths_for_font = 0;  // the step table's text and widths follow the new trace
-  p.serial = ++pick_serial_;
-  CameraControl at_pick;
-  at_pick.set_camera(p.camera);
-  p.command = "kdgrid trace " + shell_quote(world_->scene->source) +
-              cli::accel_flags(world_->name, world_->params) + " --pixel " + std::to_string(p.x) +
-              "," + std::to_string(p.y) + " --res " + std::to_string(p.w) + "x" +
-              std::to_string(p.h) + " " + at_pick.cli_flags();
-  if (splits_of_pick_) overlay_dirty_ = true;
+  trace_pick_tree(pick_->selected);
 }
 
 // ---- output ---------------------------------------------------------------------------------
@@ -833,14 +817,20 @@ int Viewer::run() {
     receive_image();
     poll_structure_overlay();
     if (overlay_dirty_) rebuild_structure_overlay();
+    update_accuracy();
 
     if (opts_.scripted()) {
       if (!pick_done && world_ && posted_w_ > 0) {
         do_pick((*opts_.pick)[0], (*opts_.pick)[1]);
+        if (pick_ && opts_.pick_ray > 0) select_tree_ray(opts_.pick_ray);
         if (opts_.frame_pick) frame_pick();
         pick_done = true;
       }
-      if (!opts_.rebuild_cell_size.empty() && !scripted_rebuild_started_ && have_image_ && !task_) {
+      if (opts_.pin_heatmap && !pinned_ && have_image_ && image_.job_id == posted_job_ &&
+          image_.samples >= std::min(opts_.min_samples, opts_.max_samples))
+        pin_heatmap();
+      if (!opts_.rebuild_cell_size.empty() && !scripted_rebuild_started_ && have_image_ && !task_ &&
+          (!opts_.pin_heatmap || pinned_)) {
         scripted_rebuild_started_ = true;
         scripted_rebuild_at_ = Clock::now();
         const float cs = cli::parse_cell_size(opts_.rebuild_cell_size);
@@ -872,6 +862,7 @@ int Viewer::run() {
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
     draw_pick_overlay();
+    update_hover();
     if (!brute_refusal_.empty()) {
       // Over the empty picture, panels or not: why there is no image.
       const ImGuiIO& io = ImGui::GetIO();
@@ -926,7 +917,7 @@ int Viewer::run() {
       const bool overlay_ok =
           !overlay_dirty_ && !overlay_job_.valid() && !structure_lines_.uploading();
       if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
-          overlay_ok && !recolor_) {
+          overlay_ok && !recolor_ && accuracy_complete()) {
         if (end_reason_.empty()) end_reason_ = "frames done";
         if (!task_error_.empty()) {
           std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());
@@ -938,6 +929,12 @@ int Viewer::run() {
               std::string("kdgrid ") + mode_name(image_.mode) + " per pixel, " + accel_name_);
           std::printf("kdgrid-viewer: %s\n",
                       err.empty() ? ("wrote " + opts_.export_heatmap).c_str() : err.c_str());
+          if (!err.empty()) exit_code = 1;
+        }
+        if (!opts_.diff_exr.empty()) {
+          const std::string err = write_diff_exr(opts_.diff_exr);
+          std::printf("kdgrid-viewer: %s\n",
+                      err.empty() ? ("wrote " + opts_.diff_exr).c_str() : err.c_str());
           if (!err.empty()) exit_code = 1;
         }
         if (!opts_.screenshot.empty()) {

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "bench/check.h"
 #include "cli/common.h"
 #include "util/cancel.h"
 #include "viewer/camera_control.h"
@@ -28,6 +29,46 @@
 struct GLFWwindow;
 
 namespace kdgrid::viewer {
+
+/// What the heat map shows once a map is pinned (diff_map.cpp).
+enum class DiffView { Current, Pinned, Difference, Split };
+const char* to_string(DiffView v);
+
+/// A pinned heat map against the current one.
+struct DiffStats {
+  double pinned_total = 0, current_total = 0;  ///< sums of the per-pixel values
+  float max_abs = 0;                           ///< largest |current - pinned|
+  float max_value = 0;                         ///< largest value of either map
+  size_t more = 0, fewer = 0;                  ///< pixels with more / fewer than pinned
+};
+
+/// One batch of the accuracy map: the verdicts of some pixels' ray trees.
+struct AccuracyBatch {
+  std::vector<uint32_t> pixels;   ///< linear pixel indices
+  std::vector<uint8_t> verdicts;  ///< per pixel: 1 + the worst AccuracyVerdict of its rays
+  uint64_t counts[2][4] = {};     ///< rays by [primary, secondary][AccuracyVerdict]
+  double seconds = 0;             ///< the batch's wall time
+  double query_seconds = 0;       ///< the structure's fast queries on the batch's rays
+  uint64_t query_rays = 0, answers = 0;
+};
+
+/// Judges the ray trees of `pixels` (of a w x h image of `camera`) against `ref`.
+AccuracyBatch judge_accuracy_batch(std::shared_ptr<const World> world,
+                                   std::shared_ptr<const AccuracyReference> ref, Camera camera,
+                                   int w, int h, std::vector<uint32_t> pixels);
+
+/// The accuracy map so far.
+struct AccuracySummary {
+  size_t pixels = 0, judged = 0;
+  uint64_t rays = 0;
+  uint64_t counts[2][4] = {};       ///< rays by [primary, secondary][AccuracyVerdict]
+  uint64_t pixel_verdicts[4] = {};  ///< judged pixels by their worst verdict
+  double disagreement_rate = 0;     ///< (disagree + leak) / rays
+  double mrays = 0;                 ///< the structure's fast queries on the judged rays
+};
+
+/// The structure and its build knobs as flags: "hybrid --cell-size 0.05".
+std::string build_label(const World& w);
 
 /// Command-line options (main.cpp parses them).
 struct ViewerOptions {
@@ -45,6 +86,7 @@ struct ViewerOptions {
   int min_samples = 1;     ///< scripted: wait for this many samples per pixel
   double timeout = 300;    ///< scripted: give up (exit 4) after this many seconds
   std::optional<std::array<int, 2>> pick;
+  int pick_ray = 0;  ///< scripted: the ray of the pick's ray tree to select (0 = the primary)
   bool frame_pick = false;            ///< scripted: frame the --pick ray's traversal (key F)
   bool splits_of_pick = false;        ///< split overlay: only the planes the picked ray crossed
   std::string heatmap;                ///< "", "steps" or "tests"
@@ -56,7 +98,13 @@ struct ViewerOptions {
   std::string supersede_cell_size;
   double supersede_after = 2.0;  ///< seconds; 2 s lets the first build get well under way
   std::string export_heatmap;    ///< scripted: EXR of the heat map's raw counts at the end
-  bool hide_ui = false;          ///< no ImGui panels (reproducible screenshots)
+  /// Scripted: pin the first complete heat map (before --rebuild-cell-size starts).
+  bool pin_heatmap = false;
+  std::string diff_exr;                  ///< scripted: the difference map's EXR at the end
+  std::string diff_view = "difference";  ///< "current", "pinned", "difference" or "split"
+  /// Scripted: show the accuracy map and wait until every pixel is judged.
+  bool accuracy = false;
+  bool hide_ui = false;  ///< no ImGui panels (reproducible screenshots)
   /// > 0: keep the window open and interactive for up to this many seconds (input tests drive
   /// it with xdotool); Ctrl+Q or closing the window ends it sooner.
   double hold = 0;
@@ -154,6 +202,46 @@ class Viewer {
   void draw_pick_steps();
   /// Why a pick through a structure without counters (Embree) shows no steps.
   std::string no_traversal_note() const;
+
+  // ---- ray_tree.cpp: the picked pixel's ray tree
+  /// Traces the pick's whole Whitted ray tree (Renderer::trace_tree) and the replay command
+  /// of each of its rays, then selects ray `selected` (the primary if out of range).
+  void trace_pick_tree(int selected);
+  /// Shows ray `i` of the pick's tree: it is drawn, its steps fill the step table and its
+  /// replay command is the one shown.
+  void select_tree_ray(int i);
+  /// The ray tree in the Pick section: one row per ray (kind, hit, steps, tests, time), the
+  /// selected ray's origin, direction and hit under it.
+  void draw_ray_tree();
+
+  // ---- diff_map.cpp: the pinned heat map and the difference map
+  /// Pins the heat map on screen (its counts, camera, structure and knobs).
+  void pin_heatmap();
+  /// The pinned map and the current one compare: same mode, size and camera, not a preview.
+  bool diff_ready() const;
+  void diff_stats(DiffStats& s) const;
+  /// Colours the pinned map, the difference or the split view into `rgba` per diff_view_;
+  /// false (rgba untouched) when the current map is to be shown.
+  bool colorize_diff(std::vector<uint8_t>& rgba);
+  /// R = current - pinned, G = current, B = pinned; returns an error message or "".
+  std::string write_diff_exr(const std::string& path) const;
+  /// The Heat map section's pin / view / totals / histograms.
+  void draw_diff_panel();
+  /// The signed legend of the difference view (false when another view is shown).
+  bool draw_diff_legend();
+  /// The heat map's value under the cursor, as a tooltip (and hover_ for --stats-json).
+  void update_hover();
+
+  // ---- accuracy_map.cpp: the accuracy map
+  /// Collects a finished batch and starts the next; restarts the map when the view changed.
+  void update_accuracy();
+  /// Every pixel of the current view judged (true when the map is off).
+  bool accuracy_complete() const;
+  /// Paints the judged pixels' verdicts over `rgba` (the colourised image).
+  void colorize_accuracy(std::vector<uint8_t>& rgba) const;
+  AccuracySummary accuracy_summary() const;
+  /// The Render panel's accuracy controls: the map, the triangle test, the rates.
+  void draw_accuracy_panel();
 
   // ---- stats_json.cpp: --stats-json
   /// Writes the statistics through the atomic writer; false (after an error on stderr) when
@@ -335,19 +423,59 @@ class Viewer {
   /// ray"), within the depth range.
   bool splits_of_pick_ = false;
 
+  // The pinned heat map (diff_map.cpp).
+  struct PinnedMap {
+    RenderedImage image;
+    Camera camera;      ///< the camera it was rendered with
+    std::string label;  ///< build_label() of its structure
+  };
+  std::optional<PinnedMap> pinned_;
+  DiffView diff_view_ = DiffView::Difference;
+  float split_at_ = 0.5f;  ///< split view: the fraction of the width showing the pinned map
+  float diff_scale_ = 0;   ///< the difference view's |current - pinned| at the scale's ends
+  struct Hover {
+    bool valid = false, has_pinned = false;
+    int x = 0, y = 0;
+    float current = 0, pinned = 0;
+  };
+  Hover hover_;  ///< the heat map's values under the cursor in the last frame
+
+  // The accuracy map (accuracy_map.cpp).
+  struct AccuracyMap {
+    std::shared_ptr<const World> world;
+    Camera camera;
+    int w = 0, h = 0;
+    std::vector<uint8_t> verdict;  ///< per pixel: 0 not judged, else 1 + the worst verdict
+    std::vector<uint32_t> order;   ///< the pixels in the order they are judged (shuffled)
+    size_t next = 0, judged = 0;
+    size_t batch = 16;  ///< pixels in the next batch
+    uint64_t counts[2][4] = {};
+    double query_seconds = 0;
+    uint64_t query_rays = 0;
+    std::future<AccuracyBatch> running;
+  };
+  bool show_accuracy_ = false;
+  AccuracyMap accuracy_;
+  std::shared_ptr<const AccuracyReference> reference_;
+  const Scene* reference_scene_ = nullptr;  ///< the scene reference_ was made for
+
   // Pick.
   struct Pick {
     int x = 0, y = 0;
     int w = 0, h = 0;  ///< the image the pixel belongs to
     Camera camera;     ///< the camera the pixel was picked with
-    Ray ray;
-    Trace trace;
-    RaySegment segment;  ///< the part of the ray the traversal covered
-    std::string command;
-    bool framed = false;                           ///< frame_pick() moved the camera onto it
-    uint64_t serial = 0;                           ///< distinguishes picks (the step table's ID)
-    std::vector<std::array<std::string, 6>> rows;  ///< the step table's text, per step
-    float widths[6] = {};                          ///< its columns' content widths
+    Ray ray;           ///< the pixel's primary ray
+    /// The pixel's whole Whitted ray tree, as the render traces it (nodes[0]: `ray`).
+    RayTree tree;
+    int selected = 0;                   ///< the ray of `tree` shown
+    std::vector<std::string> commands;  ///< each tree ray's `kdgrid trace` replay command
+    Trace trace;                        ///< the selected ray's traversal
+    RaySegment segment;                 ///< the part of the selected ray its traversal covered
+    std::string command;                ///< the selected ray's replay command
+    bool framed = false;                ///< frame_pick() moved the camera onto it
+    uint64_t serial = 0;                ///< distinguishes picks (the step table's ID)
+    std::vector<std::array<std::string, 7>> rows;  ///< the step table's text, per step
+    float widths[7] = {};                          ///< its columns' content widths
     float widths_for_font = 0;                     ///< the font size the widths were measured with
   };
   std::optional<Pick> pick_;

@@ -15,6 +15,11 @@ using Clock = std::chrono::steady_clock;
 /// Colour of the brute-force refusal: orange, apart from the errors' red.
 inline const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
 
+/// The same camera, exactly (a moved camera restarts what depends on the view).
+inline bool same_camera(const Camera& a, const Camera& b) {
+  return a.eye == b.eye && a.target == b.target && a.up == b.up && a.fov_deg == b.fov_deg;
+}
+
 /// The render mode as --heatmap and --stats-json spell it ("shaded", "steps", "tests").
 const char* mode_name(RenderMode m);
 

@@ -78,6 +78,7 @@ struct Trace {
   std::vector<uint32_t> tested;  ///< triangles tested, in order, grouped by step
   Hit hit;
   RayCounters counters;
+  bool occluded = false;  ///< the answer of an any-hit trace (Accelerator::trace_occluded)
 };
 
 /// A kd split plane (kd-tree, hybrid) with the box of the node it splits.
@@ -189,6 +190,14 @@ class Accelerator {
 
   /// The closest-hit traversal of one ray, step by step.
   virtual Trace trace(const Ray& ray) const = 0;
+  /// The any-hit traversal of one ray, step by step, as occluded() walks it (it stops at the
+  /// first hit found); Trace::occluded holds the answer and Trace::hit stays invalid. This
+  /// default, for structures that cannot trace (Embree), holds only the answer.
+  virtual Trace trace_occluded(const Ray& ray) const {
+    Trace t;
+    t.occluded = occluded(ray);
+    return t;
+  }
 
   /// Structure bytes, as in BuildStats::bytes.
   virtual uint64_t memory_bytes() const = 0;
@@ -238,6 +247,12 @@ class AcceleratorBase : public Accelerator {
     Hit h;
     dispatch<false>(ray, &h, s);
     t.hit = h;
+    return t;
+  }
+  Trace trace_occluded(const Ray& ray) const final {
+    Trace t;
+    TraceProbe s(&t);
+    t.occluded = dispatch<true>(ray, nullptr, s);
     return t;
   }
   uint64_t memory_bytes() const override { return stats_.bytes; }

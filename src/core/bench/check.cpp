@@ -65,6 +65,7 @@ struct Candidate {
   double t;
   uint32_t prim;
   double t_unc;  ///< how far a float traversal's t may lie from this t
+  bool front;    ///< the triangle faces the ray (its determinant is positive)
 };
 
 struct Reference {
@@ -151,7 +152,7 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
       ref.t_strict = t;
       ref.t_strict_unc = t_unc;
     }
-    loose.push_back({t, i, t_unc});
+    loose.push_back({t, i, t_unc, det > 0});
   }
   std::sort(loose.begin(), loose.end(), [](auto& a, auto& b) { return a.t < b.t; });
   for (const auto& cnd : loose) {
@@ -553,6 +554,109 @@ CheckResult judge_accelerator(const Accelerator& accel, const CheckCase& base) {
     if (any_wrong[i]) ++res.any_disagree;
   }
   return res;
+}
+
+const char* to_string(AccuracyVerdict v) {
+  switch (v) {
+    case AccuracyVerdict::Agree:
+      return "agree";
+    case AccuracyVerdict::Ambiguous:
+      return "ambiguous";
+    case AccuracyVerdict::Disagree:
+      return "disagree";
+    case AccuracyVerdict::Leak:
+      return "leak";
+  }
+  return "?";
+}
+
+namespace {
+uint64_t edge_key(uint32_t a, uint32_t b) {
+  return (uint64_t(std::min(a, b)) << 32) | std::max(a, b);
+}
+}  // namespace
+
+AccuracyReference::AccuracyReference(const Mesh& mesh)
+    : mesh_(&mesh), scale_(scene_scale_of(mesh)) {
+  std::vector<uint64_t> keys;
+  keys.reserve(mesh.num_triangles() * 3);
+  for (const auto& t : mesh.triangles)
+    for (int k = 0; k < 3; ++k) keys.push_back(edge_key(t[k], t[(k + 1) % 3]));
+  std::sort(keys.begin(), keys.end());
+  for (size_t i = 0; i < keys.size();) {
+    size_t j = i;
+    while (j < keys.size() && keys[j] == keys[i]) ++j;
+    edge_faces_.emplace_back(keys[i], uint32_t(j - i));
+    i = j;
+  }
+  closed_vertex_.assign(mesh.num_vertices(), 1);
+  for (const auto& [key, faces] : edge_faces_)
+    if (faces != 2) {
+      closed_vertex_[size_t(key >> 32)] = 0;
+      closed_vertex_[size_t(key & 0xffffffffu)] = 0;
+    }
+}
+
+bool AccuracyReference::closed_edge(uint32_t a, uint32_t b) const {
+  const uint64_t k = edge_key(a, b);
+  const auto it =
+      std::lower_bound(edge_faces_.begin(), edge_faces_.end(), std::pair<uint64_t, uint32_t>(k, 0));
+  return it != edge_faces_.end() && it->first == k && it->second == 2;
+}
+
+namespace {
+
+/// Where the ray first crosses the surface through a closed edge or vertex after tmin (two
+/// loose candidates at the same t, facing the ray alike, sharing that edge or vertex): its t
+/// and uncertainty, or t = kInf.
+std::pair<double, double> first_crossing(const AccuracyReference& acc, const Reference& ref,
+                                         const Ray& r) {
+  const auto& tris = acc.mesh().triangles;
+  for (size_t i = 0; i < ref.loose.size(); ++i) {
+    const Candidate& a = ref.loose[i];
+    if (a.t <= r.tmin + a.t_unc) continue;
+    for (size_t j = i + 1; j < ref.loose.size(); ++j) {
+      const Candidate& b = ref.loose[j];
+      if (b.t - a.t > a.t_unc + b.t_unc) break;              // sorted by t
+      if (a.front != b.front || a.prim == b.prim) continue;  // a silhouette: the ray grazes
+      uint32_t shared[3];
+      int n = 0;
+      for (int p = 0; p < 3; ++p)
+        for (int q = 0; q < 3; ++q)
+          if (n < 3 && tris[a.prim][p] == tris[b.prim][q]) shared[n++] = tris[a.prim][p];
+      // An edge counts only between closed vertices: near an open end the two triangles need
+      // not cover the crossing point (conservative: fewer leaks, never a false one).
+      if ((n == 2 && acc.closed_edge(shared[0], shared[1]) && acc.closed_vertex(shared[0]) &&
+           acc.closed_vertex(shared[1])) ||
+          (n == 1 && acc.closed_vertex(shared[0])))
+        return {a.t, a.t_unc + b.t_unc};
+    }
+  }
+  return {kInf, 0.0};
+}
+
+}  // namespace
+
+AccuracyVerdict AccuracyReference::judge_closest(const Ray& r, bool hit, const Hit& h) const {
+  const Reference ref = compute_reference(*mesh_, r, scale_);
+  const Verdict v = kdgrid::judge_closest(ref, hit, h, nullptr);
+  if (v == Verdict::Agree) return AccuracyVerdict::Agree;
+  if (v == Verdict::Disagree) return AccuracyVerdict::Disagree;
+  // Ambiguous for check: still a leak when the answer lies beyond a closed crossing.
+  if (ref.valid) {
+    const auto [tc, unc] = first_crossing(*this, ref, r);
+    if (tc < kInf && (!hit || double(h.t) - tc > unc)) return AccuracyVerdict::Leak;
+  }
+  return AccuracyVerdict::Ambiguous;
+}
+
+AccuracyVerdict AccuracyReference::judge_occluded(const Ray& r, bool occluded) const {
+  const Reference ref = compute_reference(*mesh_, r, scale_);
+  if (judge_any_wrong(ref, occluded)) return AccuracyVerdict::Disagree;
+  const bool ambiguous = ref.valid && (ref.grazing || ref.edge_before);
+  if (!occluded && ref.valid && first_crossing(*this, ref, r).first < kInf)
+    return AccuracyVerdict::Leak;
+  return ambiguous ? AccuracyVerdict::Ambiguous : AccuracyVerdict::Agree;
 }
 
 std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float epsilon) {

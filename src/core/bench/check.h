@@ -60,6 +60,47 @@ CheckResult run_check(const std::string& structure, const CheckCase& c, const Bu
 /// test judges a deliberately broken structure). Throws what the structure throws.
 CheckResult judge_accelerator(const Accelerator& accel, const CheckCase& c);
 
+/// The verdict on one answer against the double-precision reference.
+enum class AccuracyVerdict : uint8_t {
+  Agree,      ///< the answer is the reference's
+  Ambiguous,  ///< the reference cannot decide (an edge or vertex hit, a tie, a grazing ray)
+  Disagree,   ///< contradicts an unambiguous reference (judge_accelerator's failures)
+  Leak,       ///< slipped through a shared edge or vertex of a closed part of the mesh
+};
+/// "agree", "ambiguous", "disagree", "leak".
+const char* to_string(AccuracyVerdict v);
+
+/// The reference of `kdgrid check` for judging answers one ray at a time (the viewer's
+/// accuracy map), with the rules of judge_accelerator, plus leaks: where the ray crosses the
+/// surface through a closed edge (two triangles, each hit within the reference's edge margin,
+/// at the same t, facing the ray the same way, the edge used by exactly those two and each of
+/// its ends closed) or through a closed vertex (every edge at it shared by two triangles), one
+/// of them must be hit there; an
+/// answer beyond that t, or none, has slipped through (what `kdgrid sweep triangle` counts as a
+/// leak). judge_accelerator calls these answers ambiguous: it does not know the mesh's edges.
+/// The cost is a double-precision test of every triangle per ray.
+class AccuracyReference {
+ public:
+  /// `mesh` must outlive the reference.
+  explicit AccuracyReference(const Mesh& mesh);
+  /// A closest-hit answer (`hit`, and `h` when hit) of `r`.
+  AccuracyVerdict judge_closest(const Ray& r, bool hit, const Hit& h) const;
+  /// An any-hit (occlusion) answer of `r`.
+  AccuracyVerdict judge_occluded(const Ray& r, bool occluded) const;
+
+  const Mesh& mesh() const { return *mesh_; }
+  /// The edge (a, b) is used by exactly two triangles.
+  bool closed_edge(uint32_t a, uint32_t b) const;
+  /// Every edge at vertex v is used by exactly two triangles.
+  bool closed_vertex(uint32_t v) const { return closed_vertex_[v] != 0; }
+
+ private:
+  const Mesh* mesh_;
+  double scale_;
+  std::vector<std::pair<uint64_t, uint32_t>> edge_faces_;  ///< (edge key, faces), sorted
+  std::vector<uint8_t> closed_vertex_;
+};
+
 /// Self-intersection study: rays leaving random points on random triangles (scales 1e-4 ..
 /// 1e4, translated up to 1e5) away from the surface; counts rays that re-hit their own
 /// triangle with the robust offset and with a fixed epsilon (tmin = eps) for comparison, and

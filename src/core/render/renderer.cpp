@@ -248,25 +248,77 @@ Vec3 Renderer::radiance(const Ray& ray, int depth, RenderCounters& counters) con
 }
 
 Vec3 Renderer::shade(const Ray& ray, int depth, const Vec3& path_weight, uint32_t& budget,
-                     RenderCounters& counters) const {
+                     RenderCounters& counters, RayTree* tree, int parent, RayKind kind) const {
   Hit hit;
-  const bool found = accel_->intersect(ray, hit);
-  return shade_hit(ray, found, hit, depth, path_weight, budget, counters);
+  if (!tree) {
+    const bool found = accel_->intersect(ray, hit);
+    return shade_hit(ray, found, hit, depth, path_weight, budget, counters);
+  }
+  const int node = record_ray(*tree, ray, kind, parent, depth);
+  hit = tree->nodes[size_t(node)].trace.hit;
+  return shade_hit(ray, hit.valid(), hit, depth, path_weight, budget, counters, tree, node);
+}
+
+RayTree Renderer::trace_tree(const Ray& primary, bool timed) const {
+  RayTree tree;
+  tree.timed = timed;
+  RenderCounters counters;
+  uint32_t budget = kMaxSecondaryRaysPerSample;
+  tree.radiance = shade(primary, 0, Vec3(1.0f), budget, counters, &tree, -1, RayKind::Primary);
+  return tree;
+}
+
+int Renderer::record_ray(RayTree& tree, const Ray& ray, RayKind kind, int parent, int depth) const {
+  RayTreeNode n;
+  n.kind = kind;
+  n.parent = parent;
+  n.depth = depth;
+  n.ray = ray;
+  const bool any = kind == RayKind::Shadow;
+  n.trace = any ? accel_->trace_occluded(ray) : accel_->trace(ray);
+  // The fast query alone, repeated until the loop is long against the clock's resolution.
+  uint64_t reps = 0, answers = 0;
+  double nanos = 0;
+  for (uint64_t batch = 8; tree.timed && nanos < kRayTreeTimingNanos && reps < (1u << 20);
+       batch *= 2) {
+    const auto t0 = std::chrono::steady_clock::now();
+    for (uint64_t i = 0; i < batch; ++i) {
+      Hit h;
+      answers += any ? accel_->occluded(ray) : accel_->intersect(ray, h);
+    }
+    nanos +=
+        std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count();
+    reps += batch;
+  }
+  // The answers are used, so the timed queries cannot be optimised away.
+  static std::atomic<uint64_t> answers_sink{0};
+  answers_sink.fetch_add(answers, std::memory_order_relaxed);
+  n.seconds = reps ? nanos * 1e-9 / double(reps) : 0.0;
+  tree.nodes.push_back(std::move(n));
+  return int(tree.nodes.size()) - 1;
 }
 
 Vec3 Renderer::shade_hit(const Ray& ray, bool found, const Hit& hit, int depth,
-                         const Vec3& path_weight, uint32_t& budget,
-                         RenderCounters& counters) const {
+                         const Vec3& path_weight, uint32_t& budget, RenderCounters& counters,
+                         RayTree* tree, int node) const {
   if (!found) return scene_->background;
   const Surface s = surface_at(ray, hit);
   Vec3 result = unlit(s);
   bool lit = max_component(s.m->emission) > 0.0f;
-  for (const Light& light : scene_->lights) {
+  for (uint32_t l = 0; l < scene_->lights.size(); ++l) {
+    const Light& light = scene_->lights[l];
     LightTerm t;
     if (!light_term(s, light, t)) continue;
     if (settings_.shadows) {
       ++counters.shadow;
-      if (accel_->occluded(shadow_ray(s, light, t))) continue;
+      const Ray shadow = shadow_ray(s, light, t);
+      if (tree) {
+        const int sn = record_ray(*tree, shadow, RayKind::Shadow, node, depth);
+        tree->nodes[size_t(sn)].light = l;
+        if (tree->nodes[size_t(sn)].trace.occluded) continue;
+      } else if (accel_->occluded(shadow)) {
+        continue;
+      }
     }
     add_light(s, t, result);
     lit = true;
@@ -275,7 +327,7 @@ Vec3 Renderer::shade_hit(const Ray& ray, bool found, const Hit& hit, int depth,
     ++counters.probed;
     counters.lit += lit;
   }
-  return finish_hit(s, result, depth, path_weight, budget, counters);
+  return finish_hit(s, result, depth, path_weight, budget, counters, tree, node);
 }
 
 void Renderer::shade_packet(const Ray* rays, const Hit* hits, const bool* found, int n, Vec3* out,
@@ -486,19 +538,20 @@ void Renderer::add_light(const Surface& s, const LightTerm& t, Vec3& result) {
 }
 
 Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& path_weight,
-                          uint32_t& budget, RenderCounters& counters) const {
+                          uint32_t& budget, RenderCounters& counters, RayTree* tree,
+                          int node) const {
   const Material& m = *s.m;
   const Vec3 &p = s.p, &d = s.d, &n = s.n, &ng = s.ng, &albedo = s.albedo;
   const bool front = s.front;
   const float transmission = s.transmission;
   if (depth >= settings_.max_depth) return result;
   // Traces one secondary ray of weight `w` if its path still matters and the budget allows.
-  auto secondary = [&](const Vec3& w, const Ray& next, uint64_t& kind) {
+  auto secondary = [&](const Vec3& w, const Ray& next, uint64_t& count, RayKind kind) {
     const Vec3 pw = path_weight * w;
     if (!(max_component(pw) > kMinWeight) || budget == 0) return;
     --budget;
-    ++kind;
-    result += w * shade(next, depth + 1, pw, budget, counters);
+    ++count;
+    result += w * shade(next, depth + 1, pw, budget, counters, tree, node, kind);
   };
 
   // Mirror reflection, only for materials that reflect (and only when the scene has one).
@@ -506,7 +559,7 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
     Vec3 r = reflect(d, n);
     if (dot(r, ng) <= 0.0f) r = reflect(d, ng);  // shading normal bent it below the surface
     secondary(m.reflectance(), Ray{offset_ray_origin(p, ng, s.corners), 0.0f, r, kInf},
-              counters.reflection);
+              counters.reflection, RayKind::Reflection);
   }
 
   // Refraction with Fresnel (Schlick) and total internal reflection.
@@ -526,15 +579,29 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
       const Vec3 tweight = albedo * (transmission * (1.0f - fresnel));
       if (dot(t, ng) < 0.0f)
         secondary(tweight, Ray{offset_ray_origin(p, -ng, s.corners), 0.0f, t, kInf},
-                  counters.refraction);
+                  counters.refraction, RayKind::Refraction);
     }
     // Fresnel reflection of transparent surfaces (all of it under total internal reflection).
     Vec3 r = reflect(d, n);
     if (dot(r, ng) <= 0.0f) r = reflect(d, ng);
     secondary(reflect_weight, Ray{offset_ray_origin(p, ng, s.corners), 0.0f, r, kInf},
-              counters.reflection);
+              counters.reflection, RayKind::Reflection);
   }
   return result;
+}
+
+const char* to_string(RayKind k) {
+  switch (k) {
+    case RayKind::Primary:
+      return "primary";
+    case RayKind::Shadow:
+      return "shadow";
+    case RayKind::Reflection:
+      return "reflection";
+    case RayKind::Refraction:
+      return "refraction";
+  }
+  return "?";
 }
 
 void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure) {

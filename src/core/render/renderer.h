@@ -90,6 +90,39 @@ struct RenderSettings {
   Shading shading = Shading::Lights;  ///< how RenderMode::Shaded lights a surface
 };
 
+/// The kind of a ray in a sample's Whitted ray tree (Renderer::trace_tree).
+enum class RayKind : uint8_t { Primary, Shadow, Reflection, Refraction };
+/// "primary", "shadow", "reflection", "refraction".
+const char* to_string(RayKind k);
+
+/// One ray of a sample's ray tree: the ray exactly as the renderer traced it, its traversal
+/// step by step and the time the structure's fast query takes on it.
+struct RayTreeNode {
+  RayKind kind = RayKind::Primary;
+  int parent = -1;     ///< the ray whose hit spawned this one (-1 for the primary)
+  int depth = 0;       ///< bounces below the primary; a shadow ray has its surface's depth
+  uint32_t light = 0;  ///< shadow rays: the light (index into Scene::lights) they test
+  Ray ray;
+  /// Closest-hit traversal (Accelerator::trace); for a shadow ray the any-hit traversal the
+  /// renderer's occluded() query walks (Accelerator::trace_occluded, answer in trace.occluded).
+  Trace trace;
+  /// Seconds one fast query (intersect(), or occluded() for a shadow ray) takes on this ray:
+  /// the mean of a timed loop of repetitions (kRayTreeTimingNanos at least).
+  double seconds = 0;
+};
+
+/// A camera sample's whole ray tree, in the order the renderer traced the rays (depth first:
+/// a surface's shadow rays, then its reflection ray and its subtree, then its refraction ray).
+struct RayTree {
+  std::vector<RayTreeNode> nodes;  ///< nodes[0] is the primary ray
+  Vec3 radiance;                   ///< the sample's radiance, as render_pass() computes it
+  bool timed = true;               ///< the nodes' seconds were measured
+};
+
+/// Least total time of the timed loop behind RayTreeNode::seconds, in nanoseconds: long
+/// against the clock's resolution, short enough for a pick to stay interactive.
+constexpr double kRayTreeTimingNanos = 20000.0;
+
 /// Rays traced so far, by kind; updated after every pass. Reflection rays come from
 /// reflective materials (Material::reflects()) and from the Fresnel reflection / total
 /// internal reflection of refractive ones; a scene with neither traces none.
@@ -133,14 +166,28 @@ class Renderer {
   /// Traces at most kMaxSecondaryRaysPerSample reflection/refraction rays below it.
   Vec3 radiance(const Ray& ray, int depth, RenderCounters& counters) const;
 
+  /// The whole Whitted ray tree of one camera ray (primary, shadow, reflection and refraction
+  /// rays down to settings().max_depth), traced by the same shading code as render_pass(), so
+  /// its rays are bitwise the ones a render traces for that sample (the packet path's answers
+  /// are bitwise the single-ray ones). Shaded mode's tree; for the viewer's pick and tests.
+  /// timed = false leaves every RayTreeNode::seconds at 0 (no timing loops).
+  RayTree trace_tree(const Ray& primary, bool timed = true) const;
+
  private:
   /// radiance() for a ray whose contribution to the pixel is `path_weight` times its
   /// radiance; `budget` is the number of secondary rays the sample may still trace.
+  /// With `tree` (trace_tree), every ray is recorded into it, its parent being node `parent`.
   Vec3 shade(const Ray& ray, int depth, const Vec3& path_weight, uint32_t& budget,
-             RenderCounters& counters) const;
-  /// shade() once the ray's closest hit is known (`found`, `hit` as intersect() gives them).
+             RenderCounters& counters, RayTree* tree = nullptr, int parent = -1,
+             RayKind kind = RayKind::Primary) const;
+  /// shade() once the ray's closest hit is known (`found`, `hit` as intersect() gives them);
+  /// `node` is the ray's node in `tree` when one is recorded.
   Vec3 shade_hit(const Ray& ray, bool found, const Hit& hit, int depth, const Vec3& path_weight,
-                 uint32_t& budget, RenderCounters& counters) const;
+                 uint32_t& budget, RenderCounters& counters, RayTree* tree = nullptr,
+                 int node = -1) const;
+  /// Traces `ray` step by step into a new node of `tree` and times its fast query; returns
+  /// the node's index.
+  int record_ray(RayTree& tree, const Ray& ray, RayKind kind, int parent, int depth) const;
 
   /// What shading needs of the surface a ray hit: its point, normals and material terms.
   struct Surface {
@@ -175,7 +222,8 @@ class Renderer {
   /// The surface's reflection and refraction rays, traced and added to `result` (its lights
   /// already in it); returns the radiance.
   Vec3 finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& path_weight,
-                  uint32_t& budget, RenderCounters& counters) const;
+                  uint32_t& budget, RenderCounters& counters, RayTree* tree = nullptr,
+                  int node = -1) const;
   /// The shaded radiance of n primary rays of one packet (their hits as intersect_packet gave
   /// them), their shadow rays traced through occluded_packet; bitwise shade_hit's answers.
   void shade_packet(const Ray* rays, const Hit* hits, const bool* found, int n, Vec3* out,

@@ -1,0 +1,173 @@
+// The accuracy map's judge (AccuracyReference, bench/check.h): with the Möller-Trumbore test
+// a closed mesh leaks through shared edges and vertices, as `kdgrid sweep triangle` counts,
+// and with the watertight test it does not; and the viewer's accuracy map over a closed mesh.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <string>
+#include <tuple>
+
+#include <nlohmann/json.hpp>
+
+#include "accel/accelerator.h"
+#include "bench/check.h"
+#include "bench/sweep.h"
+#include "scene/procedural.h"
+#include "temp_dir.h"
+#include "test_util.h"
+#include "viewer_run.h"
+
+namespace kdgrid::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Tally {
+  size_t misses = 0;
+  size_t by[4] = {};
+};
+
+Tally judge_edge_rays(const Mesh& mesh, TriangleTestKind test) {
+  BuildParams p;
+  p.triangle_test = test;
+  const auto accel = build_accelerator("bvh", mesh, p);
+  const AccuracyReference ref(mesh);
+  Tally t;
+  // The rays `sweep triangle` aims at shared edges and vertices, from outside, ending just
+  // past them: a miss is a leak there.
+  for (const Ray& r : edge_vertex_rays(mesh, 2, 7)) {
+    Hit h;
+    const bool hit = accel->intersect(r, h);
+    t.misses += !hit;
+    ++t.by[size_t(ref.judge_closest(r, hit, h))];
+  }
+  return t;
+}
+
+TEST(AccuracyMap, JudgeFindsExactlyTheLeaksSweepTriangleCounts) {
+  for (const Mesh& mesh : {make_icosphere(3), make_torus(48, 24)}) {
+    const Tally m = judge_edge_rays(mesh, TriangleTestKind::Moller);
+    EXPECT_GT(m.misses, 0u) << "Möller-Trumbore leaks nowhere on these rays";
+    EXPECT_EQ(m.by[size_t(AccuracyVerdict::Leak)], m.misses);
+    EXPECT_EQ(m.by[size_t(AccuracyVerdict::Disagree)], 0u);
+    const Tally w = judge_edge_rays(mesh, TriangleTestKind::Watertight);
+    EXPECT_EQ(w.misses, 0u);
+    EXPECT_EQ(w.by[size_t(AccuracyVerdict::Leak)], 0u);
+    EXPECT_EQ(w.by[size_t(AccuracyVerdict::Disagree)], 0u);
+  }
+}
+
+/// A closed cube [-1,1]^3 whose faces are fans of 8 triangles around their centres (edges to
+/// the corners and to the edge midpoints), outward facing. Seen head on from the +z axis, the
+/// pixels on the image's centre lines and diagonals look along those edges.
+Mesh fan_cube() {
+  Mesh m;
+  std::map<std::tuple<int, int, int>, uint32_t> index;
+  const auto vid = [&](int x, int y, int z) {
+    const auto k = std::make_tuple(x, y, z);
+    auto it = index.find(k);
+    if (it != index.end()) return it->second;
+    m.positions.push_back(Vec3(float(x), float(y), float(z)));
+    return index[k] = uint32_t(m.positions.size() - 1);
+  };
+  // The ring of corners and midpoints, counter-clockwise about +axis in (u, v).
+  const int ring[8][2] = {{1, 0}, {1, 1}, {0, 1}, {-1, 1}, {-1, 0}, {-1, -1}, {0, -1}, {1, -1}};
+  for (int axis = 0; axis < 3; ++axis)
+    for (int sign : {-1, 1}) {
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+      const auto point = [&](int a, int b) {
+        int p[3];
+        p[axis] = sign;
+        p[u] = a;
+        p[v] = b;
+        return vid(p[0], p[1], p[2]);
+      };
+      const uint32_t c = point(0, 0);
+      for (int k = 0; k < 8; ++k) {
+        uint32_t a = point(ring[k][0], ring[k][1]);
+        uint32_t b = point(ring[(k + 1) % 8][0], ring[(k + 1) % 8][1]);
+        if (sign < 0) std::swap(a, b);
+        m.triangles.push_back({c, a, b});
+      }
+    }
+  return m;
+}
+
+TEST(AccuracyMap, OnlyACrossingOfAClosedSurfaceIsALeak) {
+  const Mesh cube = fan_cube();
+  const AccuracyReference closed(cube);
+  const Hit none;
+  const Vec3 down(0, 0, -1);
+  // Through a diagonal edge and through the centre vertex of the top face: a miss leaked, and
+  // so did an any-hit query that answers "not occluded".
+  EXPECT_EQ(closed.judge_closest(Ray{{0.5f, 0.5f, 3}, 0, down, kInf}, false, none),
+            AccuracyVerdict::Leak);
+  EXPECT_EQ(closed.judge_closest(Ray{{0.0f, 0.0f, 3}, 0, down, kInf}, false, none),
+            AccuracyVerdict::Leak);
+  EXPECT_EQ(closed.judge_occluded(Ray{{0.5f, 0.5f, 3}, 0, down, kInf}, false),
+            AccuracyVerdict::Leak);
+  // A hit on the far side instead of the top face: beyond the crossing, a leak as well.
+  Hit far;
+  far.t = 4.0f;
+  far.prim = 0;
+  far.u = far.v = 0.25f;
+  EXPECT_EQ(closed.judge_closest(Ray{{0.5f, 0.5f, 3}, 0, down, kInf}, true, far),
+            AccuracyVerdict::Leak);
+  // A ray touching the cube's top-right edge from outside (a silhouette) may miss.
+  EXPECT_EQ(closed.judge_closest(Ray{{0.0f, 0.3f, 2}, 0, {1, 0, -1}, kInf}, false, none),
+            AccuracyVerdict::Ambiguous);
+  // An open quad: a miss at its outer edge or corner is no leak, the interior is a plain miss.
+  Mesh quad;
+  quad.positions = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+  quad.triangles = {{0, 1, 2}, {0, 2, 3}};
+  const AccuracyReference open(quad);
+  EXPECT_EQ(open.judge_closest(Ray{{1.0f, 0.5f, 1}, 0, down, kInf}, false, none),
+            AccuracyVerdict::Ambiguous);
+  EXPECT_EQ(open.judge_closest(Ray{{1.0f, 1.0f, 1}, 0, down, kInf}, false, none),
+            AccuracyVerdict::Ambiguous);
+  EXPECT_EQ(open.judge_closest(Ray{{0.25f, 0.5f, 1}, 0, down, kInf}, false, none),
+            AccuracyVerdict::Disagree);
+  EXPECT_EQ(open.judge_occluded(Ray{{0.25f, 0.5f, 1}, 0, down, kInf}, false),
+            AccuracyVerdict::Disagree);
+}
+
+#ifdef KDGRID_VIEWER_PATH
+void write_obj(const Mesh& m, const std::string& path) {
+  std::ofstream out(path);
+  for (const Vec3& p : m.positions) out << "v " << p.x << " " << p.y << " " << p.z << "\n";
+  for (const auto& t : m.triangles)
+    out << "f " << t[0] + 1 << " " << t[1] + 1 << " " << t[2] + 1 << "\n";
+}
+
+TEST(AccuracyMap, ViewerJudgesEveryPixelOfAClosedMeshWatertightWithoutLeaks) {
+  KDGRID_REQUIRE_XVFB();
+  TempDir dir("accuracy_map");
+  const std::string d = dir.path().string();
+  write_obj(fan_cube(), d + "/cube.obj");
+  // Head on: the pixels on the image's centre lines and diagonals look along shared edges.
+  const RunResult r = run_viewer(
+      d,
+      "cube.obj --accel bvh --triangle-test watertight --eye 0,0,4 --target 0,0,0 --fov 40 "
+      "--width 129 --height 129 --frames 2 --min-samples 1 --max-samples 1 --accuracy "
+      "--hide-ui --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  std::ifstream in(d + "/stats.json");
+  const nlohmann::json acc = nlohmann::json::parse(in)["state"]["accuracy"];
+  ASSERT_TRUE(acc.is_object());
+  EXPECT_TRUE(acc["complete"].get<bool>()) << acc.dump();
+  EXPECT_EQ(acc["judged"], 129 * 129);
+  EXPECT_EQ(acc["triangle_test"], "watertight");
+  EXPECT_EQ(acc["pixels_by_verdict"]["leak"], 0) << acc.dump();
+  EXPECT_EQ(acc["pixels_by_verdict"]["disagree"], 0) << acc.dump();
+  // The edges seen head on are ambiguous for the reference; the faces agree.
+  EXPECT_GT(acc["pixels_by_verdict"]["ambiguous"].get<int>(), 0) << acc.dump();
+  EXPECT_GT(acc["pixels_by_verdict"]["agree"].get<int>(), 129 * 129 / 2) << acc.dump();
+  EXPECT_EQ(acc["disagreement_rate"].get<double>(), 0.0);
+  EXPECT_GT(acc["mrays"].get<double>(), 0.0);
+}
+#endif
+
+}  // namespace
+}  // namespace kdgrid::test
