@@ -160,7 +160,9 @@ TEST(RayTree, TraceOriginDirReplaysASecondaryRayStepForStep) {
         EXPECT_EQ(j["occluded"].get<bool>(), n.trace.occluded);
       } else {
         ASSERT_EQ(j["hit"].is_null(), !n.trace.hit.valid());
-        if (n.trace.hit.valid()) EXPECT_EQ(j["hit"]["prim"].get<uint32_t>(), n.trace.hit.prim);
+        if (n.trace.hit.valid()) {
+          EXPECT_EQ(j["hit"]["prim"].get<uint32_t>(), n.trace.hit.prim);
+        }
       }
       for (size_t k = 0; k < std::min<size_t>(j["steps"].size(), n.trace.steps.size()); ++k)
         EXPECT_EQ(j["steps"][k]["id"].get<uint64_t>(), n.trace.steps[k].id) << "step " << k;
@@ -209,7 +211,9 @@ TEST(RayTree, ViewerPickOnTheMirrorSphereReportsTheTreeAndReplaysIt) {
   for (const auto& n : tree) {
     ++kinds[n["kind"].get<std::string>()];
     EXPECT_GT(n["steps"].get<int>(), 0) << n.dump();
-    if (n["kind"] != "shadow") EXPECT_GT(n["tests"].get<int>(), 0) << n.dump();
+    if (n["kind"] != "shadow") {
+      EXPECT_GT(n["tests"].get<int>(), 0) << n.dump();
+    }
   }
   EXPECT_EQ(kinds["primary"], 1) << tree.dump();
   EXPECT_GE(kinds["reflection"], 1) << tree.dump();
