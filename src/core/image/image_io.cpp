@@ -8,10 +8,9 @@
 #include <cstdlib>
 #include <cstring>
 
-#include "accel/guards.h"
-#include "render/renderer.h"
 #include "util/atomic_file.h"
 #include "util/error.h"
+#include "util/format.h"
 #include "util/input_file.h"
 #include "util/memory.h"
 
@@ -50,6 +49,16 @@ void check_image_extension(const std::string& path) {
   if (ext != ".png" && ext != ".exr")
     throw ParamError(path + ": unsupported image format '" + ext +
                      "'; kdgrid writes .png (8-bit sRGB) and .exr (linear float)");
+}
+
+void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure) {
+  out.resize(rgb.size());
+  for (size_t i = 0; i < rgb.size(); ++i) {
+    float c = rgb[i] * exposure;
+    c = (c == c) ? std::min(1.0f, std::max(0.0f, c)) : 0.0f;  // NaN -> black
+    const float s = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
+    out[i] = static_cast<uint8_t>(std::lround(s * 255.0f));
+  }
 }
 
 namespace {

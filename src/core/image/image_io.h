@@ -21,6 +21,9 @@ struct ImageRGB {
   std::map<std::string, std::string> metadata;
 };
 
+/// Maps linear RGB to 8-bit sRGB with a simple exposure + clamp (PNG output, viewer).
+void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure = 1.0f);
+
 /// Writes `rgb` (width*height*3 linear floats) to `path`, chosen by extension:
 /// .png -> tone-mapped 8-bit sRGB (tonemap_srgb8, exposure 1), .exr -> linear float RGB.
 /// Each metadata entry is stored as a string attribute "kdgrid:<key>" (e.g. samples, seconds,

@@ -604,14 +604,4 @@ const char* to_string(RayKind k) {
   return "?";
 }
 
-void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure) {
-  out.resize(rgb.size());
-  for (size_t i = 0; i < rgb.size(); ++i) {
-    float c = rgb[i] * exposure;
-    c = (c == c) ? saturate(c) : 0.0f;  // NaN -> black
-    const float s = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
-    out[i] = static_cast<uint8_t>(std::lround(s * 255.0f));
-  }
-}
-
 }  // namespace kdgrid

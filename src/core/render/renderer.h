@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "accel/accelerator.h"
+#include "image/image_io.h"  // tonemap_srgb8, the film's 8-bit encoding
 #include "render/camera.h"
 #include "scene/scene.h"
 
@@ -243,9 +244,6 @@ class Renderer {
   double seconds_ = 0;
   bool need_reflection_ = false, need_refraction_ = false;
 };
-
-/// Maps linear RGB to 8-bit sRGB with a simple exposure + clamp (PNG output, viewer).
-void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure = 1.0f);
 
 /// Offsets a hit point p on the triangle with the given corners along its geometric normal
 /// so that a ray leaving it cannot re-hit the same surface (Wächter & Binder, Ray Tracing

@@ -13,10 +13,10 @@
 #include <fstream>
 #include <map>
 
-#include "accel/guards.h"
 #include "image/image_io.h"
 #include "scene/load.h"
 #include "util/error.h"
+#include "util/format.h"
 #include "util/input_file.h"
 #include "util/memory.h"
 

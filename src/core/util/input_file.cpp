@@ -7,8 +7,8 @@
 #include <cerrno>
 #include <cstring>
 
-#include "accel/guards.h"
 #include "util/error.h"
+#include "util/format.h"
 #include "util/memory.h"
 
 namespace kdgrid {
