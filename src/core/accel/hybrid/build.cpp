@@ -178,7 +178,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   leaf_depth_.clear();
   sub_nodes_.clear();
   groups_.clear();
-  flat_.clear();
+  flat_subtree_floats_.clear();
   group_count_ = group_lanes_ = group_corners_ = 0;
   flat_subtrees_ = 0;
   map_.reset(params.hybrid_dense_matrix);
@@ -256,15 +256,15 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
       m = std::max({m, std::fabs(origin_[a]), std::fabs(origin_[a] + double(dims_[a]) * cell)});
     const double widen = m * 0x1p-18 + std::numeric_limits<float>::min();
     for (int a = 0; a < 3; ++a) {
-      wbox_.lo[a] = next_float_down(float(origin_[a] - widen));
-      wbox_.hi[a] = next_float_up(float(origin_[a] + double(dims_[a]) * cell + widen));
+      world_box_.lo[a] = next_float_down(float(origin_[a] - widen));
+      world_box_.hi[a] = next_float_up(float(origin_[a] + double(dims_[a]) * cell + widen));
     }
-    max_abs_ = std::max(max_component(abs(wbox_.lo)), max_component(abs(wbox_.hi)));
-    wclip_.set(wbox_);
+    max_abs_ = std::max(max_component(abs(world_box_.lo)), max_component(abs(world_box_.hi)));
+    world_clip_.set(world_box_);
   }
   max_steps_ = uint64_t(dims_[0]) + uint64_t(dims_[1]) + uint64_t(dims_[2]) + 1;
   origin4_ = Double4{origin_[0], origin_[1], origin_[2], 0.0};
-  top4_ = Double4{double(dims_[0] - 1), double(dims_[1] - 1), double(dims_[2] - 1), 0.0};
+  last_cell4_ = Double4{double(dims_[0] - 1), double(dims_[1] - 1), double(dims_[2] - 1), 0.0};
   map_.set_grid(dims_);
 
   double t_tree = 0, t_matrix = 0, t_expand = 0;
@@ -314,7 +314,8 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     uint64_t other = 0;
     other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
              leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine) +
-             sub_nodes_.size() * sizeof(KdNode) + flat_.size() * sizeof(hybrid::GroupLine);
+             sub_nodes_.size() * sizeof(KdNode) +
+             flat_subtree_floats_.size() * sizeof(hybrid::GroupLine);
     const auto t1 = std::chrono::steady_clock::now();
     const uint64_t left = budget > other ? budget - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
@@ -354,7 +355,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.references = references;
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
-  const uint64_t b_flat = flat_.size() * sizeof(hybrid::GroupLine);
+  const uint64_t b_flat = flat_subtree_floats_.size() * sizeof(hybrid::GroupLine);
   const uint64_t b_leaves = leaves_.size() * (sizeof(Leaf) + 1);  // + depth byte
   const uint64_t b_kd_boxes = kd_boxes_.size() * sizeof(KdBox);
   const uint64_t b_groups = groups_.size() * sizeof(hybrid::GroupLine);

@@ -7,13 +7,16 @@
 //   records.h         Node, Leaf (the step box), KdBox (the kd box), the triangle groups' and the
 //                     flat subtrees' layouts
 //   cell_map.h, .cpp  the cell -> leaf map: dense (the paper's) or bricked (default); lookup
-//   walk.h            the ray walk: clip, entry cell, leaf steps with wide tests, and
-//                     the next-leaf cache (NextLeafCache)
+//   walk.h            the ray walk: clip, entry cell, leaf steps with wide tests
+//   walk_flat.h       the walk of a flat subtree: its leaves' boxes clipped at once
+//   next_leaf_cache.h the per-thread next-leaf cache (NextLeafCache)
+//   mailbox.h         the lane-by-lane walk's mailbox and the exact walk's record
 //   packet.cpp        the packet walk: up to 64 rays down the tree together, triangle groups
 //                     culled against them, then tested a triangle against 16 rays
 //   build.cpp         GridKdHybrid::build; choose_cell_size (explicit size or the auto rule)
 //   tree.cpp          the kd-tree on cell boundaries, its leaf subtrees, flattened
 //   widen.cpp         widened empty leaves
+//   build_estimate.h  HybridEstimate, the auto rule's caps and the estimate model's constants
 //   estimate.cpp      GridKdHybrid::estimate: grid, bytes and seconds of a build before it runs
 //   hybrid.cpp        leaf boxes, split planes and map sizes for tests and the viewer
 //   build.h           what the build's files share
@@ -39,6 +42,7 @@
 #include <vector>
 
 #include "accel/accelerator.h"
+#include "accel/hybrid/build_estimate.h"
 #include "accel/hybrid/cell_map.h"
 #include "accel/hybrid/records.h"
 #include "accel/kd_kernel.h"
@@ -57,66 +61,6 @@ template <class Probe>
 struct StatsMark;
 struct PacketRays;
 }  // namespace hybrid
-
-/// Auto rule density floor: at least this many cells per triangle, so that scenes mixing huge
-/// and tiny triangles (Sponza) still get a useful grid.
-constexpr double kHybridAutoCellsPerTriangle = 16.0;
-/// Auto rule cap on cells along one axis (per-node binning arrays, lookup depth).
-constexpr int64_t kHybridAutoMaxAxisCells = 2048;
-/// Auto rule cap on the total cell count with leaf subtrees: the subtrees resolve the geometry,
-/// and a small grid keeps lookups in the caches and references few; a coarser cap saves memory
-/// but costs rays of scenes like Sponza (docs/HYBRID.md, "The cell size"; docs/EXPERIMENTS.md).
-constexpr double kHybridAutoMaxCells = double(uint64_t(1) << 16);
-/// Auto rule cap with plain leaves (BuildParams::hybrid_subtree_min = 0), whose cells must stay
-/// about a triangle wide: the per-cell binning and the dense matrix (2^24 cells: 64 MiB) bound it.
-constexpr double kHybridAutoMaxCellsPlain = double(uint64_t(1) << 24);
-/// Explicit cell sizes may give at most this many cells along one axis (int32 coordinates,
-/// at most 12 brick levels).
-constexpr int64_t kHybridMaxAxisCells = int64_t(1) << 24;
-
-/// What a hybrid build at given parameters would make, from the mesh alone (O(triangles), no
-/// allocation beyond one float per triangle): GridKdHybrid::estimate. The viewer shows it before a
-/// build; GridKdHybrid::build refuses parameters whose estimate does not fit, with the estimate and
-/// suggested_cell in the message.
-struct HybridEstimate {
-  double cell = 0;       ///< the cell size the build would use (the auto rule resolved)
-  double auto_cell = 0;  ///< the auto rule's size for this mesh and these parameters
-  std::string rule;      ///< how the cell size was chosen (BuildStats::extra "auto rule")
-  double dims[3] = {1, 1, 1};
-  double cells = 1;
-  /// Peak bytes of the build, estimated: the cell matrix (dense: 4 bytes a cell; bricked:
-  /// 256-byte bricks along the surface, about kHybridBricksPerArea x area / (4 cells)^2), the
-  /// per-cell binning
-  /// arrays, the empty-leaf table, and the tree (kHybridBytesPerTriangle a triangle).
-  double bytes = 0;
-  /// The built structure's bytes (BuildStats::bytes), estimated: bytes less what the build
-  /// frees before it returns (the binning arrays, the empty-leaf table).
-  double structure_bytes = 0;
-  /// Build time in seconds on BuildParams::threads threads at the rates kHybridSecondsPer*: an
-  /// order of magnitude, for the refusal and the viewer.
-  double seconds = 0;
-  uint64_t budget = 0;       ///< the memory budget it was checked against
-  double seconds_limit = 0;  ///< BuildParams::hybrid_max_build_seconds (0 = none)
-  bool fits = true;          ///< bytes within the budget and seconds within the limit
-  /// When !fits: the smallest cell size (two significant digits, rounded up) whose estimate
-  /// fits; 0 when even one cell does not.
-  double suggested_cell = 0;
-  /// "a 88x87x68 grid (5.21e+05 cells), about 15 MiB and under a second to build".
-  std::string describe() const;
-  /// Why the size does not fit, with the estimate and the fix (the build's ParamError text).
-  std::string refusal() const;
-};
-
-/// Estimate model constants (see HybridEstimate), fitted to the build phases that `kdgrid
-/// render --threads 1 --stats-json` reports, on the slow side: the rates of a shared machine,
-/// and the bytes a triangle of the finest cells the suite's scenes were built at
-/// (docs/EXPERIMENTS.md, "The build estimate", has the figures).
-constexpr double kHybridBricksPerArea = 4.5;  ///< bricks per (4-cell)^2 of triangle area
-/// Tree, leaves, subtrees and triangle groups, a triangle.
-constexpr double kHybridBytesPerTriangle = hybrid::kSharedCorners ? 150 : 300;
-constexpr double kHybridSecondsPerBrick = 10e-6;     ///< matrix construction, one thread
-constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
-constexpr double kHybridSecondsPerBinOp = 1e-9;      ///< one per-cell binning entry
 
 /// The hybrid of a regular grid and an SAH kd-tree (accelerator name "hybrid"): the kd-tree's
 /// splits lie on the grid's cell boundaries, and the cell map takes a ray from leaf to leaf.
@@ -184,7 +128,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// repeat (tested_before): one compare a ray. The exact walk, its copy with a record of every
   /// triangle tested, runs only there.
   template <class TriangleTest, class Probe, bool kAny, bool kExact = false>
-  bool traverse(const Ray& ray, Hit* hit, Probe& s) const;
+  bool traverse(const Ray& ray, Hit* hit, Probe& probe) const;
 
   /// Packets of up to 16 rays walked together (packet.cpp: one ray a float lane, the kd-tree
   /// and the leaves' subtrees walked by the packet, each triangle group culled against it). Each
@@ -245,12 +189,12 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// the same leaves and tests in the same order, each triangle once, so the same closest hit.
   /// Out of line and cold, so that the fast walk only pays the branch to it.
   template <class TriangleTest, class Probe, bool kAny>
-  [[gnu::noinline, gnu::cold]] bool rewalk(const Ray& ray, Hit* hit, Probe& s,
+  [[gnu::noinline, gnu::cold]] bool rewalk(const Ray& ray, Hit* hit, Probe& probe,
                                            const hybrid::StatsMark<Probe>& mark) const;
   /// Where the ray leaves a leaf's step box (the nearest far plane) and the cell past it.
   template <class TriangleTest>
   [[gnu::always_inline]] inline Exit leaf_exit(const WalkState<TriangleTest>& w,
-                                               const Leaf& L) const;
+                                               const Leaf& leaf_rec) const;
   /// The rest of leaf_exit once the exit axis A is known (a branch per axis: see leaf_exit).
   template <int A, class TriangleTest>
   [[gnu::always_inline]] inline void exit_through(const WalkState<TriangleTest>& w,
@@ -271,13 +215,13 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// Empty leaves do not come here (traced walks excepted): traverse() steps over them inline,
   /// with nothing to test.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>
-  [[gnu::noinline]] StepResult walk_step(WalkState<TriangleTest>& w, Probe& s) const;
-  /// Walks the flat subtree at float `at` of flat_ (records.h, "Flat subtrees") over the ray's
-  /// segment in leaf `leaf_id`, which ends at t_exit: the leaves the ray meets, found all at
-  /// once, tested in the kd walk's order until the closest hit lies before the next one. The
+  [[gnu::noinline]] StepResult walk_step(WalkState<TriangleTest>& w, Probe& probe) const;
+  /// Walks the flat subtree at float `at` of flat_subtree_floats_ (records.h, "Flat subtrees") over
+  /// the ray's segment in leaf `leaf_id`, which ends at t_exit: the leaves the ray meets, found all
+  /// at once, tested in the kd walk's order until the closest hit lies before the next one. The
   /// closest hit goes to w (its triangle and u, v through h). True: an any-hit query answered.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>
-  [[gnu::always_inline]] inline bool walk_flat(WalkState<TriangleTest>& w, Probe& s,
+  [[gnu::always_inline]] inline bool walk_flat(WalkState<TriangleTest>& w, Probe& probe,
                                                uint32_t leaf_id, uint32_t at, double t_exit,
                                                LocalHit& h) const;
   /// Tests the `count` triangles of a leaf (or a subtree's leaf), from group `first` on, the one
@@ -286,7 +230,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// best, found and h, which the subtree's walk keeps in its locals. True: an any-hit query
   /// answered.
   template <class TriangleTest, class Probe, bool kAny, bool kExact>
-  [[gnu::always_inline]] inline bool test_groups(WalkState<TriangleTest>& w, Probe& s,
+  [[gnu::always_inline]] inline bool test_groups(WalkState<TriangleTest>& w, Probe& probe,
                                                  const typename TriangleTest::RayData& rd,
                                                  float tmin, uint32_t first, uint32_t count,
                                                  float& best, bool& found, LocalHit& h) const;
@@ -328,13 +272,13 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
-  Double4 origin4_ = {0, 0, 0, 0};  ///< origin_ and 0, for the walk's set-up
-  Double4 top4_ = {0, 0, 0, 0};     ///< the last cell on each axis (dims_ - 1) and 0, in double
+  Double4 origin4_ = {0, 0, 0, 0};     ///< origin_ and 0, for the walk's set-up
+  Double4 last_cell4_ = {0, 0, 0, 0};  ///< the last cell on each axis (dims_ - 1) and 0, in double
   double cell_ = 1.0, inv_cell_ = 1.0;
   int32_t dims_[3] = {1, 1, 1};
   hybrid::CellMap map_;   ///< cell -> leaf (BuildParams::hybrid_dense_matrix selects the form)
-  Box3 wbox_;             ///< the grid's world box, widened beyond rounding (walk_begin)
-  ClipBox4 wclip_;        ///< wbox_ as kd_begin reads it
+  Box3 world_box_;        ///< the grid's world box, widened beyond rounding (walk_begin)
+  ClipBox4 world_clip_;   ///< world_box_ as kd_begin reads it
   float max_abs_ = 0.0f;  ///< largest coordinate magnitude of the grid's box (KdRay::err)
   bool next_leaf_cache_ = true;  ///< BuildParams::hybrid_next_leaf_cache
   uint64_t uid_ = 0;             ///< unique per build, never 0 (NextLeafCache::owner)
@@ -346,7 +290,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<uint8_t> leaf_depth_;
   std::vector<KdNode> sub_nodes_;          ///< leaf subtrees (world space, KdNode layout)
   std::vector<hybrid::GroupLine> groups_;  ///< the leaves' triangle groups (records.h)
-  std::vector<hybrid::GroupLine> flat_;    ///< flat subtrees (records.h)
+  std::vector<hybrid::GroupLine> flat_subtree_floats_;  ///< flat subtrees (records.h)
   /// Groups, lanes and (shared corners) distinct corners stored (BuildStats)
   uint64_t group_count_ = 0, group_lanes_ = 0, group_corners_ = 0;
   uint64_t flat_subtrees_ = 0;  ///< leaf subtrees stored flat (BuildStats)

@@ -39,56 +39,57 @@ namespace kdgrid {
 
 namespace {
 
-using F = WideVectors<16>::F;
-using I = WideVectors<16>::I;
+using FloatLanes = WideVectors<16>::F;
+using IntLanes = WideVectors<16>::I;
 
-[[gnu::always_inline]] inline F splat(float x) {
-  return F{} + x;
+[[gnu::always_inline]] inline FloatLanes splat(float x) {
+  return FloatLanes{} + x;
 }
-[[gnu::always_inline]] inline F vmin(F a, F b) {
+[[gnu::always_inline]] inline FloatLanes vmin(FloatLanes a, FloatLanes b) {
   return a < b ? a : b;
 }
-[[gnu::always_inline]] inline F vmax(F a, F b) {
+[[gnu::always_inline]] inline FloatLanes vmax(FloatLanes a, FloatLanes b) {
   return a > b ? a : b;
 }
 /// Comparisons straight to lane masks (a vector compare's result would go through a vector of
 /// all-ones lanes and back): ordered, so false where either side is NaN, except ne.
 template <int kPredicate>
-[[gnu::always_inline]] inline uint32_t cmp(F a, F b) {
+[[gnu::always_inline]] inline uint32_t cmp(FloatLanes a, FloatLanes b) {
   return _mm512_cmp_ps_mask((__m512)a, (__m512)b, kPredicate);
 }
-[[gnu::always_inline]] inline uint32_t lt(F a, F b) {
+[[gnu::always_inline]] inline uint32_t lt(FloatLanes a, FloatLanes b) {
   return cmp<_CMP_LT_OQ>(a, b);
 }
-[[gnu::always_inline]] inline uint32_t le(F a, F b) {
+[[gnu::always_inline]] inline uint32_t le(FloatLanes a, FloatLanes b) {
   return cmp<_CMP_LE_OQ>(a, b);
 }
-[[gnu::always_inline]] inline uint32_t eq(F a, F b) {
+[[gnu::always_inline]] inline uint32_t eq(FloatLanes a, FloatLanes b) {
   return cmp<_CMP_EQ_OQ>(a, b);
 }
-[[gnu::always_inline]] inline uint32_t ne(F a, F b) {
+[[gnu::always_inline]] inline uint32_t ne(FloatLanes a, FloatLanes b) {
   return cmp<_CMP_NEQ_UQ>(a, b);
 }
-[[gnu::always_inline]] inline F blend(F a, uint32_t m, F b) {
-  return (F)_mm512_mask_mov_ps((__m512)a, __mmask16(m), (__m512)b);
+[[gnu::always_inline]] inline FloatLanes blend(FloatLanes a, uint32_t m, FloatLanes b) {
+  return (FloatLanes)_mm512_mask_mov_ps((__m512)a, __mmask16(m), (__m512)b);
 }
-[[gnu::always_inline]] inline I blend(I a, uint32_t m, I b) {
-  return (I)_mm512_mask_mov_epi32((__m512i)a, __mmask16(m), (__m512i)b);
+[[gnu::always_inline]] inline IntLanes blend(IntLanes a, uint32_t m, IntLanes b) {
+  return (IntLanes)_mm512_mask_mov_epi32((__m512i)a, __mmask16(m), (__m512i)b);
 }
 /// The least of each of four vectors' lanes `m`, at once: halves folded together, two vectors'
 /// eight to a vector, then quarters, then pairs.
-[[gnu::always_inline]] inline void lane_mins(F a, F b, F c, F d, uint32_t m, float (&out)[4]) {
-  const F inf = splat(kInf);
+[[gnu::always_inline]] inline void lane_mins(FloatLanes a, FloatLanes b, FloatLanes c, FloatLanes d,
+                                             uint32_t m, float (&out)[4]) {
+  const FloatLanes inf = splat(kInf);
   a = blend(inf, m, a), b = blend(inf, m, b), c = blend(inf, m, c), d = blend(inf, m, d);
   // Lanes 0-7: a's (or c's) sixteen folded to eight; lanes 8-15: b's (or d's).
-  const F ab = vmin(
+  const FloatLanes ab = vmin(
       __builtin_shufflevector(a, b, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
       __builtin_shufflevector(a, b, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
-  const F cd = vmin(
+  const FloatLanes cd = vmin(
       __builtin_shufflevector(c, d, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
       __builtin_shufflevector(c, d, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
   // Lanes 4q to 4q + 3: four candidates of vector q (a, b, c, d).
-  F x = vmin(
+  FloatLanes x = vmin(
       __builtin_shufflevector(ab, cd, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27),
       __builtin_shufflevector(ab, cd, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30, 31));
   x = vmin(x, __builtin_shufflevector(x, x, 2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13));
@@ -96,7 +97,8 @@ template <int kPredicate>
   out[0] = x[0], out[1] = x[4], out[2] = x[8], out[3] = x[12];
 }
 /// The least and the greatest of each of four vectors' lanes `m`.
-[[gnu::always_inline]] inline void lane_ranges(F a, F b, F c, F d, uint32_t m, float (&lo)[4],
+[[gnu::always_inline]] inline void lane_ranges(FloatLanes a, FloatLanes b, FloatLanes c,
+                                               FloatLanes d, uint32_t m, float (&lo)[4],
                                                float (&hi)[4]) {
   lane_mins(a, b, c, d, m, lo);
   lane_mins(-a, -b, -c, -d, m, hi);
@@ -111,12 +113,13 @@ namespace hybrid {
 /// watertight test's ray data (its axes shared by the packet), and the packet's extreme origins
 /// and shears on the test's axes, which bound every lane's sheared corners (the cull).
 struct PacketRays {
-  F o[3], inv[3], err[3];
-  F ox, oy, oz, sx, sy, sz;
-  F tmin, tmax;  ///< the rays' (+inf and -inf in the lanes not in the packet)
+  FloatLanes o[3], inv[3], err[3];
+  FloatLanes ox, oy, oz, sx, sy, sz;
+  FloatLanes tmin, tmax;  ///< the rays' (+inf and -inf in the lanes not in the packet)
   int kx, ky, kz;
   bool neg[3];  ///< the packet's directions point down axis a
-  float oxl, oxh, oyl, oyh, ozl, ozh, sxl, sxh, syl, syh;
+  /// The lowest (_lo) and highest (_hi) of the lanes' origins (ox, oy, oz) and shears (sx, sy).
+  float ox_lo, ox_hi, oy_lo, oy_hi, oz_lo, oz_hi, sx_lo, sx_hi, sy_lo, sy_hi;
   uint32_t missed;  ///< lanes whose ray misses the grid's box as the single walk clips it
   /// Lane i's WatertightTest::RayData (what prepare() gives: the same divisions).
   WatertightTest::RayData ray_data(int i) const {
@@ -126,8 +129,8 @@ struct PacketRays {
 
 /// The lanes' closest hits so far (or, for any-hit queries, the lanes that found one).
 struct PacketHits {
-  F best, u, v;
-  I prim;
+  FloatLanes best, u, v;
+  IntLanes prim;
   uint32_t found = 0;
 };
 
@@ -141,33 +144,34 @@ using hybrid::PacketRays;
 /// One triangle against the lanes `m` of the packet: WatertightTest::intersect's operations on
 /// each lane (WatertightWide's, with the lanes as rays instead of triangles).
 template <bool kAny>
-[[gnu::always_inline]] inline void test_triangle(const PacketRays& R, PacketHits& H, const Vec3& v0,
-                                                 const Vec3& v1, const Vec3& v2, uint32_t prim,
-                                                 uint32_t m) {
-  const F Az = splat(component(v0, R.kz)) - R.oz, Bz = splat(component(v1, R.kz)) - R.oz,
-          Cz = splat(component(v2, R.kz)) - R.oz;
-  const F ax = (splat(component(v0, R.kx)) - R.ox) - R.sx * Az,
-          ay = (splat(component(v0, R.ky)) - R.oy) - R.sy * Az;
-  const F bx = (splat(component(v1, R.kx)) - R.ox) - R.sx * Bz,
-          by = (splat(component(v1, R.ky)) - R.oy) - R.sy * Bz;
-  const F cx = (splat(component(v2, R.kx)) - R.ox) - R.sx * Cz,
-          cy = (splat(component(v2, R.ky)) - R.oy) - R.sy * Cz;
-  const F U = cx * by - cy * bx;
-  const F V = ax * cy - ay * cx;
-  const F Wf = bx * ay - by * ax;
-  const F zero = {};
+[[gnu::always_inline]] inline void test_triangle(const PacketRays& packet, PacketHits& H,
+                                                 const Vec3& v0, const Vec3& v1, const Vec3& v2,
+                                                 uint32_t prim, uint32_t m) {
+  const FloatLanes Az = splat(component(v0, packet.kz)) - packet.oz,
+                   Bz = splat(component(v1, packet.kz)) - packet.oz,
+                   Cz = splat(component(v2, packet.kz)) - packet.oz;
+  const FloatLanes ax = (splat(component(v0, packet.kx)) - packet.ox) - packet.sx * Az,
+                   ay = (splat(component(v0, packet.ky)) - packet.oy) - packet.sy * Az;
+  const FloatLanes bx = (splat(component(v1, packet.kx)) - packet.ox) - packet.sx * Bz,
+                   by = (splat(component(v1, packet.ky)) - packet.oy) - packet.sy * Bz;
+  const FloatLanes cx = (splat(component(v2, packet.kx)) - packet.ox) - packet.sx * Cz,
+                   cy = (splat(component(v2, packet.ky)) - packet.oy) - packet.sy * Cz;
+  const FloatLanes U = cx * by - cy * bx;
+  const FloatLanes V = ax * cy - ay * cx;
+  const FloatLanes Wf = bx * ay - by * ax;
+  const FloatLanes zero = {};
   const uint32_t zero_edge = eq(U, zero) | eq(V, zero) | eq(Wf, zero);
   const uint32_t mixed =
       (lt(U, zero) | lt(V, zero) | lt(Wf, zero)) & (lt(zero, U) | lt(zero, V) | lt(zero, Wf));
   if (((~mixed | zero_edge) & m) == 0) return;
-  const F det = U + V + Wf;
-  const F az = R.sz * Az, bz = R.sz * Bz, cz = R.sz * Cz;
-  const F T = U * az + V * bz + Wf * cz;
-  const F inv_det = 1.0f / det;
-  const F t = T * inv_det;
+  const FloatLanes det = U + V + Wf;
+  const FloatLanes az = packet.sz * Az, bz = packet.sz * Bz, cz = packet.sz * Cz;
+  const FloatLanes T = U * az + V * bz + Wf * cz;
+  const FloatLanes inv_det = 1.0f / det;
+  const FloatLanes t = T * inv_det;
   const uint32_t live = ~mixed & ne(det, zero);
-  const uint32_t in_range = le(R.tmin, t) & lt(t, H.best);  // false for NaN
-  const uint32_t finite = eq(T - T, zero);                  // false for inf and NaN
+  const uint32_t in_range = le(packet.tmin, t) & lt(t, H.best);  // false for NaN
+  const uint32_t finite = eq(T - T, zero);                       // false for inf and NaN
   const uint32_t hit = live & in_range & ~zero_edge & m;
   const uint32_t slow = (zero_edge | (live & ~in_range & ~finite)) & m;
   if ((hit | slow) == 0) [[likely]]
@@ -177,12 +181,13 @@ template <bool kAny>
     H.best = blend(H.best, hit, t);
     H.u = blend(H.u, hit, V * inv_det);
     H.v = blend(H.v, hit, Wf * inv_det);
-    H.prim = blend(H.prim, hit, I{} + int32_t(prim));
+    H.prim = blend(H.prim, hit, IntLanes{} + int32_t(prim));
   }
   for (uint32_t s = slow; s != 0; s &= s - 1) {
     const int i = __builtin_ctz(s);
     float ts, us, vs;
-    if (WatertightTest::intersect(R.ray_data(i), v0, v1, v2, R.tmin[i], H.best[i], ts, us, vs)) {
+    if (WatertightTest::intersect(packet.ray_data(i), v0, v1, v2, packet.tmin[i], H.best[i], ts, us,
+                                  vs)) {
       H.found |= 1u << i;
       if constexpr (!kAny) {
         H.best[i] = ts;
@@ -198,23 +203,25 @@ template <bool kAny>
 /// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
 /// corner at x > 0, x < 0, y > 0, y < 0 in its shear space (bounds from the packet's extreme
 /// origins and shears; see the file's comment).
-[[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& R, const float* tx,
+[[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& packet, const float* tx,
                                                    const float* ty, const float* tz,
                                                    __mmask16 corners) {
-  const F vx = (F)_mm512_maskz_loadu_ps(corners, tx), vy = (F)_mm512_maskz_loadu_ps(corners, ty),
-          vz = (F)_mm512_maskz_loadu_ps(corners, tz);
-  const F dzl = vz - R.ozh, dzh = vz - R.ozl;
-  const auto range = [&](float sl, float sh, F& lo, F& hi) __attribute__((always_inline)) {
-    const F p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
+  const FloatLanes vx = (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
+                   vy = (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
+                   vz = (FloatLanes)_mm512_maskz_loadu_ps(corners, tz);
+  const FloatLanes dzl = vz - packet.oz_hi, dzh = vz - packet.oz_lo;
+  const auto range = [&](float sl, float sh, FloatLanes& lo, FloatLanes& hi)
+      __attribute__((always_inline)) {
+    const FloatLanes p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
     lo = vmin(vmin(p1, p2), vmin(p3, p4));
     hi = vmax(vmax(p1, p2), vmax(p3, p4));
   };
-  F pxl, pxh, pyl, pyh;
-  range(R.sxl, R.sxh, pxl, pxh);
-  range(R.syl, R.syh, pyl, pyh);
-  const F xl = (vx - R.oxh) - pxh, xh = (vx - R.oxl) - pxl;
-  const F yl = (vy - R.oyh) - pyh, yh = (vy - R.oyl) - pyl;
-  const F zero = {};
+  FloatLanes pxl, pxh, pyl, pyh;
+  range(packet.sx_lo, packet.sx_hi, pxl, pxh);
+  range(packet.sy_lo, packet.sy_hi, pyl, pyh);
+  const FloatLanes xl = (vx - packet.ox_hi) - pxh, xh = (vx - packet.ox_lo) - pxl;
+  const FloatLanes yl = (vy - packet.oy_hi) - pyh, yh = (vy - packet.oy_lo) - pyl;
+  const FloatLanes zero = {};
   const __m512i one = _mm512_set1_epi32(1);
   __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(zero, xl)), one);
   c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(xh, zero)), _mm512_set1_epi32(2)));
@@ -225,15 +232,16 @@ template <bool kAny>
 
 /// The lanes of a shared-corner group that some ray of the packet may hit: those whose three
 /// corners do not all share a side that every ray sees them on.
-[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& R,
+[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet,
                                               const hybrid::SharedCornerGroup& g) {
-  const float* const tx = g.p + 1 + uint32_t(R.kx) * g.u;
-  const float* const ty = g.p + 1 + uint32_t(R.ky) * g.u;
-  const float* const tz = g.p + 1 + uint32_t(R.kz) * g.u;
+  const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
+  const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
+  const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
   const uint32_t corners = g.u >= 32 ? ~0u : (1u << g.u) - 1;
-  const __m512i lo = corner_codes(R, tx, ty, tz, __mmask16(corners));
-  const __m512i hi = g.u > 16 ? corner_codes(R, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
-                              : _mm512_setzero_si512();
+  const __m512i lo = corner_codes(packet, tx, ty, tz, __mmask16(corners));
+  const __m512i hi = g.u > 16
+                         ? corner_codes(packet, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
+                         : _mm512_setzero_si512();
   const uint32_t lanes = (1u << g.n) - 1;
   const uint8_t* idx = g.index();
   __m512i all = _mm512_set1_epi32(-1);
@@ -250,7 +258,7 @@ template <bool kAny>
 /// j, then three rounds of two-source permutes each swap a bit of the vector's index (the ray's
 /// bits 0, 1, 2) with a bit of the lane's (the float's bits 0, 1, 2): the transpose of the 16 x 8
 /// floats, with no gather.
-[[gnu::always_inline]] inline void load_rays(const Ray* rays, int n, F (&f)[8]) {
+[[gnu::always_inline]] inline void load_rays(const Ray* rays, int n, FloatLanes (&f)[8]) {
   static_assert(sizeof(Ray) == 32 && offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 &&
                 offsetof(Ray, tmax) == 28);
   const float* p = reinterpret_cast<const float*>(rays);
@@ -279,7 +287,7 @@ template <bool kAny>
       v[j | 1 << k] = _mm512_permutex2var_ps(a, ih, b);
     }
   }
-  for (int j = 0; j < 8; ++j) f[j] = (F)v[j];
+  for (int j = 0; j < 8; ++j) f[j] = (FloatLanes)v[j];
 }
 
 /// hits[i] = {best, prim, u, v} of lane i for the lanes `found` (Hit's 16 bytes), the others
@@ -288,42 +296,43 @@ template <bool kAny>
 [[gnu::always_inline]] inline void store_hits(const PacketHits& H, uint32_t found, Hit* hits) {
   static_assert(sizeof(Hit) == 16 && offsetof(Hit, prim) == 4 && offsetof(Hit, u) == 8 &&
                 offsetof(Hit, v) == 12);
-  const F t = H.best, p = (F)H.prim, u = H.u, v = H.v;
+  const FloatLanes t = H.best, p = (FloatLanes)H.prim, u = H.u, v = H.v;
   // Lane 4j + r's hit in 128-bit block j of h[r] (the unpacks' orders).
-  const F tp_lo =
+  const FloatLanes tp_lo =
       __builtin_shufflevector(t, p, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
-  const F tp_hi =
+  const FloatLanes tp_hi =
       __builtin_shufflevector(t, p, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
-  const F uv_lo =
+  const FloatLanes uv_lo =
       __builtin_shufflevector(u, v, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
-  const F uv_hi =
+  const FloatLanes uv_hi =
       __builtin_shufflevector(u, v, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
-  const auto lo = [](F x, F y) __attribute__((always_inline)) {
+  const auto lo = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
     return __builtin_shufflevector(x, y, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29);
   };
-  const auto hi = [](F x, F y) __attribute__((always_inline)) {
+  const auto hi = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
     return __builtin_shufflevector(x, y, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30,
                                    31);
   };
-  const F h0 = lo(tp_lo, uv_lo), h1 = hi(tp_lo, uv_lo), h2 = lo(tp_hi, uv_hi),
-          h3 = hi(tp_hi, uv_hi);
+  const FloatLanes h0 = lo(tp_lo, uv_lo), h1 = hi(tp_lo, uv_lo), h2 = lo(tp_hi, uv_hi),
+                   h3 = hi(tp_hi, uv_hi);
   // Hits 4q to 4q + 3 are block q of h0, h1, h2, h3.
-  const auto blocks01 = [](F x, F y) __attribute__((always_inline)) {
+  const auto blocks01 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
     return __builtin_shufflevector(x, y, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
   };
-  const auto blocks23 = [](F x, F y) __attribute__((always_inline)) {
+  const auto blocks23 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
     return __builtin_shufflevector(x, y, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30,
                                    31);
   };
-  const auto even = [](F x, F y) __attribute__((always_inline)) {
+  const auto even = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
     return __builtin_shufflevector(x, y, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27);
   };
-  const auto odd = [](F x, F y) __attribute__((always_inline)) {
+  const auto odd = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
     return __builtin_shufflevector(x, y, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30,
                                    31);
   };
-  const F a = blocks01(h0, h1), b = blocks01(h2, h3), c = blocks23(h0, h1), d = blocks23(h2, h3);
-  const F q[4] = {even(a, b), odd(a, b), even(c, d), odd(c, d)};
+  const FloatLanes a = blocks01(h0, h1), b = blocks01(h2, h3), c = blocks23(h0, h1),
+                   d = blocks23(h2, h3);
+  const FloatLanes q[4] = {even(a, b), odd(a, b), even(c, d), odd(c, d)};
   float* out = reinterpret_cast<float*>(hits);
   for (int j = 0; j < 4; ++j) {
     const uint32_t four = found >> (4 * j) & 0xfu;
@@ -339,55 +348,57 @@ template <bool kAny>
 /// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin.
 constexpr double kPacketSpreadCells = 1.0;
 
-/// Sets up R for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
+/// Sets up `packet` for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
 /// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
 /// number (finite reciprocals and err), sharing the first one's direction signs and the
 /// watertight test's axes; none when their origins lie more than max_spread apart along an
 /// axis. The others take the single walk, except those that miss the grid's `box` as the
-/// single walk clips them (R.missed), which miss.
+/// single walk clips them (packet.missed), which miss.
 uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& box,
-                        float max_spread, PacketRays& R) {
-  F f[8];
+                        float max_spread, PacketRays& packet) {
+  FloatLanes f[8];
   load_rays(rays, n, f);
-  const F o[3] = {f[0], f[1], f[2]}, d[3] = {f[4], f[5], f[6]};
-  const F tmin = f[3], tmax = f[7];
-  const F zero = {}, big = splat(kMaxRayCoordinate), tiny = splat(FLT_MIN);
-  F ao[3], ad[3];
+  const FloatLanes o[3] = {f[0], f[1], f[2]}, d[3] = {f[4], f[5], f[6]};
+  const FloatLanes tmin = f[3], tmax = f[7];
+  const FloatLanes zero = {}, big = splat(kMaxRayCoordinate), tiny = splat(FLT_MIN);
+  FloatLanes ao[3], ad[3];
   uint32_t ok = le(zero, tmin) & le(tmin, tmax) & lt(tmin, splat(kInf));
   for (int a = 0; a < 3; ++a) {
-    ao[a] = (F)_mm512_abs_ps((__m512)o[a]);
-    ad[a] = (F)_mm512_abs_ps((__m512)d[a]);
+    ao[a] = (FloatLanes)_mm512_abs_ps((__m512)o[a]);
+    ad[a] = (FloatLanes)_mm512_abs_ps((__m512)d[a]);
     ok &= le(ao[a], big) & le(ad[a], big) & le(tiny, ad[a]);
   }
   uint32_t lanes = ok & ((1u << n) - 1);
-  R.missed = 0;
+  packet.missed = 0;
   if (lanes == 0) return 0;
   // The single walk's first step (walk_begin's kd_begin): [tmin, tmax] clipped to the grid's
   // box, each slab widened by err; the rays it rejects miss, whatever their packet.
-  const F one = splat(1.0f);
-  const F err_scale = vmax(vmax(ao[0], vmax(ao[1], ao[2])), splat(max_abs)) * splat(0x1p-20f);
-  F t0 = tmin, t1 = tmax;
+  const FloatLanes one = splat(1.0f);
+  const FloatLanes err_scale =
+      vmax(vmax(ao[0], vmax(ao[1], ao[2])), splat(max_abs)) * splat(0x1p-20f);
+  FloatLanes t0 = tmin, t1 = tmax;
   for (int a = 0; a < 3; ++a) {
-    R.inv[a] = one / d[a];
-    R.err[a] = err_scale * (F)_mm512_abs_ps((__m512)R.inv[a]);
-    const F tl = (splat(box.lo[a]) - o[a]) * R.inv[a], th = (splat(box.hi[a]) - o[a]) * R.inv[a];
-    t0 = vmax(t0, vmin(tl, th) - R.err[a]);
-    t1 = vmin(t1, vmax(tl, th) + R.err[a]);
+    packet.inv[a] = one / d[a];
+    packet.err[a] = err_scale * (FloatLanes)_mm512_abs_ps((__m512)packet.inv[a]);
+    const FloatLanes tl = (splat(box.lo[a]) - o[a]) * packet.inv[a],
+                     th = (splat(box.hi[a]) - o[a]) * packet.inv[a];
+    t0 = vmax(t0, vmin(tl, th) - packet.err[a]);
+    t1 = vmin(t1, vmax(tl, th) + packet.err[a]);
   }
-  R.missed = lt(t1, t0) & lanes;
-  lanes &= ~R.missed;
+  packet.missed = lt(t1, t0) & lanes;
+  lanes &= ~packet.missed;
   if (lanes == 0) return 0;
   // max_dimension's axis: the first largest component.
   const uint32_t k0 = lt(ad[1], ad[0]) & lt(ad[2], ad[0]);
   const uint32_t k1 = ~k0 & lt(ad[2], ad[1]);
   const uint32_t kz_of[3] = {k0, k1, ~(k0 | k1)};
   const int first = __builtin_ctz(lanes);
-  R.kz = (k0 >> first & 1u) ? 0 : (k1 >> first & 1u) ? 1 : 2;
-  lanes &= kz_of[R.kz];
+  packet.kz = (k0 >> first & 1u) ? 0 : (k1 >> first & 1u) ? 1 : 2;
+  lanes &= kz_of[packet.kz];
   for (int a = 0; a < 3; ++a) {
     const uint32_t neg = lt(d[a], zero);
-    R.neg[a] = neg >> first & 1u;
-    lanes &= R.neg[a] ? neg : ~neg;
+    packet.neg[a] = neg >> first & 1u;
+    lanes &= packet.neg[a] ? neg : ~neg;
   }
   // The origins' box (of these lanes: bounds for any of them), which the cull reads; a packet
   // whose origins lie further apart than max_spread along an axis is left to the single walk.
@@ -395,25 +406,26 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   lane_ranges(o[0], o[1], o[2], zero, lanes, lo, hi);
   for (int a = 0; a < 3; ++a)
     if (!(hi[a] - lo[a] <= max_spread)) return 0;
-  R.kx = R.kz == 2 ? 0 : R.kz + 1;
-  R.ky = R.kx == 2 ? 0 : R.kx + 1;
-  if (R.neg[R.kz]) std::swap(R.kx, R.ky);  // WatertightTest::prepare's
+  packet.kx = packet.kz == 2 ? 0 : packet.kz + 1;
+  packet.ky = packet.kx == 2 ? 0 : packet.kx + 1;
+  if (packet.neg[packet.kz]) std::swap(packet.kx, packet.ky);  // WatertightTest::prepare's
   uint32_t finite = ~0u;
   for (int a = 0; a < 3; ++a) {
-    R.o[a] = o[a];
-    finite &= le(R.err[a], splat(FLT_MAX));
+    packet.o[a] = o[a];
+    finite &= le(packet.err[a], splat(FLT_MAX));
   }
   lanes &= finite;
-  R.ox = o[R.kx], R.oy = o[R.ky], R.oz = o[R.kz];
-  R.sx = d[R.kx] / d[R.kz], R.sy = d[R.ky] / d[R.kz], R.sz = R.inv[R.kz];  // prepare()'s 1 / d
-  R.tmin = blend(splat(kInf), lanes, tmin);
-  R.tmax = blend(splat(-kInf), lanes, tmax);
-  R.oxl = lo[R.kx], R.oxh = hi[R.kx];
-  R.oyl = lo[R.ky], R.oyh = hi[R.ky];
-  R.ozl = lo[R.kz], R.ozh = hi[R.kz];
+  packet.ox = o[packet.kx], packet.oy = o[packet.ky], packet.oz = o[packet.kz];
+  packet.sx = d[packet.kx] / d[packet.kz], packet.sy = d[packet.ky] / d[packet.kz],
+  packet.sz = packet.inv[packet.kz];  // prepare()'s 1 / d
+  packet.tmin = blend(splat(kInf), lanes, tmin);
+  packet.tmax = blend(splat(-kInf), lanes, tmax);
+  packet.ox_lo = lo[packet.kx], packet.ox_hi = hi[packet.kx];
+  packet.oy_lo = lo[packet.ky], packet.oy_hi = hi[packet.ky];
+  packet.oz_lo = lo[packet.kz], packet.oz_hi = hi[packet.kz];
   float sl[4], sh[4];
-  lane_ranges(R.sx, R.sy, zero, zero, lanes, sl, sh);
-  R.sxl = sl[0], R.sxh = sh[0], R.syl = sl[1], R.syh = sh[1];
+  lane_ranges(packet.sx, packet.sy, zero, zero, lanes, sl, sh);
+  packet.sx_lo = sl[0], packet.sx_hi = sh[0], packet.sy_lo = sl[1], packet.sy_hi = sh[1];
   return lanes;
 }
 
@@ -423,15 +435,15 @@ template <bool kAny>
 void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const {
   // Up to four packets of 16 set up; those of two rays or more that share the first one's
   // direction signs walk together, then those that share the next one's, and so on.
-  PacketRays R[4];
+  PacketRays packets[4];
   uint32_t lanes[4] = {0, 0, 0, 0};
   const int parts = (n + 15) / 16;
   // The rays of the later packets requested at once (two rays a line), so that their loads do
   // not wait for the first packet's set-up.
   for (int i = 16; i < n; i += 2) __builtin_prefetch(rays + i);
   for (int k = 0; k < parts; ++k) {
-    lanes[k] = prepare_packet(rays + 16 * k, std::min(16, n - 16 * k), max_abs_, wclip_,
-                              float(kPacketSpreadCells * cell_), R[k]);
+    lanes[k] = prepare_packet(rays + 16 * k, std::min(16, n - 16 * k), max_abs_, world_clip_,
+                              float(kPacketSpreadCells * cell_), packets[k]);
     if ((lanes[k] & (lanes[k] - 1)) == 0) lanes[k] = 0;
   }
   uint32_t walked[4] = {0, 0, 0, 0};
@@ -439,19 +451,19 @@ void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const 
     if (lanes[lead] == 0 || walked[lead] != 0) continue;
     int which[4] = {0, 0, 0, 0}, count = 0;
     for (int k = lead; k < parts; ++k)
-      if (lanes[k] != 0 && walked[k] == 0 && R[k].neg[0] == R[lead].neg[0] &&
-          R[k].neg[1] == R[lead].neg[1] && R[k].neg[2] == R[lead].neg[2])
+      if (lanes[k] != 0 && walked[k] == 0 && packets[k].neg[0] == packets[lead].neg[0] &&
+          packets[k].neg[1] == packets[lead].neg[1] && packets[k].neg[2] == packets[lead].neg[2])
         which[count++] = k;
-    const bool done = count == 4   ? packet_walk<kAny, 4>(R, lanes, which, hits, out)
-                      : count == 3 ? packet_walk<kAny, 3>(R, lanes, which, hits, out)
-                      : count == 2 ? packet_walk<kAny, 2>(R, lanes, which, hits, out)
-                                   : packet_walk<kAny, 1>(R, lanes, which, hits, out);
+    const bool done = count == 4   ? packet_walk<kAny, 4>(packets, lanes, which, hits, out)
+                      : count == 3 ? packet_walk<kAny, 3>(packets, lanes, which, hits, out)
+                      : count == 2 ? packet_walk<kAny, 2>(packets, lanes, which, hits, out)
+                                   : packet_walk<kAny, 1>(packets, lanes, which, hits, out);
     if (!done) continue;
     for (int j = 0; j < count; ++j) walked[which[j]] = lanes[which[j]];
   }
   for (int i = 0; i < n; ++i) {
     const uint32_t bit = 1u << (i % 16);
-    if (R[i / 16].missed & bit)
+    if (packets[i / 16].missed & bit)
       out[i] = false;
     else if (!(walked[i / 16] & bit))
       out[i] = kAny ? occluded(rays[i]) : intersect(rays[i], hits[i]);
@@ -459,28 +471,28 @@ void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const 
 }
 
 template <bool kAny, int K>
-bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lanes_of,
+bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uint32_t* lanes_of,
                                const int* which, Hit* hits, bool* out) const {
   // The packets of the walk (at most 4), each its rays and hits; the t's of each by packet.
-  const PacketRays* R[K];
+  const PacketRays* packets[K];
   PacketHits H[K];
   uint32_t alive[K];  // lanes still walking: any-hit lanes leave at their first hit
   for (int k = 0; k < K; ++k) {
-    R[k] = &Rs[which[k]];
-    H[k].best = R[k]->tmax;
-    H[k].u = H[k].v = F{};
-    H[k].prim = I{} + int32_t(kInvalidPrim);
+    packets[k] = &call_packets[which[k]];
+    H[k].best = packets[k]->tmax;
+    H[k].u = H[k].v = FloatLanes{};
+    H[k].prim = IntLanes{} + int32_t(kInvalidPrim);
     alive[k] = lanes_of[which[k]];
   }
   struct Span {
-    F t0[K], t1[K];
+    FloatLanes t0[K], t1[K];
   };
 
   // The groups of a leaf for packet k, culled against it, then each triangle left against the
   // lanes m.
   const auto groups = [&](int k, uint32_t first, uint32_t count, uint32_t m)
       __attribute__((always_inline)) {
-    const PacketRays& r = *R[k];
+    const PacketRays& r = *packets[k];
     PacketHits& h = H[k];
     const float* p = groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
@@ -500,7 +512,8 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
     }
   };
   // The lanes of packet k that still have something to find in [t0, t1].
-  const auto active = [&](int k, const F& t0, const F& t1) __attribute__((always_inline)) {
+  const auto active = [&](int k, const FloatLanes& t0, const FloatLanes& t1)
+      __attribute__((always_inline)) {
     uint32_t m = le(t0, t1) & alive[k];
     if constexpr (!kAny) m &= le(t0, H[k].best);
     return m;
@@ -527,25 +540,25 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
   const auto clip = [&](const float* lo, const float* hi, Span& s) __attribute__((always_inline)) {
     for (int k = 0; k < K; ++k)
       for (int a = 0; a < 3; ++a) {
-        const F tl = (splat(lo[a]) - R[k]->o[a]) * R[k]->inv[a];
-        const F th = (splat(hi[a]) - R[k]->o[a]) * R[k]->inv[a];
-        const F near = R[k]->neg[a] ? th : tl, far = R[k]->neg[a] ? tl : th;
-        s.t0[k] = vmax(s.t0[k], near - R[k]->err[a]);
-        s.t1[k] = vmin(s.t1[k], far + R[k]->err[a]);
+        const FloatLanes tl = (splat(lo[a]) - packets[k]->o[a]) * packets[k]->inv[a];
+        const FloatLanes th = (splat(hi[a]) - packets[k]->o[a]) * packets[k]->inv[a];
+        const FloatLanes near = packets[k]->neg[a] ? th : tl, far = packets[k]->neg[a] ? tl : th;
+        s.t0[k] = vmax(s.t0[k], near - packets[k]->err[a]);
+        s.t1[k] = vmin(s.t1[k], far + packets[k]->err[a]);
       }
   };
-  const bool* neg = R[0]->neg;
+  const bool* neg = packets[0]->neg;
   // A split on axis a at `plane`: whether the packets go to the near side, to the far side or
   // both (then `far` gets the far side's t's and s keeps the near side's).
   const auto split = [&](int a, float plane, Span& s, Span& far, bool& to_near, bool& to_far)
       __attribute__((always_inline)) {
     uint32_t need_near = 0, need_far = 0;
-    F ts[K];
+    FloatLanes ts[K];
     for (int k = 0; k < K; ++k) {
-      ts[k] = (splat(plane) - R[k]->o[a]) * R[k]->inv[a];
+      ts[k] = (splat(plane) - packets[k]->o[a]) * packets[k]->inv[a];
       const uint32_t m = active(k, s.t0[k], s.t1[k]);
-      need_near |= le(s.t0[k], ts[k] + R[k]->err[a]) & m;
-      const F far_t0 = ts[k] - R[k]->err[a];
+      need_near |= le(s.t0[k], ts[k] + packets[k]->err[a]) & m;
+      const FloatLanes far_t0 = ts[k] - packets[k]->err[a];
       uint32_t far_lanes = le(far_t0, s.t1[k]) & m;
       // Not for the lanes whose closest hit lies before the far side.
       if constexpr (!kAny) far_lanes &= le(far_t0, H[k].best);
@@ -555,9 +568,9 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
     to_far = need_far != 0;
     if (to_near && to_far)
       for (int k = 0; k < K; ++k) {
-        far.t0[k] = vmax(s.t0[k], ts[k] - R[k]->err[a]);
+        far.t0[k] = vmax(s.t0[k], ts[k] - packets[k]->err[a]);
         far.t1[k] = s.t1[k];
-        s.t1[k] = vmin(s.t1[k], ts[k] + R[k]->err[a]);
+        s.t1[k] = vmin(s.t1[k], ts[k] + packets[k]->err[a]);
       }
   };
   struct Entry {
@@ -602,7 +615,7 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
 
   // A flat subtree: its leaves in the kd walk's order for the packets' octant.
   const auto flat = [&](uint32_t at, Span s) __attribute__((always_inline)) {
-    const float* fb = flat_[0].f + at;
+    const float* fb = flat_subtree_floats_[0].f + at;
     clip(fb, fb + 4, s);
     if (!any_active(s)) return;
     uint32_t count;
@@ -642,12 +655,12 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* Rs, const uint32_t* lan
   // The grid's kd-tree from its root, the packets clipped to the grid's box first.
   Span s;
   for (int k = 0; k < K; ++k) {
-    s.t0[k] = R[k]->tmin;
-    s.t1[k] = R[k]->tmax;
+    s.t0[k] = packets[k]->tmin;
+    s.t1[k] = packets[k]->tmax;
   }
   {
-    const float lo[3] = {wbox_.lo.x, wbox_.lo.y, wbox_.lo.z};
-    const float hi[3] = {wbox_.hi.x, wbox_.hi.y, wbox_.hi.z};
+    const float lo[3] = {world_box_.lo.x, world_box_.lo.y, world_box_.lo.z};
+    const float hi[3] = {world_box_.hi.x, world_box_.hi.y, world_box_.hi.z};
     clip(lo, hi, s);
   }
   Entry top[kStack];

@@ -34,9 +34,9 @@ struct alignas(64) Leaf {
   double lo[3];
   uint32_t first, count;
   double hi[3];
-  /// Low 32 bits: the float offset of the leaf's flat subtree in GridKdHybrid::flat_ (0: none;
-  /// "Flat subtrees" below); high 32 bits 0, so that as the fourth lane of hi it is a tiny
-  /// number that the walk's exit ignores.
+  /// Low 32 bits: the float offset of the leaf's flat subtree in GridKdHybrid::flat_subtree_floats_
+  /// (0: none; "Flat subtrees" below); high 32 bits 0, so that as the fourth lane of hi it is a
+  /// tiny number that the walk's exit ignores.
   double pad;
 };
 
@@ -177,9 +177,9 @@ using GroupView = LaneGroup;
 /// stored instead as the list of those leaves, which the walk tests against the ray all at
 /// once (one 16-lane vector per box coordinate) and visits in the kd walk's order for the ray's
 /// octant (walk.h, walk_flat); its kd nodes are not kept. At float offset F of
-/// GridKdHybrid::flat_ (a multiple of 16; the Leaf record's `pad` holds F, 0 for none): the
-/// subtree's box (ClipBox4's layout, 8 floats), the leaf count n (as uint32), padding to 16
-/// floats; then the leaves' boxes as six runs of n floats (lo x, y, z, hi x, y, z: each kd
+/// GridKdHybrid::flat_subtree_floats_ (a multiple of 16; the Leaf record's `pad` holds F, 0 for
+/// none): the subtree's box (ClipBox4's layout, 8 floats), the leaf count n (as uint32), padding to
+/// 16 floats; then the leaves' boxes as six runs of n floats (lo x, y, z, hi x, y, z: each kd
 /// leaf's box within the subtree's box), their first groups (n uint32) and their triangle
 /// counts (n uint32), in the subtree's depth-first order (below first); then for each octant of
 /// ray directions (bit a set: negative along axis a) the leaves' order, n bytes. Builds for

@@ -470,9 +470,9 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
     return uint32_t(first);
   };
   // A subtree's leaves with triangles as one flat list (records.h, "Flat subtrees"), when it
-  // has kFlatMinLeaves to kFlatLeaves of them; returns its float offset in flat_ (0:
+  // has kFlatMinLeaves to kFlatLeaves of them; returns its float offset in flat_subtree_floats_ (0:
   // none). `sub` is the relocated subtree in sub_nodes_ (its box, then its nodes).
-  flat_.clear();
+  flat_subtree_floats_.clear();
   std::vector<float> flat_list(16, 0.0f);  // offset 0 means "no flat list"
   const bool want_flat = hybrid::kFlatSubtrees && params.hybrid_flat_subtrees;
   auto add_flat = [&](const KdNode* sub) -> uint32_t {
@@ -597,8 +597,8 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
   flatten(flatten, root.get());
   stats_.max_depth = max_depth;
   if (flat_list.size() > 16) {  // offset 0 alone: no flat subtree
-    flat_.assign(flat_list.size() / 16, hybrid::GroupLine{});
-    std::memcpy(flat_[0].f, flat_list.data(), flat_list.size() * sizeof(float));
+    flat_subtree_floats_.assign(flat_list.size() / 16, hybrid::GroupLine{});
+    std::memcpy(flat_subtree_floats_[0].f, flat_list.data(), flat_list.size() * sizeof(float));
   }
 }
 

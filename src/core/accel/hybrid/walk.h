@@ -9,8 +9,10 @@
 // ray that evicts more triangles from its mailbox than it can keep is walked again from the
 // start by the exact walk, the same walk with a record of every triangle tested (rewalk).
 //
-// The next leaf comes from the map (cell_map.h) or from the thread's NextLeafCache, which
-// remembers the leaf last reached across each leaf face (BuildParams::hybrid_next_leaf_cache).
+// The next leaf comes from the map (cell_map.h) or from the thread's NextLeafCache
+// (next_leaf_cache.h), which remembers the leaf last reached across each leaf face
+// (BuildParams::hybrid_next_leaf_cache). The lane-by-lane walk's mailbox and the exact walk's
+// record are in mailbox.h, the walk of a flat subtree in walk_flat.h.
 #pragma once
 
 #include <algorithm>
@@ -21,102 +23,28 @@
 #include <vector>
 
 #include "accel/hybrid/hybrid.h"
+#include "accel/hybrid/mailbox.h"
+#include "accel/hybrid/next_leaf_cache.h"
 
 namespace kdgrid::hybrid {
-
-/// The next-leaf cache: each thread remembers the leaf it last reached across each leaf face,
-/// and the walk takes it when the exit cell lies in that leaf's kd box (the kd boxes tile the
-/// grid, so the check is exact), else looks the cell up. Coherent rays predict the check, so the
-/// next leaf's record loads while the exit is being computed. The entry leaf is taken the same
-/// way from the thread's previous ray's. A score of recent predictions switches the cache off
-/// while they mostly fail (incoherent rays), so that a wrong prediction's mispredicted branch
-/// is not paid on every step; the plain lookups then keep scoring the predictions they would
-/// have made. One cache per thread, shared by every hybrid, since each checks a leaf against
-/// its own kd boxes. Zero-initialized, as every thread_local is (no member initializers).
-struct NextLeafCache {
-  /// Score: +1 per right prediction, -kMissCost per wrong one, within [kScoreMin, kScoreMax];
-  /// the cache is used while it is >= 0 (more right predictions than wrong ones keep it on). A
-  /// miss cost of 1 keeps it on for rays that are right most of the time but not nearly always
-  /// (a scan's primary rays); a higher cost turns it off for them, no score at all leaves it on
-  /// for diffuse rays, whose guesses mostly fail (docs/EXPERIMENTS.md, "The next-leaf cache").
-  static constexpr int32_t kScoreMax = 64, kScoreMin = -64, kMissCost = 1;
-  /// Entries per thread (direct-mapped by leaf and exit axis; 16 KiB): a larger table catches
-  /// few more (docs/EXPERIMENTS.md, "The next-leaf cache").
-  static constexpr uint64_t kEntries = 4096;
-
-  /// The leaf last reached across each leaf face, by a hash of the leaf and the exit axis (the
-  /// ray's direction fixes the face's side).
-  uint32_t leaf[kEntries];
-  uint32_t start;  ///< the entry leaf of the thread's previous ray
-  int32_t score;
-  uint64_t taken;  ///< leaves taken from the cache (GridKdHybrid::next_leaves_from_cache)
-  uint64_t owner;  ///< GridKdHybrid::uid_ of the structure whose leaf ids the cache holds (0: none)
-
-  /// The entry of leaf `from`'s face on `axis`.
-  [[gnu::always_inline]] uint32_t& entry(uint32_t from, int axis) {
-    return leaf[(uint64_t(from) * 3 + uint64_t(axis)) & (kEntries - 1)];
-  }
-  /// Makes the cache structure `uid`'s before a walk: when another structure (or an earlier
-  /// build of this one) used it last, its leaf ids are replaced by leaf 0, so every entry names
-  /// a leaf of this structure and GridKdHybrid::in_kd_box needs no bounds check. Structures only
-  /// alternate ray by ray on one thread in tests; the reset (16 KiB) is paid once per switch.
-  [[gnu::always_inline]] void claim(uint64_t uid) {
-    if (owner == uid) [[likely]]
-      return;
-    std::memset(leaf, 0, sizeof leaf);
-    start = 0;
-    owner = uid;
-  }
-};
-
-/// The calling thread's next-leaf cache.
-inline thread_local NextLeafCache thread_next_leaf_cache;
-
-/// The exact walk's record of the triangles its ray has tested (GridKdHybrid::rewalk): a bit per
-/// triangle of the structure, and the words the ray set, cleared when the thread's next exact
-/// walk starts, so that every bit is clear as a walk starts. One per thread, grown to the
-/// largest structure the thread re-walks a ray in (a bit a triangle: 106 KiB for the dragon's
-/// 871K) and kept, as a re-walked ray is mostly followed by others.
-struct TestedSet {
-  std::vector<uint64_t> bits;
-  std::vector<uint32_t> dirty;  ///< the words of bits that the current walk set
-
-  /// Clears the previous walk's bits and makes room for `triangles` triangle indices.
-  void begin(size_t triangles) {
-    for (const uint32_t i : dirty) bits[i] = 0;
-    dirty.clear();
-    if (bits.size() < (triangles + 63) / 64) bits.resize((triangles + 63) / 64, 0);
-  }
-  /// True when `prim` was recorded before; else records it.
-  bool test_and_set(uint32_t prim) {
-    uint64_t& word = bits[prim >> 6];
-    const uint64_t bit = uint64_t(1) << (prim & 63);
-    if (word & bit) return true;
-    if (word == 0) dirty.push_back(prim >> 6);
-    word |= bit;
-    return false;
-  }
-};
-
-/// The calling thread's record for exact walks.
-inline thread_local TestedSet thread_tested_set;
 
 /// One ray's walk between leaf steps: the ray in grid space, the current cell and leaf,
 /// the closest hit so far and the mailbox.
 template <class TriangleTest>
 struct WalkState {
-  /// The ray in grid space, g(t) = o + t dg; inv[a] is t per grid unit along axis a (0 where
-  /// the ray does not move) and oc = -o inv (+inf there), so the exit over a far plane p is
-  /// p inv + oc. Lanes x, y, z, then a dummy axis that never exits (o, dg, inv 0, oc +inf),
-  /// moves "up" and stays in cell 0, so that every step computes the four lanes at once.
-  Double4 o, dg, inv, oc;
-  Long4 up_d;    ///< all ones on the axes the ray moves up along (the far plane is hi), and lane 3
-  Int4 up;       ///< the same as int32 lanes
-  Int4 down;     ///< ~up: added to a far plane's coordinate, gives the cell just past it
-  Int4 c;        ///< the current cell (lane 3: 0)
-  KdRay kr;      ///< the ray as the leaf subtrees' kd traversal reads it (world space, float)
-  KdRayX4 krx4;  ///< the same, as the clip to a subtree's box reads it
-  float err;     ///< the largest of kr.err: widens the leaf's segment before that clip
+  /// The ray in grid space, g(t) = o + t dir_grid; inv[a] is t per grid unit along axis a (0
+  /// where the ray does not move) and t_at_zero = -o inv (+inf there), the t at which g[a] = 0,
+  /// so the exit over a far plane p is p inv + t_at_zero. Lanes x, y, z, then a dummy axis that
+  /// never exits (o, dir_grid, inv 0, t_at_zero +inf), moves "up" and stays in cell 0, so that
+  /// every step computes the four lanes at once.
+  Double4 o, dir_grid, inv, t_at_zero;
+  Long4 up_mask;  ///< all ones on the axes the ray moves up along (the far plane is hi), and lane 3
+  Int4 up;        ///< the same as int32 lanes
+  Int4 down;      ///< ~up: added to a far plane's coordinate, gives the cell just past it
+  Int4 cell;      ///< the current cell (lane 3: 0)
+  KdRay kr;       ///< the ray as the leaf subtrees' kd traversal reads it (world space, float)
+  KdRayX4 krx4;   ///< the same, as the clip to a subtree's box reads it
+  float err;      ///< the largest of kr.err: widens the leaf's segment before that clip
   double t1, t_cur;
   /// Where the walk over empty leaves stops: t1, or the closest hit's t once one is found.
   double t_stop;
@@ -133,47 +61,6 @@ struct WalkState {
   TestedSet* tested;                         ///< the exact walk's record (unset in the fast walk)
 };
 
-/// The value of WalkState::evicted_count once the fast walk is abandoned.
-constexpr uint32_t kAbandoned = uint32_t(GridKdHybrid::kEvicted) + 1;
-
-/// True when triangle `prim` was tested before on this ray, so the test is skipped; else
-/// records it. The fast walk (kExact false) asks the mailbox, which answers almost every repeat;
-/// a triangle that a colliding one pushed out of it is kept among the ray's evicted (up to
-/// GridKdHybrid::kEvicted) and looked up there, on the rays that have evicted any. When one more
-/// would have to be evicted, the fast walk is abandoned: every later test is skipped, the walk
-/// ends at its next step (steps_left 0, which over_step_bound does not count as an error), and
-/// GridKdHybrid::traverse gives the ray to rewalk, which runs it again with the exact walk
-/// (kExact), whose record holds every triangle tested. So no ray tests a triangle twice, and the
-/// fast walk keeps everything inline and its triangle loop with no exit for closest hits: a call
-/// anywhere in walk_step makes it save registers on every step, and leaving the loop at the
-/// abandonment makes it spill registers (docs/EXPERIMENTS.md, "The walk").
-template <bool kExact, class W>
-[[gnu::always_inline]] inline bool tested_before(W& w, uint32_t prim) {
-  if constexpr (kExact) {
-    return w.tested->test_and_set(prim);
-  } else {
-    uint32_t& slot = w.mailbox[prim & (GridKdHybrid::kMailbox - 1)];
-    if (slot == prim) return true;
-    if ((w.evicted_count | (slot ^ kInvalidPrim)) != 0) [[unlikely]] {
-      const uint32_t n = w.evicted_count;
-      if (n == kAbandoned) return true;
-      for (uint32_t i = 0; i < n; ++i)
-        if (w.evicted[i] == prim) return true;
-      if (slot != kInvalidPrim) {
-        if (n == uint32_t(GridKdHybrid::kEvicted)) {
-          w.evicted_count = kAbandoned;
-          w.steps_left = 0;
-          return true;
-        }
-        w.evicted[n] = slot;
-        w.evicted_count = n + 1;
-      }
-    }
-    slot = prim;
-    return false;
-  }
-}
-
 /// Where a ray's counts start (counted and traced walks), so that GridKdHybrid::rewalk can take
 /// back an abandoned fast walk's counts: a re-walked ray's counters, trace and next-leaf cache
 /// takes (GridKdHybrid::next_leaves_from_cache) are its exact walk's.
@@ -186,9 +73,9 @@ template <>
 struct StatsMark<CountProbe> {
   RayCounters c;
   uint64_t taken = thread_next_leaf_cache.taken;
-  explicit StatsMark(const CountProbe& s) : c(s.c) {}
-  void restore(CountProbe& s) const {
-    s.c = c;
+  explicit StatsMark(const CountProbe& probe) : c(probe.c) {}
+  void restore(CountProbe& probe) const {
+    probe.c = c;
     thread_next_leaf_cache.taken = taken;
   }
 };
@@ -197,12 +84,14 @@ struct StatsMark<TraceProbe> {
   RayCounters c;
   size_t steps, tested;
   uint64_t taken = thread_next_leaf_cache.taken;
-  explicit StatsMark(const TraceProbe& s)
-      : c(s.trace->counters), steps(s.trace->steps.size()), tested(s.trace->tested.size()) {}
-  void restore(TraceProbe& s) const {
-    s.trace->counters = c;
-    s.trace->steps.resize(steps);
-    s.trace->tested.resize(tested);
+  explicit StatsMark(const TraceProbe& probe)
+      : c(probe.trace->counters),
+        steps(probe.trace->steps.size()),
+        tested(probe.trace->tested.size()) {}
+  void restore(TraceProbe& probe) const {
+    probe.trace->counters = c;
+    probe.trace->steps.resize(steps);
+    probe.trace->tested.resize(tested);
     thread_next_leaf_cache.taken = taken;
   }
 };
@@ -218,7 +107,7 @@ struct LocalHit {
 /// and whether that cell lies outside the grid (the walk ends there).
 struct Exit {
   double t;
-  Int4 n;  ///< lane 3: 0
+  Int4 next_cell;  ///< the cell just past the exit face (lane 3: 0)
   int axis;
   bool out;
 };
@@ -283,47 +172,47 @@ inline bool GridKdHybrid::over_step_bound(WalkState<TriangleTest>& w) const {
 }
 
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
-bool GridKdHybrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
+bool GridKdHybrid::traverse(const Ray& ray, Hit* hit, Probe& probe) const {
   if (leaves_.empty()) return false;
-  [[maybe_unused]] const hybrid::StatsMark<Probe> mark(s);
+  [[maybe_unused]] const hybrid::StatsMark<Probe> mark(probe);
   WalkState<TriangleTest> w;
   if (!walk_begin(w, ray)) return false;
   if constexpr (kExact) {
     w.tested = &hybrid::thread_tested_set;
     w.tested->begin(mesh_->num_triangles());
   }
-  s.lookup();
+  probe.lookup();
   StepResult r;
   for (;;) {
     if constexpr (!Probe::kTrace) {
       // An empty leaf is only stepped over: inline, with the ray's state in registers.
-      const Leaf& L = leaves_[w.leaf_id];
-      if (L.count == 0) {
+      const Leaf& leaf_rec = leaves_[w.leaf_id];
+      if (leaf_rec.count == 0) {
         if (over_step_bound(w)) {
           r = StepResult::Done;
           break;
         }
-        s.step();
-        const Exit e = leaf_exit(w, L);
+        probe.step();
+        const Exit e = leaf_exit(w, leaf_rec);
         // The end of the ray's segment, the grid or the walk (a hit found before this exit).
         if (e.out || e.t >= w.t_stop) {
           r = StepResult::Done;
           break;
         }
-        w.c = e.n;
+        w.cell = e.next_cell;
         w.t_cur = e.t;
-        w.leaf_id = next_leaf(e.n, w.leaf_id, e.axis);
-        s.lookup();
+        w.leaf_id = next_leaf(e.next_cell, w.leaf_id, e.axis);
+        probe.lookup();
         continue;
       }
     }
-    if ((r = walk_step<TriangleTest, Probe, kAny, kExact>(w, s)) != StepResult::Next) break;
+    if ((r = walk_step<TriangleTest, Probe, kAny, kExact>(w, probe)) != StepResult::Next) break;
   }
   // A walk abandoned by tested_before skipped every test after it (so it is never Answered):
   // the exact walk answers the ray.
   if constexpr (!kExact)
     if (w.evicted_count == hybrid::kAbandoned) [[unlikely]]
-      return rewalk<TriangleTest, Probe, kAny>(ray, hit, s, mark);
+      return rewalk<TriangleTest, Probe, kAny>(ray, hit, probe, mark);
   if (r == StepResult::Answered) return true;
   if constexpr (!kAny)
     if (w.found) *hit = w.hit;
@@ -331,18 +220,18 @@ bool GridKdHybrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
 }
 
 template <class TriangleTest, class Probe, bool kAny>
-bool GridKdHybrid::rewalk(const Ray& ray, Hit* hit, Probe& s,
+bool GridKdHybrid::rewalk(const Ray& ray, Hit* hit, Probe& probe,
                           const hybrid::StatsMark<Probe>& mark) const {
   rewalks_.fetch_add(1, std::memory_order_relaxed);
-  mark.restore(s);
-  return traverse<TriangleTest, Probe, kAny, true>(ray, hit, s);
+  mark.restore(probe);
+  return traverse<TriangleTest, Probe, kAny, true>(ray, hit, probe);
 }
 
 template <class TriangleTest>
 bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const {
   // Cheap rejection first, in float as the kd-tree clips (most primary rays of a scanned model
   // miss its box, and they cost only this clip), against the
-  // grid's world box (wbox_, widened beyond the grid's rounding) with each slab widened as the
+  // grid's world box (world_box_, widened beyond the grid's rounding) with each slab widened as the
   // kd-tree widens its own, by err (KdRay): the rounding of (lo - o) grows with the origin's
   // coordinates, so a ray from far away that grazes the box at an edge or a corner would be
   // lost without it (tests/test_hybrid.cpp holds far origins to it). So this clip never
@@ -352,16 +241,16 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   // below does in double (GCC's vector extensions: AVX where the target has it, else SSE2
   // pairs): the set-up is most of a short ray's work.
   float f0, f1;
-  if (!kd_begin(ray, wclip_, max_abs_, w.kr, f0, f1, &w.krx4)) return false;
+  if (!kd_begin(ray, world_clip_, max_abs_, w.kr, f0, f1, &w.krx4)) return false;
   w.err = std::max({w.kr.err[0], w.kr.err[1], w.kr.err[2]});
   Float4 of, df;
   load_ray4(ray, of, df);
-  // Grid-space ray: g(t) = o + t * dg. inv[a] is t per grid unit along axis a. Zero (and
+  // Grid-space ray: g(t) = o + t * dir_grid. inv[a] is t per grid unit along axis a. Zero (and
   // negative-zero) direction components never exit on their axis: their inv is 0 and their
-  // oc +inf, so their exit t is +inf without a branch. Lane 3 (tmin, tmax in the ray's layout)
-  // is zeroed first: a fourth axis with a zero direction, in cell 0, that never exits.
-  // The exit over a leaf's far plane p on axis a is t = p * inv[a] + oc[a] (oc = -o * inv,
-  // +inf on a non-moving axis): one multiply and one add after the leaf's load.
+  // t_at_zero +inf, so their exit t is +inf without a branch. Lane 3 (tmin, tmax in the ray's
+  // layout) is zeroed first: a fourth axis with a zero direction, in cell 0, that never exits.
+  // The exit over a leaf's far plane p on axis a is t = p * inv[a] + t_at_zero[a] (t_at_zero =
+  // -o * inv, +inf on a non-moving axis): one multiply and one add after the leaf's load.
   constexpr double kDInf = std::numeric_limits<double>::infinity();
   const Double4 zero = {0.0, 0.0, 0.0, 0.0};
   const Long4 xyz = {-1, -1, -1, 0};
@@ -372,10 +261,10 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   const Double4 inv = moving ? cell_ / d : zero;
   w.o = o;
   w.inv = inv;
-  w.oc = moving ? -o * inv : zero + kDInf;
-  w.dg = d * inv_cell_;
-  w.up_d = (d > zero) | ~xyz;
-  w.up = __builtin_convertvector(w.up_d, Int4);
+  w.t_at_zero = moving ? -o * inv : zero + kDInf;
+  w.dir_grid = d * inv_cell_;
+  w.up_mask = (d > zero) | ~xyz;
+  w.up = __builtin_convertvector(w.up_mask, Int4);
   w.down = ~w.up;
   // The walk runs over the float clip's [f0, f1], not an exact clip to the grid: f0 is at most
   // the ray's entry t, and the entry cell below is clamped into the grid, so the walk starts
@@ -387,9 +276,9 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   // The entry cell: clamped into the grid in double, then truncated (the floor, as the value
   // is >= 0; a NaN clamps to 0).
   const double t0 = f0, t1 = f1;
-  const Double4 x = o + t0 * w.dg;
+  const Double4 x = o + t0 * w.dir_grid;
   const Double4 xl = x > zero ? x : zero;
-  w.c = __builtin_convertvector(xl < top4_ ? xl : top4_, Int4);
+  w.cell = __builtin_convertvector(xl < last_cell4_ ? xl : last_cell4_, Int4);
   w.rd = TriangleTest::prepare(ray);
   w.tmin = ray.tmin;
   w.tmax = ray.tmax;
@@ -402,12 +291,13 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   w.t_cur = t0;
   w.t_stop = t1;
   w.steps_left = max_steps_ + 1;
-  w.leaf_id = start_leaf(w.c);
+  w.leaf_id = start_leaf(w.cell);
   return true;
 }
 
 template <class TriangleTest>
-GridKdHybrid::Exit GridKdHybrid::leaf_exit(const WalkState<TriangleTest>& w, const Leaf& L) const {
+GridKdHybrid::Exit GridKdHybrid::leaf_exit(const WalkState<TriangleTest>& w,
+                                           const Leaf& leaf_rec) const {
   // The leaf's box as four lanes each (lo's fourth holds first/count's bits, hi's the pad, 0:
   // lane 3 always takes hi, so its exit t is 0 * 0 + inf). The exit is the nearest far plane,
   // the first axis winning ties, found by compares on the three lanes that GCC turns into
@@ -419,12 +309,12 @@ GridKdHybrid::Exit GridKdHybrid::leaf_exit(const WalkState<TriangleTest>& w, con
   static_assert(offsetof(Leaf, first) == 24 && offsetof(Leaf, hi) == 32 &&
                 offsetof(Leaf, pad) == 56 && sizeof(Leaf) == 64);
   Double4 lo, hi;
-  const char* bytes = reinterpret_cast<const char*>(&L);  // the record's two halves
+  const char* bytes = reinterpret_cast<const char*>(&leaf_rec);  // the record's two halves
   std::memcpy(&lo, bytes, sizeof lo);
   std::memcpy(&hi, bytes + offsetof(Leaf, hi), sizeof hi);
-  const Double4 far = w.up_d ? hi : lo;
+  const Double4 far = w.up_mask ? hi : lo;
   Double4 e;
-  mul_add(far, w.inv, w.oc, e);
+  mul_add(far, w.inv, w.t_at_zero, e);
   const double e0 = e[0], e1 = e[1], e2 = e[2];
   Exit ex;
   if (e0 <= e1 && e0 <= e2)
@@ -449,21 +339,22 @@ void GridKdHybrid::exit_through(const WalkState<TriangleTest>& w, const Double4&
   ex.axis = A;
   ex.t = t;
   Double4 x;
-  mul_add(Double4{t, t, t, t}, w.dg, w.o, x);
+  mul_add(Double4{t, t, t, t}, w.dir_grid, w.o, x);
   const Double4 hm = hi - 0.5;
   const Double4 xl = x > lo ? x : lo;
   const Int4 v = __builtin_convertvector(xl < hm ? xl : hm, Int4);
-  const Int4 mono = w.up ? (v > w.c ? v : w.c) : (v < w.c ? v : w.c);
+  const Int4 mono = w.up ? (v > w.cell ? v : w.cell) : (v < w.cell ? v : w.cell);
   const Int4 face = __builtin_convertvector(far, Int4) + w.down;
-  ex.n = __builtin_shufflevector(mono, face, A == 0 ? 4 : 0, A == 1 ? 5 : 1, A == 2 ? 6 : 2, 3);
+  ex.next_cell =
+      __builtin_shufflevector(mono, face, A == 0 ? 4 : 0, A == 1 ? 5 : 1, A == 2 ? 6 : 2, 3);
   ex.out = uint32_t(face[A]) >= uint32_t(dims_[A]);
 }
 
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
-bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
+bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& probe,
                                const typename TriangleTest::RayData& rd, float tmin, uint32_t first,
                                uint32_t count, float& best, bool& found, LocalHit& h) const {
-  s.leaf();
+  probe.leaf();
   using Wide = WatertightWide<kWideLanes>;
   // The leaf's groups, one after the other (records.h, "Triangle groups").
   const float* p = groups_[0].f + first;
@@ -479,16 +370,16 @@ bool GridKdHybrid::test_groups(WalkState<TriangleTest>& w, Probe& s,
       // look-ups cost more than the repeats they saved (docs/HYBRID.md, "Wide leaves").
       lanes = uint32_t((uint64_t(1) << n) - 1);
       if constexpr (Probe::kCount)
-        for (uint32_t i = 0; i < n; ++i) s.tri_test(g.prim(i));
+        for (uint32_t i = 0; i < n; ++i) probe.tri_test(g.prim(i));
     } else {
       // The lanes whose triangle the ray has not tested before.
       for (uint32_t i = 0; i < n; ++i) {
         const uint32_t prim = g.prim(i);
         if (hybrid::tested_before<kExact>(w, prim)) {
-          s.mailbox_skip();
+          probe.mailbox_skip();
           continue;
         }
-        if constexpr (Probe::kCount) s.tri_test(prim);
+        if constexpr (Probe::kCount) probe.tri_test(prim);
         lanes |= 1u << i;
       }
     }
@@ -531,111 +422,18 @@ template <class TriangleTest>
 }
 
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
-bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& s, uint32_t leaf_id, uint32_t at,
-                             double t_exit, LocalHit& h) const {
-#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
-  // The ray's segment in the leaf, clipped to the subtree's box as the kd walk clips it.
-  const float* fb = flat_[0].f + at;
-  Float4 sub_lo, sub_hi;
-  std::memcpy(&sub_lo, fb, sizeof sub_lo);
-  std::memcpy(&sub_hi, fb + 4, sizeof sub_hi);
-  float ta = float(w.t_cur) - w.err, tb = float(std::min(t_exit, w.t1)) + w.err;
-  if (!kd_clip_x4(w.krx4, sub_lo, sub_hi, ta, tb)) return false;
-  uint32_t n;
-  std::memcpy(&n, fb + 8, sizeof n);
-  const float* q = fb + 16;
-  using F = WideVectors<16>::F;
-  using I = WideVectors<16>::I;
-  using Wide = WatertightWide<16>;
-  // The leaves in the kd walk's order for the ray's octant: at each split the side the ray
-  // meets first (a ray with a zero component takes the positive side's order; it lies in one
-  // slab of that axis, so the order of the others does not matter).
-  const uint32_t oct = uint32_t(w.kr.dir.x < 0.0f) | uint32_t(w.kr.dir.y < 0.0f) << 1 |
-                       uint32_t(w.kr.dir.z < 0.0f) << 2;
-  const uint8_t* order = reinterpret_cast<const uint8_t*>(q + 8 * n) + oct * n;
-  const uint32_t all = (1u << n) - 1;
-  // Each leaf's box clipped as kd_clip clips it (each slab widened by err, a zero direction
-  // component never bounding t), all leaves at once: the same [t0, t1] per leaf, except that
-  // a NaN slab t (a subnormal direction component) leaves the interval wider.
-  F t0 = F{} + ta, t1 = F{} + tb;
-  uint32_t inside = all;
-  for (int a = 0; a < 3; ++a) {
-    const F lo = (F)_mm512_maskz_loadu_ps(__mmask16(all), q + uint32_t(a) * n);
-    const F hi = (F)_mm512_maskz_loadu_ps(__mmask16(all), q + uint32_t(3 + a) * n);
-    const F o = F{} + w.krx4.org[a];
-    if (w.krx4.fixed[a]) {
-      inside &= Wide::bits((lo <= o) & (o <= hi));
-      continue;
-    }
-    const F inv = F{} + w.krx4.inv[a], e = F{} + w.krx4.err[a];
-    const F tl = (lo - o) * inv, th = (hi - o) * inv;
-    const F near = (tl < th ? tl : th) - e, far = (tl > th ? tl : th) + e;
-    t0 = near > t0 ? near : t0;
-    t1 = far < t1 ? far : t1;
-  }
-  // The leaves the ray meets, and their entry t's, in that order (lane k: the k-th leaf).
-  const I perm =
-      (I)_mm512_maskz_cvtepu8_epi32(__mmask16(all), _mm_maskz_loadu_epi8(__mmask16(all), order));
-  const I lane_bit = {1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768};
-  const I met = (t0 <= t1) & (((I{} + int(inside)) & lane_bit) != 0);
-  const __mmask16 lanes = __mmask16(all);
-  uint32_t left = Wide::bits((I)_mm512_maskz_permutexvar_epi32(lanes, (__m512i)perm, (__m512i)met));
-  const F entry = (F)_mm512_maskz_permutexvar_ps(lanes, (__m512i)perm, (__m512)t0);
-  float best = w.best;
-  bool found = w.found;
-  [[maybe_unused]] float trace_in = float(w.t_cur);
-  // The leaves' groups requested at once, 512 bytes from each one's first (a group of 16 lanes
-  // and 16 corners is about 300 bytes; a subtree's leaves' groups follow one another): an
-  // incoherent ray would otherwise wait for each leaf's group in turn, its header first.
-  for (uint32_t m = left; m != 0; m &= m - 1) {
-    uint32_t first;
-    std::memcpy(&first, q + 6 * n + order[__builtin_ctz(m)], sizeof first);
-    const char* g = reinterpret_cast<const char*>(groups_[0].f + first);
-    for (int l = 0; l < hybrid::kFlatPrefetchLines; ++l) __builtin_prefetch(g + 64 * l);
-  }
-  while (left) {
-    const uint32_t k = uint32_t(__builtin_ctz(left));
-    // Done once the closest hit lies before the next leaf's entry (the kd walk's rule).
-    if (found && ((Wide::bits(F{} + best < entry) >> k) & 1u)) break;
-    left &= left - 1;
-    const uint32_t i = order[k];
-    s.step();
-    if constexpr (Probe::kTrace) {
-      // The leaf's segment within the grid leaf's, as the kd walk's traces clamp theirs.
-      const Box3 box(Vec3(q[i], q[n + i], q[2 * n + i]),
-                     Vec3(q[3 * n + i], q[4 * n + i], q[5 * n + i]));
-      const float leaf_out = float(std::min(t_exit, double(w.tmax)));
-      trace_in = std::max(trace_in, std::min(t0[i], leaf_out));
-      s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]) + 1, leaf_id, box, trace_in,
-                        std::max(trace_in, std::min(t1[i], leaf_out))});
-    }
-    uint32_t first, count;  // stored as floats' bits (records.h)
-    std::memcpy(&first, q + 6 * n + i, sizeof first);
-    std::memcpy(&count, q + 7 * n + i, sizeof count);
-    if (test_groups<TriangleTest, Probe, kAny, kExact>(w, s, w.rd, w.tmin, first, count, best,
-                                                       found, h))
-      return true;
-  }
-  if constexpr (!kAny) keep_subtree_hit(w, best, h);
-#else
-  (void)w, (void)s, (void)leaf_id, (void)at, (void)t_exit, (void)h;
-#endif
-  return false;
-}
-
-template <class TriangleTest, class Probe, bool kAny, bool kExact>
-GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Probe& s) const {
+GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Probe& probe) const {
   if (over_step_bound(w)) return StepResult::Done;
   const uint32_t leaf_id = w.leaf_id;
-  const Leaf& L = leaves_[leaf_id];
-  s.step();
-  const Exit ex = leaf_exit(w, L);
+  const Leaf& leaf_rec = leaves_[leaf_id];
+  probe.step();
+  const Exit ex = leaf_exit(w, leaf_rec);
   const double t_exit = ex.t;
   const bool last = ex.out || t_exit >= w.t1;
   if constexpr (Probe::kTrace) {
     const float tin = float(w.t_cur);
-    s.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, step_box(leaf_id), tin,
-                      std::max(tin, float(std::min(t_exit, double(w.tmax))))});
+    probe.visit(TraceStep{StepKind::Leaf, int(leaf_depth_[leaf_id]), leaf_id, step_box(leaf_id),
+                          tin, std::max(tin, float(std::min(t_exit, double(w.tmax))))});
   }
   // The next cell's leaf is looked up before this leaf's triangles are tested, so the
   // dependent loads of the lookup (top array, bricks, leaf record) overlap with the tests
@@ -643,8 +441,8 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
   // docs/HYBRID.md, "The walk"), so the lookup is rarely wasted.
   uint32_t next_id = 0;
   if (!last) {
-    next_id = next_leaf(ex.n, leaf_id, ex.axis);
-    s.lookup();
+    next_id = next_leaf(ex.next_cell, leaf_id, ex.axis);
+    probe.lookup();
     __builtin_prefetch(leaves_.data() + next_id);
   }
   // The closest hit's triangle and u, v are written to w once after the leaf.
@@ -652,14 +450,14 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
   const float tmin = w.tmin;
   LocalHit h{kInvalidPrim, 0.0f, 0.0f};
   uint32_t flat_at;  // the leaf's flat subtree (records.h, "Flat subtrees"), 0 if none
-  std::memcpy(&flat_at, &L.pad, sizeof flat_at);
+  std::memcpy(&flat_at, &leaf_rec.pad, sizeof flat_at);
   if (hybrid::kFlatSubtrees && flat_at != 0) {
-    if (walk_flat<TriangleTest, Probe, kAny, kExact>(w, s, leaf_id, flat_at, t_exit, h))
+    if (walk_flat<TriangleTest, Probe, kAny, kExact>(w, probe, leaf_id, flat_at, t_exit, h))
       return StepResult::Answered;
-  } else if (L.count & kSubtreeFlag) {
+  } else if (leaf_rec.count & kSubtreeFlag) {
     // The kd-tree's walk of the leaf's subtree over the ray's segment in the leaf, clipped to
     // the subtree's box first (the two t's widened by err as the kd-tree widens its own).
-    const KdNode* sub = sub_nodes_.data() + L.first;
+    const KdNode* sub = sub_nodes_.data() + leaf_rec.first;
     Float4 sub_lo, sub_hi;
     std::memcpy(&sub_lo, sub, sizeof sub_lo);
     std::memcpy(&sub_hi, sub + 2, sizeof sub_hi);
@@ -676,7 +474,7 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
       // subtree, and a second test of the whole triangle can only repeat the first (best only
       // decreases).
       auto leaf = [&](const KdNode& sn, float& b, bool& f) __attribute__((always_inline)) {
-        return test_groups<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, sn.prim_offset,
+        return test_groups<TriangleTest, Probe, kAny, kExact>(w, probe, rd, tmin, sn.prim_offset,
                                                               sn.count(), b, f, h);
       };
       // Traces: each node's segment as the walk sees it, within the leaf's segment and never
@@ -689,21 +487,21 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
         const float leaf_out = float(std::min(t_exit, double(w.tmax)));
         trace_in = std::max(trace_in, std::min(tn, leaf_out));
         const float out = std::max(trace_in, std::min(tf, leaf_out));
-        s.visit(
+        probe.visit(
             TraceStep{kind, int(leaf_depth_[leaf_id]) + 1 + depth, leaf_id, box, trace_in, out});
       };
       // The closest hit in the walk's own locals here: through w, the compiler keeps it in
       // memory across the subtree's steps.
       float best = w.best;
       bool found = w.found;
-      if (kd_traverse(sub_nodes_.data(), L.first + kSubBoxNodes, kr, ta, tb, sub_box, best, found,
-                      s, leaf, visit))
+      if (kd_traverse(sub_nodes_.data(), leaf_rec.first + kSubBoxNodes, kr, ta, tb, sub_box, best,
+                      found, probe, leaf, visit))
         return StepResult::Answered;
       if constexpr (!kAny) keep_subtree_hit(w, best, h);
     }
-  } else if (L.count) {
-    if (test_groups<TriangleTest, Probe, kAny, kExact>(w, s, rd, tmin, L.first, L.count, w.best,
-                                                       w.found, h))
+  } else if (leaf_rec.count) {
+    if (test_groups<TriangleTest, Probe, kAny, kExact>(w, probe, rd, tmin, leaf_rec.first,
+                                                       leaf_rec.count, w.best, w.found, h))
       return StepResult::Answered;
     if constexpr (!kAny)
       if (h.prim != kInvalidPrim) w.hit = {w.best, h.prim, h.u, h.v};
@@ -711,10 +509,13 @@ GridKdHybrid::StepResult GridKdHybrid::walk_step(WalkState<TriangleTest>& w, Pro
   if (w.found && double(w.best) <= t_exit) return StepResult::Done;
   if (last) return StepResult::Done;
   if (w.found) w.t_stop = std::min(w.t1, double(w.best));
-  w.c = ex.n;
+  w.cell = ex.next_cell;
   w.t_cur = t_exit;
   w.leaf_id = next_id;
   return StepResult::Next;
 }
 
 }  // namespace kdgrid
+
+// GridKdHybrid::walk_flat, which walk_step calls; it uses keep_subtree_hit above.
+#include "accel/hybrid/walk_flat.h"
