@@ -85,40 +85,6 @@ double t_tolerance(const Ray& r, double scene_scale) {
   return 16.0 * (o + scene_scale) * 1.1920929e-7 / dl;
 }
 
-/// Distance between the segments p0 + s (p1 - p0), s in [0, 1], and q0 + t (q1 - q0), t in
-/// [0, 1] (Ericson, Real-Time Collision Detection, 5.1.9), with the parameter t of the closest
-/// point on the second.
-double segment_distance(const Vec3d& p0, const Vec3d& p1, const Vec3d& q0, const Vec3d& q1,
-                        double& t_out) {
-  const Vec3d d1 = p1 - p0, d2 = q1 - q0, r = p0 - q0;
-  const double a = dot(d1, d1), e = dot(d2, d2), f = dot(d2, r);
-  double s = 0, t = 0;
-  if (a == 0 && e == 0) {
-    s = t = 0;
-  } else if (a == 0) {
-    t = std::clamp(f / e, 0.0, 1.0);
-  } else {
-    const double c = dot(d1, r);
-    if (e == 0) {
-      s = std::clamp(-c / a, 0.0, 1.0);
-    } else {
-      const double b = dot(d1, d2), denom = a * e - b * b;
-      s = denom > 0 ? std::clamp((b * f - c * e) / denom, 0.0, 1.0) : 0.0;
-      t = (b * s + f) / e;
-      if (t < 0) {
-        t = 0;
-        s = std::clamp(-c / a, 0.0, 1.0);
-      } else if (t > 1) {
-        t = 1;
-        s = std::clamp((b - c) / a, 0.0, 1.0);
-      }
-    }
-  }
-  t_out = t;
-  const Vec3d gap = (p0 + d1 * s) - (q0 + d2 * t);
-  return std::sqrt(dot(gap, gap));
-}
-
 bool segment_overlaps_box(const Ray& r, const Box3& b, double t0, double t1) {
   for (int a = 0; a < 3; ++a) {
     const double o = r.org[a], d = r.dir[a];
@@ -148,8 +114,6 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
   // coordinate involved. Seen by the ray at a grazing angle it grows by 1/cos; measured
   // along a triangle it becomes a barycentric margin of delta / altitude.
   const double delta = ref.tol * dl;
-  // Past this t the ray has left the scene's bounds (scene_scale bounds every coordinate).
-  const double t_far = (std::sqrt(dot(o, o)) + 2.0 * std::sqrt(3.0) * scene_scale) / dl;
   std::vector<Candidate> loose;
   for (uint32_t i = 0; i < uint32_t(mesh.num_triangles()); ++i) {
     const auto c = mesh.corners(i);
@@ -157,29 +121,7 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
     const Vec3d e1 = v1 - v0, e2 = v2 - v0, e3 = v2 - v1;
     const Vec3d nrm = cross(e1, e2);
     const double area2 = std::sqrt(dot(nrm, nrm));
-    // Depths of the corners along the ray: a float test's barycentrics are uncertain, and so is
-    // a t interpolated from them, by up to the triangle's depth span.
-    const double z0 = dot(v0, d) / (dl * dl), z1 = dot(v1, d) / (dl * dl),
-                 z2 = dot(v2, d) / (dl * dl);
-    const double depth_span = std::max({z0, z1, z2}) - std::min({z0, z1, z2});
-    if (area2 == 0.0) {
-      // Zero area in exact arithmetic (three equal or collinear corners): a float test shears
-      // and scales the corners with rounding and may see a sliver there, so a ray passing
-      // within rounding distance of the triangle's segment may be reported to hit it anywhere
-      // along its depth span. A loose hit, never a robust one.
-      const double t_lo = std::max(double(r.tmin), 0.0);
-      const double t_hi = std::min(double(r.tmax), t_lo + t_far);
-      const Vec3d a = d * t_lo, b = d * t_hi;
-      double best = kInf, t_near = t_lo;
-      const Vec3d* vs[3] = {&v0, &v1, &v2};
-      for (int k = 0; k < 3; ++k) {
-        double s;
-        const double dist = segment_distance(*vs[k], *vs[(k + 1) % 3], a, b, s);
-        if (dist < best) best = dist, t_near = t_lo + s * (t_hi - t_lo);
-      }
-      if (best <= 4.0 * delta) loose.push_back({t_near, i, ref.tol + depth_span});
-      continue;
-    }
+    if (area2 == 0.0) continue;  // zero area: no hit possible
     const Vec3d p = cross(d, e2);
     const double det = dot(e1, p);
     const double cosn = std::fabs(det) / (area2 * dl);
@@ -202,8 +144,7 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
     const double t = dot(e2, q) * inv;
     const double margin = kBaryMargin + delta * max_edge / (area2 * cosn);
     if (u < -margin || v < -margin || w < -margin) continue;
-    const double t_unc =
-        ref.tol + delta / (dl * cosn) + 1e-5 * std::fabs(t) + std::min(1.0, margin) * depth_span;
+    const double t_unc = ref.tol + delta / (dl * cosn) + 1e-5 * std::fabs(t);
     if (t < r.tmin - t_unc || t > double(r.tmax) + t_unc) continue;
     const bool strict =
         u > margin && v > margin && w > margin && t > r.tmin + t_unc && t < double(r.tmax) - t_unc;
