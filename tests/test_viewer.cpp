@@ -205,9 +205,10 @@ TEST(Viewer, PickPrintsTheBuildFlagsUnderTheirFieldNamesAndTraceReplaysIt) {
   const RunResult picked = run_viewer(dir, args);
   ASSERT_EQ(picked.code, 0) << picked.output;
   std::smatch m;
-  ASSERT_TRUE(std::regex_search(picked.output, m,
-                                std::regex(R"(pick 170,130: \d+ steps, (\d+) triangle tests, )"
-                                           R"((hit triangle \d+|miss)\n  kdgrid trace ([^\n]*))")))
+  ASSERT_TRUE(
+      std::regex_search(picked.output, m,
+                        std::regex(R"(pick 170,130: \d+ steps, (\d+) triangle tests, )"
+                                   R"((hit triangle \d+|miss)[^\n]*\n  kdgrid trace ([^\n]*))")))
       << picked.output;
   const std::string tests = m[1], hit = m[2], command = m[3];
   // The printed command names each flag after the field it sets.
@@ -1135,9 +1136,9 @@ TEST(Viewer, InputEscInACellSizeFieldCancelsTheRunningBuildWithoutRestartingIt) 
   // A fine cell (several seconds to build) starts after the first picture; in the units field
   // a digit is typed and Esc pressed while it builds.
   const Driven d = drive_viewer(
-      dir, args + " --hold 60 --hybrid-max-build-seconds 0 --rebuild-cell-size 6e-5",
+      dir, args + " --hold 60 --hybrid-max-build-seconds 0 --rebuild-cell-size 4e-5",
       "bun_zipper.ply",
-      "sleep 1.5\n" + click_field(rects, "units") + "\nxdotool type 5\nkey Escape\nsleep 1");
+      "sleep 1\n" + click_field(rects, "units") + "\nxdotool type 5\nkey Escape\nsleep 1");
   ASSERT_DRIVEN_OK(d);
   const auto& builds = d.stats["builds"];
   ASSERT_EQ(builds.size(), 2u) << "Esc restarted the build: " << builds.dump();
@@ -1320,7 +1321,7 @@ TEST(Viewer, TheBuildProgressBarRisesMonotonically) {
     EXPECT_LT(f, 1.0);
     last = f;
   }
-  EXPECT_GT(last, 0.2) << bar.dump();
+  EXPECT_GT(last, bar[0][1].get<double>()) << "the bar did not rise: " << bar.dump();
 }
 
 TEST(Viewer, PickStepTableShowsEveryColumnAndLeavesThePickAndTheLegendUncovered) {
