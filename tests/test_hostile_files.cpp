@@ -93,10 +93,6 @@ CliResult run_cli(const std::string& args, const TempDir& tmp, const std::string
   return r;
 }
 
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
-
 // A file-size limit of 4 KiB, with SIGXFSZ ignored as a full disk would give ENOSPC.
 const std::string kFullDisk = "trap \"\" XFSZ; ulimit -f 4;";
 

@@ -30,10 +30,6 @@ namespace fs = std::filesystem;
 using test::load_error;
 using test::TempDir;
 
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
-
 std::string hostile(const std::string& name) {
   return test::source_path("tests/data/hostile/" + name);
 }

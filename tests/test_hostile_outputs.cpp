@@ -18,6 +18,7 @@
 #include "cli_util.h"
 #include "render/renderer.h"
 #include "temp_dir.h"
+#include "test_util.h"
 #include "util/atomic_file.h"
 #include "util/error.h"
 
@@ -25,10 +26,6 @@ namespace kdgrid::test {
 namespace {
 
 namespace fs = std::filesystem;
-
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
 
 /// The message of the kdgrid::Error `f` throws (a failure if it throws none).
 std::string error_of(const std::function<void()>& f) {

@@ -33,10 +33,6 @@ namespace fs = std::filesystem;
 using test::load_error;
 using test::TempDir;
 
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
-
 using TriangleTest = std::array<uint32_t, 3>;
 
 void expect_near(const Vec3& a, const Vec3& b, float eps = 1e-5f) {

@@ -22,6 +22,7 @@
 #include <nlohmann/json.hpp>
 
 #include "temp_dir.h"
+#include "test_util.h"
 #include "util/error.h"
 #include "viewer/settings.h"
 
@@ -30,10 +31,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using test::TempDir;
-
-#define EXPECT_CONTAINS(haystack, needle)                          \
-  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
-      << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
 
 /// load_settings(dir) with what it printed on stderr.
 Settings load_capturing(const std::string& dir, std::string& err) {

@@ -12,6 +12,11 @@
 #include "util/error.h"
 #include "util/paths.h"
 
+/// Expects `haystack` (a message) to contain `needle`, printing both when it does not.
+#define EXPECT_CONTAINS(haystack, needle)                          \
+  EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
+      << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
+
 namespace kdgrid::test {
 
 /// Absolute path of a file under the shared scenes directory ($KDGRID_SCENES or
