@@ -53,7 +53,7 @@ TEST_P(EmbreeConfigs, AgreesWithBruteForceOnProceduralMeshes) {
     EmbreeAccel e(config);
     const BuildStats st = e.build(mesh, BuildParams{});
     EXPECT_GT(st.bytes, 0u);
-    const auto rays = test::random_rays(mesh, 17, 20000);
+    const auto rays = test::random_rays(mesh, 20000, 17);
     int hits = 0;
     const int bad = test::count_disagreements(mesh, e, rays, 0, &hits, kTol);
     std::printf("%s vs brute on %s: %d of %zu rays disagree\n", config.name.c_str(), name.c_str(),
@@ -162,7 +162,7 @@ TEST(Embree, ExtremeRays) {
 
 TEST(Embree, AllQualitiesBuildAndBadQualityIsRejected) {
   const Mesh mesh = test::sphere(30, 60);
-  const auto rays = test::random_rays(mesh, 2, 3000);
+  const auto rays = test::random_rays(mesh, 3000, 2);
   for (const char* q : {"low", "medium", "high"}) {
     SCOPED_TRACE(q);
     BuildParams p;
@@ -223,7 +223,7 @@ TEST(Embree, CountersAreZeroAndTraceHoldsTheHit) {
   EmbreeAccel e;
   e.build(mesh, BuildParams{});
   EXPECT_FALSE(e.has_counters());
-  const auto rays = test::random_rays(mesh, 4, 500);
+  const auto rays = test::random_rays(mesh, 500, 4);
   EXPECT_EQ(test::check_counted_and_trace(e, rays), 0);
   RayCounters c;
   Hit h;
@@ -242,7 +242,7 @@ TEST(Embree, ReportsMemoryAndRebuilds) {
   EXPECT_GT(sb.bytes_by_part.at(0).second, 0u);  // Embree's own allocations were seen
   EXPECT_EQ(e.memory_bytes(), sb.bytes);
   EXPECT_EQ(
-      test::count_disagreements(big, e, test::random_rays(big, 6, 2000), 0, nullptr, kTol) <= 1,
+      test::count_disagreements(big, e, test::random_rays(big, 2000, 6), 0, nullptr, kTol) <= 1,
       true);
 }
 

@@ -47,7 +47,7 @@ TEST(Grid, DdaStepBoundOnProceduralMeshes) {
     SCOPED_TRACE(name);
     UniformGrid g;
     g.build(mesh, BuildParams{});
-    EXPECT_EQ(steps_over_bound(g, test::random_rays(mesh, 17, 20000)), 0);
+    EXPECT_EQ(steps_over_bound(g, test::random_rays(mesh, 20000, 17)), 0);
   }
 }
 
@@ -93,10 +93,10 @@ TEST(Grid, DdaStepBoundOnSignedZeroDirections) {
 // Counted and traced traversal against the fast path on these rays:
 // TracedStructures.CountedAndTracedTraversalMatchFastPath.
 TEST(Grid, MailboxingSkipsRepeatedTests) {
-  const Mesh mesh = test::random_soup(11, 3000);
+  const Mesh mesh = test::random_soup(3000, 11);
   UniformGrid g;
   g.build(mesh, BuildParams{});
-  const auto rays = test::random_rays(mesh, 3, 5000);
+  const auto rays = test::random_rays(mesh, 5000, 3);
   // Mailboxing does skip repeated tests of triangles spanning several cells.
   RayCounters sum;
   for (const Ray& r : rays) {
@@ -108,7 +108,7 @@ TEST(Grid, MailboxingSkipsRepeatedTests) {
 }
 
 TEST(Grid, ResolutionFollowsDensityHeuristic) {
-  const Mesh mesh = test::random_soup(1, 4000);  // roughly a cube
+  const Mesh mesh = test::random_soup(4000, 1);  // roughly a cube
   BuildParams p;
   UniformGrid g;
   const BuildStats st = g.build(mesh, p);
@@ -162,11 +162,11 @@ TEST(Grid, ExactOverlapFilterBeatsBoundingBoxes) {
     EXPECT_GT(b.num_triangles, 0u);
   });
   EXPECT_EQ(boxes, st.nodes - st.empty_leaves);
-  EXPECT_EQ(count_disagreements(m, g, test::random_rays(m, 5, 3000)), 0);
+  EXPECT_EQ(count_disagreements(m, g, test::random_rays(m, 3000, 5)), 0);
 }
 
 TEST(Grid, MemoryGuardFailsFastWithClearMessage) {
-  const Mesh mesh = test::random_soup(1, 1000);
+  const Mesh mesh = test::random_soup(1000, 1);
   BuildParams p;
   p.grid_lambda = 1e7f;
   p.grid_max_resolution = 100000;

@@ -27,23 +27,9 @@ namespace {
 
 using test::add_quad;
 using test::add_tri;
-
-/// Random triangles of size ~`size` with corners inside [lo, hi].
-Mesh random_soup(uint32_t seed, int n, Vec3 lo, Vec3 hi, float size) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
-  Mesh m;
-  for (int i = 0; i < n; ++i) {
-    const Vec3 c = lo + (hi - lo) * Vec3(u(rng), u(rng), u(rng));
-    Vec3 p[3];
-    for (auto& q : p) {
-      q = c + Vec3(s(rng), s(rng), s(rng)) * size;
-      q = max(lo, min(hi, q));
-    }
-    add_tri(m, p[0], p[1], p[2]);
-  }
-  return m;
-}
+using test::random_rays;
+using test::random_soup;
+using test::transformed;
 
 /// An octahedron subdivided `levels` times and projected on the sphere (test::octahedron_sphere).
 Mesh subdivided_sphere(Vec3 center, float radius, int levels) {
@@ -83,7 +69,7 @@ Mesh long_thin(uint32_t seed) {
     const Vec3 w = Vec3(u(rng), u(rng), u(rng)) * 0.01f;
     add_tri(m, a, b, b + w);
   }
-  const Mesh small = random_soup(seed + 1, 300, Vec3(-1), Vec3(1), 0.03f);
+  const Mesh small = random_soup(300, seed + 1, 0.03f);
   m.append(small);
   return m;
 }
@@ -102,56 +88,7 @@ Mesh teapot_in_stadium(float stadium, int sphere_levels) {
   return m;
 }
 
-Mesh transformed(const Mesh& in, float scale, Vec3 offset) {
-  Mesh m = in;
-  for (auto& p : m.positions) p = p * scale + offset;
-  return m;
-}
-
 // ---- rays --------------------------------------------------------------------------------
-
-/// Seeded rays: from anywhere around the box in random directions, aimed at triangle
-/// interiors, axis-parallel ones, and segments with finite tmax (for any-hit).
-std::vector<Ray> random_rays(const Mesh& m, int n, uint32_t seed) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
-  const Box3 b = m.bounds();
-  const Vec3 c = b.center(), e = b.extent() * 0.75f + Vec3(1e-3f * max_component(b.extent()));
-  std::vector<Ray> rays;
-  rays.reserve(size_t(n));
-  for (int i = 0; i < n; ++i) {
-    Ray r;
-    r.org = c + e * Vec3(s(rng), s(rng), s(rng)) * 1.5f;
-    switch (i % 4) {
-      case 0:
-        r.dir = Vec3(s(rng), s(rng), s(rng));
-        break;
-      case 1: {
-        const auto t = m.corners(size_t(rng() % m.num_triangles()));
-        float a = u(rng), bb = u(rng);
-        if (a + bb > 1) {
-          a = 1 - a;
-          bb = 1 - bb;
-        }
-        r.dir = t[0] * (1 - a - bb) + t[1] * a + t[2] * bb - r.org;
-        break;
-      }
-      case 2: {
-        r.dir = Vec3(0.0f);
-        r.dir[int(rng() % 3)] = (rng() & 1) ? 1.0f : -1.0f;
-        break;
-      }
-      default:
-        r.dir = Vec3(s(rng), s(rng), s(rng));
-        r.tmin = u(rng) * 0.5f;
-        r.tmax = r.tmin + u(rng) * 2.0f;
-        break;
-    }
-    if (r.dir == Vec3(0.0f)) r.dir = Vec3(1, 0, 0);
-    rays.push_back(r);
-  }
-  return rays;
-}
 
 struct Reference {
   std::vector<Hit> hits;
@@ -290,7 +227,7 @@ void check_mesh(const Mesh& m, const std::string& name, float explicit_cell, int
 // ---- agreement with brute force ---------------------------------------------------------
 
 TEST(Hybrid, AgreesWithBruteForceRandomSoup) {
-  check_mesh(random_soup(1, 3000, Vec3(-1), Vec3(1), 0.08f), "soup", 0.13f);
+  check_mesh(random_soup(3000, 1, 0.08f), "soup", 0.13f);
 }
 
 TEST(Hybrid, AgreesWithBruteForceSphere) {
@@ -311,7 +248,7 @@ TEST(Hybrid, AgreesWithBruteForceTeapotInStadium) {
 }
 
 TEST(Hybrid, NonCubicGrid7x3x11) {
-  const Mesh m = random_soup(9, 2000, Vec3(0.0f), Vec3(6.9f, 2.9f, 10.9f), 0.3f);
+  const Mesh m = random_soup(2000, 9, 0.3f, Vec3(0.0f), Vec3(6.9f, 2.9f, 10.9f));
   const auto rays = random_rays(m, 20000, 77);
   const Reference ref = brute_reference(m, rays);
   for (bool dense : {false, true}) {
@@ -325,7 +262,7 @@ TEST(Hybrid, NonCubicGrid7x3x11) {
 }
 
 TEST(Hybrid, DenseAndBrickedMapEveryCellToTheSameCoveringLeaf) {
-  const Mesh m = random_soup(4, 1500, Vec3(-1), Vec3(1), 0.1f);
+  const Mesh m = random_soup(1500, 4, 0.1f);
   GridKdHybrid d, b;
   d.build(m, params_with(0.05f, true));
   b.build(m, params_with(0.05f, false));
@@ -620,8 +557,8 @@ TEST(HybridEmptyBoxes, CoverOnlyEmptyCellsAndTheirOwnLeaf) {
   // Widening needs empty leaves with empty cells around them; the SAH's leaves (costed by
   // triangle groups) leave none to widen in some of these meshes, so it is required over all.
   uint64_t widened_all = 0, overlapping = 0;
-  for (const Mesh& m : {random_soup(11, 1500, Vec3(-1), Vec3(1), 0.08f),
-                        subdivided_sphere(Vec3(0.1f), 1.0f, 4), lattice_quads(0.25f, 6, 3)}) {
+  for (const Mesh& m : {random_soup(1500, 11, 0.08f), subdivided_sphere(Vec3(0.1f), 1.0f, 4),
+                        lattice_quads(0.25f, 6, 3)}) {
     GridKdHybrid h;
     const BuildStats st = h.build(m, params_with(0.0f, false));
     const std::string text = extra_value(st, "empty-leaf boxes");
@@ -661,8 +598,8 @@ TEST(HybridEmptyBoxes, SameHitsInFewerSteps) {
   // Two clusters in opposite corners of the box and a sphere between them: empty space
   // around and between them, crossed by most rays.
   Mesh m;
-  for (const Mesh& part : {random_soup(12, 1500, Vec3(-1), Vec3(-0.4f), 0.05f),
-                           random_soup(13, 1500, Vec3(0.4f), Vec3(1), 0.05f),
+  for (const Mesh& part : {random_soup(1500, 12, 0.05f, Vec3(-1), Vec3(-0.4f)),
+                           random_soup(1500, 13, 0.05f, Vec3(0.4f), Vec3(1)),
                            subdivided_sphere(Vec3(0.5f, -0.5f, 0.0f), 0.3f, 3)})
     for (size_t i = 0; i < part.num_triangles(); ++i) {
       const auto c = part.corners(i);
@@ -735,7 +672,7 @@ TEST(HybridMemory, DenseVersusBrickedWhereDenseStillFits) {
 }
 
 TEST(HybridMemory, GuardRejectsAbsurdCellSize) {
-  const Mesh m = random_soup(2, 500, Vec3(-1), Vec3(1), 0.1f);
+  const Mesh m = random_soup(500, 2, 0.1f);
   for (bool dense : {false, true}) {
     GridKdHybrid h;
     try {
@@ -805,7 +742,7 @@ std::vector<Ray> coherent_rays(int n) {
 // counts as a lookup).
 TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
   const Mesh ma = subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 5);
-  const Mesh mb = random_soup(5, 3000, Vec3(-1), Vec3(1), 0.08f);
+  const Mesh mb = random_soup(3000, 5, 0.08f);
   GridKdHybrid ha, hb;
   ha.build(ma, params_with(0.0f, false));
   hb.build(mb, params_with(0.13f, true));
@@ -898,7 +835,7 @@ TEST(Hybrid, FlatSubtreesAnswerAsTheKdWalk) {
   };
   const Case cases[] = {
       {"sphere", subdivided_sphere(Vec3(0.3f, -0.2f, 0.1f), 1.0f, 6), 0.2f},
-      {"soup", random_soup(21, 30000, Vec3(-1), Vec3(1), 0.03f), 0.3f},
+      {"soup", random_soup(30000, 21, 0.03f), 0.3f},
       {"sphere far from the origin",
        transformed(subdivided_sphere(Vec3(0.0f), 1.0f, 6), 1.0f, Vec3(1e4f, -3e3f, 2e3f)), 0.2f}};
   for (const Case& c : cases) {
@@ -941,7 +878,7 @@ TEST(Hybrid, FlatSubtreesAnswerAsTheKdWalk) {
 }
 
 void check_trace_order(uint32_t subtree_min) {
-  const Mesh m = random_soup(8, 2000, Vec3(-1), Vec3(1), 0.08f);
+  const Mesh m = random_soup(2000, 8, 0.08f);
   GridKdHybrid h;
   BuildParams p = params_with(0.0f, false);
   p.hybrid_subtree_min = subtree_min;
@@ -992,7 +929,7 @@ TEST(Hybrid, TraceVisitsLeafSubtreesInRayOrder) {
 }
 
 TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
-  const Mesh m = random_soup(6, 1000, Vec3(-1), Vec3(1), 0.1f);
+  const Mesh m = random_soup(1000, 6, 0.1f);
   GridKdHybrid h;
   BuildParams p = params_with(0.0f, false);
   p.hybrid_subtree_min = 0;  // plain leaves: references are exactly the leaves' lists
@@ -1023,7 +960,7 @@ TEST(Hybrid, SplitsAndBoxesDescribeTheTree) {
 // ---- parameters and degenerate scenes ----------------------------------------------------
 
 TEST(HybridParams, CellSizeValidation) {
-  const Mesh m = random_soup(3, 300, Vec3(-1), Vec3(1), 0.1f);
+  const Mesh m = random_soup(300, 3, 0.1f);
   GridKdHybrid ref;
   ref.build(m, params_with(0.0f, false));
   for (float bad : {std::nanf(""), kInf, -kInf}) {
@@ -1049,7 +986,7 @@ TEST(HybridParams, CellSizeValidation) {
 }
 
 TEST(HybridParams, AutoRuleIsReported) {
-  const Mesh m = random_soup(3, 3000, Vec3(-1), Vec3(1), 0.05f);
+  const Mesh m = random_soup(3000, 3, 0.05f);
   GridKdHybrid h;
   const BuildStats st = h.build(m, params_with(0.0f, false));
   ASSERT_GE(st.extra.size(), 3u);
@@ -1070,8 +1007,8 @@ TEST(HybridParams, AutoRuleIsReported) {
   EXPECT_NEAR(h.cell_size(), std::min(p90, dens), 1e-6 * p90);
   // A few large triangles among many small ones: the percentile rule alone would keep them
   // in a handful of cells; the density floor gives at least 16 cells per triangle.
-  Mesh mixed = random_soup(4, 200, Vec3(-1), Vec3(1), 0.9f);
-  mixed.append(random_soup(5, 20, Vec3(-1), Vec3(1), 0.002f));
+  Mesh mixed = random_soup(200, 4, 0.9f);
+  mixed.append(random_soup(20, 5, 0.002f));
   GridKdHybrid hm;
   hm.build(mixed, params_with(0.0f, false));
   EXPECT_GE(double(hm.dims()[0]) * hm.dims()[1] * hm.dims()[2], 16.0 * 220.0);
@@ -1083,7 +1020,7 @@ TEST(HybridParams, AutoGridCappedAtItsCellBudget) {
   // 100K small triangles: their p90 extent asks for 22M cells; the auto rule raises the cell
   // until the grid has at most kHybridAutoMaxCells (the leaf subtrees resolve the geometry
   // below a cell), and says so.
-  const Mesh m = random_soup(6, 100000, Vec3(-1), Vec3(1), 0.004f);
+  const Mesh m = random_soup(100000, 6, 0.004f);
   GridKdHybrid h;
   h.build(m, params_with(0.0f, false));
   const double cells = double(h.dims()[0]) * h.dims()[1] * h.dims()[2];
@@ -1130,7 +1067,7 @@ TEST(HybridParams, FlatScenesAndOversizedCells) {
 }
 
 TEST(HybridParams, RejectsNonFiniteGeometryAndInvalidRays) {
-  Mesh m = random_soup(3, 10, Vec3(-1), Vec3(1), 0.1f);
+  Mesh m = random_soup(10, 3, 0.1f);
   GridKdHybrid ok;
   ok.build(m, params_with(0.0f, false));
   Hit hit;
@@ -1142,7 +1079,7 @@ TEST(HybridParams, RejectsNonFiniteGeometryAndInvalidRays) {
 }
 
 TEST(Hybrid, BuildIsDeterministic) {
-  const Mesh m = random_soup(12, 20000, Vec3(-1), Vec3(1), 0.03f);
+  const Mesh m = random_soup(20000, 12, 0.03f);
   GridKdHybrid a, b;
   BuildParams p = params_with(0.0f, false);
   const BuildStats sa = a.build(m, p);

@@ -22,18 +22,9 @@ namespace {
 
 using test::add_quad;
 using test::add_tri;
-
-/// n random triangles in [-1, 1]^3 with edge lengths up to `size`.
-Mesh random_soup(int n, uint32_t seed, float size) {
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f), s(-size, size);
-  Mesh m;
-  for (int i = 0; i < n; ++i) {
-    const Vec3 p(u(rng), u(rng), u(rng));
-    add_tri(m, p, p + Vec3(s(rng), s(rng), s(rng)), p + Vec3(s(rng), s(rng), s(rng)));
-  }
-  return m;
-}
+using test::random_rays;
+using test::random_soup;
+using test::transformed;
 
 Mesh sphere(int levels) {
   return test::octahedron_sphere(levels);
@@ -92,11 +83,6 @@ Mesh teapot_in_stadium(int levels) {
   return m;
 }
 
-Mesh transformed(Mesh m, float scale, Vec3 translate) {
-  for (Vec3& p : m.positions) p = p * scale + translate;
-  return m;
-}
-
 // ---- rays ---------------------------------------------------------------------------------
 
 Vec3 random_dir(std::mt19937& rng) {
@@ -105,45 +91,6 @@ Vec3 random_dir(std::mt19937& rng) {
     const Vec3 d(n(rng), n(rng), n(rng));
     if (length(d) > 1e-3f) return d;
   }
-}
-
-/// A mix of rays: random origins and directions around the box, rays aimed at points on
-/// random triangles (hits), and short segments with finite tmax (for any-hit).
-std::vector<Ray> random_rays(const Mesh& m, int n, uint32_t seed) {
-  std::mt19937 rng(seed);
-  const Box3 b = m.bounds();
-  const Vec3 c = b.center();
-  const float r = 0.5f * length(b.extent());
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f), u01(0.0f, 1.0f);
-  std::uniform_int_distribution<uint32_t> pick(0, uint32_t(m.num_triangles() - 1));
-  std::vector<Ray> rays;
-  rays.reserve(n);
-  for (int i = 0; i < n; ++i) {
-    Ray ray;
-    switch (i % 3) {
-      case 0:
-        ray.org = c + Vec3(u(rng), u(rng), u(rng)) * (1.5f * r);
-        ray.dir = random_dir(rng);
-        break;
-      case 1: {
-        const auto t = m.corners(pick(rng));
-        float bu = u01(rng), bv = u01(rng);
-        if (bu + bv > 1.0f) bu = 1.0f - bu, bv = 1.0f - bv;
-        const Vec3 target = t[0] * (1 - bu - bv) + t[1] * bu + t[2] * bv;
-        ray.org = target + normalize(random_dir(rng)) * (r * (0.1f + 2.0f * u01(rng)));
-        ray.dir = target - ray.org;
-        break;
-      }
-      default:
-        ray.org = c + Vec3(u(rng), u(rng), u(rng)) * r;
-        ray.dir = random_dir(rng);
-        ray.tmin = 0.01f * u01(rng);
-        ray.tmax = r * u01(rng) / length(ray.dir);
-        break;
-    }
-    rays.push_back(ray);
-  }
-  return rays;
 }
 
 // ---- comparison with brute force ----------------------------------------------------------

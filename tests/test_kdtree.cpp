@@ -90,10 +90,10 @@ TEST(KdTree, RayInPlaneOfCoplanarTriangles) {
 // Counted and traced traversal against the fast path on these rays:
 // TracedStructures.CountedAndTracedTraversalMatchFastPath.
 TEST(KdTree, TraceStartsAtTheRoot) {
-  const Mesh mesh = test::random_soup(11, 3000);
+  const Mesh mesh = test::random_soup(3000, 11);
   KdTree kd;
   kd.build(mesh, BuildParams{});
-  const auto rays = test::random_rays(mesh, 3, 5000);
+  const auto rays = test::random_rays(mesh, 5000, 3);
   // Interior and leaf steps are both reported, leaves deeper than the root.
   const Trace t = kd.trace(rays[0]);
   ASSERT_FALSE(t.steps.empty());
@@ -149,7 +149,7 @@ TEST(KdTree, PlanarTrianglesAreNotDuplicated) {
   KdTree kd;
   const BuildStats st = kd.build(flat, BuildParams{});
   EXPECT_LT(double(st.references), 1.6 * double(flat.num_triangles()));
-  EXPECT_EQ(count_disagreements(flat, kd, test::random_rays(flat, 4, 5000)), 0);
+  EXPECT_EQ(count_disagreements(flat, kd, test::random_rays(flat, 5000, 4)), 0);
 }
 
 TEST(KdTree, RejectsBadParameters) {
@@ -192,7 +192,7 @@ TEST(KdTree, BuildsLargeMeshQuickly) {
   if (!kSanitizerBuild) {
     EXPECT_LT(st.seconds, 60.0);
   }
-  EXPECT_EQ(count_disagreements(mesh, kd, test::random_rays(mesh, 8, 200)), 0);
+  EXPECT_EQ(count_disagreements(mesh, kd, test::random_rays(mesh, 200, 8)), 0);
 }
 
 // The ray as the scalar set-up builds it (the form kd_begin is held to): reciprocals, 0 on a

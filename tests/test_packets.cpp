@@ -30,7 +30,7 @@ struct PacketMesh {
 std::vector<PacketMesh> packet_meshes(const std::string& structure) {
   std::vector<PacketMesh> v;
   v.push_back({"sphere", test::sphere(40, 80)});
-  v.push_back({"soup", test::random_soup(7, 3000)});
+  v.push_back({"soup", test::random_soup(3000, 7)});
   v.push_back({"slivers", test::slivers(2, 1500)});
   v.push_back({"integer_quads", test::integer_quads(8)});
   // Far from the origin and huge: the triangle tests' and Embree's overflow fallbacks.
@@ -51,7 +51,7 @@ std::vector<Ray> packet_rays(const Mesh& mesh) {
   const std::vector<Ray> image = primary_rays(canonical_camera(mesh.bounds()), w, h);
   std::vector<Ray> rays;
   for (const uint32_t i : tile_order(w, h, 8)) rays.push_back(image[i]);
-  for (const Ray& r : test::random_rays(mesh, 11, 2000)) rays.push_back(r);
+  for (const Ray& r : test::random_rays(mesh, 2000, 11)) rays.push_back(r);
   // Shadow-like rays, 64 at a time from origins a thousandth of the mesh's extent apart (within
   // one of the hybrid's cells, so that they share its packet walk) towards one point light,
   // from tmin 1e-4 to the light.

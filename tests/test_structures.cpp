@@ -59,7 +59,7 @@ TEST_P(Structures, AgreesWithBruteForceOnProceduralMeshes) {
     const BuildStats st = acc->build(mesh, BuildParams{});
     EXPECT_GT(st.nodes, 1u);
     EXPECT_GT(st.references, 0u);
-    const auto rays = test::random_rays(mesh, 17, 20000);
+    const auto rays = test::random_rays(mesh, 20000, 17);
     int hits = 0;
     EXPECT_EQ(count_disagreements(mesh, *acc, rays, 5, &hits), 0);
     EXPECT_GT(hits, 2000) << "the ray set should hit the mesh often";
@@ -83,10 +83,10 @@ TEST_P(Structures, SignedZeroDirections) {
 }
 
 TEST_P(TracedStructures, CountedAndTracedTraversalMatchFastPath) {
-  const Mesh mesh = test::random_soup(11, 3000);
+  const Mesh mesh = test::random_soup(3000, 11);
   auto acc = make_accelerator(GetParam());
   acc->build(mesh, BuildParams{});
-  const auto rays = test::random_rays(mesh, 3, 5000);
+  const auto rays = test::random_rays(mesh, 5000, 3);
   EXPECT_EQ(test::check_counted_and_trace(*acc, rays), 0);
 }
 

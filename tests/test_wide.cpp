@@ -264,7 +264,7 @@ TEST(WideLeaves, HybridHitsMatchScalarBitForBit) {
       p.hybrid_subtree_min = subtree_min;
       GridKdHybrid h;
       h.build(nm.mesh, p);
-      std::vector<Ray> rays = test::random_rays(nm.mesh, 3, 3000);
+      std::vector<Ray> rays = test::random_rays(nm.mesh, 3000, 3);
       for (const Ray& r : test::signed_zero_rays()) rays.push_back(r);
       const std::string label = nm.name + " subtree_min " + std::to_string(subtree_min);
       EXPECT_EQ(wide_scalar_differences(h, rays, label), 0) << label;
@@ -298,7 +298,7 @@ TEST(WideLeaves, SharedCornerGroupsStoreEachCornerOnce) {
     const char* name;
     Mesh mesh;
   };
-  const Case cases[] = {{"soup", test::random_soup(5, 6000)}, {"sphere", test::sphere(60, 120)}};
+  const Case cases[] = {{"soup", test::random_soup(6000, 5)}, {"sphere", test::sphere(60, 120)}};
   for (const Case& c : cases) {
     BuildParams p;
     p.hybrid_subtree_min = 0;  // plain leaves, so that many hold more than one group
@@ -315,7 +315,7 @@ TEST(WideLeaves, SharedCornerGroupsStoreEachCornerOnce) {
     BruteForce brute;
     brute.build(c.mesh, p);
     int bad = 0;
-    for (const Ray& r : test::random_rays(c.mesh, 17, 4000)) {
+    for (const Ray& r : test::random_rays(c.mesh, 4000, 17)) {
       Hit hh, hb;
       const bool fh = h.intersect(r, hh), fb = brute.intersect(r, hb);
       bool same = fh == fb;
@@ -337,7 +337,7 @@ TEST(WideLeaves, HybridHitsMatchScalarBitForBitOnTheBunny) {
   const Scene scene = load_scene(path);
   GridKdHybrid h;
   h.build(scene.mesh, BuildParams{});
-  EXPECT_EQ(wide_scalar_differences(h, test::random_rays(scene.mesh, 11, 20000), "bunny"), 0);
+  EXPECT_EQ(wide_scalar_differences(h, test::random_rays(scene.mesh, 20000, 11), "bunny"), 0);
 }
 
 }  // namespace

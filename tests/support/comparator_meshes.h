@@ -51,17 +51,20 @@ inline Mesh octahedron_sphere(int levels, float r = 1.0f, Vec3 c = Vec3(0.0f)) {
   return m;
 }
 
-/// Random triangles in [-1,1]^3 with edge lengths from tiny to large.
-inline Mesh random_soup(uint32_t seed, int n) {
-  Mesh m;
+/// `n` random triangles with corners inside the box [lo, hi]: each triangle's three corners
+/// lie within `size` of a random centre in every coordinate (clamped to the box). With `size`
+/// 0 each triangle draws its own size between 1e-3 and 0.5 (log-uniform), from tiny to large.
+inline Mesh random_soup(int n, uint32_t seed, float size = 0.0f, Vec3 lo = Vec3(-1.0f),
+                        Vec3 hi = Vec3(1.0f)) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
-  std::uniform_real_distribution<float> lg(-3.0f, -0.3f);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f), lg(-3.0f, -0.3f);
+  Mesh m;
   for (int i = 0; i < n; ++i) {
-    const Vec3 c(u(rng), u(rng), u(rng));
-    const float s = std::pow(10.0f, lg(rng));
-    add_tri(m, c + Vec3(u(rng), u(rng), u(rng)) * s, c + Vec3(u(rng), u(rng), u(rng)) * s,
-            c + Vec3(u(rng), u(rng), u(rng)) * s);
+    const Vec3 c = lo + (hi - lo) * Vec3(u(rng), u(rng), u(rng));
+    const float sz = size > 0.0f ? size : std::pow(10.0f, lg(rng));
+    Vec3 p[3];
+    for (auto& q : p) q = max(lo, min(hi, c + Vec3(s(rng), s(rng), s(rng)) * sz));
+    add_tri(m, p[0], p[1], p[2]);
   }
   return m;
 }
@@ -129,7 +132,7 @@ inline Mesh slivers(uint32_t seed, int n) {
 /// A tiny dense cluster of triangles near the origin inside a huge box spanned by a few big
 /// triangles far away: the teapot-in-a-stadium case.
 inline Mesh cluster_in_box(uint32_t seed) {
-  Mesh m = random_soup(seed, 3000);
+  Mesh m = random_soup(3000, seed);
   for (Vec3& p : m.positions) p = p * 1e-3f;
   const float s = 1000.0f;
   add_tri(m, Vec3(-s, -s, -s), Vec3(s, -s, -s), Vec3(s, -s, s));
@@ -144,9 +147,6 @@ inline Mesh transformed(Mesh m, float scale, const Vec3& offset) {
   return m;
 }
 
-/// Seeded rays: a third aimed at points on random triangles (hits), a third between random
-/// points of the enlarged box, a third with a finite tmax (segments, for any-hit). Origins
-/// lie inside and outside the mesh box.
 /// A scale and offset that move a test mesh to where float precision is strained.
 struct ScaleCase {
   const char* name;
@@ -162,28 +162,44 @@ inline std::vector<ScaleCase> extreme_scale_cases() {
           {"translated 1e5", 1.0f, Vec3(1e5f, 1e5f, -1e5f)}};
 }
 
-inline std::vector<Ray> random_rays(const Mesh& m, uint32_t seed, int n) {
+/// Seeded rays, four kinds in turn, from origins around and inside the mesh box: random
+/// directions, aimed at points on random triangles (hits), axis-parallel, and segments with
+/// a finite [tmin, tmax] (for any-hit).
+inline std::vector<Ray> random_rays(const Mesh& m, int n, uint32_t seed) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
   const Box3 b = m.bounds();
-  const Vec3 c = b.center(), e = b.extent() * 0.75f + Vec3(max_component(b.extent()) * 0.1f);
-  auto point = [&] {
-    return c + Vec3(e.x * (2 * u01(rng) - 1), e.y * (2 * u01(rng) - 1), e.z * (2 * u01(rng) - 1));
-  };
+  const Vec3 c = b.center(), e = b.extent() * 0.75f + Vec3(1e-3f * max_component(b.extent()));
   std::vector<Ray> rays;
-  rays.reserve(n);
+  rays.reserve(size_t(n));
   for (int i = 0; i < n; ++i) {
     Ray r;
-    r.org = point();
-    if (i % 3 == 0) {
-      const auto cr = m.corners(rng() % m.num_triangles());
-      float bu = u01(rng), bv = u01(rng);
-      if (bu + bv > 1) bu = 1 - bu, bv = 1 - bv;
-      r.dir = cr[0] * (1 - bu - bv) + cr[1] * bu + cr[2] * bv - r.org;
-    } else {
-      r.dir = point() - r.org;
+    r.org = c + e * Vec3(s(rng), s(rng), s(rng)) * 1.5f;
+    switch (i % 4) {
+      case 0:
+        r.dir = Vec3(s(rng), s(rng), s(rng));
+        break;
+      case 1: {
+        const auto t = m.corners(size_t(rng() % m.num_triangles()));
+        float a = u(rng), bb = u(rng);
+        if (a + bb > 1) {
+          a = 1 - a;
+          bb = 1 - bb;
+        }
+        r.dir = t[0] * (1 - a - bb) + t[1] * a + t[2] * bb - r.org;
+        break;
+      }
+      case 2: {
+        r.dir = Vec3(0.0f);
+        r.dir[int(rng() % 3)] = (rng() & 1) ? 1.0f : -1.0f;
+        break;
+      }
+      default:
+        r.dir = Vec3(s(rng), s(rng), s(rng));
+        r.tmin = u(rng) * 0.5f;
+        r.tmax = r.tmin + u(rng) * 2.0f;
+        break;
     }
-    if (i % 3 == 2) r.tmax = u01(rng) * 1.5f;
     if (r.dir == Vec3(0.0f)) r.dir = Vec3(1, 0, 0);
     rays.push_back(r);
   }
@@ -242,7 +258,7 @@ struct NamedMesh {
 };
 inline std::vector<NamedMesh> test_meshes() {
   std::vector<NamedMesh> v;
-  v.push_back({"soup", random_soup(1, 4000)});
+  v.push_back({"soup", random_soup(4000, 1)});
   v.push_back({"sphere", sphere(40, 80)});
   v.push_back({"integer_quads", integer_quads(8)});
   v.push_back({"slivers", slivers(2, 1500)});
@@ -276,14 +292,14 @@ inline std::vector<Ray> signed_zero_rays() {
 /// rays on which they differ (hit/miss or t): the fast triangle test must be wired through
 /// the structure's traversal exactly as through brute force.
 inline int moller_mismatches(Accelerator& acc) {
-  const Mesh mesh = random_soup(5, 2000);
+  const Mesh mesh = random_soup(2000, 5);
   BuildParams p;
   p.triangle_test = TriangleTestKind::Moller;
   acc.build(mesh, p);
   BruteForce b;
   b.build(mesh, p);
   int bad = 0;
-  for (const Ray& r : random_rays(mesh, 9, 10000)) {
+  for (const Ray& r : random_rays(mesh, 10000, 9)) {
     Hit ha, hb;
     const bool a = acc.intersect(r, ha), c = b.intersect(r, hb);
     if (a != c || (a && ha.t != hb.t)) ++bad;
