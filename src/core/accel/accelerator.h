@@ -161,7 +161,9 @@ class Accelerator {
   /// parameters (with the fix in the message). Rebuilding replaces the previous structure.
   virtual BuildStats build(const Mesh& mesh, const BuildParams& params) = 0;
 
-  /// Closest hit in [ray.tmin, ray.tmax). Invalid rays (NaN, zero direction) miss.
+  /// Closest hit in [ray.tmin, ray.tmax). Invalid rays (NaN, zero direction) miss. For a ray
+  /// that starts on a surface (its origin on a triangle's plane within rounding, see
+  /// render/offset.h) whether that triangle is reported is implementation-defined.
   virtual bool intersect(const Ray& ray, Hit& hit) const = 0;
   /// Any hit in [ray.tmin, ray.tmax).
   virtual bool occluded(const Ray& ray) const = 0;

@@ -101,10 +101,11 @@ SceneRays make_scene_rays(const SceneFigures& sf, const Mesh& mesh, const Camera
         rays = primary;
       } else if (kind == RaySetKind::Shadow) {
         need_primary();
-        rays = shadow_rays(mesh, primary, primary_hits, canonical_light_position(mesh.bounds()));
+        rays =
+            shadow_rays(mesh, primary, primary_hits, canonical_light_position(mesh.bounds()), &ref);
       } else if (kind == RaySetKind::Diffuse) {
         need_primary();
-        rays = diffuse_rays(mesh, primary, primary_hits, /*seed=*/1);
+        rays = diffuse_rays(mesh, primary, primary_hits, /*seed=*/1, &ref);
       } else {
         rays = random_rays(mesh.bounds(), size_t(o.width) * size_t(o.height), /*seed=*/1);
       }
@@ -256,8 +257,8 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
           sf.ratio_to_reference = median(ratios);
         else if (ref->mrays[s] > 0)
           sf.ratio_to_reference = sf.mrays_median / ref->mrays[s];
-        sf.agreement =
-            hit_agreement(mesh, rays, hits, ref->hits[s], any, o.tie_tolerance, &sf.disagreements);
+        sf.agreement = hit_agreement(mesh, rays, hits, ref->hits[s], any, o.tie_tolerance,
+                                     &sf.disagreements, &sf.disagreements_on_surface);
       } else if (!ref) {
         sf.ratio_to_reference = 1.0;  // this is the reference
         sf.reference_mrays = sf.mrays_median;
@@ -269,7 +270,13 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
       if (sf.counted)
         line += ", " + format_double("%.1f", sf.steps_per_ray) + " steps, " +
                 format_double("%.1f", sf.tests_per_ray) + " tests per ray";
-      if (sf.agreement >= 0) line += ", agreement " + format_double("%.6f", sf.agreement);
+      if (sf.agreement >= 0) {
+        line += ", agreement " + format_double("%.6f", sf.agreement);
+        if (sf.disagreements_on_surface > 0)
+          line += " (" + std::to_string(sf.disagreements_on_surface) + " of its " +
+                  std::to_string(sf.disagreements) +
+                  " differences start on a surface: rounding decides them)";
+      }
       say(line);
       if (o.packet_tile > 0 && (sr.names[s] == "primary" || sr.names[s] == "shadow")) {
         measure_packets(*acc, sr.names[s], rays, hits, o,

@@ -86,6 +86,9 @@ struct SetFigures {
   /// tie_tolerance relative). Shadow rays: same occluded answer. -1 when not compared.
   double agreement = -1;
   uint64_t disagreements = 0;
+  /// Of the disagreements, rays that start on a triangle one of the answers hit: rounding
+  /// decides those (docs/RAYSETS.md, "Rays that start on a surface"), the rest are errors.
+  uint64_t disagreements_on_surface = 0;
   /// The packet column (BenchOptions::packet_tile), for primary and shadow sets; packet_rays 0
   /// where it was not run. Rays are traced in tile order, each side through its own packet query.
   int packet_rays = 0;   ///< rays per packet (the last packet of a set may hold fewer)

@@ -15,6 +15,7 @@
 #include <fstream>
 
 #include "accel/triangle.h"
+#include "render/offset.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -192,41 +193,55 @@ RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, b
 
 double hit_agreement(const Mesh& mesh, const std::vector<Ray>& rays, const std::vector<Hit>& hits,
                      const std::vector<Hit>& ref, bool any_hit, double tie_tolerance,
-                     uint64_t* disagreements) {
+                     uint64_t* disagreements, uint64_t* on_surface) {
   if (hits.size() != ref.size() || hits.size() != rays.size())
     throw Error("hit_agreement: " + std::to_string(hits.size()) + " hits, " +
                 std::to_string(ref.size()) + " reference hits and " + std::to_string(rays.size()) +
                 " rays: the sets differ");
-  const uint64_t bad = tbb::parallel_reduce(
-      tbb::blocked_range<size_t>(0, rays.size(), kTraceChunk), uint64_t(0),
-      [&](const tbb::blocked_range<size_t>& r, uint64_t n) {
+  // Whether ray i starts on the triangle a hit names (a difference there is rounding).
+  auto starts_on = [&](size_t i, const Hit& h) {
+    return h.valid() && h.prim < mesh.num_triangles() &&
+           starts_on_triangle(rays[i].org, mesh.corners(h.prim));
+  };
+  struct Counts {
+    uint64_t differ = 0, on_surface = 0;
+  };
+  const Counts counts = tbb::parallel_reduce(
+      tbb::blocked_range<size_t>(0, rays.size(), kTraceChunk), Counts{},
+      [&](const tbb::blocked_range<size_t>& r, Counts n) {
         for (size_t i = r.begin(); i < r.end(); ++i) {
           const Hit& a = hits[i];
           const Hit& b = ref[i];
-          if (a.valid() != b.valid()) {
-            ++n;
-            continue;
+          bool differ = a.valid() != b.valid();
+          if (!differ && !any_hit && a.valid() && a.prim != b.prim) {
+            // Different triangles: a tie if this triangle, intersected on its own, lies at the
+            // reference's t (both sides of a shared edge, coplanar duplicates).
+            float t = a.t;
+            if (a.prim < mesh.num_triangles()) {
+              const auto c = mesh.corners(a.prim);
+              const auto rd = WatertightTest::prepare(rays[i]);
+              float tt, u, v;
+              if (WatertightTest::intersect(rd, c[0], c[1], c[2], rays[i].tmin, kInf, tt, u, v))
+                t = tt;
+            }
+            const double diff = std::fabs(double(t) - double(b.t));
+            differ =
+                !(diff <= tie_tolerance * std::max(std::fabs(double(t)), std::fabs(double(b.t))));
           }
-          if (any_hit || !a.valid() || a.prim == b.prim) continue;
-          // Different triangles: a tie if this triangle, intersected on its own, lies at the
-          // reference's t (both sides of a shared edge, coplanar duplicates).
-          float t = a.t;
-          if (a.prim < mesh.num_triangles()) {
-            const auto c = mesh.corners(a.prim);
-            const auto rd = WatertightTest::prepare(rays[i]);
-            float tt, u, v;
-            if (WatertightTest::intersect(rd, c[0], c[1], c[2], rays[i].tmin, kInf, tt, u, v))
-              t = tt;
-          }
-          const double diff = std::fabs(double(t) - double(b.t));
-          if (!(diff <= tie_tolerance * std::max(std::fabs(double(t)), std::fabs(double(b.t)))))
-            ++n;
+          if (!differ) continue;
+          ++n.differ;
+          if (starts_on(i, a) || starts_on(i, b)) ++n.on_surface;
         }
         return n;
       },
-      [](uint64_t x, uint64_t y) { return x + y; });
-  if (disagreements) *disagreements = bad;
-  return rays.empty() ? 1.0 : 1.0 - double(bad) / double(rays.size());
+      [](Counts x, const Counts& y) {
+        x.differ += y.differ;
+        x.on_surface += y.on_surface;
+        return x;
+      });
+  if (disagreements) *disagreements = counts.differ;
+  if (on_surface) *on_surface = counts.on_surface;
+  return rays.empty() ? 1.0 : 1.0 - double(counts.differ) / double(rays.size());
 }
 
 }  // namespace kdgrid

@@ -55,9 +55,12 @@ double trace_packets(const Accelerator& accel, const std::vector<Ray>& rays, int
 RayCounters count_rays(const Accelerator& accel, const std::vector<Ray>& rays, bool any_hit);
 
 /// Agreement of `hits` with `ref` on `rays` (rule of SetFigures::agreement); returns the
-/// fraction and sets `disagreements`. For any-hit sets only validity is compared.
+/// fraction and sets `disagreements`, and `on_surface` to how many of those are rays that
+/// start on a triangle one of the two answers hit (starts_on_triangle): differences that
+/// rounding decides (docs/RAYSETS.md). For any-hit sets only validity is compared, and the
+/// answers name no triangle to classify.
 double hit_agreement(const Mesh& mesh, const std::vector<Ray>& rays, const std::vector<Hit>& hits,
                      const std::vector<Hit>& ref, bool any_hit, double tie_tolerance,
-                     uint64_t* disagreements = nullptr);
+                     uint64_t* disagreements = nullptr, uint64_t* on_surface = nullptr);
 
 }  // namespace kdgrid

@@ -53,6 +53,18 @@ Vec3 uniform_direction(Rng& rng) {
   return {r * std::cos(phi), r * std::sin(phi), z};
 }
 
+/// Moves the origin of each ray (leaving triangle from[i]) past the coincident surfaces it
+/// would start on, in parallel.
+void step_origins(const Accelerator* accel, const Mesh& mesh, const std::vector<uint32_t>& from,
+                  std::vector<Ray>& rays, bool keep_end) {
+  if (!accel) return;
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 1024),
+                    [&](const tbb::blocked_range<size_t>& r) {
+                      for (size_t i = r.begin(); i < r.end(); ++i)
+                        step_past_coincident(*accel, mesh, from[i], rays[i], keep_end);
+                    });
+}
+
 }  // namespace
 
 RaySetKind parse_ray_set(const std::string& s) {
@@ -117,21 +129,27 @@ std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& ra
 }
 
 std::vector<Ray> shadow_rays(const Mesh& mesh, const std::vector<Ray>& primary,
-                             const std::vector<Hit>& hits, const Vec3& light) {
+                             const std::vector<Hit>& hits, const Vec3& light,
+                             const Accelerator* accel) {
   std::vector<Ray> out;
+  std::vector<uint32_t> from;
   for (size_t i = 0; i < primary.size() && i < hits.size(); ++i) {
     if (!hits[i].valid()) continue;
     const Vec3 o =
         offset_ray_origin(hit_point(mesh, hits[i]), facing_normal(mesh, hits[i], primary[i].dir),
                           mesh.corners(hits[i].prim));
     out.push_back({o, 0.0f, light - o, 1.0f});
+    from.push_back(hits[i].prim);
   }
+  step_origins(accel, mesh, from, out, /*keep_end=*/true);
   return out;
 }
 
 std::vector<Ray> diffuse_rays(const Mesh& mesh, const std::vector<Ray>& primary,
-                              const std::vector<Hit>& hits, uint64_t seed) {
+                              const std::vector<Hit>& hits, uint64_t seed,
+                              const Accelerator* accel) {
   std::vector<Ray> out;
+  std::vector<uint32_t> from;
   for (size_t i = 0; i < primary.size() && i < hits.size(); ++i) {
     if (!hits[i].valid()) continue;
     const Vec3 n = facing_normal(mesh, hits[i], primary[i].dir);
@@ -147,7 +165,9 @@ std::vector<Ray> diffuse_rays(const Mesh& mesh, const std::vector<Ray>& primary,
     const Vec3 d = t1 * (r * std::cos(phi)) + t2 * (r * std::sin(phi)) +
                    n * std::sqrt(std::max(0.0f, 1.0f - u1));
     out.push_back({o, 0.0f, normalize(d), kInf});
+    from.push_back(hits[i].prim);
   }
+  step_origins(accel, mesh, from, out, /*keep_end=*/false);
   return out;
 }
 
@@ -214,8 +234,8 @@ std::vector<Ray> make_ray_set(const RaySetSpec& spec, const Mesh& mesh, const Ac
                      " ray set needs an accelerator to find the primary hits");
   const std::vector<Hit> hits = trace_hits(*accel, primary);
   if (spec.kind == RaySetKind::Shadow)
-    return shadow_rays(mesh, primary, hits, canonical_light_position(b));
-  return diffuse_rays(mesh, primary, hits, spec.seed);
+    return shadow_rays(mesh, primary, hits, canonical_light_position(b), accel);
+  return diffuse_rays(mesh, primary, hits, spec.seed, accel);
 }
 
 }  // namespace kdgrid

@@ -13,7 +13,9 @@
 // Shadow and diffuse rays exist only for primary rays that hit, so those sets are smaller
 // than W x H; their order follows the primary rays'. Origins are offset with
 // offset_ray_origin (Wächter & Binder, RTG ch. 6) on the side of the geometric normal that
-// faces the primary ray's origin.
+// faces the primary ray's origin, then stepped past coincident surfaces (layers parallel to
+// the hit triangle whose plane the origin lies on within rounding), so no generated ray starts
+// on a surface.
 #pragma once
 
 #include <cstdint>
@@ -47,12 +49,17 @@ std::vector<uint32_t> tile_order(int width, int height, int tile);
 /// Closest hits of `rays`, in parallel over rays (TBB).
 std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& rays);
 
-/// Shadow rays from the hits of `primary` towards `light` (misses produce no ray).
+/// Shadow rays from the hits of `primary` towards `light` (misses produce no ray). With
+/// `accel` (built over `mesh`), each origin is stepped past the coincident surfaces it would
+/// start on (step_past_coincident), so that no ray starts on a surface.
 std::vector<Ray> shadow_rays(const Mesh& mesh, const std::vector<Ray>& primary,
-                             const std::vector<Hit>& hits, const Vec3& light);
-/// Cosine-distributed bounce rays from the hits of `primary` (misses produce no ray).
+                             const std::vector<Hit>& hits, const Vec3& light,
+                             const Accelerator* accel = nullptr);
+/// Cosine-distributed bounce rays from the hits of `primary` (misses produce no ray);
+/// `accel` as for shadow_rays.
 std::vector<Ray> diffuse_rays(const Mesh& mesh, const std::vector<Ray>& primary,
-                              const std::vector<Hit>& hits, uint64_t seed);
+                              const std::vector<Hit>& hits, uint64_t seed,
+                              const Accelerator* accel = nullptr);
 /// `count` seeded random rays about `bounds`.
 std::vector<Ray> random_rays(const Box3& bounds, size_t count, uint64_t seed);
 

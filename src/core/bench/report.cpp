@@ -133,7 +133,8 @@ std::string bench_to_json(const BenchReport& r) {
                   {"lookups_per_ray", x.lookups_per_ray},
                   {"mailbox_skips_per_ray", x.mailbox_skips_per_ray},
                   {"agreement", x.agreement >= 0 ? json(x.agreement) : json(nullptr)},
-                  {"disagreements", x.disagreements}};
+                  {"disagreements", x.disagreements},
+                  {"disagreements_on_surface", x.disagreements_on_surface}};
         if (x.packet_rays > 0)
           e["packet"] = {{"rays_per_packet", x.packet_rays},
                          {"packet_width", x.packet_width},

@@ -14,6 +14,7 @@
 #include "accel/accelerator.h"
 #include "image/image_io.h"  // tonemap_srgb8, the film's 8-bit encoding
 #include "render/camera.h"
+#include "render/offset.h"
 #include "scene/scene.h"
 
 namespace kdgrid {
@@ -244,14 +245,5 @@ class Renderer {
   double seconds_ = 0;
   bool need_reflection_ = false, need_refraction_ = false;
 };
-
-/// Offsets a hit point p on the triangle with the given corners along its geometric normal
-/// so that a ray leaving it cannot re-hit the same surface (Wächter & Binder, Ray Tracing
-/// Gems ch. 6: an integer ULP offset of each coordinate, and a fixed offset where a
-/// coordinate is near 0). The fixed offset and the threshold are relative to the corners'
-/// magnitude on each axis, so the offset is scale invariant: scaling the triangle and p by a
-/// power of two scales the result by it exactly.
-Vec3 offset_ray_origin(const Vec3& p, const Vec3& geometric_normal,
-                       const std::array<Vec3, 3>& corners);
 
 }  // namespace kdgrid

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 #include <map>
 #include <utility>
 
@@ -472,6 +473,103 @@ Scene landscape(const ProceduralParams& p) {
   return s;
 }
 
+Scene interior(const ProceduralParams& p) {
+  const int count = pick_count("interior", p, 560, 4'000'000);
+  Scene s;
+  s.source = "procedural:interior";
+  enum : uint32_t { kTiles, kSlab, kRug, kWall, kPlaster, kCeiling, kColumn, kWood };
+  for (const auto& [name, c] :
+       std::initializer_list<std::pair<const char*, Vec3>>{{"tiles", {0.7f, 0.68f, 0.62f}},
+                                                           {"slab", {0.5f, 0.5f, 0.5f}},
+                                                           {"rug", {0.55f, 0.12f, 0.1f}},
+                                                           {"wall", {0.8f, 0.78f, 0.72f}},
+                                                           {"plaster", {0.85f, 0.85f, 0.85f}},
+                                                           {"ceiling", {0.9f, 0.9f, 0.9f}},
+                                                           {"column", {0.6f, 0.6f, 0.65f}},
+                                                           {"wood", {0.45f, 0.3f, 0.15f}}})
+    s.materials.push_back(make_material(name, c));
+
+  // Local room coordinates: x in [0, W], z in [0, D], the floor at y = kFloor, the ceiling at
+  // y = H. The room is placed off the origin and turned about +y, as CAD exports often are:
+  // the floor stays exactly level, the walls lie in planes no float represents exactly.
+  constexpr float W = 20.0f, D = 14.0f, H = 5.0f, kFloor = 0.15f, kTurn = 0.3f;
+  const Vec3 origin(240.5f, 0.0f, -130.25f);
+  const float cs = std::cos(kTurn), sn = std::sin(kTurn);
+  auto place = [&](float x, float y, float z) {
+    return origin + Vec3(cs * x + sn * z, y, -sn * x + cs * z);
+  };
+  // A quad from local corners (counter-clockwise seen from the side it faces).
+  auto quad = [&](uint32_t mat, const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
+    Mesh m;
+    add_quad(m, place(a.x, a.y, a.z), place(b.x, b.y, b.z), place(c.x, c.y, c.z),
+             place(d.x, d.y, d.z));
+    s.mesh.append(m, mat);
+  };
+  // An axis-aligned local box with all six faces outward, its bottom exactly at y0.
+  auto box = [&](uint32_t mat, float x0, float y0, float z0, float x1, float y1, float z1) {
+    quad(mat, {x0, y1, z0}, {x0, y1, z1}, {x1, y1, z1}, {x1, y1, z0});  // top
+    quad(mat, {x0, y0, z0}, {x1, y0, z0}, {x1, y0, z1}, {x0, y0, z1});  // bottom, on what holds it
+    quad(mat, {x0, y0, z0}, {x0, y1, z0}, {x1, y1, z0}, {x1, y0, z0});  // -z
+    quad(mat, {x1, y0, z1}, {x1, y1, z1}, {x0, y1, z1}, {x0, y0, z1});  // +z
+    quad(mat, {x0, y0, z1}, {x0, y1, z1}, {x0, y1, z0}, {x0, y0, z0});  // -x
+    quad(mat, {x1, y0, z0}, {x1, y1, z0}, {x1, y1, z1}, {x1, y0, z1});  // +x
+  };
+
+  // Floor tiles (count of them, as square as the room allows), facing up.
+  const int nx = std::max(1, int(std::lround(std::sqrt(count * W / D))));
+  const int nz = std::max(1, (count + nx - 1) / nx);
+  for (int i = 0; i < nx; ++i)
+    for (int k = 0; k < nz; ++k) {
+      const float x0 = W * i / nx, x1 = W * (i + 1) / nx;
+      const float z0 = D * k / nz, z1 = D * (k + 1) / nz;
+      quad(kTiles, {x0, kFloor, z0}, {x0, kFloor, z1}, {x1, kFloor, z1}, {x1, kFloor, z0});
+    }
+  // The slab's top, exactly coincident with the tiles, split along the other diagonal.
+  quad(kSlab, {0, kFloor, D}, {W, kFloor, D}, {W, kFloor, 0}, {0, kFloor, 0});
+  // A rug a rounding error above the floor, where the offset origin of a ray leaving the
+  // floor lies.
+  const float rug = kFloor + 4e-6f;
+  quad(kRug, {6, rug, 4}, {6, rug, 10}, {13, rug, 10}, {13, rug, 4});
+  // Walls facing in; the z = 0 wall has two windows. Each wall has a plaster layer in its
+  // own plane, split differently, as duplicated CAD layers are.
+  auto wall = [&](const Vec3& a, const Vec3& b, float y0, float y1, uint32_t mat) {
+    quad(mat, {a.x, y0, a.z}, {b.x, y0, b.z}, {b.x, y1, b.z}, {a.x, y1, a.z});
+  };
+  const Vec3 c00(0, 0, 0), cW0(W, 0, 0), cWD(W, 0, D), c0D(0, 0, D);
+  wall(cW0, cWD, kFloor, H, kWall);
+  wall(cWD, c0D, kFloor, H, kWall);
+  wall(c0D, c00, kFloor, H, kWall);
+  wall(Vec3(W, 0, 0), Vec3(W / 2, 0, 0), kFloor, H, kPlaster);
+  wall(Vec3(W / 2, 0, 0), Vec3(0, 0, 0), kFloor, H, kPlaster);
+  wall(cW0, cWD, kFloor, H / 2, kPlaster);
+  // The window wall: below, above and between two windows spanning x in [3, 8] and [12, 17].
+  wall(c00, cW0, kFloor, 1.0f, kWall);
+  wall(c00, cW0, 3.5f, H, kWall);
+  for (const auto& [x0, x1] :
+       std::initializer_list<std::pair<float, float>>{{0.0f, 3.0f}, {8.0f, 12.0f}, {17.0f, W}})
+    wall(Vec3(x0, 0, 0), Vec3(x1, 0, 0), 1.0f, 3.5f, kWall);
+  quad(kCeiling, {0, H, 0}, {W, H, 0}, {W, H, D}, {0, H, D});
+  // Columns standing on the floor and a table with its top resting on its body.
+  for (const float x : {5.0f, 15.0f})
+    for (const float z : {5.0f, 9.0f})
+      box(kColumn, x - 0.3f, kFloor, z - 0.3f, x + 0.3f, H, z + 0.3f);
+  box(kWood, 8.0f, kFloor, 6.0f, 11.0f, 0.9f, 8.0f);
+  box(kWood, 7.8f, 0.9f, 5.8f, 11.2f, 0.95f, 8.2f);
+
+  Light sun;
+  sun.position = place(W * 0.5f, 12.0f, -15.0f);
+  sun.intensity = 400.0f;
+  sun.name = "sun through the windows";
+  s.lights.push_back(sun);
+  Camera cam;
+  cam.eye = place(2.0f, 1.7f, 12.5f);
+  cam.target = place(14.0f, 1.0f, 3.0f);
+  cam.fov_deg = 60.0f;
+  cam.name = "inside";
+  s.camera = cam;
+  return s;
+}
+
 struct Generator {
   const char* name;
   const char* description;
@@ -486,6 +584,10 @@ const Generator kGenerators[] = {
     {"thin-triangles", "--count long thin random triangles (--seed)", thin_triangles},
     {"coplanar-quads", "--count axis-aligned quads in 4 shared planes, many on integer coords",
      coplanar_quads},
+    {"interior",
+     "a room turned off the axes: --count floor tiles on a coincident slab, a rug a rounding "
+     "error above, walls with coincident plaster layers, windows, columns, a table",
+     interior},
     {"duplicates", "--count random triangles, each twice, some shifted by 1 ULP or 1e-6",
      duplicates},
     {"soup", "--count random small triangles in [-1,1]^3 (--seed)", soup},

@@ -17,6 +17,13 @@
 //                      planes (z = 0, z = 3, x = 0, y = 1.5); half are unit quads on the
 //                      integer lattice (corners on integer coordinates), half random
 //                      overlapping rectangles in the same planes; seed.
+//   interior           a 20 x 5 x 14 room placed off the origin and turned 0.3 rad about +y:
+//                      count floor tiles (default 560) on an exactly coincident slab split
+//                      along the other diagonal, a rug 4e-6 above the floor, walls facing in
+//                      with coincident plaster layers split differently, two windows, four
+//                      columns and a table whose bottoms lie in the floor's plane, a light
+//                      outside the windows and a camera inside. Coincident and near-coincident
+//                      surfaces, as architecture exports have them.
 //   duplicates         count (default 2000) random base triangles, each emitted twice with the
 //                      same vertex indices, and every fourth once more shifted by a tiny amount
 //                      (alternately 1 ULP per coordinate and 1e-6 along the normal); seed.
