@@ -58,17 +58,19 @@ Mesh layered_floor() {
 std::vector<Ray> rays_off_the_floor(const Mesh& m, int n) {
   std::vector<Ray> rays;
   for (int i = 0; i < n; ++i) {
-    const float x = -3.5f + 7.0f * float(i % 17) / 16.0f, z = -3.5f + 7.0f * float(i / 17 % 13) / 12.0f;
+    const float x = -3.5f + 7.0f * float(i % 17) / 16.0f,
+                z = -3.5f + 7.0f * float(i / 17 % 13) / 12.0f;
     const float phi = 0.37f * float(i);
     const float up = i % 3 == 0 ? 1e-4f : (i % 3 == 1 ? 0.02f : 0.6f);  // grazing to steep
-    rays.push_back({floor_origin(m, x, z), 0.0f, normalize(Vec3(std::cos(phi), up, std::sin(phi))),
-                    kInf});
+    rays.push_back(
+        {floor_origin(m, x, z), 0.0f, normalize(Vec3(std::cos(phi), up, std::sin(phi))), kInf});
   }
   return rays;
 }
 
 TEST(CoincidentSurfaces, StartsOnTriangleIsWithinHalfTheOffset) {
-  const std::array<Vec3, 3> tri = {Vec3(-4, kFloorY, -4), Vec3(-4, kFloorY, 4), Vec3(4, kFloorY, 4)};
+  const std::array<Vec3, 3> tri = {Vec3(-4, kFloorY, -4), Vec3(-4, kFloorY, 4),
+                                   Vec3(4, kFloorY, 4)};
   const Vec3 p(-1.0f, kFloorY, 1.0f);
   const Vec3 off = offset_ray_origin(p, {0, 1, 0}, tri);
   const float d = off.y - p.y;
@@ -189,24 +191,11 @@ TEST(CoincidentSurfaces, GeneratedSetsOfAnInteriorStartOnNoSurface) {
     ASSERT_EQ(rays.size(), from.size());
     EXPECT_EQ(on_layer(rays), 0u) << to_string(kind);
     const bool any = kind == RaySetKind::Shadow;
-    std::vector<Hit> ref(rays.size());
-    for (size_t i = 0; i < rays.size(); ++i) {
-      if (any) {
-        if (brute->occluded(rays[i])) ref[i] = Hit{0.0f, 0, 0.0f, 0.0f};
-      } else {
-        brute->intersect(rays[i], ref[i]);
-      }
-    }
+    std::vector<Hit> ref, hits;
+    trace_rays(*brute, rays, any, &ref);
     for (const std::string& name : accelerator_names()) {
       auto a = build_accelerator(name, s.mesh, BuildParams{});
-      std::vector<Hit> hits(rays.size());
-      for (size_t i = 0; i < rays.size(); ++i) {
-        if (any) {
-          if (a->occluded(rays[i])) hits[i] = Hit{0.0f, 0, 0.0f, 0.0f};
-        } else {
-          a->intersect(rays[i], hits[i]);
-        }
-      }
+      trace_rays(*a, rays, any, &hits);
       // Ties between a tile and the slab under it are judged on t relative to t, which is
       // rounded relative to the coordinates (about 250 here): hits 0.01 from their origin
       // need a looser tolerance than the bench's 1e-5.
