@@ -188,6 +188,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     uid_ = ++builds;
   }
   stats_ = {};
+  stats_.peak_expected = estimate;
   stats_.peak_estimate = estimate;
 
   const uint64_t budget = effective_memory_budget(params);
@@ -245,6 +246,13 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     }
   }
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
+  // The peak bound, now that the grid is known: what this grid and the depth limits can need
+  // at most, within the budget. The tree's account, the checks after it and the matrix and
+  // empty-leaf budgets stop the build at it.
+  stats_.peak_estimate = build_peak_bound(
+      hybrid::worst_case_bytes(mesh, origin_, cell, d, params, threads) + sizeof(*this), estimate,
+      params);
+  const uint64_t bound = stats_.peak_estimate;
   {
     // The grid's world box for walk_begin's float clip, widened by 2^-18 of the largest
     // coordinate: it contains the exact (double) grid box after rounding to float. The
@@ -315,9 +323,10 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
              leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine) +
              sub_nodes_.size() * sizeof(KdNode) +
-             flat_subtree_floats_.size() * sizeof(hybrid::GroupLine);
+             flat_subtree_floats_.size() * sizeof(hybrid::GroupLine) +
+             (next_leaf_cache_ ? leaves_.size() * sizeof(KdBox) : 0) + sizeof(*this);
     const auto t1 = std::chrono::steady_clock::now();
-    const uint64_t left = budget > other ? budget - other : 0;
+    const uint64_t left = bound > other ? bound - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
     check_cancel(params.cancel);
     const uint64_t matrix = map_.entries() * sizeof(uint32_t);
@@ -408,6 +417,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
       {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " +
                            format_double("%.3f", t_matrix) + " s, empty-leaf boxes " +
                            format_double("%.3f", t_expand) + " s"}};
+  stats_.peak_accounted = std::max(stats_.peak_accounted, stats_.bytes);
   stats_.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;
