@@ -110,7 +110,9 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
     // (KdRay::err grows with the box's coordinates) until every ray crossed every node of the
     // cell's subtree (HybridEstimate.CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree).
     const double max_ext = std::max({ext[0], ext[1], ext[2]});
-    if (double(params.cell_size) > max_ext && max_ext > 0.0) {
+    // A size within float rounding of the extent (the one cell's size, read back as a float)
+    // is that one cell too, not 2 cells along the longest axis.
+    if (double(params.cell_size) * (1.0 + 0x1p-22) >= max_ext && max_ext > 0.0) {
       rule += format_double(" %g", params.cell_size);
       rule += ", larger than the scene: one cell of its extent ";
       rule += format_double("%.6g", max_ext);
