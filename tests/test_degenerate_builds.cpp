@@ -1,7 +1,8 @@
 // Every builder on degenerate input: centroids equal to the last bit, denormal coordinates,
-// all triangles coincident, all triangles on one line. Each build finishes quickly without
-// crashing, fits a small memory budget or refuses it (accel/guards.h), and the structure then
-// answers rays as brute force does. A build over coincident triangles stops
+// all triangles coincident, all triangles on one line (and, beside them, a sphere). Each build
+// finishes quickly without crashing, stays within the peak bound it records before allocating
+// (BuildStats::peak_estimate), fits a small memory budget or refuses it (accel/guards.h), and
+// the structure then answers rays as brute force does. A build over coincident triangles stops
 // soon after a cancel.
 #include <gtest/gtest.h>
 
@@ -118,6 +119,15 @@ struct Case {
   Mesh mesh;
 };
 
+/// What a finished build used (its structure, and the peak its own account saw) stays within
+/// the bound it recorded before allocating, which is at least what it expected.
+void expect_within_peak_bound(const std::string& name, const BuildStats& st) {
+  if (name == "brute") return;  // nothing built, no estimate
+  EXPECT_LE(st.bytes, st.peak_estimate);
+  EXPECT_LE(st.peak_accounted, st.peak_estimate);
+  EXPECT_LE(st.peak_expected, st.peak_estimate);
+}
+
 std::vector<Case> degenerate_cases() {
   std::vector<Case> cs;
   cs.push_back({"planes 1e-39 apart (denormal centroid gap)", two_planes(1e-39f)});
@@ -127,6 +137,7 @@ std::vector<Case> degenerate_cases() {
   cs.push_back({"equal centroids, and one ulp apart", equal_centroids(300)});
   cs.push_back({"3000 coincident triangles", coincident(3000)});
   cs.push_back({"all on a line", on_a_line(300)});
+  cs.push_back({"sphere of 5120 triangles (no degeneracy)", make_icosphere(4)});
   return cs;
 }
 
@@ -140,10 +151,14 @@ TEST_P(DegenerateBuild, BuildsQuicklyWithinItsEstimateAndAgreesWithBruteForce) {
     const auto t0 = Clock::now();
     const BuildStats st = a->build(c.mesh, BuildParams{});
     const double seconds = seconds_since(t0);
-    std::printf("[ degen    ] %-13s %-44s %.3f s, %llu references, %llu bytes (estimate %llu)\n",
-                name.c_str(), c.name.c_str(), seconds, (unsigned long long)st.references,
-                (unsigned long long)st.bytes, (unsigned long long)st.peak_estimate);
+    std::printf(
+        "[ degen    ] %-13s %-44s %.3f s, %llu references, %llu bytes, account peak %llu "
+        "(bound %llu, expected %llu)\n",
+        name.c_str(), c.name.c_str(), seconds, (unsigned long long)st.references,
+        (unsigned long long)st.bytes, (unsigned long long)st.peak_accounted,
+        (unsigned long long)st.peak_estimate, (unsigned long long)st.peak_expected);
     EXPECT_LT(seconds, 1.0);
+    expect_within_peak_bound(name, st);
 
     // Bounded: under a small memory budget the build either fits it or refuses with a
     // ParamError (accel/guards.h), whatever the degeneracy does to its estimate.
@@ -152,6 +167,8 @@ TEST_P(DegenerateBuild, BuildsQuicklyWithinItsEstimateAndAgreesWithBruteForce) {
     try {
       const BuildStats ts = make_accelerator(name)->build(c.mesh, tight);
       EXPECT_LE(ts.bytes, tight.memory_budget);
+      expect_within_peak_bound(name, ts);
+      EXPECT_LE(ts.peak_estimate, tight.memory_budget);
     } catch (const ParamError&) {
     }
 

@@ -31,9 +31,19 @@ struct BuildStats {
   uint64_t references = 0;  ///< triangle references stored in leaves/cells
   uint32_t max_depth = 0;
   uint64_t bytes = 0;  ///< structure bytes (excludes the Mesh the caller owns)
-  /// Peak bytes the build expected to need before it allocated (the memory guard's figure,
-  /// accel/guards.h); 0 where a structure makes no estimate.
+  /// Peak bytes the build may use (structure and transient build memory), fixed before it
+  /// allocates: an upper bound from what is known then (triangle count, resolution, depth and
+  /// cell limits), capped by the memory budget. A build that would pass it stops with a
+  /// ParamError (accel/guards.h), so `bytes` and `peak_accounted` never exceed it. 0 where a
+  /// structure makes no estimate.
   uint64_t peak_estimate = 0;
+  /// The peak a typical scene of this size needs (per-triangle figures or a computed
+  /// layout): the guard's first check against the budget; equals peak_estimate where that is
+  /// computed exactly.
+  uint64_t peak_expected = 0;
+  /// The highest bytes the build's own running account reached (structure so far and
+  /// transient lists), where it keeps one; 0 otherwise.
+  uint64_t peak_accounted = 0;
   /// Breakdown of `bytes` by part, e.g. {"nodes", ...}, {"references", ...}, {"matrix", ...}.
   std::vector<std::pair<std::string, uint64_t>> bytes_by_part;
   /// Structure-specific facts shown by `kdgrid trace` and the viewer ("resolution", "64x64x32").

@@ -248,7 +248,7 @@ BuildStats Bvh::build(const Mesh& mesh, const BuildParams& params) {
   mesh_ = &mesh;
   triangle_test_ = params.triangle_test;
   stats_ = {};
-  stats_.peak_estimate = estimate;
+  stats_.peak_estimate = stats_.peak_expected = estimate;
   nodes_.clear();
   prims_.clear();
   const uint32_t n = uint32_t(mesh.num_triangles());

@@ -260,7 +260,11 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
       {"flags", robust() ? "robust" : "default"},
       {"isa", isa.isa},
       {"embree build peak", format_bytes_iec(double(std::max<int64_t>(0, st.memory.peak.load())))}};
-  stats_.peak_estimate = estimate;
+  // Embree's allocations are its own: no bound below the budget is known before building, and
+  // the memory monitor stops the build at the budget.
+  stats_.peak_estimate = build_peak_bound(kInf, estimate, params);
+  stats_.peak_expected = estimate;
+  stats_.peak_accounted = uint64_t(std::max<int64_t>(0, st.memory.peak.load())) + copy_bytes;
   return stats_;
 }
 

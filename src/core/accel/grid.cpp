@@ -308,6 +308,7 @@ BuildStats UniformGrid::build(const Mesh& mesh, const BuildParams& params) {
   const uint64_t b_refs = refs_.size() * sizeof(uint32_t);
   stats_.bytes = b_cells + b_refs;
   stats_.bytes_by_part = {{"cells", b_cells}, {"references", b_refs}};
+  stats_.peak_expected = stats_.peak_estimate;
   stats_.extra = {{"resolution", res_str}};
   if (res_str != wanted_res)
     stats_.extra.push_back(

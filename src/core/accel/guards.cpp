@@ -37,6 +37,12 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
   return uint64_t(std::ceil(need));
 }
 
+uint64_t build_peak_bound(double worst_case, uint64_t expected, const BuildParams& params) {
+  const double budget = double(effective_memory_budget(params));
+  const double bound = std::max(double(expected), std::ceil(worst_case));
+  return bound >= budget || !std::isfinite(bound) ? uint64_t(budget) : uint64_t(bound);
+}
+
 double estimate_grid_references(const Mesh& mesh, const uint32_t* tris, size_t begin, size_t end,
                                 const double lo[3], const double cell[3], const int32_t res[3]) {
   double sum = 0;

@@ -34,6 +34,11 @@ uint64_t check_memory_budget(const std::string& structure, size_t triangles,
                              const std::vector<MemoryPart>& parts, const BuildParams& params,
                              const std::string& fix);
 
+/// The peak a build may use, BuildStats::peak_estimate: `worst_case` bytes (an upper bound of
+/// the build from what is known before it runs), at least `expected` (the guard's figure,
+/// already within the budget), at most the memory budget, rounded up.
+uint64_t build_peak_bound(double worst_case, uint64_t expected, const BuildParams& params);
+
 /// Throws ParamError when `accel` is "brute" and primary_rays x triangles exceeds
 /// params.brute_work_limit (0 = no limit); the message gives the largest square resolution
 /// that fits and the alternatives. Other structures pass. `kdgrid render` passes the rays of

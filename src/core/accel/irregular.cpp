@@ -106,6 +106,7 @@ struct IrregularGrid::Builder {
   double top_vs[3] = {1, 1, 1};  ///< top cell size
   uint64_t cells_before_merge = 0, cells_after_merge = 0, expanded_cells = 0;
   uint64_t merge_rounds = 0, merge_evaluations = 0;
+  double peak = 0;  ///< the most require() saw held and asked for
 
   Builder(IrregularGrid& grid, const Mesh& m, const BuildParams& p)
       : g(grid), mesh(m), params(p), budget(effective_memory_budget(p)) {}
@@ -121,8 +122,9 @@ struct IrregularGrid::Builder {
   /// Throws ParamError when `extra` more bytes on top of held_bytes() exceed the budget:
   /// checked before each phase allocates, so the build stops at the budget on scenes whose
   /// triangles cross far more cells than the estimate before building assumed.
-  void require(const char* phase, double extra) const {
+  void require(const char* phase, double extra) {
     const double need = held_bytes() + extra;
+    peak = std::max(peak, need);
     if (need > double(budget))
       throw ParamError(std::string("irregular: the ") + phase + " needs " +
                        format_bytes_iec(extra) + " more on top of the " +
@@ -750,7 +752,7 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   // merge passes. The top and second levels are checked again once their cell and reference
   // counts are known (Builder), and every later phase checks what it holds before allocating
   // (require()).
-  const uint64_t estimate = check_memory_budget(
+  const uint64_t expected = check_memory_budget(
       "irregular", mesh.num_triangles(),
       {{"cells, references and merge buffers (~300 bytes per triangle at default densities, "
         "measured)",
@@ -769,7 +771,11 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   for (int a = 0; a < 3; ++a) res_[a] = top_res_[a] = 0;
   bound_hits_ = 0;
   stats_ = {};
-  stats_.peak_estimate = estimate;
+  // The cells and references follow the density rules and their pile-up guards, which are
+  // estimates, not limits: no bound below the budget is known before building, and every
+  // phase checks what it holds against the budget (require()).
+  stats_.peak_estimate = build_peak_bound(kInf, expected, params);
+  stats_.peak_expected = expected;
 
   Builder b(*this, mesh, params);
   tbb::task_arena arena(effective_threads(params.threads));
@@ -798,6 +804,7 @@ BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.max_depth = cells_.empty() ? 0 : 2;
   stats_.sah_evaluations = b.merge_evaluations;
   stats_.bytes = sizeof(*this) + map_bytes + cell_bytes + ref_bytes;
+  stats_.peak_accounted = std::max(uint64_t(std::ceil(b.peak)), stats_.bytes);
   stats_.bytes_by_part = {
       {"voxel map", map_bytes}, {"cells", cell_bytes}, {"references", ref_bytes}};
   stats_.extra = {

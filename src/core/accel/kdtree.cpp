@@ -109,13 +109,20 @@ KdNode make_leaf(Subtree& out, std::vector<uint32_t>& ids) {
   return n;
 }
 
+// Node builds of at least this many triangles, above this depth, run their children in
+// parallel; below, the recursion is sequential (task overhead and subtree copies win).
+constexpr uint32_t kParallelPrims = 4096;
+constexpr int kParallelDepth = 12;
+
 class Builder {
  public:
   /// `leaf_lanes`: the triangles a leaf tests at once (the hybrid's subtrees: kWideLanes); above
   /// 1 the SAH costs a leaf of n triangles as ceil(n / leaf_lanes) tests plus `lane_cost` per
   /// triangle (KdSubtreeBuilder).
+  /// `account`: an account shared with other builders (the hybrid's), or null for the
+  /// builder's own, which stops the build past `limit` bytes (0: the memory budget).
   Builder(const Mesh& mesh, const BuildParams& p, int max_depth, int leaf_lanes = 1,
-          float lane_cost = 0.0f)
+          float lane_cost = 0.0f, MemoryAccount* account = nullptr, uint64_t limit = 0)
       : mesh_(mesh),
         kt_(p.kd_traversal_cost),
         ki_(p.kd_intersection_cost),
@@ -124,7 +131,8 @@ class Builder {
         lanes_(uint32_t(std::max(1, leaf_lanes))),
         lane_cost_(lane_cost),
         cancel_(p.cancel),
-        account_(effective_memory_budget(p)) {}
+        own_account_(limit > 0 ? limit : effective_memory_budget(p)),
+        account_(account ? *account : own_account_) {}
 
   void build(std::vector<Event>& events, uint32_t n, const Box3& box, int depth, Subtree& out);
   /// build() of a subtree limited to `max_depth` levels (at most the builder's own limit):
@@ -138,12 +146,15 @@ class Builder {
   /// Running account of the build's memory: event lists alive in the recursion, the tree
   /// built so far and the per-thread flags. Straddling triangles are copied into both
   /// children, so on long thin or overlapping triangles the events multiply with depth; once
-  /// the account passes the memory budget every pending node becomes an empty leaf at once
-  /// and build() of KdTree throws, instead of the process running out of memory.
+  /// the account passes its limit (the build's peak bound) every pending node becomes an empty
+  /// leaf at once and build() of KdTree throws, instead of the process running out of memory.
   void charge(int64_t bytes) { account_.charge(bytes); }
   bool over_budget() const { return account_.over_budget(); }
   int64_t peak_bytes() const { return account_.peak_bytes(); }
   uint64_t nodes_made() const { return nodes_made_.load(); }
+  static int64_t tree_capacity(const Subtree& t) {
+    return int64_t(t.nodes.capacity() * sizeof(KdNode) + t.prims.capacity() * sizeof(uint32_t));
+  }
 
  private:
   struct Split {
@@ -154,19 +165,11 @@ class Builder {
   };
   Split find_split(const std::vector<Event>& events, uint32_t n, const Box3& box);
   void leaf(std::vector<Event>& events, Subtree& out);
-  static int64_t tree_capacity(const Subtree& t) {
-    return int64_t(t.nodes.capacity() * sizeof(KdNode) + t.prims.capacity() * sizeof(uint32_t));
-  }
   /// Frees an event list and takes it off the account.
   void release(std::vector<Event>& events) {
     charge(-int64_t(events.capacity() * sizeof(Event)));
     std::vector<Event>().swap(events);
   }
-
-  // Node builds of at least this many triangles, above this depth, run their children in
-  // parallel; below, the recursion is sequential (task overhead and subtree copies win).
-  static constexpr uint32_t kParallelPrims = 4096;
-  static constexpr int kParallelDepth = 12;
 
   const Mesh& mesh_;
   float kt_, ki_, empty_mult_;
@@ -180,7 +183,8 @@ class Builder {
   }
   const CancelToken* cancel_;  // polled once per node
   std::atomic<uint64_t> sah_evals_{0};
-  MemoryAccount account_;
+  MemoryAccount own_account_;
+  MemoryAccount& account_;
   std::atomic<uint64_t> nodes_made_{0};
   // Per-thread classification flags indexed by triangle: a node writes and reads them within
   // one task, so concurrent subtrees never see each other's flags.
@@ -387,21 +391,37 @@ void Builder::build(std::vector<Event>& events, uint32_t n, const Box3& box, int
 
 }  // namespace
 
+double kd_build_worst_case_bytes(double n, int depth, int threads) {
+  // An event list holds at most 6 events of each of the node's triangles, each at most once,
+  // in a vector with up to 2x slack: 144 bytes a triangle. The recursion holds the pending
+  // siblings' lists along its path and, at a split, the node's list, both children's, the
+  // straddlers' new events and a merge buffer; the parallel levels one such path a thread
+  // more.
+  const double list = 2.0 * 6.0 * n * double(sizeof(Event));
+  const double paths = n >= double(kParallelPrims) ? double(threads) + 1.0 : 1.0;
+  // At most 2^depth leaves of at most n references each and 2^(depth+1) nodes, with 2x
+  // vector slack, the parallel levels' copies of their subtrees, and the final copy.
+  const double leaves = std::ldexp(1.0, std::min(depth, 1000));
+  const double tree = leaves * (2.0 * sizeof(KdNode) + n * sizeof(uint32_t));
+  return (double(depth) + 8.0) * list * paths + 5.0 * tree + n * double(threads);
+}
+
 struct KdSubtreeBuilder::Impl {
-  Impl(const Mesh& m, const BuildParams& p, int lanes, float cost)
-      : mesh(m), params(p), leaf_lanes(lanes), lane_cost(cost) {}
+  Impl(const Mesh& m, const BuildParams& p, int lanes, float cost, MemoryAccount* acc)
+      : mesh(m), params(p), leaf_lanes(lanes), lane_cost(cost), account(acc) {}
   const Mesh& mesh;
   BuildParams params;
   int leaf_lanes;
   float lane_cost;
+  MemoryAccount* account;
   /// One builder per thread: a Builder's classification flags are per thread already, but
   /// its memory account then follows each thread's share of the subtrees.
   mutable tbb::enumerable_thread_specific<std::unique_ptr<Builder>> builders;
 };
 
 KdSubtreeBuilder::KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth,
-                                   int leaf_lanes, float lane_cost)
-    : impl_(std::make_unique<Impl>(mesh, params, leaf_lanes, lane_cost)),
+                                   int leaf_lanes, float lane_cost, MemoryAccount* account)
+    : impl_(std::make_unique<Impl>(mesh, params, leaf_lanes, lane_cost, account)),
       max_depth_(std::clamp(max_depth, 1, KdTree::kMaxDepth)) {}
 KdSubtreeBuilder::~KdSubtreeBuilder() = default;
 
@@ -412,7 +432,7 @@ void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box
   auto& b = impl_->builders.local();
   if (!b)
     b = std::make_unique<Builder>(mesh, impl_->params, KdTree::kMaxDepth, impl_->leaf_lanes,
-                                  impl_->lane_cost);
+                                  impl_->lane_cost, impl_->account);
   std::vector<Event> events;
   events.reserve(prims.size() * 6);
   bounds = Box3();
@@ -438,7 +458,10 @@ void KdSubtreeBuilder::build(const std::vector<uint32_t>& prims, const Box3& box
       std::min(max_depth_,
                int(std::lround(8.0 + 1.3 * std::log2(double(std::max<size_t>(1, prims.size()))))));
   Subtree out;
+  b->charge(int64_t(events.capacity() * sizeof(Event)));
   b->build_subtree(events, uint32_t(prims.size()), bounds, depth, out);
+  // The caller holds the subtree from here (and accounts for it).
+  b->charge(-Builder::tree_capacity(out));
   if (b->over_budget())
     throw ParamError(
         "hybrid: the leaf subtrees outgrew the memory budget of " +
@@ -481,7 +504,7 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   const std::string fix =
       "fewer splits need less: lower --kd-intersection-cost (e.g. 0.75) or set "
       "kd_max_depth";
-  const uint64_t estimate = check_memory_budget(
+  const uint64_t expected = check_memory_budget(
       "kdtree", n,
       {{"sorted events", 6.0 * nt * sizeof(Event)},
        {"children's events at the first split", 1.25 * 6.0 * nt * sizeof(Event)},
@@ -508,9 +531,13 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
           ? params.kd_max_depth
           : std::min(kMaxDepth, int(std::lround(8.0 + 1.3 * std::log2(double(n)))));
 
+  // The bound the build's account enforces: the most a build to max_depth can hold, within
+  // the budget.
+  const uint64_t estimate =
+      build_peak_bound(kd_build_worst_case_bytes(nt, max_depth, threads), expected, params);
   tbb::task_arena arena(threads);
   Subtree tree;
-  Builder builder(mesh, params, max_depth);
+  Builder builder(mesh, params, max_depth, 1, 0.0f, nullptr, estimate);
   builder.charge(int64_t(n) * threads + int64_t(n * 6 * sizeof(Event)));
   arena.execute([&] {
     std::vector<Event> events;
@@ -523,17 +550,18 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
     builder.build(events, uint32_t(n), bounds_, 0, tree);
   });
   auto throw_over_budget = [&](uint64_t nodes) {
-    throw ParamError("kdtree: the build outgrew the memory budget of " +
-                     format_bytes_iec(double(effective_memory_budget(params))) +
-                     " (its account reached " + format_bytes_iec(double(builder.peak_bytes())) +
-                     " after " + std::to_string(nodes) + " nodes over " + std::to_string(n) +
-                     " triangles; the estimate before building was " +
-                     format_bytes_iec(double(estimate)) +
-                     "): triangles straddling many split planes are copied into every node they "
-                     "cross; " +
-                     fix +
-                     ", or raise --memory-budget-mb (0 = half of physical "
-                     "memory) if the machine has the memory");
+    throw ParamError(
+        "kdtree: the build outgrew its peak bound of " + format_bytes_iec(double(estimate)) +
+        " (the memory budget of " + format_bytes_iec(double(effective_memory_budget(params))) +
+        ", or less: the most a tree of depth " + std::to_string(max_depth) +
+        " can need; its account reached " + format_bytes_iec(double(builder.peak_bytes())) +
+        " after " + std::to_string(nodes) + " nodes over " + std::to_string(n) +
+        " triangles; a typical scene needs " + format_bytes_iec(double(expected)) +
+        "): triangles straddling many split planes are copied into every node they "
+        "cross; " +
+        fix +
+        ", or raise --memory-budget-mb (0 = half of physical "
+        "memory) if the machine has the memory");
   };
   if (builder.over_budget()) {
     const uint64_t nodes = builder.nodes_made();
@@ -558,6 +586,8 @@ BuildStats KdTree::build(const Mesh& mesh, const BuildParams& params) {
   // Statistics from a walk of the finished tree.
   stats_.sah_evaluations = builder.sah_evaluations();
   stats_.peak_estimate = estimate;
+  stats_.peak_expected = expected;
+  stats_.peak_accounted = uint64_t(std::max<int64_t>(0, builder.peak_bytes()));
   stats_.nodes = nodes_.size();
   struct Item {
     uint32_t node;

@@ -39,6 +39,7 @@
 
 #include "accel/accelerator.h"
 #include "accel/kd_kernel.h"
+#include "util/memory.h"
 
 namespace kdgrid {
 
@@ -48,10 +49,12 @@ namespace kdgrid {
 /// build() may run concurrently. `leaf_lanes`: the triangles the structure's leaves test at once
 /// (the hybrid's groups, kWideLanes); above 1 the SAH costs a leaf of n triangles as
 /// ceil(n / leaf_lanes) tests plus `lane_cost` tests per triangle.
+/// `account`: charged with the builds' transient memory (event lists; the subtrees returned are
+/// the caller's to account), shared with the caller; null: a budget-limited account per thread.
 class KdSubtreeBuilder {
  public:
   KdSubtreeBuilder(const Mesh& mesh, const BuildParams& params, int max_depth, int leaf_lanes = 1,
-                   float lane_cost = 0.0f);
+                   float lane_cost = 0.0f, MemoryAccount* account = nullptr);
   ~KdSubtreeBuilder();
   /// The tree of `prims` (mesh triangle ids) clipped to `box`, built over `bounds`, the box of
   /// the clipped triangles (within `box`), which the walk should clip a ray to first. Child
@@ -65,6 +68,13 @@ class KdSubtreeBuilder {
   std::unique_ptr<Impl> impl_;
   int max_depth_;
 };
+
+/// Upper bound of the bytes a kd build over `n` triangles, at most `depth` levels deep on
+/// `threads` threads, holds at once: the event lists alive in the recursion, the tree (at most
+/// 2^depth leaves of at most n references) with its vector slack and copies, the per-thread
+/// classification flags. KdTree's peak bound (BuildStats::peak_estimate) and the hybrid's
+/// subtrees'.
+double kd_build_worst_case_bytes(double n, int depth, int threads);
 
 class KdTree final : public AcceleratorBase<KdTree> {
  public:

@@ -110,7 +110,9 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
     // (KdRay::err grows with the box's coordinates) until every ray crossed every node of the
     // cell's subtree (HybridEstimate.CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree).
     const double max_ext = std::max({ext[0], ext[1], ext[2]});
-    if (double(params.cell_size) > max_ext && max_ext > 0.0) {
+    // A size within float rounding of the extent (the one cell's size, read back as a float)
+    // is that one cell too, not 2 cells along the longest axis.
+    if (double(params.cell_size) * (1.0 + 0x1p-22) >= max_ext && max_ext > 0.0) {
       rule += format_double(" %g", params.cell_size);
       rule += ", larger than the scene: one cell of its extent ";
       rule += format_double("%.6g", max_ext);
@@ -188,6 +190,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     uid_ = ++builds;
   }
   stats_ = {};
+  stats_.peak_expected = estimate;
   stats_.peak_estimate = estimate;
 
   const uint64_t budget = effective_memory_budget(params);
@@ -245,6 +248,13 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     }
   }
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
+  // The peak bound, now that the grid is known: what this grid and the depth limits can need
+  // at most, within the budget. The tree's account, the checks after it and the matrix and
+  // empty-leaf budgets stop the build at it.
+  stats_.peak_estimate = build_peak_bound(
+      hybrid::worst_case_bytes(mesh, origin_, cell, d, params, threads) + sizeof(*this), estimate,
+      params);
+  const uint64_t bound = stats_.peak_estimate;
   {
     // The grid's world box for walk_begin's float clip, widened by 2^-18 of the largest
     // coordinate: it contains the exact (double) grid box after rounding to float. The
@@ -315,9 +325,10 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
     other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
              leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine) +
              sub_nodes_.size() * sizeof(KdNode) +
-             flat_subtree_floats_.size() * sizeof(hybrid::GroupLine);
+             flat_subtree_floats_.size() * sizeof(hybrid::GroupLine) +
+             (next_leaf_cache_ ? leaves_.size() * sizeof(KdBox) : 0) + sizeof(*this);
     const auto t1 = std::chrono::steady_clock::now();
-    const uint64_t left = budget > other ? budget - other : 0;
+    const uint64_t left = bound > other ? bound - other : 0;
     map_.build(dims_, nodes_, leaves_, left, params.cancel);
     check_cancel(params.cancel);
     const uint64_t matrix = map_.entries() * sizeof(uint32_t);
@@ -408,6 +419,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
       {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " +
                            format_double("%.3f", t_matrix) + " s, empty-leaf boxes " +
                            format_double("%.3f", t_expand) + " s"}};
+  stats_.peak_accounted = std::max(stats_.peak_accounted, stats_.bytes);
   stats_.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return stats_;

@@ -69,6 +69,14 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
 /// Widens every empty leaf's box over the empty cells around it (docs/HYBRID.md, "Widened
 /// empty leaves"), in a grid of dims cells; returns the BuildStats text. Skipped when its
 /// table of occupied cells exceeds `budget` bytes or GridKdHybrid::kMaxExpandEntries entries.
+/// Upper bound of the bytes a build at cell size `cell` over grid dims `d` from `origin` holds at
+/// once (tree.cpp): a triangle is referenced by disjoint leaves, each covering at least one cell
+/// of its cell range, so the top tree holds at most the sum of the triangles' cell counts; the
+/// leaf subtrees, the groups, the matrix and the empty-leaf table follow from that, the depth
+/// limits and the cell count (the object itself is not included).
+double worst_case_bytes(const Mesh& mesh, const double origin[3], double cell, const double d[3],
+                        const BuildParams& params, int threads);
+
 std::string widen_empty_leaves(std::vector<Leaf>& leaves, const int32_t dims[3], uint64_t budget,
                                const CancelToken* cancel);
 

@@ -46,7 +46,9 @@ struct HybridEstimate {
   /// frees before it returns (the binning arrays, the empty-leaf table).
   double structure_bytes = 0;
   /// Build time in seconds on BuildParams::threads threads at the rates kHybridSecondsPer*: an
-  /// order of magnitude, for the refusal and the viewer.
+  /// order of magnitude, for the refusal and the viewer. It follows the cell size: the matrix,
+  /// the binning and the empty-leaf table grow with the cells, the subtrees with the triangles
+  /// a cell holds.
   double seconds = 0;
   uint64_t budget = 0;       ///< the memory budget it was checked against
   double seconds_limit = 0;  ///< BuildParams::hybrid_max_build_seconds (0 = none)
@@ -70,5 +72,11 @@ constexpr double kHybridBytesPerTriangle = hybrid::kSharedCorners ? 150 : 300;
 constexpr double kHybridSecondsPerBrick = 10e-6;     ///< matrix construction, one thread
 constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
 constexpr double kHybridSecondsPerBinOp = 1e-9;      ///< one per-cell binning entry
+/// One entry of the empty-leaf table (hybrid_expand_empty): a cell of the grid, one thread.
+constexpr double kHybridSecondsPerExpandEntry = 1.5e-7;
+/// The leaf subtrees' extra work, a fraction of kHybridSecondsPerTriangle per triangle per
+/// level, where cells coarser than the triangles leave many triangles a leaf (one cell: the
+/// whole scene in one subtree).
+constexpr double kHybridSubtreeLevelShare = 0.04;
 
 }  // namespace kdgrid

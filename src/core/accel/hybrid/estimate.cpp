@@ -58,7 +58,17 @@ EstimateAt estimate_at(double c, const double ext[3], double ntri, double area,
   e.structure_bytes = matrix + ntri * kHybridBytesPerTriangle;
   e.bytes = e.structure_bytes + 8.0 * axis_sum * threads + expand;
   e.cell_seconds = (matrix_ops + bins) * kHybridSecondsPerBinOp / threads;
-  e.seconds = e.cell_seconds + ntri * kHybridSecondsPerTriangle / threads;
+  // Cells coarser than the triangles leave about ntri / cells triangles a leaf, whose subtree
+  // takes log2 of its size over hybrid_subtree_min levels.
+  const double per_leaf = ntri / std::max(1.0, std::min(e.cells, ntri));
+  const double levels = p.hybrid_subtree_min > 0
+                            ? std::log2(std::max(1.0, per_leaf / double(p.hybrid_subtree_min)))
+                            : 0.0;
+  const double table = expand > 0.0 ? sat * kHybridSecondsPerExpandEntry : 0.0;
+  e.seconds =
+      e.cell_seconds +
+      (ntri * kHybridSecondsPerTriangle * (1.0 + kHybridSubtreeLevelShare * levels) + table) /
+          threads;
   const double max_axis = std::max({e.dims[0], e.dims[1], e.dims[2]});
   e.fits = e.bytes <= double(budget) && max_axis <= double(kHybridMaxAxisCells) &&
            (p.hybrid_max_build_seconds <= 0 || e.cell_seconds <= p.hybrid_max_build_seconds);

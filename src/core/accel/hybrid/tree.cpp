@@ -54,15 +54,16 @@ struct P3 {
 
 class TreeBuilder {
  public:
+  /// `limit`: the bytes the account stops the build at (its peak bound).
   TreeBuilder(const Mesh& mesh, const double origin[3], double cell, const int32_t dims[3],
-              const BuildParams& p)
+              const BuildParams& p, uint64_t limit)
       : mesh_(mesh),
         inv_cell_(1.0 / cell),
         cell_(cell),
-        kd_(mesh, p, GridKdHybrid::kSubMaxDepth, kWideLanes, kSubtreeLaneCost),
-        kd_deep_(mesh, p, KdTree::kMaxDepth, kWideLanes, kSubtreeLaneCost),
+        kd_(mesh, p, GridKdHybrid::kSubMaxDepth, kWideLanes, kSubtreeLaneCost, &account_),
+        kd_deep_(mesh, p, KdTree::kMaxDepth, kWideLanes, kSubtreeLaneCost, &account_),
         cancel_(p.cancel),
-        account_(effective_memory_budget(p)) {
+        account_(limit) {
     for (int a = 0; a < 3; ++a) {
       origin_[a] = origin[a];
       dims_[a] = dims[a];
@@ -71,15 +72,21 @@ class TreeBuilder {
     ki_ = p.hybrid_intersection_cost;
     bonus_ = std::clamp(double(p.kd_empty_bonus), 0.0, 1.0);
     subtree_min_ = p.hybrid_subtree_min;
-    const double n = double(std::max<size_t>(1, mesh.num_triangles()));
-    max_depth_ = p.kd_max_depth > 0 ? p.kd_max_depth : int(8.0 + 1.3 * std::log2(n));
-    max_depth_ = std::clamp(max_depth_, 1, 64);
+    max_depth_ = top_max_depth(p, double(mesh.num_triangles()));
+  }
+
+  /// The top tree's depth limit over n triangles.
+  static int top_max_depth(const BuildParams& p, double n) {
+    const int d =
+        p.kd_max_depth > 0 ? p.kd_max_depth : int(8.0 + 1.3 * std::log2(std::max(1.0, n)));
+    return std::clamp(d, 1, 64);
   }
 
   /// Running account of the build's memory (reference lists alive in the recursion, build
-  /// nodes and their leaf lists). Straddling triangles are clipped into both children, so
-  /// scenes of long thin triangles multiply references with depth; past the budget every
-  /// pending node becomes an empty leaf and GridKdHybrid::build throws instead of exhausting RAM.
+  /// nodes and their leaf lists, the leaf subtrees' event lists). Straddling triangles are
+  /// clipped into both children, so scenes of long thin triangles multiply references with
+  /// depth; past the limit every pending node becomes an empty leaf and GridKdHybrid::build
+  /// throws instead of exhausting RAM.
   void charge(int64_t bytes) { account_.charge(bytes); }
   bool over_budget() const { return account_.over_budget(); }
   int64_t live_bytes() const { return account_.live_bytes(); }
@@ -344,23 +351,98 @@ class TreeBuilder {
 
 }  // namespace
 
+double hybrid::worst_case_bytes(const Mesh& mesh, const double origin[3], double cell,
+                                const double d[3], const BuildParams& params, int threads) {
+  const size_t n = mesh.num_triangles();
+  const double cells = d[0] * d[1] * d[2], inv = 1.0 / cell, eps = GridKdHybrid::kRangeEps;
+  double refs = 0;  // the top tree's references: each triangle's cell count (clip_range's range)
+  for (size_t i = 0; i < n; ++i) {
+    const auto c = mesh.corners(i);
+    double count = 1;
+    for (int a = 0; a < 3; ++a) {
+      double lo = kInf, hi = -kInf;
+      for (int k = 0; k < 3; ++k) {
+        const double g = (double(c[k][a]) - origin[a]) * inv;
+        lo = std::min(lo, g);
+        hi = std::max(hi, g);
+      }
+      const double top = d[a] - 1;
+      count *= std::clamp(std::floor(hi + eps), 0.0, top) -
+               std::clamp(std::floor(lo - eps), 0.0, top) + 1.0;
+    }
+    refs += std::min(count, cells);
+  }
+  const double nt = double(n);
+  const double leaves = std::min(cells, std::ldexp(1.0, TreeBuilder::top_max_depth(params, nt)));
+  refs = std::min(refs, leaves * nt);  // a leaf holds each triangle at most once
+  // The lists of pending nodes and of the nodes being split lie in disjoint boxes: at most the
+  // references twice over, with the leaves' lists, the build nodes and the binning arrays.
+  double top = 2.0 * refs * sizeof(Ref) + refs * sizeof(uint32_t) +
+               2.0 * leaves * sizeof(BuildNode) + 8.0 * (d[0] + d[1] + d[2]) * threads;
+  double final_refs = refs, final_leaves = leaves;
+  if (params.hybrid_subtree_min > 0) {
+    const int rule = int(std::lround(8.0 + 1.3 * std::log2(std::max(1.0, nt))));
+    const int depth = std::max(
+        1, std::min(nt > GridKdHybrid::kSubDeepMin ? KdTree::kMaxDepth : GridKdHybrid::kSubMaxDepth,
+                    rule));
+    const double grow = std::ldexp(1.0, depth);
+    final_refs = refs * grow;
+    final_leaves = leaves * grow;
+    // The subtrees' builds (their lists, trees and flags) and the subtrees the leaves keep.
+    top += kd_build_worst_case_bytes(refs, depth, threads) +
+           5.0 * leaves * 2.0 * grow * sizeof(KdNode) + nt * threads +
+           final_refs * sizeof(uint32_t) +
+           (2.0 * final_leaves + leaves * GridKdHybrid::kSubBoxNodes) * sizeof(KdNode);
+  }
+  // Flattening: each reference a lane (leaves pad their last group), planned, listed and
+  // grouped while the build tree is alive; the nodes, leaves, subtrees and flat subtrees.
+  const double lanes = final_refs + (final_leaves + leaves) * double(kWideLanes - 1);
+  const double flat =
+      lanes * (sizeof(uint32_t) + 6.0 + 4.0 * hybrid::kGroupLaneFloatsAtMost + 32.0) +
+      2.0 * (final_leaves + leaves) * sizeof(GridKdHybrid::Node) +
+      (final_leaves + leaves) * (sizeof(GridKdHybrid::Leaf) + 1 + sizeof(GridKdHybrid::KdBox)) +
+      (2.0 * final_leaves + leaves * GridKdHybrid::kSubBoxNodes) * sizeof(KdNode) +
+      leaves * 4.0 * (16.0 + hybrid::flat_subtree_floats(hybrid::kFlatLeaves));
+  // The cell map: 4 bytes a cell dense; bricked, at most one brick per block of each level
+  // and the top table.
+  double matrix = cells * 4.0;
+  if (!params.hybrid_dense_matrix) {
+    matrix = 0;  // each level's blocks, the top table's entries among them
+    for (double side = hybrid::BrickedCellMap::kBrickSide;;
+         side *= hybrid::BrickedCellMap::kBrickSide) {
+      const double blocks =
+          std::ceil(d[0] / side) * std::ceil(d[1] / side) * std::ceil(d[2] / side);
+      matrix += blocks * (hybrid::BrickedCellMap::kBrickEntries + 1) * 4.0;
+      if (blocks <= 1) break;
+    }
+  }
+  const double sat = (d[0] + 1) * (d[1] + 1) * (d[2] + 1);
+  const double expand = params.hybrid_expand_empty && sat <= double(GridKdHybrid::kMaxExpandEntries)
+                            ? 2.0 * sat * 4.0
+                            : 0.0;
+  // Twice the sum: the parts overlap in time only partly, and vectors keep slack.
+  return 2.0 * (top + flat + matrix + expand);
+}
+
 void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, GroupPlan& plan,
                               uint64_t& references) {
-  TreeBuilder tb(mesh, origin_, cell_, dims_, params);
+  TreeBuilder tb(mesh, origin_, cell_, dims_, params, stats_.peak_estimate);
   std::unique_ptr<BuildNode> root = tb.build_root();
   stats_.sah_evaluations = tb.sah_evaluations();
   const std::string fix =
       "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
       "lower kd_max_depth";
+  stats_.peak_accounted = uint64_t(std::max<int64_t>(0, tb.peak_bytes()));
   if (tb.over_budget())
-    throw ParamError("hybrid: the kd build outgrew the memory budget of " +
+    throw ParamError("hybrid: the kd build outgrew its peak bound of " +
+                     format_bytes_iec(double(stats_.peak_estimate)) + " (the memory budget of " +
                      format_bytes_iec(double(effective_memory_budget(params))) +
-                     " (its account reached " + format_bytes_iec(double(tb.peak_bytes())) +
-                     " after " + std::to_string(tb.nodes_made()) + " nodes over " +
-                     std::to_string(mesh.num_triangles()) +
-                     " triangles; the estimate before "
-                     "building was " +
-                     format_bytes_iec(double(stats_.peak_estimate)) +
+                     ", or less: the most this grid and the depth limits can need; its account "
+                     "reached " +
+                     format_bytes_iec(double(tb.peak_bytes())) + " after " +
+                     std::to_string(tb.nodes_made()) + " nodes over " +
+                     std::to_string(mesh.num_triangles()) + " triangles; a typical scene needs " +
+                     format_bytes_iec(double(stats_.peak_expected)) +
                      "): triangles straddling many cells are referenced by every leaf they "
                      "cross; " +
                      fix +
@@ -374,17 +456,21 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
   const double lane_count = refs + (nodes + 1) / 2 * double(kWideLanes - 1);
   // A lane's mesh index, and with shared corners its three corner indices (planned, then listed).
   const double lane_bytes = sizeof(uint32_t) + (hybrid::kSharedCorners ? 6 : 0);
-  check_memory_budget("hybrid", mesh.num_triangles(),
-                      {{"build tree", double(tb.live_bytes())},
-                       {"references", lane_count * lane_bytes},
-                       {"nodes and leaves", flat}},
-                      params, fix);
-  check_memory_budget(
+  // Checked against the build's peak bound (at most the budget).
+  BuildParams bounded = params;
+  bounded.memory_budget = stats_.peak_estimate;
+  const uint64_t listed = check_memory_budget("hybrid", mesh.num_triangles(),
+                                              {{"build tree", double(tb.live_bytes())},
+                                               {"references", lane_count * lane_bytes},
+                                               {"nodes and leaves", flat}},
+                                              bounded, fix);
+  const uint64_t grouped = check_memory_budget(
       "hybrid", mesh.num_triangles(),
       {{"references", lane_count * lane_bytes},
        {"triangle groups", lane_count * hybrid::kGroupLaneFloatsAtMost * sizeof(float)},
        {"nodes and leaves", flat}},
-      params, fix);
+      bounded, fix);
+  stats_.peak_accounted = std::max({stats_.peak_accounted, listed, grouped});
   nodes_.reserve(size_t(nodes));
   leaves_.reserve(size_t(nodes + 1) / 2);
   leaf_depth_.reserve(size_t(nodes + 1) / 2);
