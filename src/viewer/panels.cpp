@@ -299,8 +299,11 @@ void Viewer::draw_panels() {
     ImGui::RadioButton("steps", &m, int(RenderMode::HeatSteps));
     ImGui::SameLine();
     ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
-    mode_ = RenderMode(m);
     chk("tri tests");
+    ImGui::SameLine();
+    ImGui::RadioButton("time", &m, int(RenderMode::HeatTime));
+    mode_ = RenderMode(m);
+    chk("time");
     if (mode_ == RenderMode::Shaded) {
       // The shading (key L): auto shows the eye light where the scene's lights leave the view
       // dark (update_auto_shading).
@@ -386,8 +389,8 @@ void Viewer::draw_panels() {
     }
     if (changed) recolor_ = true;
     if (ImGui::Button("export EXR") && have_image_ && image_.mode != RenderMode::Shaded) {
-      const std::string path = default_output_name(
-          image_.mode == RenderMode::HeatSteps ? "kdgrid-steps" : "kdgrid-tests", "exr");
+      const std::string path =
+          default_output_name((std::string("kdgrid-") + mode_name(image_.mode)).c_str(), "exr");
       const std::string err = write_counts_exr(
           path, image_,
           std::string("kdgrid ") + mode_name(image_.mode) + " per pixel, " + accel_name_);
@@ -483,7 +486,7 @@ void Viewer::draw_heat_legend() {
                    ImGuiWindowFlags_NoNav);
   const ImVec2 lp = ImGui::GetWindowPos(), ls = ImGui::GetWindowSize();
   item_rects_["legend"] = {lp.x, lp.y, ls.x, ls.y};
-  if (world_ && !world_->accel->has_counters()) {
+  if (world_ && !world_->accel->has_counters() && image_.mode != RenderMode::HeatTime) {
     // Embree counts nothing: a ramp with a 0..1 scale would read as "no work at all".
     ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f),
                        "%s keeps no traversal counters: no %s heat map", world_->name.c_str(),
@@ -496,9 +499,7 @@ void Viewer::draw_heat_legend() {
     ImGui::End();
     return;
   }
-  ImGui::Text("%s per pixel (%s scale)",
-              image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
-              to_string(settings_.heat_scale));
+  ImGui::Text("%s per pixel (%s scale)", heat_label(image_.mode), to_string(settings_.heat_scale));
   // The value at the middle of the bar differs between linear and log scales.
   const float mid =
       settings_.heat_scale == HeatScale::Log
