@@ -220,6 +220,7 @@ void Viewer::shutdown() {
   // The worker goes first: it may hold the last reference to a world.
   worker_.reset();
   if (overlay_job_.valid()) overlay_job_.wait();
+  if (estimate_job_.valid()) estimate_job_.wait();
   if (task_) {
     cancel_task();  // a build stops within about 100 ms (a scene still loading finishes first)
     task_->result.wait();
@@ -937,7 +938,7 @@ int Viewer::run() {
       const bool overlay_ok =
           !overlay_dirty_ && !overlay_job_.valid() && !structure_lines_.uploading();
       if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
-          overlay_ok && !recolor_ && accuracy_complete()) {
+          overlay_ok && !recolor_ && accuracy_complete() && !estimate_job_.valid()) {
         if (end_reason_.empty()) end_reason_ = "frames done";
         if (!task_error_.empty()) {
           std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());

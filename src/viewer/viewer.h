@@ -275,6 +275,9 @@ class Viewer {
   std::string cell_refusal_;       ///< why the last requested size was refused ("" if not)
   double cell_suggested_ = 0;      ///< the size the refusal suggests
   float cell_estimated_for_ = -1;  ///< the slider value cell_estimate_ describes
+  /// The slider's estimate being made off the UI thread, and the size it is for.
+  std::future<std::string> estimate_job_;
+  float estimate_job_for_ = -1;
   std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
   CameraControl cam_;
   RenderMode mode_ = RenderMode::Shaded;
