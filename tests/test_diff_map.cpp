@@ -23,6 +23,17 @@ namespace fs = std::filesystem;
 
 const std::string kCornell = source_path("assets/cornell.gltf");
 
+/// --stats-json's difference map: ready, with the totals of the pinned and current maps, the
+/// pinned one built with --cell-size 0.5.
+void expect_diff_state(const nlohmann::json& st, double pinned_total, double current_total) {
+  ASSERT_TRUE(st["diff"].is_object()) << st.dump();
+  EXPECT_TRUE(st["diff"]["ready"].get<bool>());
+  EXPECT_DOUBLE_EQ(st["diff"]["pinned_total"].get<double>(), pinned_total);
+  EXPECT_DOUBLE_EQ(st["diff"]["current_total"].get<double>(), current_total);
+  EXPECT_NE(st["diff"]["pinned"].get<std::string>().find("--cell-size 0.5"), std::string::npos)
+      << st["diff"].dump();
+}
+
 TEST(DiffMap, PinnedCellSizeChangeWritesTheDifferenceOfTheTwoMaps) {
   KDGRID_REQUIRE_XVFB();
   if (!fs::exists(kCornell)) GTEST_SKIP() << "assets/cornell.gltf is missing";
@@ -63,12 +74,39 @@ TEST(DiffMap, PinnedCellSizeChangeWritesTheDifferenceOfTheTwoMaps) {
   EXPECT_NE(sum_r, 0.0);
   std::ifstream in(d + "/stats.json");
   const nlohmann::json st = nlohmann::json::parse(in)["state"];
-  ASSERT_TRUE(st["diff"].is_object()) << st.dump();
-  EXPECT_TRUE(st["diff"]["ready"].get<bool>());
-  EXPECT_DOUBLE_EQ(st["diff"]["pinned_total"].get<double>(), sum_b);
-  EXPECT_DOUBLE_EQ(st["diff"]["current_total"].get<double>(), sum_g);
-  EXPECT_NE(st["diff"]["pinned"].get<std::string>().find("--cell-size 0.5"), std::string::npos)
-      << st["diff"].dump();
+  expect_diff_state(st, sum_b, sum_g);
+}
+
+TEST(DiffMap, PinnedTimeMapWritesTheDifferenceOfTheTwoMaps) {
+  KDGRID_REQUIRE_XVFB();
+  if (!fs::exists(kCornell)) GTEST_SKIP() << "assets/cornell.gltf is missing";
+  TempDir dir("diff_time");
+  const std::string d = dir.path().string();
+  // Nanoseconds per pixel, pinned at one structure's cell size and compared with another's.
+  const RunResult r =
+      run_viewer(d, "'" + kCornell +
+                        "' --accel hybrid --width 120 --height 90 --frames 2 --min-samples 1 "
+                        "--max-samples 1 --heatmap time --cell-size 0.5 --pin-heatmap "
+                        "--rebuild-cell-size 0.08 --diff-exr diff.exr --stats-json stats.json");
+  ASSERT_EQ(r.code, 0) << r.output;
+  const ImageRGB diff = read_image(d + "/diff.exr");
+  ASSERT_EQ(diff.width, 120);
+  ASSERT_EQ(diff.height, 90);
+  double sum_g = 0, sum_b = 0;
+  size_t timed = 0;
+  for (size_t i = 0; i < diff.rgb.size(); i += 3) {
+    EXPECT_EQ(diff.rgb[i], diff.rgb[i + 1] - diff.rgb[i + 2]) << "pixel " << i / 3;
+    // Every pixel's query takes some time, hit or miss.
+    timed += diff.rgb[i + 1] > 0 && diff.rgb[i + 2] > 0;
+    sum_g += diff.rgb[i + 1];
+    sum_b += diff.rgb[i + 2];
+  }
+  EXPECT_EQ(timed, diff.rgb.size() / 3);
+  std::ifstream in(d + "/stats.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  const nlohmann::json& st = j["state"];
+  EXPECT_EQ(j["settings"]["mode"], "time") << j["settings"].dump();
+  expect_diff_state(st, sum_b, sum_g);
 }
 
 TEST(DiffMap, DiffExrWithoutAPinIsRefusedBeforeAWindowOpens) {

@@ -18,6 +18,7 @@
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "test_util.h"
+#include "util/error.h"
 #include "viewer_run.h"
 
 namespace kdgrid::test {
@@ -111,6 +112,50 @@ TEST(RayTree, IsTheRaysTheRenderTracesForThePixel) {
   EXPECT_EQ(c.shadow, count_kind(t, RayKind::Shadow));
   EXPECT_EQ(c.reflection, count_kind(t, RayKind::Reflection));
   EXPECT_EQ(c.refraction, count_kind(t, RayKind::Refraction));
+}
+
+TEST(RayTree, SecondaryRaysStartWhereTheOffsetChoiceSays) {
+  KDGRID_REQUIRE_CORNELL();
+  const Scene scene = load_scene(kCornell);
+  const auto accel = build_accelerator("bvh", scene.mesh, BuildParams{});
+  const auto [mx, my] = mirror_pixel(scene, *accel, 48, 40);
+  ASSERT_GE(mx, 0) << "no pixel sees the mirror sphere";
+  const Ray primary =
+      CameraFrame::make(*scene.camera, 48, 40).ray(float(mx) + 0.5f, float(my) + 0.5f);
+  const auto tree = [&](SecondaryOffset o) {
+    RenderSettings rs;
+    rs.width = rs.height = 1;
+    rs.offset = o;
+    return Renderer(scene, *accel, rs).trace_tree(primary, false);
+  };
+  const RayTree robust = tree(SecondaryOffset::Robust), eps = tree(SecondaryOffset::Epsilon),
+                none = tree(SecondaryOffset::None);
+  // The rays leaving the primary hit (the trees below them differ: without an offset a ray
+  // may hit the surface it leaves).
+  ASSERT_GE(count_kind(none, RayKind::Reflection), 1u);
+  ASSERT_GE(count_kind(none, RayKind::Shadow), 1u);
+  size_t compared = 0;
+  for (size_t k = 1; k < std::min(none.nodes.size(), eps.nodes.size()) &&
+                     none.nodes[k].parent == 0 && eps.nodes[k].parent == 0;
+       ++k, ++compared) {
+    const Ray &n = none.nodes[k].ray, &e = eps.nodes[k].ray;
+    // No offset: the hit point itself, nothing skipped; epsilon: the same point, a fixed
+    // distance skipped.
+    EXPECT_EQ(n.tmin, 0.0f) << k;
+    EXPECT_EQ(n.org.x, e.org.x) << k;
+    EXPECT_EQ(n.org.y, e.org.y) << k;
+    EXPECT_EQ(n.org.z, e.org.z) << k;
+    EXPECT_NEAR(e.tmin * length(e.dir), kSecondaryEpsilon, 1e-9f) << k;
+  }
+  EXPECT_GE(compared, 2u);
+  // The robust offset moves the point off the surface and skips nothing.
+  ASSERT_GE(robust.nodes.size(), 2u);
+  EXPECT_EQ(robust.nodes[1].ray.tmin, 0.0f);
+  EXPECT_NE(
+      robust.nodes[1].ray.org.x + 2 * robust.nodes[1].ray.org.y + 4 * robust.nodes[1].ray.org.z,
+      none.nodes[1].ray.org.x + 2 * none.nodes[1].ray.org.y + 4 * none.nodes[1].ray.org.z);
+  EXPECT_EQ(parse_secondary_offset("none", "--offset"), SecondaryOffset::None);
+  EXPECT_THROW(parse_secondary_offset("tiny", "--offset"), ParamError);
 }
 
 /// `kdgrid trace --json` of a ray-tree ray replayed through the command line.

@@ -1779,6 +1779,17 @@ TEST(Viewer, PanelCoversAQuarterOfA1280x720WindowWithNoLabelCut) {
   EXPECT_GE(panel["h"].get<double>(), 360.0) << "the panel uses the window's height";
   const std::string cut = clipped_list(st);
   EXPECT_TRUE(cut.empty()) << "cut labels:" << cut;
+  // The UI thread's frame cost, whole and without the swap, summarised for every frame.
+  const auto& frames = st["frames"];
+  ASSERT_EQ(frames["ui_ms"].size(), frames["work_ms"].size());
+  for (const char* k : {"work_ms_summary", "ui_ms_summary"}) {
+    const auto& f = frames[k];
+    ASSERT_EQ(f["frames"], frames["work_ms"].size()) << k;
+    EXPECT_GE(f["max"].get<double>(), f["p95"].get<double>()) << k;
+    EXPECT_GE(f["p95"].get<double>(), f["p50"].get<double>()) << k;
+  }
+  EXPECT_LE(frames["ui_ms_summary"]["max"].get<double>(),
+            frames["work_ms_summary"]["max"].get<double>());
 }
 
 TEST(Viewer, StatusAreaKeepsTheWidgetsBelowItInPlace) {

@@ -99,8 +99,10 @@ void run_render(const RenderArgs& a) {
     settings.mode = RenderMode::HeatSteps;
   else if (a.heatmap == "tests")
     settings.mode = RenderMode::HeatTests;
+  else if (a.heatmap == "time")
+    settings.mode = RenderMode::HeatTime;
   else if (!a.heatmap.empty())
-    throw ParamError("--heatmap '" + a.heatmap + "': choose steps or tests");
+    throw ParamError("--heatmap '" + a.heatmap + "': choose steps, tests or time");
   settings.shading = parse_shading(a.shading, "--shading");
 
   std::optional<tbb::global_control> threads;
@@ -257,7 +259,8 @@ void add_render_command(CLI::App& app) {
   cmd->add_option("--seed", a->seed, "Sample pattern seed")->capture_default_str();
   add_scale_option(cmd, a->scale);
   cmd->add_option("--heatmap", a->heatmap,
-                  "Render traversal cost of primary rays instead: steps or tests (PNG: colour "
+                  "Render traversal cost of primary rays instead: steps, tests or time (ns per "
+                  "ray) (PNG: colour "
                   "ramp scaled to the maximum; EXR: raw counts)");
   cmd->add_option("--shading", a->shading,
                   "How surfaces are lit: lights (the scene's lights and shadows), eye (a light "

@@ -30,13 +30,15 @@ constexpr uint8_t kVerdictColor[4][3] = {
 
 AccuracyBatch judge_accuracy_batch(std::shared_ptr<const World> world,
                                    std::shared_ptr<const AccuracyReference> ref, Camera camera,
-                                   int w, int h, std::vector<uint32_t> pixels) {
+                                   int w, int h, SecondaryOffset offset,
+                                   std::vector<uint32_t> pixels) {
   AccuracyBatch b;
   b.pixels = std::move(pixels);
   b.verdicts.resize(b.pixels.size());
   RenderSettings rs;  // the render's depth and shadows, as the viewer's render worker uses
   rs.width = w;
   rs.height = h;
+  rs.offset = offset;
   const Renderer renderer(*world->scene, *world->accel, rs);
   const CameraFrame f = CameraFrame::make(camera, w, h);
   const Accelerator& accel = *world->accel;
@@ -70,10 +72,15 @@ AccuracyBatch judge_accuracy_batch(std::shared_ptr<const World> world,
 }
 
 void Viewer::update_accuracy() {
+  // The reference of another scene holds that scene (the mesh it reads): let both go once it
+  // is made (dropping a future still running would wait for it).
+  if (reference_.valid() && (!world_ || reference_scene_.lock() != world_->scene) &&
+      reference_.wait_for(std::chrono::seconds(0)) == std::future_status::ready)
+    reference_ = {};
   if (!show_accuracy_ || !world_ || posted_w_ <= 0 || posted_preview_) return;
   AccuracyMap& m = accuracy_;
-  const bool stale = m.world != world_ || m.w != posted_w_ || m.h != posted_h_ ||
-                     !same_camera(m.camera, posted_camera_);
+  const bool stale = m.world != world_ || m.offset != offset_ || m.w != posted_w_ ||
+                     m.h != posted_h_ || !same_camera(m.camera, posted_camera_);
   if (m.running.valid()) {
     if (m.running.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
     AccuracyBatch b = m.running.get();
@@ -91,12 +98,16 @@ void Viewer::update_accuracy() {
     }
   }
   if (stale) {
-    if (!reference_ || reference_scene_ != world_->scene.get()) {
-      reference_ = std::make_shared<AccuracyReference>(world_->scene->mesh);
-      reference_scene_ = world_->scene.get();
+    if (!reference_.valid() || reference_scene_.lock() != world_->scene) {
+      reference_ = std::async(std::launch::async, [world = world_]() {
+                     return std::shared_ptr<const AccuracyReference>(
+                         std::make_shared<AccuracyReference>(world->scene->mesh));
+                   }).share();
+      reference_scene_ = world_->scene;
     }
     m = AccuracyMap{};
     m.world = world_;
+    m.offset = offset_;
     m.camera = posted_camera_;
     m.w = posted_w_;
     m.h = posted_h_;
@@ -110,18 +121,21 @@ void Viewer::update_accuracy() {
   const size_t n = std::min(m.batch, m.order.size() - m.next);
   std::vector<uint32_t> pixels(m.order.begin() + long(m.next), m.order.begin() + long(m.next + n));
   m.next += n;
-  m.running = std::async(std::launch::async, [world = world_, ref = reference_, cam = m.camera,
-                                              w = m.w, h = m.h, px = std::move(pixels)]() mutable {
-    const auto t0 = std::chrono::steady_clock::now();
-    AccuracyBatch b = judge_accuracy_batch(world, ref, cam, w, h, std::move(px));
-    b.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return b;
-  });
+  m.running = std::async(
+      std::launch::async, [world = world_, ref = reference_, cam = m.camera, w = m.w, h = m.h,
+                           offset = m.offset, px = std::move(pixels)]() mutable {
+        const std::shared_ptr<const AccuracyReference> judge = ref.get();  // once per scene
+        const auto t0 = std::chrono::steady_clock::now();
+        AccuracyBatch b = judge_accuracy_batch(world, judge, cam, w, h, offset, std::move(px));
+        b.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        return b;
+      });
 }
 
 bool Viewer::accuracy_complete() const {
-  return !show_accuracy_ || (accuracy_.w > 0 && accuracy_.next >= accuracy_.order.size() &&
-                             !accuracy_.running.valid() && accuracy_.world == world_);
+  return !show_accuracy_ ||
+         (accuracy_.w > 0 && accuracy_.next >= accuracy_.order.size() &&
+          !accuracy_.running.valid() && accuracy_.world == world_ && accuracy_.offset == offset_);
 }
 
 void Viewer::colorize_accuracy(std::vector<uint8_t>& rgba) const {
@@ -185,6 +199,19 @@ void Viewer::draw_accuracy_panel() {
       start_build(accel_name_, p);
     }
   }
+  // Where secondary rays start: the render, the pick's ray tree and this map follow it.
+  int off = int(offset_);
+  ImGui::TextUnformatted("secondary rays start");
+  const char* offsets[] = {"robust", "epsilon", "none"};
+  for (int k = 0; k < 3; ++k) {
+    if (k) ImGui::SameLine();
+    ImGui::RadioButton(offsets[k], &off, k);
+  }
+  chk("secondary rays start");
+  if (off != int(offset_)) {
+    offset_ = SecondaryOffset(off);
+    if (pick_) trace_pick_tree(pick_->selected);
+  }
   if (is_embree(world_->name)) {
     ImGui::PushTextWrapPos(0.0f);
     ImGui::TextDisabled("%s uses its own triangle test", world_->name.c_str());
@@ -194,9 +221,10 @@ void Viewer::draw_accuracy_panel() {
   const AccuracySummary s = accuracy_summary();
   ImGui::TextWrapped("judged %zu of %zu pixels (%llu rays), %s", s.judged, s.pixels,
                      (unsigned long long)s.rays, accuracy_complete() ? "complete" : "sampling");
-  ImGui::TextWrapped("disagreement rate %.4g%% at %.3g Mrays/s (%s, %s test, one thread)",
-                     100.0 * s.disagreement_rate, s.mrays, world_->name.c_str(),
-                     to_string(world_->params.triangle_test));
+  ImGui::TextWrapped(
+      "disagreement rate %.4g%% at %.3g Mrays/s (%s, %s test, %s offset, one thread)",
+      100.0 * s.disagreement_rate, s.mrays, world_->name.c_str(),
+      to_string(world_->params.triangle_test), to_string(offset_));
   static const char* const kNames[4] = {"agree", "ambiguous", "disagree", "leak"};
   if (ImGui::BeginTable("accuracy", 3, ImGuiTableFlags_SizingFixedFit)) {
     ImGui::TableNextRow();

@@ -237,8 +237,7 @@ void Viewer::draw_diff_panel() {
 
 bool Viewer::draw_diff_legend() {
   if (!diff_ready() || diff_view_ != DiffView::Difference) return false;
-  ImGui::Text("%s per pixel, current - pinned",
-              image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests");
+  ImGui::Text("%s per pixel, current - pinned", heat_label(image_.mode));
   const float w = 240 * ui_scale_, h = 14 * ui_scale_;
   const ImVec2 p = ImGui::GetCursorScreenPos();
   ImDrawList* dl = ImGui::GetWindowDrawList();
@@ -277,7 +276,7 @@ void Viewer::update_hover() {
   hover_.x = x;
   hover_.y = y;
   hover_.current = image_.rgb[i];
-  const char* what = image_.mode == RenderMode::HeatSteps ? "steps" : "tests";
+  const char* what = mode_name(image_.mode);
   if (diff_ready()) {
     hover_.has_pinned = true;
     hover_.pinned = pinned_->image.rgb[i];

@@ -107,14 +107,22 @@ int main(int argc, char** argv) {
   app.add_flag("--splits-of-pick", o.splits_of_pick,
                "Split overlay: only the planes the picked ray crossed (with --overlay splits)")
       ->group(gs);
-  app.add_option("--heatmap", o.heatmap, "Show per-pixel traversal steps or triangle tests")
+  app.add_option("--heatmap", o.heatmap,
+                 "Show per-pixel traversal steps, triangle tests or time (nanoseconds of the "
+                 "primary ray's query)")
       ->group(gs)
-      ->check(CLI::IsMember({"steps", "tests"}));
+      ->check(CLI::IsMember({"steps", "tests", "time"}));
   app.add_option("--shading", o.shading,
                  "How the shaded picture is lit: auto (the scene's lights, or the eye light when "
                  "they leave the view dark), lights, eye (a light at the eye) or normals")
       ->group(gs)
       ->check(CLI::IsMember({"auto", "lights", "eye", "normals"}))
+      ->capture_default_str();
+  app.add_option("--offset", o.offset,
+                 "Where secondary rays start on the surface they leave: robust (moved off it), "
+                 "epsilon (skip hits nearer than 1e-4) or none (at the hit point)")
+      ->group(gs)
+      ->check(CLI::IsMember({"robust", "epsilon", "none"}))
       ->capture_default_str();
   app.add_option("--overlay", o.overlays, "Overlay: splits, cells or boxes (repeatable)")
       ->group(gs)

@@ -2,6 +2,7 @@
 // render, statistics, overlays, pick), the heat map's legend and the key list (F1).
 #include "viewer/viewer.h"
 
+#include <GLFW/glfw3.h>
 #include <imgui.h>
 
 #include <algorithm>
@@ -80,16 +81,27 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
     if (committed_edit() && mult > 0)
       request_cell_choice({CellChoice::Kind::Multiple, double(mult)});
   }
-  // The estimate of the size on the slider, updated while it moves (O(triangles)).
-  if (cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 && world_) {
-    try {
-      cell_estimate_ = GridKdHybrid::estimate(world_->scene->mesh,
-                                              params_with_cell_size("hybrid", cell_size_slider_))
-                           .describe();
-    } catch (const ParamError& e) {
-      cell_estimate_ = e.what();
-    }
-    cell_estimated_for_ = cell_size_slider_;
+  // The estimate of the size on the slider, updated while it moves. It walks every triangle,
+  // so it runs off the UI thread; one at a time, the newest size next.
+  if (estimate_job_.valid() &&
+      estimate_job_.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
+    cell_estimate_ = estimate_job_.get();
+    cell_estimated_for_ = estimate_job_for_;
+  }
+  if (!estimate_job_.valid() && cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 &&
+      world_) {
+    estimate_job_for_ = cell_size_slider_;
+    estimate_job_ = std::async(
+        std::launch::async, [w = world_, p = params_with_cell_size("hybrid", cell_size_slider_)] {
+          std::string text;
+          try {
+            text = GridKdHybrid::estimate(w->scene->mesh, p).describe();
+          } catch (const ParamError& e) {
+            text = e.what();
+          }
+          glfwPostEmptyEvent();  // the UI thread shows it at once
+          return text;
+        });
   }
   ImGui::PushTextWrapPos(0.0f);
   ImGui::TextDisabled("estimate: %s", cell_estimate_.c_str());
@@ -299,8 +311,11 @@ void Viewer::draw_panels() {
     ImGui::RadioButton("steps", &m, int(RenderMode::HeatSteps));
     ImGui::SameLine();
     ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
-    mode_ = RenderMode(m);
     chk("tri tests");
+    ImGui::SameLine();
+    ImGui::RadioButton("time", &m, int(RenderMode::HeatTime));
+    mode_ = RenderMode(m);
+    chk("time");
     if (mode_ == RenderMode::Shaded) {
       // The shading (key L): auto shows the eye light where the scene's lights leave the view
       // dark (update_auto_shading).
@@ -386,8 +401,8 @@ void Viewer::draw_panels() {
     }
     if (changed) recolor_ = true;
     if (ImGui::Button("export EXR") && have_image_ && image_.mode != RenderMode::Shaded) {
-      const std::string path = default_output_name(
-          image_.mode == RenderMode::HeatSteps ? "kdgrid-steps" : "kdgrid-tests", "exr");
+      const std::string path =
+          default_output_name((std::string("kdgrid-") + mode_name(image_.mode)).c_str(), "exr");
       const std::string err = write_counts_exr(
           path, image_,
           std::string("kdgrid ") + mode_name(image_.mode) + " per pixel, " + accel_name_);
@@ -483,7 +498,7 @@ void Viewer::draw_heat_legend() {
                    ImGuiWindowFlags_NoNav);
   const ImVec2 lp = ImGui::GetWindowPos(), ls = ImGui::GetWindowSize();
   item_rects_["legend"] = {lp.x, lp.y, ls.x, ls.y};
-  if (world_ && !world_->accel->has_counters()) {
+  if (world_ && !world_->accel->has_counters() && image_.mode != RenderMode::HeatTime) {
     // Embree counts nothing: a ramp with a 0..1 scale would read as "no work at all".
     ImGui::TextColored(ImVec4(1.0f, 0.8f, 0.3f, 1.0f),
                        "%s keeps no traversal counters: no %s heat map", world_->name.c_str(),
@@ -496,9 +511,7 @@ void Viewer::draw_heat_legend() {
     ImGui::End();
     return;
   }
-  ImGui::Text("%s per pixel (%s scale)",
-              image_.mode == RenderMode::HeatSteps ? "traversal steps" : "triangle tests",
-              to_string(settings_.heat_scale));
+  ImGui::Text("%s per pixel (%s scale)", heat_label(image_.mode), to_string(settings_.heat_scale));
   // The value at the middle of the bar differs between linear and log scales.
   const float mid =
       settings_.heat_scale == HeatScale::Log

@@ -65,6 +65,7 @@ void Viewer::trace_pick_tree(int selected) {
   // shadows, so the tree holds exactly the rays of the pixel's sample.
   RenderSettings rs;
   rs.width = rs.height = 1;
+  rs.offset = offset_;
   const Renderer renderer(*world_->scene, *world_->accel, rs);
   p.tree = renderer.trace_tree(p.ray);
   const std::string base = "kdgrid trace " + shell_quote(world_->scene->source) +

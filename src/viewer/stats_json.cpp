@@ -7,6 +7,7 @@
 #include <GLFW/glfw3.h>
 #include <imgui.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
@@ -30,6 +31,14 @@ nlohmann::json camera_json(const Camera& c) {
           {"target", vec_json(c.target)},
           {"up", vec_json(c.up)},
           {"fov", c.fov_deg}};
+}
+
+/// The largest, median and 95th-percentile value of `ms` (nulls when it is empty).
+nlohmann::json summarize_ms(std::vector<float> ms) {
+  if (ms.empty()) return {{"max", nullptr}, {"p50", nullptr}, {"p95", nullptr}, {"frames", 0}};
+  std::sort(ms.begin(), ms.end());
+  const auto at = [&](double q) { return ms[size_t(q * double(ms.size() - 1) + 0.5)]; };
+  return {{"max", ms.back()}, {"p50", at(0.5)}, {"p95", at(0.95)}, {"frames", ms.size()}};
 }
 
 }  // namespace
@@ -65,6 +74,7 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
       {"samples_per_pass", 1},
       {"shadows", rs.shadows},
       {"max_depth", rs.max_depth},
+      {"offset", to_string(offset_)},
       {"resolution_scale", opts_.resolution_scale},
       {"max_fps", opts_.max_fps},
       {"mode", mode_name(mode_)}};
@@ -173,6 +183,7 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
     json pixels = json::object();
     for (int v = 0; v < 4; ++v) pixels[to_string(AccuracyVerdict(v))] = a.pixel_verdicts[v];
     st["accuracy"] = {{"triangle_test", world_ ? to_string(world_->params.triangle_test) : ""},
+                      {"offset", to_string(offset_)},
                       {"pixels", a.pixels},
                       {"judged", a.judged},
                       {"complete", accuracy_complete()},
@@ -201,10 +212,18 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
              {"rects", item_rects_},
              {"steps_table_width", steps_table_w_}};
 
+  // The UI thread's cost per frame, whole (work_ms) and without the buffer swap, where a
+  // software GL draws (ui_ms): the largest, the median and the 95th percentile.
+  std::vector<float> ui_ms(frame_work_ms_.size());
+  for (size_t i = 0; i < ui_ms.size(); ++i)
+    ui_ms[i] = frame_work_ms_[i] - (i < frame_swap_ms_.size() ? frame_swap_ms_[i] : 0.0f);
   j["frames"] = {{"count", frame_count_},
                  {"interval_ms", frame_interval_ms_},
                  {"work_ms", frame_work_ms_},
-                 {"swap_ms", frame_swap_ms_}};
+                 {"swap_ms", frame_swap_ms_},
+                 {"ui_ms", ui_ms},
+                 {"work_ms_summary", summarize_ms(frame_work_ms_)},
+                 {"ui_ms_summary", summarize_ms(ui_ms)}};
   json passes = json::array();
   for (const PassRecord& p : passes_) {
     const uint64_t rays = p.rays.total();

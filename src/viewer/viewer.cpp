@@ -32,8 +32,24 @@ const char* mode_name(RenderMode m) {
       return "steps";
     case RenderMode::HeatTests:
       return "tests";
+    case RenderMode::HeatTime:
+      return "time";
   }
   return "shaded";
+}
+
+const char* heat_label(RenderMode m) {
+  switch (m) {
+    case RenderMode::HeatSteps:
+      return "traversal steps";
+    case RenderMode::HeatTests:
+      return "triangle tests";
+    case RenderMode::HeatTime:
+      return "nanoseconds";
+    case RenderMode::Shaded:
+      break;
+  }
+  return "";
 }
 
 namespace {
@@ -84,6 +100,7 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
       cell_choice_.kind == CellChoice::Kind::Units ? float(cell_choice_.value) : 0.0f;
   if (opts_.heatmap == "steps") mode_ = RenderMode::HeatSteps;
   if (opts_.heatmap == "tests") mode_ = RenderMode::HeatTests;
+  if (opts_.heatmap == "time") mode_ = RenderMode::HeatTime;
   if (opts_.shading == "lights") shading_choice_ = ShadingChoice::Lights;
   if (opts_.shading == "eye") shading_choice_ = ShadingChoice::Eye;
   if (opts_.shading == "normals") shading_choice_ = ShadingChoice::Normals;
@@ -94,6 +111,7 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
   }
   splits_of_pick_ = opts_.splits_of_pick;
   show_accuracy_ = opts_.accuracy;
+  offset_ = parse_secondary_offset(opts_.offset, "--offset");
   for (DiffView v : {DiffView::Current, DiffView::Pinned, DiffView::Difference, DiffView::Split})
     if (opts_.diff_view == to_string(v)) diff_view_ = v;
 }
@@ -202,6 +220,7 @@ void Viewer::shutdown() {
   // The worker goes first: it may hold the last reference to a world.
   worker_.reset();
   if (overlay_job_.valid()) overlay_job_.wait();
+  if (estimate_job_.valid()) estimate_job_.wait();
   if (task_) {
     cancel_task();  // a build stops within about 100 ms (a scene still loading finishes first)
     task_->result.wait();
@@ -523,8 +542,8 @@ void Viewer::sync_render_job() {
   const bool same_size = (w == posted_w_ && h == posted_h_) || (preview && posted_preview_job_);
   const Shading shading = shading_shown();
   if (world_.get() == posted_world_ && same_size && mode_ == posted_mode_ &&
-      shading == posted_shading_ && opts_.max_samples == posted_max_samples_ &&
-      same_camera(c, posted_camera_))
+      shading == posted_shading_ && offset_ == posted_offset_ &&
+      opts_.max_samples == posted_max_samples_ && same_camera(c, posted_camera_))
     return;
   RenderJob job;
   job.world = world_;
@@ -533,6 +552,7 @@ void Viewer::sync_render_job() {
   job.settings.height = h;
   job.settings.mode = mode_;
   job.settings.shading = shading;
+  job.settings.offset = offset_;
   job.max_samples = opts_.max_samples;
   job.preview = preview;
   posted_job_ = worker_->post(std::move(job));
@@ -544,6 +564,7 @@ void Viewer::sync_render_job() {
   posted_h_ = h;
   posted_mode_ = mode_;
   posted_shading_ = shading;
+  posted_offset_ = offset_;
   posted_max_samples_ = opts_.max_samples;
   posted_camera_ = c;
 }
@@ -917,7 +938,7 @@ int Viewer::run() {
       const bool overlay_ok =
           !overlay_dirty_ && !overlay_job_.valid() && !structure_lines_.uploading();
       if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
-          overlay_ok && !recolor_ && accuracy_complete()) {
+          overlay_ok && !recolor_ && accuracy_complete() && !estimate_job_.valid()) {
         if (end_reason_.empty()) end_reason_ = "frames done";
         if (!task_error_.empty()) {
           std::fprintf(stderr, "kdgrid-viewer: %s\n", task_error_.c_str());

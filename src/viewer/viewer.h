@@ -55,7 +55,8 @@ struct AccuracyBatch {
 /// Judges the ray trees of `pixels` (of a w x h image of `camera`) against `ref`.
 AccuracyBatch judge_accuracy_batch(std::shared_ptr<const World> world,
                                    std::shared_ptr<const AccuracyReference> ref, Camera camera,
-                                   int w, int h, std::vector<uint32_t> pixels);
+                                   int w, int h, SecondaryOffset offset,
+                                   std::vector<uint32_t> pixels);
 
 /// The accuracy map so far.
 struct AccuracySummary {
@@ -89,8 +90,9 @@ struct ViewerOptions {
   int pick_ray = 0;  ///< scripted: the ray of the pick's ray tree to select (0 = the primary)
   bool frame_pick = false;            ///< scripted: frame the --pick ray's traversal (key F)
   bool splits_of_pick = false;        ///< split overlay: only the planes the picked ray crossed
-  std::string heatmap;                ///< "", "steps" or "tests"
+  std::string heatmap;                ///< "", "steps", "tests" or "time"
   std::string shading = "auto";       ///< "auto", "lights", "eye" or "normals"
+  std::string offset = "robust";      ///< secondary rays' start: "robust", "epsilon" or "none"
   std::vector<std::string> overlays;  ///< "splits", "cells", "boxes"
   std::string rebuild_cell_size;      ///< scripted live rebuild after start-up
   /// Scripted: the cell size requested (as the panel's cell-size box requests it) while the
@@ -273,6 +275,9 @@ class Viewer {
   std::string cell_refusal_;       ///< why the last requested size was refused ("" if not)
   double cell_suggested_ = 0;      ///< the size the refusal suggests
   float cell_estimated_for_ = -1;  ///< the slider value cell_estimate_ describes
+  /// The slider's estimate being made off the UI thread, and the size it is for.
+  std::future<std::string> estimate_job_;
+  float estimate_job_for_ = -1;
   std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
   CameraControl cam_;
   RenderMode mode_ = RenderMode::Shaded;
@@ -352,6 +357,7 @@ class Viewer {
   int posted_w_ = 0, posted_h_ = 0;
   RenderMode posted_mode_ = RenderMode::Shaded;
   Shading posted_shading_ = Shading::Lights;
+  SecondaryOffset posted_offset_ = SecondaryOffset::Robust;
   const World* posted_world_ = nullptr;
   int posted_max_samples_ = 0;
   uint64_t posted_job_ = 0;
@@ -443,6 +449,7 @@ class Viewer {
   // The accuracy map (accuracy_map.cpp).
   struct AccuracyMap {
     std::shared_ptr<const World> world;
+    SecondaryOffset offset = SecondaryOffset::Robust;
     Camera camera;
     int w = 0, h = 0;
     std::vector<uint8_t> verdict;  ///< per pixel: 0 not judged, else 1 + the worst verdict
@@ -455,9 +462,14 @@ class Viewer {
     std::future<AccuracyBatch> running;
   };
   bool show_accuracy_ = false;
+  /// Where secondary rays start (the accuracy panel, --offset): the render, the pick's ray
+  /// tree and the accuracy map all use it.
+  SecondaryOffset offset_ = SecondaryOffset::Robust;
   AccuracyMap accuracy_;
-  std::shared_ptr<const AccuracyReference> reference_;
-  const Scene* reference_scene_ = nullptr;  ///< the scene reference_ was made for
+  /// The double-precision reference of the current scene, made off the UI thread (its build
+  /// walks every triangle); the batches wait for it. Its task holds the scene it reads.
+  std::shared_future<std::shared_ptr<const AccuracyReference>> reference_;
+  std::weak_ptr<const Scene> reference_scene_;  ///< the scene reference_ is made for
 
   // Pick.
   struct Pick {

@@ -22,5 +22,8 @@ inline bool same_camera(const Camera& a, const Camera& b) {
 
 /// The render mode as --heatmap and --stats-json spell it ("shaded", "steps", "tests").
 const char* mode_name(RenderMode m);
+/// What a heat map of mode `m` shows per pixel: "traversal steps", "triangle tests" or
+/// "nanoseconds" (of the primary ray's query).
+const char* heat_label(RenderMode m);
 
 }  // namespace kdgrid::viewer

@@ -175,6 +175,19 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
     dst[1] = value.y;
     dst[2] = value.z;
   };
+  if (settings_.mode == RenderMode::HeatTime) {
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) {
+        ++c.primary;
+        const Ray ray = camera_ray(x, y);
+        Hit hit;
+        const auto t0 = std::chrono::steady_clock::now();
+        accel_->intersect(ray, hit);
+        const auto t1 = std::chrono::steady_clock::now();
+        store(x, y, Vec3(float(std::chrono::duration<double, std::nano>(t1 - t0).count())));
+      }
+    return;
+  }
   if (settings_.mode != RenderMode::Shaded) {
     for (int y = y0; y < y1; ++y)
       for (int x = x0; x < x1; ++x) {
@@ -429,6 +442,27 @@ Shading parse_shading(const std::string& s, const std::string& what) {
                    "the eye) or normals (the surface normal as a colour)");
 }
 
+SecondaryOffset parse_secondary_offset(const std::string& s, const std::string& what) {
+  if (s == "robust") return SecondaryOffset::Robust;
+  if (s == "epsilon") return SecondaryOffset::Epsilon;
+  if (s == "none") return SecondaryOffset::None;
+  throw ParamError(what + " '" + s +
+                   "': choose robust (the hit point moved off the surface), epsilon (skip hits "
+                   "nearer than 1e-4) or none (start at the hit point)");
+}
+
+const char* to_string(SecondaryOffset o) {
+  switch (o) {
+    case SecondaryOffset::Robust:
+      return "robust";
+    case SecondaryOffset::Epsilon:
+      return "epsilon";
+    case SecondaryOffset::None:
+      return "none";
+  }
+  return "robust";
+}
+
 const char* to_string(Shading s) {
   switch (s) {
     case Shading::Lights:
@@ -484,7 +518,9 @@ Renderer::Surface Renderer::surface_at(const Ray& ray, const Hit& hit) const {
   s.diffuse = s.albedo * ((1.0f - saturate(m.metallic)) * (1.0f - s.transmission));
   s.spec = specular_color(m, s.albedo);
   s.exponent = highlight_exponent(m);
-  s.shadow_org = offset_ray_origin(s.p, s.ng, c);
+  s.shadow_org =
+      settings_.offset == SecondaryOffset::Robust ? offset_ray_origin(s.p, s.ng, c) : s.p;
+  s.shadow_skip = settings_.offset == SecondaryOffset::Epsilon ? kSecondaryEpsilon : 0.0f;
   return s;
 }
 
@@ -520,13 +556,26 @@ bool Renderer::light_term(const Surface& s, const Light& light, LightTerm& t) co
 }
 
 Ray Renderer::shadow_ray(const Surface& s, const Light& light, const LightTerm& t) {
-  Ray shadow{s.shadow_org, 0.0f, t.wi, kInf};
+  Ray shadow{s.shadow_org, s.shadow_skip, t.wi, kInf};
   if (light.type != LightType::Directional) {
     // Aim at the light itself and stop just short of it.
     shadow.dir = light.position - s.shadow_org;
     shadow.tmax = 1.0f - 1e-4f;
+    if (s.shadow_skip > 0.0f) shadow.tmin = s.shadow_skip / length(shadow.dir);
   }
   return shadow;
+}
+
+Ray Renderer::leaving_ray(const Surface& s, const Vec3& side, const Vec3& dir) const {
+  switch (settings_.offset) {
+    case SecondaryOffset::Robust:
+      break;
+    case SecondaryOffset::Epsilon:
+      return Ray{s.p, kSecondaryEpsilon, dir, kInf};
+    case SecondaryOffset::None:
+      return Ray{s.p, 0.0f, dir, kInf};
+  }
+  return Ray{offset_ray_origin(s.p, side, s.corners), 0.0f, dir, kInf};
 }
 
 void Renderer::add_light(const Surface& s, const LightTerm& t, Vec3& result) {
@@ -541,7 +590,7 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
                           uint32_t& budget, RenderCounters& counters, RayTree* tree,
                           int node) const {
   const Material& m = *s.m;
-  const Vec3 &p = s.p, &d = s.d, &n = s.n, &ng = s.ng, &albedo = s.albedo;
+  const Vec3 &d = s.d, &n = s.n, &ng = s.ng, &albedo = s.albedo;
   const bool front = s.front;
   const float transmission = s.transmission;
   if (depth >= settings_.max_depth) return result;
@@ -558,8 +607,7 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
   if (need_reflection_ && m.reflects()) {
     Vec3 r = reflect(d, n);
     if (dot(r, ng) <= 0.0f) r = reflect(d, ng);  // shading normal bent it below the surface
-    secondary(m.reflectance(), Ray{offset_ray_origin(p, ng, s.corners), 0.0f, r, kInf},
-              counters.reflection, RayKind::Reflection);
+    secondary(m.reflectance(), leaving_ray(s, ng, r), counters.reflection, RayKind::Reflection);
   }
 
   // Refraction with Fresnel (Schlick) and total internal reflection.
@@ -578,14 +626,12 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
       const Vec3 t = normalize(d * eta + n * (eta * cos_i - cos_t));
       const Vec3 tweight = albedo * (transmission * (1.0f - fresnel));
       if (dot(t, ng) < 0.0f)
-        secondary(tweight, Ray{offset_ray_origin(p, -ng, s.corners), 0.0f, t, kInf},
-                  counters.refraction, RayKind::Refraction);
+        secondary(tweight, leaving_ray(s, -ng, t), counters.refraction, RayKind::Refraction);
     }
     // Fresnel reflection of transparent surfaces (all of it under total internal reflection).
     Vec3 r = reflect(d, n);
     if (dot(r, ng) <= 0.0f) r = reflect(d, ng);
-    secondary(reflect_weight, Ray{offset_ray_origin(p, ng, s.corners), 0.0f, r, kInf},
-              counters.reflection, RayKind::Reflection);
+    secondary(reflect_weight, leaving_ray(s, ng, r), counters.reflection, RayKind::Reflection);
   }
   return result;
 }

@@ -23,6 +23,9 @@ enum class RenderMode {
   Shaded,     ///< Whitted shading
   HeatSteps,  ///< per-pixel traversal steps of the primary ray (counted traversal)
   HeatTests,  ///< per-pixel triangle tests of the primary ray
+  /// Per-pixel nanoseconds of the primary ray's closest-hit query (Accelerator::intersect,
+  /// timed with the steady clock around each call; its own cost, some 20 ns, included).
+  HeatTime,
 };
 
 /// How RenderMode::Shaded lights a surface.
@@ -35,6 +38,21 @@ enum class Shading {
 /// "lights", "eye" or "normals"; ParamError naming `what` for anything else.
 Shading parse_shading(const std::string& s, const std::string& what);
 const char* to_string(Shading s);
+
+/// Where a secondary ray (shadow, reflection, refraction) starts on the surface it leaves.
+enum class SecondaryOffset {
+  Robust,   ///< offset_ray_origin: the hit point moved off the surface (scale invariant)
+  Epsilon,  ///< the hit point itself, skipping hits nearer than kSecondaryEpsilon
+  None,     ///< the hit point itself, tmin 0: the ray may hit the surface it leaves
+};
+
+/// The fixed distance SecondaryOffset::Epsilon skips, in scene units (the fixed epsilon of
+/// `kdgrid check --acne`).
+constexpr float kSecondaryEpsilon = 1e-4f;
+
+/// "robust", "epsilon" or "none"; ParamError naming `what` for anything else.
+SecondaryOffset parse_secondary_offset(const std::string& s, const std::string& what);
+const char* to_string(SecondaryOffset o);
 
 /// One in kLitProbeStride x kLitProbeStride pixels (x and y multiples of it) of an
 /// EyeLight or Normals pass probes whether a scene light reaches its primary hit
@@ -89,7 +107,8 @@ struct RenderSettings {
   /// rays (docs/HYBRID.md, "Packets").
   bool packets = true;
   RenderMode mode = RenderMode::Shaded;
-  Shading shading = Shading::Lights;  ///< how RenderMode::Shaded lights a surface
+  Shading shading = Shading::Lights;                 ///< how RenderMode::Shaded lights a surface
+  SecondaryOffset offset = SecondaryOffset::Robust;  ///< where secondary rays start
 };
 
 /// The kind of a ray in a sample's Whitted ray tree (Renderer::trace_tree).
@@ -196,6 +215,7 @@ class Renderer {
     const Material* m;
     Vec3 p, d, ng, n;  ///< hit point, unit ray direction, geometric and shading normals
     Vec3 albedo, diffuse, spec, shadow_org;
+    float shadow_skip;  ///< the distance from shadow_org a shadow ray skips (SecondaryOffset)
     std::array<Vec3, 3> corners;  ///< the hit triangle's, for offset_ray_origin
     float exponent, transmission;
     bool front;  ///< the ray entered through the outside (ng was not flipped)
@@ -217,6 +237,9 @@ class Renderer {
   bool light_term(const Surface& s, const Light& light, LightTerm& t) const;
   /// The shadow ray that decides whether `light` reaches `s`.
   static Ray shadow_ray(const Surface& s, const Light& light, const LightTerm& t);
+  /// A reflection or refraction ray leaving `s` in direction `dir` (unit) on the side `side`
+  /// of the surface faces, started as RenderSettings::offset says.
+  Ray leaving_ray(const Surface& s, const Vec3& side, const Vec3& dir) const;
   /// The light's reflected radiance, added to `result`.
   static void add_light(const Surface& s, const LightTerm& t, Vec3& result);
   /// Emission and ambient light: the start of a surface's radiance, before its lights.
