@@ -113,8 +113,7 @@ struct PlaneInBox {
 /// cells), then the faces of the mesh box; each (axis, position) once, at most `max` of the
 /// structure's own, spread over all of them. Structures without splits or boxes (brute force,
 /// Embree) give the mesh box faces only.
-inline std::vector<PlaneInBox> structure_planes(const Accelerator& acc, const Mesh& m,
-                                                size_t max) {
+inline std::vector<PlaneInBox> structure_planes(const Accelerator& acc, const Mesh& m, size_t max) {
   std::vector<PlaneInBox> all;
   std::set<std::pair<int, float>> seen;
   auto add = [&](int axis, float pos, const Box3& box, std::vector<PlaneInBox>& to) {
@@ -288,8 +287,8 @@ inline std::vector<Ray> coplanar_quad_line_rays() {
 
 /// Rays starting exactly on a plane of a lattice of `cell` (k = kmin .. kmax) and moving inside
 /// it; every fifth also lies in a second lattice plane (along a lattice line).
-inline std::vector<Ray> rays_in_lattice_planes(float cell, int kmin, int kmax, float lo,
-                                               float hi, int n, uint32_t seed) {
+inline std::vector<Ray> rays_in_lattice_planes(float cell, int kmin, int kmax, float lo, float hi,
+                                               int n, uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(lo, hi), s(-1.0f, 1.0f);
   std::uniform_int_distribution<int> k(kmin, kmax);
@@ -362,14 +361,15 @@ inline std::vector<Ray> rays_from_structure_boundaries(const std::vector<PlaneIn
     rays.push_back(r);
   }
   for (int i = 0; i < n / 8; ++i)
-    rays.push_back({m.positions[(size_t(i) * 7) % m.positions.size()], 0.0f, random_dir(rng), kInf});
+    rays.push_back(
+        {m.positions[(size_t(i) * 7) % m.positions.size()], 0.0f, random_dir(rng), kInf});
   return rays;
 }
 
 /// Rays from inside the box [in_lo, in_hi]^3, and from 4-10 units around `center` aimed at
 /// points near it.
-inline std::vector<Ray> rays_inside_and_outside(const Vec3& center, float in_lo, float in_hi,
-                                                int n, uint32_t seed) {
+inline std::vector<Ray> rays_inside_and_outside(const Vec3& center, float in_lo, float in_hi, int n,
+                                                uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> in(in_lo, in_hi), out(4.0f, 10.0f), s(-1.0f, 1.0f);
   std::vector<Ray> rays;
@@ -426,12 +426,10 @@ inline std::vector<Ray> rays_missing_the_sphere(int n, uint32_t seed) {
 /// miss, and one valid ray along x from (-5, 0, 0).
 inline std::vector<Ray> invalid_rays() {
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  return {{Vec3(0.0f), 0.0f, Vec3(0.0f), kInf},
-          {Vec3(nan, 0, 0), 0.0f, Vec3(1, 0, 0), kInf},
-          {Vec3(-5, 0, 0), 0.0f, Vec3(1, nan, 0), kInf},
-          {Vec3(-5, 0, 0), 0.0f, Vec3(kInf, 0, 0), kInf},
-          {Vec3(-5, 0, 0), 2.0f, Vec3(1, 0, 0), 2.0f},
-          {Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}};
+  return {
+      {Vec3(0.0f), 0.0f, Vec3(0.0f), kInf},          {Vec3(nan, 0, 0), 0.0f, Vec3(1, 0, 0), kInf},
+      {Vec3(-5, 0, 0), 0.0f, Vec3(1, nan, 0), kInf}, {Vec3(-5, 0, 0), 0.0f, Vec3(kInf, 0, 0), kInf},
+      {Vec3(-5, 0, 0), 2.0f, Vec3(1, 0, 0), 2.0f},   {Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}};
 }
 
 /// Rays from `distance` (plus a thousandth of `offset`) away aimed at points on the edges
