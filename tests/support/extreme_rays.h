@@ -197,7 +197,7 @@ inline std::vector<Ray> axis_parallel_rays(float lo, float hi, int n, uint32_t s
   return rays;
 }
 
-/// Axis-parallel rays from outside [-lim, lim]^3 (at +-1.5 on their axis) through it, every
+/// Axis-parallel rays from outside [-1.3, 1.3]^3 (at +-1.5 on their axis) through it, every
 /// fourth starting on a line of grid_quads() (a multiple of 0.5) in one other coordinate.
 inline std::vector<Ray> axis_parallel_rays_from_outside(int n, uint32_t seed) {
   std::mt19937 rng(seed);
