@@ -122,43 +122,8 @@ TEST(Embree, ReportsTheIsaItChose) {
 #endif
 }
 
-TEST(Embree, ExtremeRays) {
-  // Axis-parallel rays with +0/-0 components from outside the integer quads must agree.
-  // Degenerate rays are resolved differently by the two triangle tests and only checked for
-  // sane output: rays along the quads' edges (integer lines; Embree skips some boundary
-  // edges kdgrid's watertight test includes), rays lying in the plane of coplanar triangles
-  // (kdgrid never reports those) and origins exactly on a triangle (Embree reports t = 0).
-  const Mesh mesh = test::integer_quads(8);
-  EmbreeAccel e;
-  e.build(mesh, BuildParams{});
-  std::vector<Ray> crossing, degenerate;
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(0.05f, 7.95f);
-  for (int k = 0; k < 600; ++k) {
-    const int axis = k % 3;
-    const float sign = (k / 3) % 2 ? 1.0f : -1.0f;
-    Ray r;
-    r.org = Vec3(u(rng), u(rng), u(rng));
-    const bool on_edge = k % 4 == 0;
-    if (on_edge) r.org[(axis + 1) % 3] = std::round(r.org[(axis + 1) % 3]);
-    r.org[axis] = sign > 0 ? -3.5f : 11.5f;
-    r.dir = Vec3((k & 8) ? -0.0f : 0.0f, (k & 16) ? -0.0f : 0.0f, (k & 32) ? -0.0f : 0.0f);
-    r.dir[axis] = sign;
-    (on_edge ? degenerate : crossing).push_back(r);
-  }
-  std::vector<std::pair<int, float>> planes;
-  for (int a = 0; a < 3; ++a)
-    for (int k = 0; k <= 8; ++k) planes.push_back({a, float(k)});
-  for (const Ray& r : test::extreme_rays(mesh, planes, 5, 40)) degenerate.push_back(r);
-  const int bad = test::count_disagreements(mesh, e, crossing, 6, nullptr, kTol);
-  EXPECT_LE(bad, int(crossing.size() / 100)) << bad << " of " << crossing.size();
-  Hit h;
-  for (const Ray& r : degenerate) {
-    if (e.intersect(r, h)) {
-      EXPECT_TRUE(h.t >= r.tmin && h.t < r.tmax && h.prim < mesh.num_triangles());
-    }
-  }
-}
+// Extreme rays (axis-parallel with +0/-0 components, rays along edges and in planes):
+// ExtremeRayFamilies.*/embree*.
 
 TEST(Embree, AllQualitiesBuildAndBadQualityIsRejected) {
   const Mesh mesh = test::sphere(30, 60);

@@ -16,6 +16,7 @@
 #include "accel/brute.h"
 #include "accel/hybrid/hybrid.h"
 #include "comparator_meshes.h"
+#include "extreme_rays.h"
 #include "scene/load.h"
 #include "test_util.h"
 #include "util/error.h"
@@ -27,6 +28,7 @@ namespace {
 
 using test::add_quad;
 using test::add_tri;
+using test::lattice_quads;
 using test::random_rays;
 using test::random_soup;
 using test::transformed;
@@ -34,29 +36,6 @@ using test::transformed;
 /// An octahedron subdivided `levels` times and projected on the sphere (test::octahedron_sphere).
 Mesh subdivided_sphere(Vec3 center, float radius, int levels) {
   return test::octahedron_sphere(levels, radius, center);
-}
-
-/// Axis-aligned quads lying exactly on the boundaries of a lattice of `cell` (exact in float)
-/// over [0, n*cell]^3: with cell_size = cell the quads sit on cell planes and split planes.
-Mesh lattice_quads(float cell, int n, uint32_t seed) {
-  std::mt19937 rng(seed);
-  std::uniform_int_distribution<int> k(0, n), span(1, 3);
-  Mesh m;
-  for (int i = 0; i < 300; ++i) {
-    const int axis = i % 3, b = (axis + 1) % 3, c = (axis + 2) % 3;
-    const float plane = float(k(rng)) * cell;
-    const int b0 = std::min(n - 1, k(rng)), c0 = std::min(n - 1, k(rng));
-    const int b1 = std::min(n, b0 + span(rng)), c1 = std::min(n, c0 + span(rng));
-    Vec3 p[4];
-    const int corner[4][2] = {{b0, c0}, {b1, c0}, {b1, c1}, {b0, c1}};
-    for (int q = 0; q < 4; ++q) {
-      p[q][axis] = plane;
-      p[q][b] = float(corner[q][0]) * cell;
-      p[q][c] = float(corner[q][1]) * cell;
-    }
-    add_quad(m, p[0], p[1], p[2], p[3]);
-  }
-  return m;
 }
 
 /// Long thin slivers crossing the whole box in random directions, plus a few small ones.
@@ -279,269 +258,46 @@ TEST(Hybrid, DenseAndBrickedMapEveryCellToTheSameCoveringLeaf) {
       }
 }
 
-// ---- extreme rays -------------------------------------------------------------------------
+// ---- extreme rays ----------------------------------------------------------------------
+// Agreement with brute force on the extreme-ray families: test_extreme_rays.cpp. Here, what
+// only the hybrid promises: its step bound, and rays missing the box take no step.
 
-/// A cell-aligned scene with cell 0.25 (boxes of quads on cell planes and a sphere).
-Mesh extreme_scene() {
-  Mesh m = lattice_quads(0.25f, 8, 11);
-  m.append(subdivided_sphere(Vec3(1.0f, 1.0f, 1.0f), 0.6f, 3));
-  return m;
-}
-
-void check_rays(const Mesh& m, const std::vector<Ray>& rays, float cell, const std::string& label) {
-  const Reference ref = brute_reference(m, rays);
+TEST(Hybrid, StepBoundOnExtremeRays) {
+  const Mesh m = test::extreme_scene();
+  std::vector<Ray> rays = test::axis_parallel_rays(-0.5f, 2.5f, 600, 1);
+  for (const auto& more :
+       {test::zero_component_rays(-0.5f, 2.5f, 600, 2, 6),
+        test::rays_in_lattice_planes(test::kExtremeCell, -1, 9, -0.5f, 2.5f, 600, 3),
+        test::rays_from_lattice_points(test::kExtremeCell, -1, 9, 600, 5),
+        test::rays_inside_and_outside(Vec3(1.0f), 0.01f, 1.99f, 600, 6)})
+    rays.insert(rays.end(), more.begin(), more.end());
   for (int variant = 0; variant < 5; ++variant) {
-    const bool dense = variant == 1;
     GridKdHybrid h;
-    BuildParams p = params_with(cell, dense);
+    BuildParams p = params_with(test::kExtremeCell, variant == 1);
     if (variant == 2) p.hybrid_subtree_min = 2;
     if (variant >= 3) p.hybrid_subtree_min = 0;
     if (variant == 4) p.hybrid_expand_empty = false;
     h.build(m, p);
-    const std::string v = dense          ? " dense"
-                          : variant == 2 ? " bricked, subtrees over 2"
-                          : variant == 3 ? " bricked, plain leaves"
-                          : variant == 4 ? " bricked, plain leaves, kd leaf boxes"
-                                         : " bricked";
-    EXPECT_EQ(compare(h, m, rays, ref, label + v), 0);
-    // And no ray reaches the step bound when counted either: one lookup per leaf step.
     for (const Ray& r : rays) {
       RayCounters c;
       Hit hit;
       h.intersect_counted(r, hit, c);
-      ASSERT_LE(c.lookups, uint64_t(h.dims()[0] + h.dims()[1] + h.dims()[2] + 1)) << label << v;
+      h.occluded(r);
+      // One lookup per leaf step, and no ray reaches the step bound.
+      ASSERT_LE(c.lookups, uint64_t(h.dims()[0] + h.dims()[1] + h.dims()[2] + 1)) << variant;
     }
-    EXPECT_EQ(h.step_bound_errors(), 0u) << label;
+    EXPECT_EQ(h.step_bound_errors(), 0u) << variant;
   }
 }
 
-TEST(HybridExtremeRays, AxisParallel) {
-  const Mesh m = extreme_scene();
-  std::mt19937 rng(1);
-  std::uniform_real_distribution<float> u(-0.5f, 2.5f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 6000; ++i) {
-    Ray r;
-    r.org = Vec3(u(rng), u(rng), u(rng));
-    r.dir = Vec3(0.0f);
-    r.dir[i % 3] = (i / 3) % 2 ? 1.0f : -1.0f;
-    rays.push_back(r);
-  }
-  check_rays(m, rays, 0.25f, "axis-parallel");
-}
-
-TEST(HybridExtremeRays, PositiveAndNegativeZeroComponents) {
-  const Mesh m = extreme_scene();
-  std::mt19937 rng(2);
-  std::uniform_real_distribution<float> u(-0.5f, 2.5f), s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 6000; ++i) {
-    Ray r;
-    r.org = Vec3(u(rng), u(rng), u(rng));
-    r.dir = Vec3(s(rng), s(rng), s(rng));
-    const int zero_axis = i % 3;
-    r.dir[zero_axis] = (i / 3) % 2 ? 0.0f : -0.0f;
-    if ((i / 6) % 2) r.dir[(zero_axis + 1) % 3] = -0.0f;  // two zero components
-    if (r.dir == Vec3(0.0f)) r.dir[(zero_axis + 2) % 3] = 1.0f;
-    rays.push_back(r);
-  }
-  check_rays(m, rays, 0.25f, "+0/-0 components");
-}
-
-TEST(HybridExtremeRays, RaysInCellPlanes) {
-  const Mesh m = extreme_scene();
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(-0.5f, 2.5f), s(-1.0f, 1.0f);
-  std::uniform_int_distribution<int> k(-1, 9);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 6000; ++i) {
-    Ray r;
-    r.org = Vec3(u(rng), u(rng), u(rng));
-    r.dir = Vec3(s(rng), s(rng), s(rng));
-    const int a = i % 3;
-    r.org[a] = float(k(rng)) * 0.25f;  // exactly on a cell plane, moving inside it
-    r.dir[a] = (i / 3) % 2 ? 0.0f : -0.0f;
-    if (i % 5 == 0) {  // in two planes: along a cell edge line
-      const int b = (a + 1) % 3;
-      r.org[b] = float(k(rng)) * 0.25f;
-      r.dir[b] = 0.0f;
-    }
-    if (r.dir == Vec3(0.0f)) r.dir[(a + 2) % 3] = 1.0f;
-    rays.push_back(r);
-  }
-  check_rays(m, rays, 0.25f, "in cell planes");
-}
-
-TEST(HybridExtremeRays, RaysInSplitPlanes) {
-  const Mesh m = extreme_scene();
+TEST(Hybrid, RaysMissingTheBoxTakeNoStep) {
   GridKdHybrid h;
-  h.build(m, params_with(0.25f, false));
-  std::vector<SplitPlane> splits;
-  h.for_each_split([&](const SplitPlane& sp) { splits.push_back(sp); });
-  ASSERT_FALSE(splits.empty());
-  std::mt19937 rng(4);
-  std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 6000; ++i) {
-    const SplitPlane& sp = splits[size_t(rng()) % splits.size()];
-    Ray r;
-    r.org = sp.node_box.lo + sp.node_box.extent() * Vec3(u(rng), u(rng), u(rng));
-    r.org[sp.axis] = sp.position;
-    r.dir = Vec3(s(rng), s(rng), s(rng));
-    r.dir[sp.axis] = 0.0f;
-    if (i % 2) r.org = r.org - r.dir * 3.0f;  // start outside the node, still in the plane
-    if (r.dir == Vec3(0.0f)) r.dir[(sp.axis + 1) % 3] = 1.0f;
-    rays.push_back(r);
-  }
-  check_rays(m, rays, 0.25f, "in split planes");
-}
-
-TEST(HybridExtremeRays, OriginsOnCellBoundaries) {
-  const Mesh m = extreme_scene();
-  std::mt19937 rng(5);
-  std::uniform_int_distribution<int> k(-1, 9);
-  std::uniform_real_distribution<float> s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 6000; ++i) {
-    Ray r;
-    r.org = Vec3(float(k(rng)), float(k(rng)), float(k(rng))) * 0.25f;  // lattice points
-    r.dir = Vec3(s(rng), s(rng), s(rng));
-    if (i % 3 == 0)
-      r.dir = Vec3(1.0f, 1.0f, 1.0f) * (i % 2 ? 1.0f : -1.0f);  // through cell corners
-    rays.push_back(r);
-  }
-  check_rays(m, rays, 0.25f, "origins on cell boundaries");
-}
-
-TEST(HybridExtremeRays, OriginsInsideAndOutsideRootBox) {
-  const Mesh m = extreme_scene();
-  std::mt19937 rng(6);
-  std::uniform_real_distribution<float> in(0.01f, 1.99f), out(4.0f, 10.0f), s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 6000; ++i) {
-    Ray r;
-    if (i % 2) {
-      r.org = Vec3(in(rng), in(rng), in(rng));
-      r.dir = Vec3(s(rng), s(rng), s(rng));
-    } else {
-      r.org = Vec3(1.0f) + normalize(Vec3(s(rng), s(rng), s(rng))) * out(rng);
-      r.dir = Vec3(1.0f) + Vec3(s(rng), s(rng), s(rng)) - r.org;  // towards the box
-    }
-    rays.push_back(r);
-  }
-  check_rays(m, rays, 0.25f, "origins inside/outside");
-}
-
-TEST(HybridExtremeRays, RaysMissingTheBox) {
-  const Mesh m = extreme_scene();
-  GridKdHybrid h;
-  h.build(m, params_with(0.25f, false));
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<float> s(-1.0f, 1.0f);
-  for (int i = 0; i < 5000; ++i) {
-    Ray r;
-    // From beside the box, pointing away or passing by.
-    r.org = Vec3(5.0f + s(rng), s(rng), s(rng));
-    r.dir = Vec3(std::abs(s(rng)) + 0.01f, s(rng), s(rng));
-    if (i % 3 == 0) r.dir = Vec3(0.0f, 1.0f, -0.0f);  // parallel to the box, outside its slab
-    if (i % 3 == 1) {                                 // pointing at the box but ending before it
-      r.dir = Vec3(-1.0f, 0.0f, 0.0f);
-      r.org = Vec3(5.0f, 1.0f, 1.0f);
-      r.tmax = 2.0f;
-    }
+  h.build(test::extreme_scene(), params_with(test::kExtremeCell, false));
+  for (const Ray& r : test::rays_beside_the_box(1500, 7)) {
     Hit hit;
     RayCounters c;
     EXPECT_FALSE(h.intersect_counted(r, hit, c));
-    EXPECT_FALSE(h.occluded(r));
     EXPECT_EQ(c.steps, 0u);  // rejected by the root-box clip without a lookup
-  }
-}
-
-TEST(HybridExtremeRays, RaysGrazingTheSceneBoxEdgesAndCorners) {
-  // The walk first clips rays to the grid's box in float, before the exact clip: that box is
-  // widened so that rounding never rejects a ray that reaches the grid. A cube of 12 triangles
-  // is its own scene box; rays from far away aimed at points of its edges and corners touch
-  // the box (and the triangles) in a single point or segment, far from the origin and near it.
-  // Origins 50-150 units away, and (offset 0) 1e4 and 1e6 away, where the rounding of the
-  // float pre-clip grows with the origin's coordinates rather than the box's.
-  struct Case {
-    float offset, distance;
-  };
-  for (const Case cs : {Case{0.0f, 50.0f}, Case{1e3f, 50.0f}, Case{1e5f, 50.0f}, Case{0.0f, 1e4f},
-                        Case{0.0f, 1e6f}}) {
-    const float offset = cs.offset;
-    Mesh m;
-    const Vec3 lo(offset, offset * 0.5f, -offset), hi = lo + Vec3(1.0f, 2.0f, 0.5f);
-    const Vec3 c[8] = {{lo.x, lo.y, lo.z}, {hi.x, lo.y, lo.z}, {lo.x, hi.y, lo.z},
-                       {hi.x, hi.y, lo.z}, {lo.x, lo.y, hi.z}, {hi.x, lo.y, hi.z},
-                       {lo.x, hi.y, hi.z}, {hi.x, hi.y, hi.z}};
-    for (const Vec3& p : c) m.positions.push_back(p);
-    const uint32_t quads[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1},
-                                  {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
-    for (const auto& q : quads) {
-      m.triangles.push_back({q[0], q[1], q[2]});
-      m.triangles.push_back({q[0], q[2], q[3]});
-    }
-    std::mt19937 rng(11);
-    std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
-    std::vector<Ray> rays;
-    for (int i = 0; i < 6000; ++i) {
-      // A point on an edge (two coordinates at the box's bounds) or a corner (three).
-      Vec3 target;
-      for (int a = 0; a < 3; ++a) target[a] = lo[a] + (hi[a] - lo[a]) * u(rng);
-      const int fixed = i % 4 == 0 ? 3 : 2, skip = i % 3;
-      for (int a = 0, k = 0; a < 3 && k < fixed; ++a) {
-        if (fixed == 2 && a == skip) continue;
-        target[a] = (rng() & 1) ? hi[a] : lo[a];
-        ++k;
-      }
-      Ray r;
-      r.org = target + Vec3(s(rng), s(rng), s(rng)) * (cs.distance + offset * 1e-3f);
-      r.dir = target - r.org;
-      rays.push_back(r);
-    }
-    const Reference ref = brute_reference(m, rays);
-    int hits = 0;
-    for (const Hit& h : ref.hits) hits += h.valid();
-    const std::string what = "cube at offset " + std::to_string(offset) + ", origins " +
-                             std::to_string(cs.distance) + " away";
-    EXPECT_GT(hits, 1000) << what;
-    GridKdHybrid h;
-    h.build(m, params_with(0.0f, false));
-    EXPECT_EQ(compare(h, m, rays, ref, what), 0);
-  }
-}
-
-TEST(HybridExtremeRays, Scales1eMinus6And1e6AndTranslation1e5) {
-  const Mesh base = extreme_scene();
-  struct Case {
-    float scale;
-    Vec3 offset;
-    const char* what;
-  };
-  const Case cases[] = {{1e-6f, Vec3(0.0f), "scale 1e-6"},
-                        {1e6f, Vec3(0.0f), "scale 1e6"},
-                        {50.0f, Vec3(1e5f, -1e5f, 1e5f), "translation 1e5"}};
-  for (const Case& c : cases) {
-    const Mesh m = transformed(base, c.scale, c.offset);
-    auto rays = random_rays(m, 8000, 99);
-    // Plus exactly-in-plane rays at the transformed cell planes.
-    std::mt19937 rng(8);
-    std::uniform_int_distribution<int> k(0, 8);
-    std::uniform_real_distribution<float> s(-1.0f, 1.0f);
-    for (int i = 0; i < 2000; ++i) {
-      Ray r;
-      r.org = Vec3(float(k(rng)), float(k(rng)), float(k(rng))) * (0.25f * c.scale) + c.offset;
-      r.dir = Vec3(s(rng), s(rng), s(rng));
-      r.dir[i % 3] = 0.0f;
-      rays.push_back(r);
-    }
-    check_rays(m, rays, 0.25f * c.scale, c.what);
-    // And with the auto cell size.
-    const Reference ref = brute_reference(m, rays);
-    GridKdHybrid h;
-    h.build(m, params_with(0.0f, false));
-    EXPECT_EQ(compare(h, m, rays, ref, std::string(c.what) + " auto"), 0);
   }
 }
 

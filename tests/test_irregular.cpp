@@ -13,6 +13,7 @@
 #include "accel/brute.h"
 #include "accel/irregular.h"
 #include "comparator_meshes.h"
+#include "extreme_rays.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -30,28 +31,7 @@ Mesh sphere(int levels) {
   return test::octahedron_sphere(levels);
 }
 
-/// Axis-aligned quads on the planes a = -1, -0.5, 0, 0.5, 1 of each axis, each plane a 4x4
-/// grid of quads over [-1, 1]^2: coplanar triangles, shared edges and many rays in planes.
-Mesh grid_quads() {
-  Mesh m;
-  for (int a = 0; a < 3; ++a) {
-    const int b = (a + 1) % 3, c = (a + 2) % 3;
-    for (int k = 0; k <= 4; ++k)
-      for (int i = 0; i < 4; ++i)
-        for (int j = 0; j < 4; ++j) {
-          Vec3 p[4];
-          const float ui[4] = {float(i), float(i + 1), float(i + 1), float(i)};
-          const float vj[4] = {float(j), float(j), float(j + 1), float(j + 1)};
-          for (int q = 0; q < 4; ++q) {
-            p[q][a] = -1.0f + 0.5f * k;
-            p[q][b] = -1.0f + 0.5f * ui[q];
-            p[q][c] = -1.0f + 0.5f * vj[q];
-          }
-          add_quad(m, p[0], p[1], p[2], p[3]);
-        }
-  }
-  return m;
-}
+using test::grid_quads;
 
 /// Long thin triangles crossing the box: two far corners and a third a hair off the edge.
 Mesh thin_triangles(int n, uint32_t seed) {
@@ -81,16 +61,6 @@ Mesh teapot_in_stadium(int levels) {
   add_quad(m, {-s, -2, -s}, {-s, -2, s}, {-s, h, s}, {-s, h, -s});
   add_quad(m, {s, -2, -s}, {s, -2, s}, {s, h, s}, {s, h, -s});
   return m;
-}
-
-// ---- rays ---------------------------------------------------------------------------------
-
-Vec3 random_dir(std::mt19937& rng) {
-  std::normal_distribution<float> n(0.0f, 1.0f);
-  for (;;) {
-    const Vec3 d(n(rng), n(rng), n(rng));
-    if (length(d) > 1e-3f) return d;
-  }
 }
 
 // ---- comparison with brute force ----------------------------------------------------------
@@ -275,8 +245,11 @@ TEST(Irregular, MergeReducesCellsAndExpansionGrowsBoxes) {
 }
 
 // ---- extreme rays -------------------------------------------------------------------------
+// Agreement with brute force on the extreme-ray families: test_extreme_rays.cpp. Here, what
+// only the irregular grid promises: its step bound, and rays far from the grid take no step.
 
-/// Builds the default grid over m and checks the given rays against brute force.
+/// Builds the default grid over m, and one without merge/expand, and checks the given rays
+/// against brute force and the step bound.
 void check_rays(const Mesh& m, const std::vector<Ray>& rays, const std::string& label,
                 const BuildParams& p = BuildParams()) {
   const Reference ref = reference(m, rays);
@@ -291,185 +264,44 @@ void check_rays(const Mesh& m, const std::vector<Ray>& rays, const std::string& 
   EXPECT_EQ(g.step_bound_hits(), 0u) << label;
 }
 
-TEST(IrregularExtreme, AxisParallelRays) {
-  std::mt19937 rng(21);
-  std::uniform_real_distribution<float> u(-1.3f, 1.3f);
-  for (const Mesh& m : {grid_quads(), random_soup(2000, 3, 0.2f), sphere(4)}) {
-    std::vector<Ray> rays;
-    for (int i = 0; i < 6000; ++i) {
-      Ray r;
-      r.org = Vec3(u(rng), u(rng), u(rng));
-      const int a = i % 3;
-      r.org[a] = (i / 3) % 2 ? -1.5f : 1.5f;
-      r.dir = Vec3(0.0f);
-      r.dir[a] = r.org[a] > 0 ? -1.0f : 1.0f;
-      // Every fourth ray starts on a quad grid line (0.5 multiples) in one other coordinate.
-      if (i % 4 == 0) r.org[(a + 1) % 3] = 0.5f * float(int(u(rng) * 2.0f));
-      rays.push_back(r);
-    }
-    check_rays(m, rays, "axis-parallel");
-  }
-}
-
-TEST(IrregularExtreme, SignedZeroDirectionComponents) {
-  const Mesh m = random_soup(2000, 5, 0.2f);
-  std::mt19937 rng(22);
-  std::uniform_real_distribution<float> u(-1.2f, 1.2f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 6000; ++i) {
-    Ray r;
-    r.org = Vec3(u(rng), u(rng), u(rng));
-    r.dir = Vec3(u(rng), u(rng), u(rng));
-    // Zero one or two components, alternating +0 and -0.
-    const int a = i % 3;
-    r.dir[a] = (i / 3) % 2 ? 0.0f : -0.0f;
-    if (i % 5 == 0) r.dir[(a + 1) % 3] = (i / 5) % 2 ? -0.0f : 0.0f;
-    rays.push_back(r);
-  }
-  check_rays(m, rays, "signed zero");
-  // +0 and -0 give the same answer.
-  IrregularGrid g;
-  g.build(m, BuildParams());
-  for (const Ray& r : rays) {
-    Ray s = r;
-    for (int a = 0; a < 3; ++a)
-      if (s.dir[a] == 0.0f) s.dir[a] = -s.dir[a];
-    Hit h1, h2;
-    ASSERT_EQ(g.intersect(r, h1), g.intersect(s, h2));
-    EXPECT_EQ(h1.prim, h2.prim);
-  }
-}
-
-TEST(IrregularExtreme, RaysInCellPlanes) {
-  for (const Mesh& m : {grid_quads(), sphere(4)}) {
-    IrregularGrid g;
-    g.build(m, BuildParams());
-    const auto res = g.lattice_resolution();
-    std::mt19937 rng(23);
-    std::uniform_real_distribution<float> u(-1.2f, 1.2f);
-    std::vector<Ray> rays;
-    for (int i = 0; i < 6000; ++i) {
-      const int a = i % 3;
-      std::uniform_int_distribution<int32_t> k(0, res[a]);
-      Ray r;
-      r.org = Vec3(u(rng), u(rng), u(rng));
-      r.org[a] = float(g.lattice_plane(a, k(rng)));
-      r.dir = Vec3(u(rng), u(rng), u(rng));
-      r.dir[a] = 0.0f;  // the ray lies in the plane of a lattice face
-      if (i % 2) {      // and half of them also in a second lattice plane
-        const int b = (a + 1) % 3;
-        std::uniform_int_distribution<int32_t> kb(0, res[b]);
-        r.org[b] = float(g.lattice_plane(b, kb(rng)));
-        r.dir[b] = 0.0f;
+TEST(Irregular, StepBoundOnExtremeRays) {
+  const Mesh quads = grid_quads(), soup = random_soup(2000, 5, 0.2f), ball = sphere(4);
+  for (const Mesh* m : {&quads, &soup, &ball}) {
+    std::vector<Ray> rays = test::axis_parallel_rays_from_outside(1000, 21);
+    const auto zeros = test::zero_component_rays(-1.2f, 1.2f, 1000, 22, 5);
+    const auto planes = test::rays_in_lattice_planes(0.5f, -2, 2, -1.2f, 1.2f, 1000, 23);
+    rays.insert(rays.end(), zeros.begin(), zeros.end());
+    rays.insert(rays.end(), planes.begin(), planes.end());
+    for (bool merge_expand : {true, false}) {
+      BuildParams p;
+      p.irregular_merge = p.irregular_expand = merge_expand;
+      IrregularGrid g;
+      g.build(*m, p);
+      for (const Ray& r :
+           test::rays_from_structure_boundaries(test::structure_planes(g, *m, 200), *m, 1000, 24))
+        rays.push_back(r);
+      for (const Ray& r : rays) {
+        Hit h;
+        g.intersect(r, h);
+        g.occluded(r);
       }
-      rays.push_back(r);
+      EXPECT_EQ(g.step_bound_hits(), 0u) << merge_expand;
     }
-    // Rays on the quads' own planes (x = -1 .. 1 step 0.5) sliding along them.
-    for (int i = 0; i < 2000; ++i) {
-      const int a = i % 3;
-      Ray r;
-      r.org = Vec3(u(rng), u(rng), u(rng));
-      r.org[a] = -1.0f + 0.5f * float(i % 5);
-      r.dir = Vec3(u(rng), u(rng), u(rng));
-      r.dir[a] = 0.0f;
-      rays.push_back(r);
-    }
-    check_rays(m, rays, "in planes");
   }
 }
 
-TEST(IrregularExtreme, OriginsOnBoundariesInsideAndOutside) {
-  const Mesh m = sphere(4);
+TEST(Irregular, RaysFarFromTheGridTakeNoStep) {
   IrregularGrid g;
-  g.build(m, BuildParams());
-  const auto res = g.lattice_resolution();
-  std::mt19937 rng(24);
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 9000; ++i) {
-    Ray r;
-    r.dir = random_dir(rng);
-    switch (i % 3) {
-      case 0: {  // on a face of the grid box, or of the mesh box
-        r.org = Vec3(u(rng), u(rng), u(rng));
-        const int a = (i / 3) % 3;
-        if (i % 2)
-          r.org[a] = float(g.lattice_plane(a, (i / 9) % 2 ? 0 : res[a]));
-        else
-          r.org[a] = (i / 9) % 2 ? -1.0f : 1.0f;
-        break;
-      }
-      case 1:  // on a lattice corner inside the grid
-        for (int a = 0; a < 3; ++a)
-          r.org[a] =
-              float(g.lattice_plane(a, std::uniform_int_distribution<int32_t>(0, res[a])(rng)));
-        break;
-      default:  // far outside
-        r.org = normalize(random_dir(rng)) * 50.0f;
-        r.dir = Vec3(u(rng), u(rng), u(rng)) * 0.3f - r.org;
-        break;
-    }
-    rays.push_back(r);
-  }
-  // Origins exactly on triangle vertices.
-  for (size_t i = 0; i < 1000; ++i)
-    rays.push_back({m.positions[(i * 7) % m.positions.size()], 0.0f, random_dir(rng), kInf});
-  check_rays(m, rays, "origins");
-}
-
-TEST(IrregularExtreme, MissesAndDegenerateRays) {
-  const Mesh m = sphere(4);
-  IrregularGrid g;
-  g.build(m, BuildParams());
-  std::mt19937 rng(25);
-  std::vector<Ray> rays;
-  for (int i = 0; i < 3000; ++i) {
-    const Vec3 o = normalize(random_dir(rng)) * 5.0f;
-    rays.push_back({o, 0.0f, o, kInf});                                       // pointing away
-    rays.push_back({o, 0.0f, cross(o, random_dir(rng)) + o * 0.001f, kInf});  // passing by
-    rays.push_back({o, 0.0f, -o, 0.75f});  // stops 1.25 from the centre, short of the sphere
-  }
-  check_rays(m, rays, "misses");
+  g.build(sphere(4), BuildParams());
+  const auto rays = test::rays_missing_the_sphere(1000, 25);
   for (size_t i = 0; i < rays.size(); ++i) {
     RayCounters c;
     Hit h;
     EXPECT_FALSE(g.intersect_counted(rays[i], h, c));
-    // The first two kinds never come within 5 of the centre, so they never enter the grid.
+    // Pointing away and passing by never come within 5 of the centre: they never enter.
     if (i % 3 != 2) {
       EXPECT_EQ(c.steps, 0u);
     }
-  }
-  // Invalid rays miss without traversing.
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  Hit h;
-  EXPECT_FALSE(g.intersect({Vec3(0.0f), 0.0f, Vec3(0.0f), kInf}, h));
-  EXPECT_FALSE(g.intersect({Vec3(nan, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
-  EXPECT_FALSE(g.intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, nan, 0), kInf}, h));
-  EXPECT_FALSE(g.occluded({Vec3(-5, 0, 0), 0.0f, Vec3(kInf, 0, 0), kInf}));
-  EXPECT_FALSE(g.intersect({Vec3(-5, 0, 0), 2.0f, Vec3(1, 0, 0), 2.0f}, h));  // empty segment
-  EXPECT_TRUE(g.intersect({Vec3(-5, 0, 0), 0.0f, Vec3(1, 0, 0), kInf}, h));
-  EXPECT_NEAR(h.t, 4.0f, 1e-2f);
-}
-
-TEST(IrregularExtreme, TinyHugeAndTranslatedScenes) {
-  const Mesh base = random_soup(1500, 6, 0.2f);
-  const auto base_rays = random_rays(base, 6000, 26);
-  const struct {
-    float scale;
-    Vec3 translate;
-  } cases[] = {{1e-6f, Vec3(0.0f)},
-               {1e6f, Vec3(0.0f)},
-               {1.0f, Vec3(1e5f, -1e5f, 1e5f)},
-               {1e3f, Vec3(1e5f, 0.0f, 0.0f)}};
-  for (const auto& c : cases) {
-    const Mesh m = transformed(base, c.scale, c.translate);
-    std::vector<Ray> rays = base_rays;
-    for (Ray& r : rays) {
-      r.org = r.org * c.scale + c.translate;
-      r.dir = r.dir * c.scale;  // t is in units of dir, so tmin/tmax keep their meaning
-    }
-    check_rays(m, rays,
-               "scale " + std::to_string(c.scale) + " translate " + std::to_string(c.translate.x));
   }
 }
 

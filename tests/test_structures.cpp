@@ -1,8 +1,8 @@
 // The checks every acceleration structure must pass, written once and run for each name the
 // factory knows (accelerator_names()): agreement with brute force on the procedural meshes,
-// the Möller-Trumbore variant against brute-force Möller, +0/-0 direction components,
-// counted and traced traversal against the fast path, and registration in the factory. What
-// is particular to one structure stays in its own triangle_test_<structure>.cpp.
+// the Möller-Trumbore variant against brute-force Möller, counted and traced traversal against
+// the fast path, and registration in the factory. The extreme-ray families are in
+// test_extreme_rays.cpp; what is particular to one structure stays in its own test_<name>.cpp.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -36,13 +36,6 @@ std::vector<std::string> own_structures() {
   return out;
 }
 
-/// Structures whose trace lists steps in order of t and ends in the leaf of the hit, as
-/// test::check_counted_and_trace requires. BVH nodes overlap: its trace is in visiting order
-/// and the hit may lie in an earlier leaf (test_bvh.cpp checks its trace).
-bool trace_in_t_order(const std::string& name) {
-  return name != "bvh";
-}
-
 /// Instance names are the structure names ("Structures/grid", "Structures/embree_robust").
 std::string structure_name(const ::testing::TestParamInfo<std::string>& info) {
   return test::test_name(info.param);
@@ -69,17 +62,6 @@ TEST_P(Structures, AgreesWithBruteForceOnProceduralMeshes) {
 TEST_P(Structures, MollerVariantAgreesWithBruteForceMoller) {
   auto acc = make_accelerator(GetParam());
   EXPECT_EQ(test::moller_mismatches(*acc), 0);
-}
-
-TEST_P(Structures, SignedZeroDirections) {
-  const Mesh mesh = test::sphere(16, 32);
-  auto acc = make_accelerator(GetParam());
-  acc->build(mesh, BuildParams{});
-  const auto rays = test::signed_zero_rays();
-  EXPECT_EQ(count_disagreements(mesh, *acc, rays), 0);
-  if (trace_in_t_order(GetParam())) {
-    EXPECT_EQ(test::check_counted_and_trace(*acc, rays), 0);
-  }
 }
 
 TEST_P(TracedStructures, CountedAndTracedTraversalMatchFastPath) {

@@ -206,21 +206,37 @@ inline std::vector<Ray> random_rays(const Mesh& m, int n, uint32_t seed) {
   return rays;
 }
 
-/// Agreement of `acc` with brute force on `rays`: closest t within 1e-5 relative, the same
-/// triangle unless tied (the reported triangle's own t equals the reference t), identical
-/// any-hit. Returns the number of rays that disagree; reports the first few.
-/// `t_tol` is the relative t tolerance (Embree's own triangle test needs a looser one).
-inline int count_disagreements(const Mesh& mesh, const Accelerator& acc,
-                               const std::vector<Ray>& rays, int report = 5,
-                               int* hits_out = nullptr, double t_tol = 1e-5) {
+/// Brute force's answers for a ray set: closest hit and any-hit per ray.
+struct BruteReference {
+  std::vector<Hit> hits;
+  std::vector<char> occluded;
+};
+
+inline BruteReference brute_answers(const Mesh& mesh, const std::vector<Ray>& rays) {
   BruteForce brute;
-  BuildParams p;
-  brute.build(mesh, p);
+  brute.build(mesh, BuildParams{});
+  BruteReference ref;
+  ref.hits.resize(rays.size());
+  ref.occluded.resize(rays.size());
+  for (size_t i = 0; i < rays.size(); ++i) {
+    brute.intersect(rays[i], ref.hits[i]);
+    ref.occluded[i] = brute.occluded(rays[i]);
+  }
+  return ref;
+}
+
+/// Agreement of `acc` with brute force's answers `ref` on `rays`: closest t within `t_tol`
+/// relative, the same triangle unless tied (the reported triangle's own t equals the reference
+/// t), identical any-hit. Returns the number of rays that disagree; reports the first `report`.
+inline int count_disagreements(const Mesh& mesh, const Accelerator& acc,
+                               const std::vector<Ray>& rays, const BruteReference& ref,
+                               int report = 5, int* hits_out = nullptr, double t_tol = 1e-5) {
   int bad = 0, hits = 0;
   for (size_t i = 0; i < rays.size(); ++i) {
     const Ray& r = rays[i];
-    Hit hr, ha;
-    const bool br = brute.intersect(r, hr), ba = acc.intersect(r, ha);
+    const Hit& hr = ref.hits[i];
+    Hit ha;
+    const bool br = hr.valid(), ba = acc.intersect(r, ha);
     bool ok = br == ba;
     if (ok && br) {
       ++hits;
@@ -235,7 +251,7 @@ inline int count_disagreements(const Mesh& mesh, const Accelerator& acc,
              std::fabs(double(t) - double(hr.t)) <= tol;
       }
     }
-    const bool oa = acc.occluded(r), orf = brute.occluded(r);
+    const bool oa = acc.occluded(r), orf = ref.occluded[i];
     if (oa != orf) ok = false;
     if (!ok) {
       if (bad < report)
@@ -249,6 +265,13 @@ inline int count_disagreements(const Mesh& mesh, const Accelerator& acc,
   }
   if (hits_out) *hits_out = hits;
   return bad;
+}
+
+/// count_disagreements against a brute-force reference computed here.
+inline int count_disagreements(const Mesh& mesh, const Accelerator& acc,
+                               const std::vector<Ray>& rays, int report = 5,
+                               int* hits_out = nullptr, double t_tol = 1e-5) {
+  return count_disagreements(mesh, acc, rays, brute_answers(mesh, rays), report, hits_out, t_tol);
 }
 
 /// The named procedural meshes every structure is checked on.
