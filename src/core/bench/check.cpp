@@ -504,14 +504,18 @@ const std::vector<std::string>& check_ray_families() {
   return names;
 }
 
+CheckCase make_check_case(const std::string& name, Mesh mesh, int n, uint64_t seed) {
+  CheckCase c;
+  c.name = name;
+  c.mesh = std::move(mesh);
+  add_generic_rays(c, n, seed);
+  return c;
+}
+
 std::vector<CheckCase> make_check_cases(int n, uint64_t seed) {
   std::vector<CheckCase> cases;
   auto add = [&](const std::string& name, Mesh m) {
-    CheckCase c;
-    c.name = name;
-    c.mesh = std::move(m);
-    add_generic_rays(c, n, seed + cases.size() * 7919);
-    cases.push_back(std::move(c));
+    cases.push_back(make_check_case(name, std::move(m), n, seed + cases.size() * 7919));
   };
   const Mesh sphere = named_mesh("sphere", 0, seed);
   add("sphere", sphere);
