@@ -106,16 +106,15 @@ std::optional<Candidate> degenerate_candidate(const Ray& r, uint32_t prim, const
     const Approach ap = closest_approach(d, t0, t1, a, b);
     if (ap.dist > 4.0 * reach || ap.dist >= best_dist) continue;
     best_dist = ap.dist;
-    // Depth range of the edge's ends: the most the hit's t can be off when the ray runs
-    // along the segment.
-    const double ta = dot(a, d) / (dl * dl), tb = dot(b, d) / (dl * dl);
+    // The corners' depths about the closest approach: the most the hit's t can be off when
+    // the ray runs along the segment (all three edges lie on its line), and for a ray that
+    // starts on the segment, where a test that is not watertight (Embree's) finds every edge
+    // function lost in rounding and may report any depth along the triangle.
+    double span = 0;
+    for (const Vec3d* v : vs) span = std::max(span, std::fabs(dot(*v, d) / (dl * dl) - ap.t));
     const double along = ap.sine > 0 ? 4.0 * reach / (dl * ap.sine) : kInf;
-    double unc = tol + std::min(along, std::fabs(tb - ta) + 4.0 * reach / dl);
-    // A ray that starts on the segment crosses its line there, where a test that is not
-    // watertight (Embree's) finds every edge function lost in rounding and may report any
-    // depth along the triangle: the corners' depth range about that start.
-    if (closest_approach(d, t0, t0, a, b).dist <= 4.0 * reach)
-      for (const Vec3d* v : vs) unc = std::max(unc, tol + std::fabs(dot(*v, d) / (dl * dl) - ap.t));
+    double unc = tol + std::min(along, span + 4.0 * reach / dl);
+    if (closest_approach(d, t0, t0, a, b).dist <= 4.0 * reach) unc = std::max(unc, tol + span);
     best = Candidate{ap.t, prim, unc, false, true};
   }
   return best;
@@ -196,7 +195,7 @@ Reference compute_reference(const Mesh& mesh, const Ray& r, double scene_scale) 
   }
   std::sort(loose.begin(), loose.end(), [](auto& a, auto& b) { return a.t < b.t; });
   for (const auto& cnd : loose) {
-    if (cnd.t - cnd.t_unc > ref.t_strict + ref.t_strict_unc) break;
+    if (cnd.t - cnd.t_unc > ref.t_strict + ref.t_strict_unc) continue;  // t_unc differ: no break
     ref.loose.push_back(cnd);
   }
   // Hits at the origin (t ~ tmin) may be reported or not. Beyond it, an edge/vertex-only hit
