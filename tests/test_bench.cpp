@@ -1088,6 +1088,16 @@ TEST(Sweep, CellsizeHasAnAutoRow) {
   const SweepTable t = run_sweep(o);
   ASSERT_EQ(t.rows.size(), 3u);
   EXPECT_EQ(std::get<std::string>(t.rows[0][0]), "auto");
+  // Accuracy beside speed: every cell size judged by check's reference, none contradicting it.
+  auto col = [&](const std::string& n) {
+    return size_t(std::find(t.columns.begin(), t.columns.end(), n) - t.columns.begin());
+  };
+  for (const auto& row : t.rows) {
+    EXPECT_GT(std::get<double>(row.at(col("check_rays"))), 0.0);
+    EXPECT_GT(std::get<double>(row.at(col("check_agree"))), 0.0);
+    EXPECT_EQ(std::get<double>(row.at(col("check_disagree"))), 0.0);
+    EXPECT_EQ(std::get<double>(row.at(col("check_leaks"))), 0.0) << "a closed box, watertight";
+  }
 }
 
 TEST(Sweep, RejectsBadInput) {

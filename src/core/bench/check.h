@@ -34,6 +34,9 @@ struct CheckCase {
 /// Names of the ray families ("random", "axis-parallel", "signed-zero", ...).
 const std::vector<std::string>& check_ray_families();
 
+/// A scene of one's own with the suite's generic ray families (rays_per_family rays each).
+CheckCase make_check_case(const std::string& name, Mesh mesh, int rays_per_family, uint64_t seed);
+
 /// The scenes and rays of the suite. rays_per_family rays of each family per scene.
 std::vector<CheckCase> make_check_cases(int rays_per_family, uint64_t seed);
 

@@ -11,10 +11,13 @@
 #include <map>
 #include <sstream>
 
+#include <tbb/parallel_for.h>
+
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
 #include "bench/bench.h"
+#include "bench/check.h"
 #include "bench/raysets.h"
 #include "image/image_io.h"
 #include "math/simd.h"
@@ -165,6 +168,30 @@ void say_row(const SweepOptions& o, const std::string& label, const Measured& m)
              " steps, " + format_double("%.1f", m.tests) + " tests per ray");
 }
 
+/// Rays per ray family of kdgrid check judged per row of the cell-size sweep (each is tested
+/// against every triangle in double precision).
+constexpr int kSweepCheckRaysPerFamily = 8;
+
+/// judge_accelerator's counts, plus the closest-hit answers that AccuracyReference calls
+/// leaks (slipped through a closed edge or vertex), on the case's own rays.
+struct CheckAccuracy {
+  uint64_t rays = 0, agree = 0, ambiguous = 0, disagree = 0, any_disagree = 0, leaks = 0;
+};
+
+CheckAccuracy judge_accuracy(const Accelerator& accel, const CheckCase& c) {
+  const CheckResult r = judge_accelerator(accel, c);
+  CheckAccuracy a{r.rays, r.agree, r.ambiguous, r.disagree, r.any_disagree, 0};
+  const AccuracyReference ref(c.mesh);
+  std::vector<uint8_t> leak(c.rays.size());
+  tbb::parallel_for(size_t(0), c.rays.size(), [&](size_t i) {
+    Hit h;
+    const bool hit = accel.intersect(c.rays[i], h);
+    leak[i] = ref.judge_closest(c.rays[i], hit, h) == AccuracyVerdict::Leak;
+  });
+  a.leaks = uint64_t(std::count(leak.begin(), leak.end(), uint8_t(1)));
+  return a;
+}
+
 // ---- cellsize, lambda, kdcost --------------------------------------------------------------
 
 void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
@@ -172,7 +199,9 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
   const Mesh& mesh = s.scene.mesh;
   BuildParams p = o.params;
   p.cell_size = 0.0f;
-  const Measured autom = measure_primary("hybrid", mesh, p, s.rays, o.reps, s.embree.get());
+  std::unique_ptr<Accelerator> auto_accel;
+  const Measured autom =
+      measure_primary("hybrid", mesh, p, s.rays, o.reps, s.embree.get(), &auto_accel);
   if (!autom.error.empty()) throw Error("hybrid with the auto cell size: " + autom.error);
   const std::string auto_str = extra_of(autom.stats, "cell_size");
   const double auto_cell = std::strtod(auto_str.c_str(), nullptr);
@@ -180,22 +209,38 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
     throw Error("hybrid did not report its auto cell size in BuildStats::extra[\"cell_size\"]");
   t.notes.emplace_back("auto_cell_size", auto_str);
   t.notes.emplace_back("auto_rule", extra_of(autom.stats, "auto rule"));
-  auto add = [&](const std::string& label, double mult, const Measured& m) {
+  // Accuracy beside speed: each cell size's hybrid judged by check's double-precision
+  // reference on the suite's ray families over this scene.
+  const CheckCase check = make_check_case("sweep", mesh, kSweepCheckRaysPerFamily, 1);
+  t.notes.emplace_back("check_rays", std::to_string(kSweepCheckRaysPerFamily) +
+                                         " rays per family of kdgrid check's ray families");
+  auto add = [&](const std::string& label, double mult, const Measured& m,
+                 const Accelerator* accel) {
     auto cells =
         std::vector<std::pair<std::string, SweepValue>>{{"label", label},
                                                         {"multiplier", mult},
                                                         {"cell_size", mult * auto_cell},
                                                         {"grid", extra_of(m.stats, "grid")}};
     for (auto& c : measured_cells(m, mesh.num_triangles())) cells.push_back(c);
+    if (accel) {
+      const CheckAccuracy a = judge_accuracy(*accel, check);
+      cells.insert(cells.end(), {{"check_rays", double(a.rays)},
+                                 {"check_agree", double(a.agree)},
+                                 {"check_ambiguous", double(a.ambiguous)},
+                                 {"check_disagree", double(a.disagree)},
+                                 {"check_any_disagree", double(a.any_disagree)},
+                                 {"check_leaks", double(a.leaks)}});
+    }
     t.add_row(cells);
     say_row(o, label, m);
   };
-  add("auto", 1.0, autom);
+  add("auto", 1.0, autom, auto_accel.get());
   for (double mult : o.values) {
     BuildParams q = o.params;
     q.cell_size = float(mult * auto_cell);
-    add(format_double("%gx", mult), mult,
-        measure_primary("hybrid", mesh, q, s.rays, o.reps, s.embree.get()));
+    std::unique_ptr<Accelerator> accel;
+    const Measured m = measure_primary("hybrid", mesh, q, s.rays, o.reps, s.embree.get(), &accel);
+    add(format_double("%gx", mult), mult, m, accel.get());
   }
 }
 

@@ -2,7 +2,9 @@
 // everything else fixed, each row measured on the same primary rays. Results are a table
 // (columns + rows) written as CSV and JSON for scripts/plot.
 //
-//   cellsize  hybrid basic cell size as multiples of the auto size (plus the auto row)
+//   cellsize  hybrid basic cell size as multiples of the auto size (plus the auto row); each
+//             row also judged by kdgrid check's reference on its ray families over the scene
+//             (check_agree / check_ambiguous / check_disagree / check_leaks)
 //   lambda    uniform grid density, cells per triangle
 //   kdcost    kd-tree SAH cost ratio, triangle test / traversal step
 //   triangle  watertight vs Möller-Trumbore: Mrays/s on primary rays per structure, and the
