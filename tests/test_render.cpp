@@ -659,7 +659,7 @@ TEST(RenderCli, ReportsBadArgumentsBeforeRendering) {
 
   r = run_cli("render " + scene + " -o " + out + " --accel brute --heatmap nodes");
   EXPECT_EQ(r.code, 1) << r.output;
-  EXPECT_TRUE(contains(r.output, "steps or tests")) << r.output;
+  EXPECT_TRUE(contains(r.output, "steps, tests or time")) << r.output;
 
   r = run_cli("render " + scene + " -o " + out + " --accel nope");
   EXPECT_EQ(r.code, 1) << r.output;
