@@ -1097,6 +1097,8 @@ TEST(Sweep, CellsizeHasAnAutoRow) {
     EXPECT_GT(std::get<double>(row.at(col("check_agree"))), 0.0);
     EXPECT_EQ(std::get<double>(row.at(col("check_disagree"))), 0.0);
     EXPECT_EQ(std::get<double>(row.at(col("check_leaks"))), 0.0) << "a closed box, watertight";
+    EXPECT_GT(std::get<double>(row.at(col("acne_rays"))), 0.0);
+    EXPECT_EQ(std::get<double>(row.at(col("acne_self_hits"))), 0.0) << "the robust offset";
   }
 }
 

@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "accel/accelerator.h"
+#include "bench/probes.h"
 #include "math/segment.h"
 #include "render/renderer.h"
 #include "scene/procedural.h"
@@ -703,15 +704,60 @@ AccuracyVerdict AccuracyReference::judge_occluded(const Ray& r, bool occluded) c
   return ambiguous ? AccuracyVerdict::Ambiguous : AccuracyVerdict::Agree;
 }
 
+namespace {
+/// A point on a triangle and a direction leaving it on one side (the side ng faces).
+struct AcneSample {
+  Vec3 p, ng, d;
+  uint32_t prim;
+};
+/// `count` seeded points on random triangles of `m`, each leaving the front or the back.
+std::vector<AcneSample> acne_samples(const Mesh& m, int count, Rng& rng) {
+  std::vector<AcneSample> samples;
+  samples.reserve(size_t(std::max(count, 0)));
+  for (int i = 0; i < count; ++i) {
+    const uint32_t prim = uint32_t(rng.below(m.num_triangles()));
+    const auto cr = m.corners(prim);
+    Vec3 ng = cross(cr[1] - cr[0], cr[2] - cr[0]);
+    if (length(ng) == 0 || !is_finite(ng)) continue;
+    ng = normalize(ng);
+    float u = rng.uniform(0, 1), v = rng.uniform(0, 1);
+    if (u + v > 1) {
+      u = 1 - u;
+      v = 1 - v;
+    }
+    Vec3 d = rng.direction();
+    if (dot(d, ng) < 0) d = -d;
+    const bool back = rng.below(2) != 0;
+    samples.push_back(
+        {cr[0] * (1 - u - v) + cr[1] * u + cr[2] * v, back ? -ng : ng, back ? -d : d, prim});
+  }
+  return samples;
+}
+/// How many of the rays make_ray makes of the samples hit their own triangle first.
+template <class MakeRay>
+uint64_t self_hits(const Accelerator& accel, const std::vector<AcneSample>& samples,
+                   MakeRay make_ray) {
+  uint64_t n = 0;
+  for (const AcneSample& s : samples) {
+    Hit h;
+    n += accel.intersect(make_ray(s), h) && h.prim == s.prim;
+  }
+  return n;
+}
+}  // namespace
+
+uint64_t count_self_hits(const Accelerator& accel, const Mesh& mesh, int rays, uint64_t seed) {
+  Rng rng(seed);
+  return self_hits(accel, acne_samples(mesh, rays, rng), [&mesh](const AcneSample& s) {
+    return Ray{offset_ray_origin(s.p, s.ng, mesh.corners(s.prim)), 0.0f, s.d, kInf};
+  });
+}
+
 std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float epsilon) {
   std::vector<AcneResult> out;
   const Mesh base = named_mesh("soup", 2000, seed);
   const double scales[] = {1e-4, 1e-2, 1.0, 1e2, 1e4};
   const double shifts[] = {0.0, 1e3, 1e5};
-  struct Sample {
-    Vec3 p, ng, d;  ///< surface point, geometric normal on the leaving side, direction
-    uint32_t prim;
-  };
   for (double shift : shifts) {
     for (double scale : scales) {
       const Mesh m = transformed(base, scale, Vec3(float(shift)));
@@ -721,68 +767,28 @@ std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float 
       r.translation = shift;
       r.epsilon = epsilon;
       Rng rng(seed ^ uint64_t(scale * 1e6) ^ uint64_t(shift));
-      std::vector<Sample> samples;
-      samples.reserve(size_t(std::max(rays_per_scale, 0)));
-      for (int i = 0; i < rays_per_scale; ++i) {
-        const uint32_t prim = uint32_t(rng.below(m.num_triangles()));
-        const auto cr = m.corners(prim);
-        Vec3 ng = cross(cr[1] - cr[0], cr[2] - cr[0]);
-        if (length(ng) == 0 || !is_finite(ng)) continue;
-        ng = normalize(ng);
-        float u = rng.uniform(0, 1), v = rng.uniform(0, 1);
-        if (u + v > 1) {
-          u = 1 - u;
-          v = 1 - v;
-        }
-        const Vec3 p = cr[0] * (1 - u - v) + cr[1] * u + cr[2] * v;
-        Vec3 d = rng.direction();
-        if (dot(d, ng) < 0) d = -d;  // leave on the front side
-        if (rng.below(2)) {
-          ng = -ng;
-          d = -d;
-        }  // and on the back side
-        samples.push_back({p, ng, d, prim});
-      }
-      // The two policies: the robust offset moves the origin off the surface along the
-      // normal; the fixed epsilon keeps the origin and skips hits closer than tmin.
-      auto robust_ray = [&m](const Sample& s) {
+      const std::vector<AcneSample> samples = acne_samples(m, rays_per_scale, rng);
+      // Policies: robust moves the origin off the surface; epsilon skips hits before tmin.
+      auto robust_ray = [&m](const AcneSample& s) {
         return Ray{offset_ray_origin(s.p, s.ng, m.corners(s.prim)), 0.0f, s.d, kInf};
       };
-      auto epsilon_ray = [epsilon](const Sample& s) { return Ray{s.p, epsilon, s.d, kInf}; };
+      auto epsilon_ray = [epsilon](const AcneSample& s) { return Ray{s.p, epsilon, s.d, kInf}; };
       r.rays = samples.size();
-      for (const Sample& s : samples) {
-        Hit h;
-        if (accel->intersect(robust_ray(s), h) && h.prim == s.prim) ++r.robust_self_hits;
-        Hit he;
-        if (accel->intersect(epsilon_ray(s), he) && he.prim == s.prim) ++r.epsilon_self_hits;
-      }
+      r.robust_self_hits = self_hits(*accel, samples, robust_ray);
+      r.epsilon_self_hits = self_hits(*accel, samples, epsilon_ray);
       // Speed of each policy: making the ray and its closest-hit query, one thread.
       volatile uint64_t sink = 0;  // keeps the traced answers alive
       auto timed = [&](auto make_ray) {
-        uint64_t hits = 0;
         const auto t0 = std::chrono::steady_clock::now();
-        for (const Sample& s : samples) {
-          Hit h;
-          hits += accel->intersect(make_ray(s), h);
-        }
-        const auto t1 = std::chrono::steady_clock::now();
-        sink = sink + hits;
-        return std::chrono::duration<double>(t1 - t0).count();
+        sink = sink + self_hits(*accel, samples, make_ray);
+        return seconds_since(t0);
       };
       std::vector<double> robust_s, epsilon_s;
-      for (int rep = 0; rep < kAcneTimingReps; ++rep) {
-        if (rep % 2 == 0) {
-          robust_s.push_back(timed(robust_ray));
-          epsilon_s.push_back(timed(epsilon_ray));
-        } else {
-          epsilon_s.push_back(timed(epsilon_ray));
-          robust_s.push_back(timed(robust_ray));
-        }
+      for (int rep = 0; rep < kAcneTimingReps; ++rep) {  // which policy goes first alternates
+        if (rep % 2 == 1) epsilon_s.push_back(timed(epsilon_ray));
+        robust_s.push_back(timed(robust_ray));
+        if (rep % 2 == 0) epsilon_s.push_back(timed(epsilon_ray));
       }
-      auto median = [](std::vector<double> v) {
-        std::sort(v.begin(), v.end());
-        return v[v.size() / 2];
-      };
       r.robust_seconds = median(robust_s);
       r.epsilon_seconds = median(epsilon_s);
       out.push_back(r);

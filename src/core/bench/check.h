@@ -126,5 +126,9 @@ inline constexpr int kAcneTimingReps = 5;
 /// The acne study's scene and structure, for reports.
 inline constexpr const char* kAcneSceneDescription = "2000-triangle random soup, bvh";
 std::vector<AcneResult> run_acne_study(int rays_per_scale, uint64_t seed, float epsilon = 1e-4f);
+/// Surface acne of one structure: of `rays` rays leaving seeded random points of the mesh's
+/// triangles (either side, offset by offset_ray_origin, random directions), how many re-hit
+/// their own triangle first.
+uint64_t count_self_hits(const Accelerator& accel, const Mesh& mesh, int rays, uint64_t seed);
 
 }  // namespace kdgrid

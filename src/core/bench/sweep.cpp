@@ -171,6 +171,8 @@ void say_row(const SweepOptions& o, const std::string& label, const Measured& m)
 /// Rays per ray family of kdgrid check judged per row of the cell-size sweep (each is tested
 /// against every triangle in double precision).
 constexpr int kSweepCheckRaysPerFamily = 8;
+/// Rays leaving the scene's surfaces per row of the cell-size sweep, for its acne column.
+constexpr int kSweepAcneRays = 2000;
 
 /// judge_accelerator's counts, plus the closest-hit answers that AccuracyReference calls
 /// leaks (slipped through a closed edge or vertex), on the case's own rays.
@@ -224,12 +226,15 @@ void sweep_cellsize(const SweepOptions& o, SweepTable& t) {
     for (auto& c : measured_cells(m, mesh.num_triangles())) cells.push_back(c);
     if (accel) {
       const CheckAccuracy a = judge_accuracy(*accel, check);
-      cells.insert(cells.end(), {{"check_rays", double(a.rays)},
-                                 {"check_agree", double(a.agree)},
-                                 {"check_ambiguous", double(a.ambiguous)},
-                                 {"check_disagree", double(a.disagree)},
-                                 {"check_any_disagree", double(a.any_disagree)},
-                                 {"check_leaks", double(a.leaks)}});
+      cells.insert(cells.end(),
+                   {{"check_rays", double(a.rays)},
+                    {"check_agree", double(a.agree)},
+                    {"check_ambiguous", double(a.ambiguous)},
+                    {"check_disagree", double(a.disagree)},
+                    {"check_any_disagree", double(a.any_disagree)},
+                    {"check_leaks", double(a.leaks)},
+                    {"acne_rays", double(kSweepAcneRays)},
+                    {"acne_self_hits", double(count_self_hits(*accel, mesh, kSweepAcneRays, 1))}});
     }
     t.add_row(cells);
     say_row(o, label, m);

@@ -4,7 +4,9 @@
 //
 //   cellsize  hybrid basic cell size as multiples of the auto size (plus the auto row); each
 //             row also judged by kdgrid check's reference on its ray families over the scene
-//             (check_agree / check_ambiguous / check_disagree / check_leaks)
+//             (check_agree / check_ambiguous / check_disagree / check_leaks), and for acne:
+//             rays leaving random surface points that re-hit their own triangle
+//             (acne_rays / acne_self_hits)
 //   lambda    uniform grid density, cells per triangle
 //   kdcost    kd-tree SAH cost ratio, triangle test / traversal step
 //   triangle  watertight vs Möller-Trumbore: Mrays/s on primary rays per structure, and the
