@@ -156,7 +156,7 @@ TEST(MemoryGuard, EveryStructureRefusesATinyBudgetBeforeAllocating) {
     EXPECT_NE(msg.find("memory budget of 1 MiB"), std::string::npos) << msg;
     EXPECT_NE(msg.find("--memory-budget-mb"), std::string::npos) << msg;
     EXPECT_NE(msg.find("MiB at its peak"), std::string::npos) << msg;
-    EXPECT_LT(secs, 0.5) << msg;
+    EXPECT_LT(secs, 5.0) << msg;  // refused from its estimate, before building anything
     // Every structure needs at least 20 MB here (>= 100 bytes per triangle).
     if (phase) {
       EXPECT_LT(grew, uint64_t(4) << 20) << "the refused build allocated " << grew;
