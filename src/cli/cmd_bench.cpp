@@ -58,8 +58,7 @@ void add_bench_command(CLI::App& app) {
                   "Run only these scenes of the suite, by name (comma-separated), e.g. sponza");
   cmd->add_option("--sets", a->sets, "Ray sets: primary, shadow, diffuse (comma-separated)")
       ->capture_default_str();
-  cmd->add_option("--threads", a->threads, "Tracing threads (tbb::global_control); 0 = all")
-      ->capture_default_str();
+  add_threads_option(cmd, a->threads);
   cmd->add_option("--reps", a->reps, "Timed repetitions per set; the median is reported")
       ->capture_default_str();
   cmd->add_option("--res", a->res, "Primary rays: W or WxH pixels (docs/RAYSETS.md: 1024)")

@@ -90,7 +90,7 @@ void add_check_command(CLI::App& app) {
   cmd->add_option("--accel", o->accel, "Comma-separated structures (default: all but brute)");
   cmd->add_option("--rays", o->rays, "Rays per family per scene")->capture_default_str();
   cmd->add_option("--seed", o->seed, "Seed of scenes and rays")->capture_default_str();
-  cmd->add_option("--threads", o->threads, "Threads (0 = all)");
+  add_threads_option(cmd, o->threads);
   cmd->add_option("--timeout", o->timeout, "Seconds one structure may take on one scene")
       ->capture_default_str();
   cmd->add_option("--json", o->json, "Write results as JSON");

@@ -28,7 +28,7 @@ void add_info_command(CLI::App& app) {
   auto path = std::make_shared<std::string>();
   auto json = std::make_shared<bool>(false);
   auto scale = std::make_shared<double>(1.0);
-  cmd->add_option("scene", *path, "Scene file (.gltf .glb .ply .obj)")->required();
+  add_scene_argument(cmd, *path);
   cmd->add_flag("--json", *json, "Print JSON instead of text");
   add_scale_option(cmd, *scale);
   cmd->callback([path, json, scale] {

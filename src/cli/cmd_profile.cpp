@@ -36,7 +36,7 @@ void add_profile_command(CLI::App& app) {
       "canonical one unless --eye/--target/--fov are given (the suite's Sponza camera: "
       "--eye -14,3,0 --target 10,5,0 --fov 60).");
   auto a = std::make_shared<ProfileArgs>();
-  cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
+  add_scene_argument(cmd, a->scene);
   cmd->add_option("--res", a->res, "Primary rays: W or WxH pixels")->capture_default_str();
   cmd->add_option("--reps", a->reps, "Timed repetitions (the minimum is reported)")
       ->capture_default_str();

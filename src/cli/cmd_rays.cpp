@@ -38,7 +38,7 @@ void add_rays_command(CLI::App& app) {
       "docs/RAYSETS.md unless --eye/--target/--fov are given, even if the scene file has its own "
       "camera, so that ray sets are comparable across scenes and tools.");
   auto a = std::make_shared<RaysArgs>();
-  cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
+  add_scene_argument(cmd, a->scene);
   cmd->add_option("--set", a->set,
                   "primary (one ray per pixel centre), shadow (from primary hits to the "
                   "benchmark light), diffuse (cosine bounce from primary hits) or random")

@@ -244,14 +244,14 @@ void run_render(const RenderArgs& a) {
 void add_render_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("render", "Render a scene to an image (.png or .exr)");
   auto a = std::make_shared<RenderArgs>();
-  cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
+  add_scene_argument(cmd, a->scene);
   cmd->add_option("-o,--output", a->output,
                   "Output image: .png (sRGB 8-bit) or .exr (linear float)")
       ->required();
   cmd->add_option("--spp", a->spp, "Samples (progressive passes) per pixel, >= 1")
       ->capture_default_str();
   cmd->add_option("--res", a->res, "Resolution W or WxH")->capture_default_str();
-  cmd->add_option("--threads", a->threads, "Worker threads (0 = all cores)")->capture_default_str();
+  add_threads_option(cmd, a->threads);
   cmd->add_option("--max-depth", a->max_depth,
                   "Reflection/refraction bounces after the primary hit, 0 to " +
                       std::to_string(kMaxRenderDepth))

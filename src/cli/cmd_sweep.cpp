@@ -52,7 +52,7 @@ void add_sweep_command(CLI::App& app) {
       "--structures", a->accel,
       "triangle: comma-separated structures (default all but brute and Embree's configurations); "
       "scale: the structures (default bvh,hybrid); spp: the renderer's structure (default bvh)");
-  cmd->add_option("--threads", a->threads, "Threads; 0 = all")->capture_default_str();
+  add_threads_option(cmd, a->threads);
   cmd->add_option("--reps", a->reps, "Timed repetitions per row (median reported)")
       ->capture_default_str();
   cmd->add_option("--res", a->res,

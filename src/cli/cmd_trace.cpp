@@ -334,7 +334,7 @@ void add_trace_command(CLI::App& app) {
       "the step-by-step traversal of one primary ray with --pixel X,Y, or of any ray with "
       "--origin X,Y,Z --dir X,Y,Z [--tmin T --tmax T] [--any]");
   auto a = std::make_shared<TraceArgs>();
-  cmd->add_option("scene", a->scene, "Scene file (.gltf .glb .ply .obj)")->required();
+  add_scene_argument(cmd, a->scene);
   auto* rays_opt = cmd->add_option("--rays", a->rays, "Ray file (.rays) to trace");
   cmd->add_option("--hits", a->hits, "Write the closest hits of the rays to this .hits file");
   cmd->add_flag("--any", a->any,
@@ -343,8 +343,7 @@ void add_trace_command(CLI::App& app) {
   cmd->add_flag("--traversal-only", a->traversal_only,
                 "Time the traversal alone: no triangle is tested, so every ray misses and crosses "
                 "the whole structure; reports ns per ray and per traversal step");
-  cmd->add_option("--threads", a->threads, "Threads for tracing; 0 = all hardware threads")
-      ->capture_default_str();
+  add_threads_option(cmd, a->threads);
   cmd->add_option("--repeat", a->repeat, "Timed repetitions (the median is reported)")
       ->capture_default_str();
   cmd->add_flag("--json", a->json, "Print JSON instead of text");

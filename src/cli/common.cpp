@@ -174,6 +174,16 @@ std::string accel_flags(const std::string& accel, const BuildParams& p) {
   return s;
 }
 
+void add_scene_argument(CLI::App* cmd, std::string& scene) {
+  cmd->add_option("scene", scene, "Scene file (.gltf .glb .ply .obj)")->required();
+}
+
+void add_threads_option(CLI::App* cmd, int& threads) {
+  cmd->add_option("--threads", threads,
+                  "Threads for tracing and building; 0 = all hardware threads")
+      ->capture_default_str();
+}
+
 void add_scale_option(CLI::App* cmd, double& scale) {
   cmd->add_option("--scale", scale,
                   "Multiply the scene's coordinates (its vertices, camera and light positions; "

@@ -35,6 +35,11 @@ struct AccelOptions {
 /// pick) builds the very same structure. Floats are written so they read back unchanged.
 std::string accel_flags(const std::string& accel, const BuildParams& p);
 
+/// The required positional scene file argument of every subcommand that loads one.
+void add_scene_argument(CLI::App* cmd, std::string& scene);
+/// --threads N: worker threads for tracing and building (tbb::global_control); 0 = all.
+void add_threads_option(CLI::App* cmd, int& threads);
+
 /// --scale S: the scene's coordinates multiplied by S when it loads (load_scene's scale).
 void add_scale_option(CLI::App* cmd, double& scale);
 
