@@ -1,9 +1,9 @@
 // The accuracy map: for sampled pixels, every ray of the pixel's Whitted tree (primary and
 // secondary, traced by the renderer's own code) is judged against the double-precision
-// reference of `kdgrid check` (AccuracyReference), in batches on a worker thread, pixels in a
-// shuffled order so that the map fills in evenly; the picture shows each judged pixel's worst
-// verdict, the panel the disagreement rate beside the speed of the structure and triangle test
-// on the same rays.
+// reference of `kdgrid check` (AccuracyReference), in parallel batches off the UI thread,
+// pixels in a shuffled order so that the map fills in evenly; the picture shows each judged
+// pixel's worst verdict, the panel the disagreement rate beside the speed of the structure and
+// triangle test on the same rays.
 #include <imgui.h>
 
 #include <algorithm>
@@ -11,6 +11,8 @@
 #include <cmath>
 #include <numeric>
 #include <random>
+
+#include <tbb/parallel_for.h>
 
 #include "viewer/viewer.h"
 #include "viewer/viewer_internal.h"
@@ -42,8 +44,11 @@ AccuracyBatch judge_accuracy_batch(std::shared_ptr<const World> world,
   const Renderer renderer(*world->scene, *world->accel, rs);
   const CameraFrame f = CameraFrame::make(camera, w, h);
   const Accelerator& accel = *world->accel;
-  std::vector<std::pair<Ray, bool>> rays;  // every judged ray (any-hit: true), for the timing
-  for (size_t k = 0; k < b.pixels.size(); ++k) {
+  // Every pixel's judged rays (any-hit: true) with their verdicts, judged in parallel (the
+  // reference tests every triangle per ray); counted and timed below in pixel order.
+  std::vector<std::vector<std::pair<Ray, bool>>> pixel_rays(b.pixels.size());
+  std::vector<std::vector<uint8_t>> pixel_kinds_verdicts(b.pixels.size());
+  tbb::parallel_for(size_t(0), b.pixels.size(), [&](size_t k) {
     const uint32_t p = b.pixels[k];
     const RayTree tree = renderer.trace_tree(
         f.ray(float(p % uint32_t(w)) + 0.5f, float(p / uint32_t(w)) + 0.5f), false);
@@ -52,11 +57,17 @@ AccuracyBatch judge_accuracy_batch(std::shared_ptr<const World> world,
       const bool any = n.kind == RayKind::Shadow;
       const AccuracyVerdict v = any ? ref->judge_occluded(n.ray, n.trace.occluded)
                                     : ref->judge_closest(n.ray, n.trace.hit.valid(), n.trace.hit);
-      ++b.counts[n.kind == RayKind::Primary ? 0 : 1][size_t(v)];
+      // Low bits the verdict, bit 2 set for a secondary ray.
+      pixel_kinds_verdicts[k].push_back(uint8_t(v) | (n.kind == RayKind::Primary ? 0 : 4));
       worst = std::max(worst, uint8_t(v));
-      rays.emplace_back(n.ray, any);
+      pixel_rays[k].emplace_back(n.ray, any);
     }
     b.verdicts[k] = uint8_t(worst + 1);
+  });
+  std::vector<std::pair<Ray, bool>> rays;
+  for (size_t k = 0; k < b.pixels.size(); ++k) {
+    for (const uint8_t kv : pixel_kinds_verdicts[k]) ++b.counts[kv >> 2][kv & 3];
+    rays.insert(rays.end(), pixel_rays[k].begin(), pixel_rays[k].end());
   }
   // The speed of the choice: the structure's fast queries on the same rays, one thread.
   uint64_t answers = 0;
@@ -82,7 +93,9 @@ void Viewer::update_accuracy() {
   const bool stale = m.world != world_ || m.offset != offset_ || m.w != posted_w_ ||
                      m.h != posted_h_ || !same_camera(m.camera, posted_camera_);
   if (m.running.valid()) {
-    if (m.running.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+    if (!m.returned->load() &&
+        m.running.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
+      return;
     AccuracyBatch b = m.running.get();
     if (!stale) {
       for (size_t k = 0; k < b.pixels.size(); ++k) m.verdict[b.pixels[k]] = b.verdicts[k];
@@ -100,6 +113,7 @@ void Viewer::update_accuracy() {
   if (stale) {
     if (!reference_.valid() || reference_scene_.lock() != world_->scene) {
       reference_ = std::async(std::launch::async, [world = world_]() {
+                     const WakeUiOnExit wake;
                      return std::shared_ptr<const AccuracyReference>(
                          std::make_shared<AccuracyReference>(world->scene->mesh));
                    }).share();
@@ -121,13 +135,19 @@ void Viewer::update_accuracy() {
   const size_t n = std::min(m.batch, m.order.size() - m.next);
   std::vector<uint32_t> pixels(m.order.begin() + long(m.next), m.order.begin() + long(m.next + n));
   m.next += n;
-  m.running = std::async(
-      std::launch::async, [world = world_, ref = reference_, cam = m.camera, w = m.w, h = m.h,
-                           offset = m.offset, px = std::move(pixels)]() mutable {
+  m.returned = std::make_shared<std::atomic<bool>>(false);
+  m.running =
+      std::async(std::launch::async, [world = world_, ref = reference_, cam = m.camera, w = m.w,
+                                      h = m.h, offset = m.offset, px = std::move(pixels),
+                                      returned = m.returned]() mutable {
+        // The UI thread takes the batch and starts the next one at once, not at its next frame
+        // (an idle viewer wakes only a few times a second).
+        const WakeUiOnExit wake;
         const std::shared_ptr<const AccuracyReference> judge = ref.get();  // once per scene
         const auto t0 = std::chrono::steady_clock::now();
         AccuracyBatch b = judge_accuracy_batch(world, judge, cam, w, h, offset, std::move(px));
         b.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        returned->store(true);
         return b;
       });
 }

@@ -22,16 +22,11 @@
 
 namespace kdgrid::viewer {
 
-namespace {
+WakeUiOnExit::~WakeUiOnExit() {
+  glfwPostEmptyEvent();
+}
 
-/// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
-/// it ends; it polls the task's future at once instead of at its next timeout.
-struct WakeUiOnExit {
-  WakeUiOnExit() = default;
-  WakeUiOnExit(const WakeUiOnExit&) = delete;
-  WakeUiOnExit& operator=(const WakeUiOnExit&) = delete;
-  ~WakeUiOnExit() { glfwPostEmptyEvent(); }
-};
+namespace {
 
 /// Threads a background build may use: all but one of those the process may use, so that the
 /// render worker keeps a core and the picture follows the camera while a structure builds (a

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <deque>
 #include <future>
@@ -460,6 +461,9 @@ class Viewer {
     double query_seconds = 0;
     uint64_t query_rays = 0;
     std::future<AccuracyBatch> running;
+    /// Set by the running batch as it returns, before it wakes the UI thread: the UI thread
+    /// then takes the result at once (the future turns ready a moment after the wake-up).
+    std::shared_ptr<std::atomic<bool>> returned;
   };
   bool show_accuracy_ = false;
   /// Where secondary rays start (the accuracy panel, --offset): the render, the pick's ray

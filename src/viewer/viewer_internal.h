@@ -12,6 +12,15 @@ namespace kdgrid::viewer {
 
 using Clock = std::chrono::steady_clock;
 
+/// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
+/// it ends; it polls the task's future at once instead of at its next timeout.
+struct WakeUiOnExit {
+  WakeUiOnExit() = default;
+  WakeUiOnExit(const WakeUiOnExit&) = delete;
+  WakeUiOnExit& operator=(const WakeUiOnExit&) = delete;
+  ~WakeUiOnExit();
+};
+
 /// Colour of the brute-force refusal: orange, apart from the errors' red.
 inline const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
 
