@@ -35,7 +35,7 @@ struct BenchArgs {
   std::string res = "1024";
   std::string json, md, rays_dir, reference;
   bool quiet = false;
-  bool no_interleave = false;
+  bool no_interleave = false, render = false;
   std::string clock = "wall";
   int packet_tile = 8;
   AccelOptions accel;
@@ -81,6 +81,10 @@ void add_bench_command(CLI::App& app) {
                   "query in tiles of this many pixels square (shadow rays in runs of its square), "
                   "beside Embree's rtcIntersect16/8; 0 = none")
       ->capture_default_str();
+  cmd->add_flag("--render", a->render,
+                "Render column: the whole Whitted render (one pass of pixel centres at --res: "
+                "primary, shadow, reflection and refraction rays, packets where the renderer "
+                "uses them) through each structure, each pass timed just after the reference's");
   cmd->add_flag("--no-interleave", a->no_interleave,
                 "Time the reference once per scene instead of before every repetition "
                 "(halves the tracing time; ratios then suffer from changing machine load)");
@@ -96,6 +100,7 @@ void add_bench_command(CLI::App& app) {
     o.interleave_reference = !a->no_interleave;
     o.cpu_clock = a->clock == "cpu";
     o.packet_tile = a->packet_tile;
+    o.render = a->render;
     o.params = a->accel.resolve();
     if (!a->quiet)
       o.progress = [](const std::string& s) { std::fprintf(stderr, "%s\n", s.c_str()); };

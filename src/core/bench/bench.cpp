@@ -23,6 +23,7 @@
 #include "accel/guards.h"
 #include "accel/triangle.h"
 #include "accel/triangle_wide.h"
+#include "bench/bench_render.h"
 #include "bench/rayfile.h"
 #include "bench/raysets.h"
 #include "math/simd.h"
@@ -187,10 +188,21 @@ void measure_packets(const Accelerator& acc, const std::string& set, const std::
   }
 }
 
+/// The progress line of a render column.
+std::string render_line(const RenderFigures& r, bool against_reference) {
+  std::string line = "    render: " + format_double("%.3f", r.seconds_median) + " s a pass of " +
+                     std::to_string(r.rays()) + " rays, " + format_double("%.3g", r.mrays_median) +
+                     " Mrays/s";
+  if (against_reference)
+    line += " (x" + format_double("%.2f", r.ratio_to_reference) + " reference), " +
+            std::to_string(r.pixels_differ) + " pixels differ visibly from its image";
+  return line;
+}
+
 StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneRays& sr,
                          const BenchOptions& o, int threads, const Reference* ref,
                          std::unique_ptr<Accelerator>* keep,
-                         std::vector<std::vector<Hit>>* hits_out,
+                         std::vector<std::vector<Hit>>* hits_out, const RenderJob* render,
                          const std::function<void(const std::string&)>& say) {
   StructureFigures f;
   f.accel = name;
@@ -293,6 +305,10 @@ StructureFigures measure(const std::string& name, const Mesh& mesh, const SceneR
       }
       if (hits_out) (*hits_out)[s] = std::move(hits);
       f.sets.push_back(std::move(sf));
+    }
+    if (render) {
+      f.render = measure_render(*acc, *render, o);
+      say(render_line(f.render, render->reference != nullptr));
     }
     f.peak_rss_bytes = peak_rss_since_reset();
     f.process_peak_rss_bytes = process_peak_rss_bytes();
@@ -421,8 +437,13 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
       say("  rays:" + sizes);
 
       std::vector<std::vector<Hit>> ref_hits;
-      StructureFigures rf =
-          measure(ref_name, mesh, sr, o, threads, nullptr, &ref_acc, &ref_hits, say);
+      std::vector<float> ref_image;
+      RenderJob job;
+      job.scene = &scene;
+      job.camera = cam;
+      job.reference_image = &ref_image;
+      StructureFigures rf = measure(ref_name, mesh, sr, o, threads, nullptr, &ref_acc, &ref_hits,
+                                    o.render ? &job : nullptr, say);
       ref.ok = rf.error.empty();
       ref.acc = ref_acc.get();
       if (ref.ok) {
@@ -430,9 +451,11 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
         for (const auto& x : rf.sets) ref.mrays.push_back(x.mrays_median);
       }
       sf.structures.push_back(std::move(rf));
+      job.reference = ref.ok ? ref.acc : nullptr;
       for (const auto& a : accels) {
         if (a == ref_name) continue;
-        sf.structures.push_back(measure(a, mesh, sr, o, threads, &ref, nullptr, nullptr, say));
+        sf.structures.push_back(measure(a, mesh, sr, o, threads, &ref, nullptr, nullptr,
+                                        o.render && ref.ok ? &job : nullptr, say));
       }
     } catch (const std::exception& e) {
       sf.error = e.what();

@@ -59,6 +59,11 @@ struct BenchOptions {
   /// timed beside each repetition. 8 = 64-ray packets, the renderer's; 0 = no packet column;
   /// at most kMaxPacketTile. Single-ray figures stay the headline.
   int packet_tile = 8;
+  /// The render column: the whole Whitted render of the scene (Renderer, one pass of one
+  /// sample per pixel at the bench's image size from the bench's camera: primary, shadow,
+  /// reflection and refraction rays, packets where the renderer uses them) through every
+  /// structure, `reps` passes each, the reference's pass timed just before each of them.
+  bool render = false;
   /// Relative tolerance on t under which two different triangles count as the same hit.
   double tie_tolerance = 1e-5;
   /// Receives one line per step of a long run (stderr in the CLI); may be empty.
@@ -112,6 +117,25 @@ struct SetFigures {
   double packet_single_mrays = 0;  ///< the single-ray loop's median Mrays/s behind it
 };
 
+/// The render column (BenchOptions::render) of one structure on one scene.
+struct RenderFigures {
+  bool measured = false;
+  /// Rays of one pass by kind (the same for every structure but where answers differ).
+  uint64_t primary = 0, shadow = 0, reflection = 0, refraction = 0;
+  std::vector<double> seconds_reps;  ///< wall time of each timed pass
+  double seconds_median = 0;
+  double mrays_median = 0;  ///< every ray of a pass over the median pass time
+  /// The median of the per-pass ratios of the reference's pass time to this one's (> 1:
+  /// faster than the reference), each reference pass timed just before; 1 for the reference.
+  double ratio_to_reference = 0;
+  double reference_seconds = 0;  ///< the reference's median pass time behind the ratio
+  /// Pixels whose colour differs visibly from the reference render's (a channel by more than
+  /// 1/255, relative above 1: another triangle of a tie or an edge, not the last bits of a
+  /// barycentric); -1 when not compared.
+  int64_t pixels_differ = -1;
+  uint64_t rays() const { return primary + shadow + reflection + refraction; }
+};
+
 /// Figures of one structure on one scene.
 struct StructureFigures {
   std::string accel;
@@ -130,6 +154,7 @@ struct StructureFigures {
   /// the reference's hits. peak_rss_bytes - rss_before_bytes is this structure's growth.
   uint64_t rss_before_bytes = 0;
   std::vector<SetFigures> sets;
+  RenderFigures render;
 };
 
 struct SceneFigures {

@@ -9,8 +9,33 @@
 
 namespace kdgrid {
 
+using nlohmann::json;
+
+namespace {
+
+/// One entry of "renders" (BenchOptions::render).
+json render_json(const SceneFigures& s, const StructureFigures& a) {
+  const RenderFigures& x = a.render;
+  return {{"scene", s.name},
+          {"accel", a.accel},
+          {"reference", s.reference},
+          {"rays",
+           {{"primary", x.primary},
+            {"shadow", x.shadow},
+            {"reflection", x.reflection},
+            {"refraction", x.refraction},
+            {"total", x.rays()}}},
+          {"seconds", x.seconds_median},
+          {"seconds_reps", x.seconds_reps},
+          {"mrays", x.mrays_median},
+          {"ratio_to_reference", x.ratio_to_reference},
+          {"reference_seconds", x.reference_seconds},
+          {"pixels_differ", x.pixels_differ >= 0 ? json(x.pixels_differ) : json(nullptr)}};
+}
+
+}  // namespace
+
 std::string bench_to_json(const BenchReport& r) {
-  using nlohmann::json;
   json j;
   j["meta"] = {
       {"suite", r.suite},
@@ -66,6 +91,7 @@ std::string bench_to_json(const BenchReport& r) {
   j["scenes"] = json::array();
   j["builds"] = json::array();
   j["results"] = json::array();
+  j["renders"] = json::array();
   j["errors"] = json::array();
   for (const auto& s : r.scenes) {
     json js = {{"scene", s.name},      {"file", s.file},           {"triangles", s.triangles},
@@ -108,6 +134,7 @@ std::string bench_to_json(const BenchReport& r) {
         j["errors"].push_back({{"scene", s.name}, {"accel", a.accel}, {"error", a.error}});
       }
       j["builds"].push_back(b);
+      if (a.render.measured) j["renders"].push_back(render_json(s, a));
       for (const auto& x : a.sets) {
         json e = {{"scene", s.name},
                   {"accel", a.accel},
@@ -187,6 +214,30 @@ const SetFigures* find_set(const StructureFigures& a, const std::string& set) {
   return nullptr;
 }
 
+/// The render column's table, when it was run.
+void render_markdown(const BenchReport& r, std::ostringstream& md) {
+  bool any = false;
+  for (const auto& s : r.scenes)
+    for (const auto& a : s.structures) any = any || a.render.measured;
+  if (!any) return;
+  md << "\n### The whole render: one Whitted pass (primary, shadow, reflection and refraction "
+        "rays; packets where the renderer uses them) of "
+     << r.width << "x" << r.height
+     << " pixel centres, each pass timed just after the reference's\n\n"
+     << "| scene | structure | rays a pass | pass s | Mrays/s | ratio to reference | pixels "
+        "differ |\n|---|---|---:|---:|---:|---:|---:|\n";
+  for (const auto& s : r.scenes)
+    for (const auto& a : s.structures) {
+      if (!a.render.measured) continue;
+      const RenderFigures& x = a.render;
+      md << "| " << s.name << " | " << structure_label(a)
+         << (a.accel == s.reference ? " (ref)" : "") << " | " << x.rays() << " | "
+         << format_double("%.3f", x.seconds_median) << " | "
+         << format_double("%.3g", x.mrays_median) << " | "
+         << format_double("%.2f", x.ratio_to_reference) << " | " << x.pixels_differ << " |\n";
+    }
+}
+
 }  // namespace
 
 std::string bench_to_markdown(const BenchReport& r) {
@@ -258,6 +309,8 @@ std::string bench_to_markdown(const BenchReport& r) {
              << x.packet_ties << ") |\n";
         }
   }
+
+  render_markdown(r, md);
 
   md << "\n### Per ray: traversal steps, leaves visited, triangle tests; agreement with the "
         "reference\n\n";
