@@ -244,7 +244,7 @@ struct ViewerResult : RunResult {
   /// statistics.
   ::testing::AssertionResult ended_by_ctrl_q() const {
     auto r = ok(0);
-    if (r && stats["end"] != "ctrl+q")
+    if (r && (!stats.contains("end") || stats["end"] != "ctrl+q"))
       return ::testing::AssertionFailure() << "ended by " << stats["end"].dump() << "\n"
                                            << output << viewer_log;
     return r;
