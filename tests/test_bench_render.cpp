@@ -63,8 +63,7 @@ TEST(BenchRender, EveryStructureRendersTheSamePictureBesideTheReference) {
   EXPECT_EQ(j["renders"][1]["pixels_differ"], 0);
   const std::string md = bench_to_markdown(r);
   EXPECT_NE(md.find("### The whole render"), std::string::npos) << md;
-  EXPECT_NE(md.find("| cornell | hybrid | " + std::to_string(ref.rays()) + " |"),
-            std::string::npos)
+  EXPECT_NE(md.find("| cornell | hybrid | " + std::to_string(ref.rays()) + " |"), std::string::npos)
       << md;
 }
 

@@ -22,6 +22,7 @@
 #include "scene/load.h"
 #include "util/atomic_file.h"
 #include "util/error.h"
+#include "util/format.h"
 #include "util/paths.h"
 
 namespace kdgrid::cli {
@@ -75,8 +76,8 @@ std::string mega(uint64_t n) {
   return buf;
 }
 
-void run_render(const RenderArgs& a) {
-  // ---- validate everything before any expensive work ----
+/// The render's settings from the flags, every one validated before any expensive work.
+RenderSettings render_settings(const RenderArgs& a) {
   if (a.spp < 1 || a.spp > kMaxSamplesPerPixel)
     throw ParamError("--spp " + std::to_string(a.spp) +
                      ": samples per pixel must be between 1 and " +
@@ -88,10 +89,6 @@ void run_render(const RenderArgs& a) {
                      " bounces (docs/LIMITS.md: deeper Whitted paths fade below 1e-4)");
   RenderSettings settings;
   parse_resolution(a.res, settings.width, settings.height);
-  const std::string scene_path = resolve_scene_path(a.scene);
-  check_output_path(a.output, "-o", {".png", ".exr"}, {scene_path});
-  const BuildParams params = a.accel.resolve();
-  make_accelerator(a.accel.accel);  // an unknown --accel fails here, before the scene loads
   settings.max_depth = a.max_depth;
   settings.seed = a.seed;
   settings.packets = !a.no_packets;
@@ -104,48 +101,34 @@ void run_render(const RenderArgs& a) {
   else if (!a.heatmap.empty())
     throw ParamError("--heatmap '" + a.heatmap + "': choose steps, tests or time");
   settings.shading = parse_shading(a.shading, "--shading");
+  return settings;
+}
 
-  std::optional<tbb::global_control> threads;
-  if (a.threads > 0)
-    threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
+/// Process memory by phase for --stats-json: the load's peak, then the build's own peak (the
+/// high-water mark is reset first where the kernel allows).
+struct MemoryPhases {
+  uint64_t load_peak = 0, rss_before_build = 0, build_peak = 0, rss_after_build = 0;
+  bool phase_peaks = false;  ///< the build's peak is its own (the reset worked)
+};
 
-  if (!a.stats_json.empty())
-    check_output_path(a.stats_json, "--stats-json", {".json"}, {scene_path, a.output});
-
-  const Scene scene = load_scene(scene_path, a.scale);
-  // One pass: passes are progressive and Ctrl-C keeps the finished ones, but a single pass
-  // of brute force over millions of triangles would look like a hang.
-  check_brute_force_work(a.accel.accel, uint64_t(settings.width) * uint64_t(settings.height),
-                         scene.mesh.num_triangles(), params);
-  // Process memory by phase: the load's peak, then the build's own peak (the high-water mark
-  // is reset first where the kernel allows), for --stats-json.
-  const uint64_t load_peak = process_peak_rss_bytes();
-  const bool phase_peaks = reset_peak_rss();
-  const uint64_t rss_before_build = current_rss_bytes();
-  const auto accel = build_interruptible(a.accel.accel, scene.mesh, params);
-  const double build_seconds = accel->stats().seconds;
-  const uint64_t build_peak = peak_rss_since_reset(), rss_after_build = current_rss_bytes();
-
-  Renderer renderer(scene, *accel, settings);
-  renderer.set_camera(a.camera.apply(*scene.camera));
-
-  // ---- progressive passes, interruptible by Ctrl-C ----
+/// Renders up to `spp` progressive passes with a progress bar on a terminal; Ctrl-C stops
+/// between passes and keeps the finished ones. Returns true if interrupted.
+bool render_passes(Renderer& renderer, int spp) {
   g_interrupted.store(false);
   auto old_handler = std::signal(SIGINT, on_sigint);
   const bool tty = ::isatty(STDERR_FILENO);
   const auto t0 = std::chrono::steady_clock::now();
-  auto elapsed = [&] {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  };
   auto progress = [&](int done) {
     constexpr int kBar = 30;
-    const int filled = done * kBar / a.spp;
+    const int filled = done * kBar / spp;
+    const double elapsed =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::fprintf(stderr, "\r[%.*s%*s] %d/%d spp  %.1f s", filled,
-                 "==============================", kBar - filled, "", done, a.spp, elapsed());
+                 "==============================", kBar - filled, "", done, spp, elapsed);
     std::fflush(stderr);
   };
   bool interrupted = false;
-  for (int pass = 0; pass < a.spp; ++pass) {
+  for (int pass = 0; pass < spp; ++pass) {
     if (tty) progress(pass);
     if (!renderer.render_pass(&g_interrupted)) {
       interrupted = true;
@@ -156,33 +139,113 @@ void run_render(const RenderArgs& a) {
   interrupted = interrupted || g_interrupted.load();
   progress(renderer.samples());
   std::fprintf(stderr, "\n");
+  return interrupted;
+}
 
-  const RenderCounters& c = renderer.counters();
-  if (renderer.samples() == 0) {
-    std::fprintf(stderr, "kdgrid: interrupted before the first pass finished; no image written\n");
-    throw CLI::RuntimeError(130);
-  }
+/// Writes the image (heat maps as a colour ramp, but raw counts in EXR) with its metadata.
+void write_render_image(const RenderArgs& a, const std::string& scene_path,
+                        const Renderer& renderer, const Accelerator& accel) {
+  const RenderSettings& settings = renderer.settings();
   std::vector<float> rgb;
   renderer.resolve(rgb);
   std::string ext = std::filesystem::path(a.output).extension().string();
   for (char& ch : ext) ch = char(std::tolower(static_cast<unsigned char>(ch)));
   if (settings.mode != RenderMode::Shaded && ext != ".exr") heat_ramp(rgb);
-  char secs[32];
-  std::snprintf(secs, sizeof secs, "%.3f", renderer.seconds());
-  char bsecs[32];
-  std::snprintf(bsecs, sizeof bsecs, "%.3f", build_seconds);
   write_image(a.output, settings.width, settings.height, rgb,
               {{"samples", std::to_string(renderer.samples())},
-               {"seconds", secs},
-               {"accelerator", accel->name()},
-               {"build_seconds", bsecs},
+               {"seconds", format_double("%.3f", renderer.seconds())},
+               {"accelerator", accel.name()},
+               {"build_seconds", format_double("%.3f", accel.stats().seconds)},
                {"scene", scene_path},
                {"seed", std::to_string(settings.seed)},
                {"max_depth", std::to_string(settings.max_depth)},
                {"mode", a.heatmap.empty() ? "shaded" : "heatmap-" + a.heatmap},
                {"shading", to_string(settings.shading)},
-               {"rays", std::to_string(c.total())}});
+               {"rays", std::to_string(renderer.counters().total())}});
+}
 
+/// The --stats-json file: the scene, the build and its memory by phase, the render's figures.
+void write_render_stats(const RenderArgs& a, const std::string& scene_path, const Scene& scene,
+                        const Renderer& renderer, const Accelerator& accel,
+                        const BuildParams& params, const MemoryPhases& mem, bool interrupted) {
+  const BuildStats& st = accel.stats();
+  const RenderCounters& c = renderer.counters();
+  const RenderSettings& settings = renderer.settings();
+  nlohmann::json j;
+  j["scene"] = scene_path;
+  j["triangles"] = scene.mesh.num_triangles();
+  j["vertices"] = scene.mesh.num_vertices();
+  j["mesh_bytes"] = scene.mesh.memory_bytes();
+  j["accel"] = accel.name();
+  j["build_seconds"] = st.seconds;
+  j["bytes"] = st.bytes;
+  j["peak_estimate_bytes"] = st.peak_estimate;
+  nlohmann::json parts = nlohmann::json::object();
+  for (const auto& [k, v] : st.bytes_by_part) parts[k] = v;
+  j["bytes_by_part"] = parts;
+  nlohmann::json extra = nlohmann::json::object();
+  for (const auto& [k, v] : st.extra) extra[k] = v;
+  j["extra"] = extra;
+  j["memory_budget_bytes"] = effective_memory_budget(params);
+  j["rss_load_peak_bytes"] = mem.load_peak;
+  j["rss_before_build_bytes"] = mem.rss_before_build;
+  j["rss_after_build_bytes"] = mem.rss_after_build;
+  // Build peak over the RSS before the build: what the build itself needed at its worst.
+  j["rss_build_peak_bytes"] = mem.build_peak;
+  j["build_peak_is_phase"] = mem.phase_peaks;
+  // After a reset the kernel's counters restart, so the process peak is the larger of the
+  // load's peak and what came after.
+  j["rss_peak_bytes"] = std::max({mem.load_peak, mem.build_peak, peak_rss_since_reset()});
+  j["render_seconds"] = renderer.seconds();
+  j["packets"] = settings.packets;
+  j["width"] = settings.width;
+  j["height"] = settings.height;
+  j["spp"] = renderer.samples();
+  j["rays"] = c.total();
+  j["shading"] = to_string(settings.shading);
+  // Primary hits checked for direct light and those a scene light reaches (RenderCounters).
+  j["lit_probed"] = c.probed;
+  j["lit"] = c.lit;
+  j["interrupted"] = interrupted;
+  write_file_atomically(a.stats_json, j.dump(2) + "\n");
+}
+
+void run_render(const RenderArgs& a) {
+  // ---- validate everything before any expensive work ----
+  const RenderSettings settings = render_settings(a);
+  const std::string scene_path = resolve_scene_path(a.scene);
+  check_output_path(a.output, "-o", {".png", ".exr"}, {scene_path});
+  const BuildParams params = a.accel.resolve();
+  make_accelerator(a.accel.accel);  // an unknown --accel fails here, before the scene loads
+  std::optional<tbb::global_control> threads;
+  if (a.threads > 0)
+    threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
+  if (!a.stats_json.empty())
+    check_output_path(a.stats_json, "--stats-json", {".json"}, {scene_path, a.output});
+
+  const Scene scene = load_scene(scene_path, a.scale);
+  // One pass: passes are progressive and Ctrl-C keeps the finished ones, but a single pass
+  // of brute force over millions of triangles would look like a hang.
+  check_brute_force_work(a.accel.accel, uint64_t(settings.width) * uint64_t(settings.height),
+                         scene.mesh.num_triangles(), params);
+  MemoryPhases mem;
+  mem.load_peak = process_peak_rss_bytes();
+  mem.phase_peaks = reset_peak_rss();
+  mem.rss_before_build = current_rss_bytes();
+  const auto accel = build_interruptible(a.accel.accel, scene.mesh, params);
+  mem.build_peak = peak_rss_since_reset();
+  mem.rss_after_build = current_rss_bytes();
+
+  Renderer renderer(scene, *accel, settings);
+  renderer.set_camera(a.camera.apply(*scene.camera));
+  const bool interrupted = render_passes(renderer, a.spp);
+  if (renderer.samples() == 0) {
+    std::fprintf(stderr, "kdgrid: interrupted before the first pass finished; no image written\n");
+    throw CLI::RuntimeError(130);
+  }
+  write_render_image(a, scene_path, renderer, *accel);
+
+  const RenderCounters& c = renderer.counters();
   const double mrays = renderer.seconds() > 0 ? double(c.total()) / renderer.seconds() / 1e6 : 0.0;
   std::printf(
       "%s: %dx%d, %d spp, %.3f s, rays %s (primary %s, shadow %s, reflection %s, "
@@ -190,48 +253,10 @@ void run_render(const RenderArgs& a) {
       a.output.c_str(), settings.width, settings.height, renderer.samples(), renderer.seconds(),
       mega(c.total()).c_str(), mega(c.primary).c_str(), mega(c.shadow).c_str(),
       mega(c.reflection).c_str(), mega(c.refraction).c_str(), mrays, accel->name().c_str(),
-      build_seconds);
+      accel->stats().seconds);
   std::fflush(stdout);
-  if (!a.stats_json.empty()) {
-    const BuildStats& st = accel->stats();
-    nlohmann::json j;
-    j["scene"] = scene_path;
-    j["triangles"] = scene.mesh.num_triangles();
-    j["vertices"] = scene.mesh.num_vertices();
-    j["mesh_bytes"] = scene.mesh.memory_bytes();
-    j["accel"] = accel->name();
-    j["build_seconds"] = build_seconds;
-    j["bytes"] = st.bytes;
-    j["peak_estimate_bytes"] = st.peak_estimate;
-    nlohmann::json parts = nlohmann::json::object();
-    for (const auto& [k, v] : st.bytes_by_part) parts[k] = v;
-    j["bytes_by_part"] = parts;
-    nlohmann::json extra = nlohmann::json::object();
-    for (const auto& [k, v] : st.extra) extra[k] = v;
-    j["extra"] = extra;
-    j["memory_budget_bytes"] = effective_memory_budget(params);
-    j["rss_load_peak_bytes"] = load_peak;
-    j["rss_before_build_bytes"] = rss_before_build;
-    j["rss_after_build_bytes"] = rss_after_build;
-    // Build peak over the RSS before the build: what the build itself needed at its worst.
-    j["rss_build_peak_bytes"] = build_peak;
-    j["build_peak_is_phase"] = phase_peaks;
-    // After a reset the kernel's counters restart, so the process peak is the larger of the
-    // load's peak and what came after.
-    j["rss_peak_bytes"] = std::max({load_peak, build_peak, peak_rss_since_reset()});
-    j["render_seconds"] = renderer.seconds();
-    j["packets"] = settings.packets;
-    j["width"] = settings.width;
-    j["height"] = settings.height;
-    j["spp"] = renderer.samples();
-    j["rays"] = c.total();
-    j["shading"] = to_string(settings.shading);
-    // Primary hits checked for direct light and those a scene light reaches (RenderCounters).
-    j["lit_probed"] = c.probed;
-    j["lit"] = c.lit;
-    j["interrupted"] = interrupted;
-    write_file_atomically(a.stats_json, j.dump(2) + "\n");
-  }
+  if (!a.stats_json.empty())
+    write_render_stats(a, scene_path, scene, renderer, *accel, params, mem, interrupted);
   if (interrupted) {
     std::fprintf(stderr, "kdgrid: interrupted: wrote the %d of %d samples finished to %s\n",
                  renderer.samples(), a.spp, a.output.c_str());

@@ -71,7 +71,8 @@ RenderFigures measure_render(const Accelerator& acc, const RenderJob& job, const
     for (size_t p = 0; p + 2 < image.size(); p += 3) {
       bool differ = false;
       for (size_t ch = p; ch < p + 3; ++ch)
-        differ |= std::fabs(image[ch] - ref[ch]) > kVisibleDifference * std::max(1.0f, std::fabs(ref[ch]));
+        differ |= std::fabs(image[ch] - ref[ch]) >
+                  kVisibleDifference * std::max(1.0f, std::fabs(ref[ch]));
       f.pixels_differ += differ;
     }
   }
