@@ -19,32 +19,33 @@
 
 namespace kdgrid::viewer {
 
+namespace {
+
+/// Each render mode's name (--heatmap, --stats-json) and what its heat map shows per pixel.
+struct ModeText {
+  RenderMode mode;
+  const char* name;
+  const char* heat;
+};
+constexpr ModeText kModeTexts[] = {{RenderMode::Shaded, "shaded", ""},
+                                   {RenderMode::HeatSteps, "steps", "traversal steps"},
+                                   {RenderMode::HeatTests, "tests", "triangle tests"},
+                                   {RenderMode::HeatTime, "time", "nanoseconds"}};
+
+const ModeText& mode_text(RenderMode m) {
+  for (const ModeText& t : kModeTexts)
+    if (t.mode == m) return t;
+  return kModeTexts[0];
+}
+
+}  // namespace
+
 const char* mode_name(RenderMode m) {
-  switch (m) {
-    case RenderMode::Shaded:
-      return "shaded";
-    case RenderMode::HeatSteps:
-      return "steps";
-    case RenderMode::HeatTests:
-      return "tests";
-    case RenderMode::HeatTime:
-      return "time";
-  }
-  return "shaded";
+  return mode_text(m).name;
 }
 
 const char* heat_label(RenderMode m) {
-  switch (m) {
-    case RenderMode::HeatSteps:
-      return "traversal steps";
-    case RenderMode::HeatTests:
-      return "triangle tests";
-    case RenderMode::HeatTime:
-      return "nanoseconds";
-    case RenderMode::Shaded:
-      break;
-  }
-  return "";
+  return mode_text(m).heat;
 }
 
 // ---- shading ----------------------------------------------------------------------------
@@ -222,25 +223,17 @@ void Viewer::draw_scene() {
   GL_CHECK(glClearColor(0.08f, 0.08f, 0.1f, 1.0f));
   GL_CHECK(glClear(GL_COLOR_BUFFER_BIT));
   GL_CHECK(glDisable(GL_DEPTH_TEST));
-  if (have_image_ && brute_refusal_.empty()) {
-    GL_CHECK(glUseProgram(image_program_));
-    GL_CHECK(glActiveTexture(GL_TEXTURE0));
-    GL_CHECK(glBindTexture(GL_TEXTURE_2D, tex_));
-    GL_CHECK(glUniform1i(glGetUniformLocation(image_program_, "u_image"), 0));
-    GL_CHECK(glBindVertexArray(empty_vao_));
-    GL_CHECK(glDrawArrays(GL_TRIANGLES, 0, 6));
-    GL_CHECK(glBindVertexArray(0));
-  }
+  if (have_image_ && brute_refusal_.empty())
+    draw_fullscreen(image_program_, "u_image", tex_, empty_vao_);
   if (world_ && posted_w_ > 0) {
     // The live camera (not the displayed image's) so overlays follow the mouse at once.
     const CameraFrame f = CameraFrame::make(cam_.camera(), posted_w_, posted_h_);
     const float r = scene_radius();
     const float dist = length(f.eye - scene_bounds_.center());
     const auto vp = view_projection(f, r * 1e-4f, (dist + r) * 10.0f);
-    GL_CHECK(glEnable(GL_BLEND));
-    GL_CHECK(glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA));
-    structure_lines_.draw(vp, overlay_alpha_);
-    GL_CHECK(glDisable(GL_BLEND));
+    const size_t drawn = structure_lines_.draw(vp, overlay_alpha_, fw, fh);
+    overlay_frames_.max_drawn = std::max(overlay_frames_.max_drawn, drawn);
+    overlay_frames_.draw_frames += drawn > 0;
   }
 }
 

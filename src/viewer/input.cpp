@@ -182,7 +182,8 @@ bool Viewer::wants_continuous_frames() const {
   if (settle_frames_ > 0 || glfwWindowShouldClose(window_) || posted_preview_) return true;
   if (ImGui::GetCurrentContext() && (ImGui::GetIO().WantTextInput || ImGui::IsAnyItemActive()))
     return true;
-  if (structure_lines_.uploading()) return true;  // an overlay goes up a part per frame
+  // An overlay goes up, and into its picture, a part per frame.
+  if (structure_lines_.uploading() || structure_lines_.drawing()) return true;
   // Held keys move the camera every frame without sending events.
   for (int k : {GLFW_KEY_W, GLFW_KEY_A, GLFW_KEY_S, GLFW_KEY_D, GLFW_KEY_Q, GLFW_KEY_E})
     if (glfwGetKey(window_, k) == GLFW_PRESS) return true;

@@ -3,6 +3,7 @@
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 
+#include <algorithm>
 #include <array>
 #include <future>
 #include <optional>
@@ -38,7 +39,12 @@ void Viewer::rebuild_structure_overlay() {
 }
 
 void Viewer::poll_structure_overlay() {
-  if (structure_lines_.uploading()) structure_lines_.upload_step(kUploadVerticesPerFrame);
+  if (structure_lines_.uploading()) {
+    const size_t sent = structure_lines_.upload_step(kUploadVerticesPerFrame);
+    overlay_frames_.max_uploaded = std::max(overlay_frames_.max_uploaded, sent);
+    overlay_frames_.uploaded += sent;
+    ++overlay_frames_.upload_frames;
+  }
   if (!overlay_job_.valid() ||
       overlay_job_.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
     return;

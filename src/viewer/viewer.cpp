@@ -334,7 +334,8 @@ bool Viewer::script_finished(bool closing, bool no_scene, bool pick_done, Clock:
     if (!opts_.screenshot.empty()) save_screenshot(opts_.screenshot);
     return true;
   }
-  const bool overlay_ok = !overlay_dirty_ && !overlay_job_.valid() && !structure_lines_.uploading();
+  const bool overlay_ok = !overlay_dirty_ && !overlay_job_.valid() &&
+                          !structure_lines_.uploading() && !structure_lines_.drawing();
   if (script_done && world_ && !task_ && rebuild_ok && pick_done && drop_done_ && image_ok &&
       overlay_ok && !recolor_ && accuracy_complete() && !estimate_job_.valid()) {
     if (end_reason_.empty()) end_reason_ = "frames done";

@@ -17,6 +17,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json_fwd.hpp>
+
 #include "bench/check.h"
 #include "cli/common.h"
 #include "util/cancel.h"
@@ -282,6 +284,10 @@ class Viewer {
   /// Writes the statistics through the atomic writer; false (after an error on stderr) when
   /// the file could not be written.
   bool write_stats(const std::string& path, int exit_code) const;
+  /// The final state: scene, structure, shading, camera, pick, overlay, maps, messages.
+  nlohmann::json state_json() const;
+  /// The pick and its ray tree (null without a pick).
+  nlohmann::json pick_json() const;
 
   ViewerOptions opts_;
   GLFWwindow* window_ = nullptr;
@@ -457,6 +463,12 @@ class Viewer {
   /// Uploads the overlay built off the UI thread once it is ready.
   void poll_structure_overlay();
   LineRenderer structure_lines_;
+  /// The overlay's work per frame over the run (--stats-json): the most vertices uploaded and
+  /// lines drawn in one frame, the vertices uploaded, the frames that uploaded or drew.
+  struct OverlayFrames {
+    size_t max_uploaded = 0, max_drawn = 0, uploaded = 0;
+    int upload_frames = 0, draw_frames = 0;
+  } overlay_frames_;
   float overlay_alpha_ = 1.0f;
   /// The split overlay shows only the planes the picked ray crossed ("splits of the picked
   /// ray"), within the depth range.
