@@ -117,7 +117,7 @@ class LineRenderer {
   std::vector<LineVertex> pending_;  ///< the lines being uploaded
   size_t uploaded_ = 0;              ///< how many of pending_ are on the GPU
   uint64_t generation_ = 0;          ///< counts upload() calls: a new overlay
-  /// What the offscreen picture shows: the view, opacity, overlay, and vertices drawn.
+  /// What the offscreen picture shows: the view, the opacity and the overlay (generation_).
   struct PictureKey {
     std::array<float, 16> view_proj{};
     float alpha = -1;
