@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace kdgrid::viewer {
@@ -15,6 +16,16 @@ void check_gl_error(const char* call, const char* file, int line) {
 
 namespace {
 
+/// The info log of a shader or program, read with its glGet*iv and glGet*InfoLog.
+template <class GetIv, class GetLog>
+std::string info_log(GLuint object, GetIv get_iv, GetLog get_log) {
+  GLint len = 0;
+  get_iv(object, GL_INFO_LOG_LENGTH, &len);
+  std::vector<char> log(size_t(std::max(len, 1)));
+  get_log(object, len, nullptr, log.data());
+  return log.data();
+}
+
 GLuint compile(const char* name, GLenum type, const char* src) {
   GLuint s = glCreateShader(type);
   GL_CHECK(glShaderSource(s, 1, &src, nullptr));
@@ -22,14 +33,11 @@ GLuint compile(const char* name, GLenum type, const char* src) {
   GLint ok = 0;
   glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
   if (!ok) {
-    GLint len = 0;
-    glGetShaderiv(s, GL_INFO_LOG_LENGTH, &len);
-    std::vector<char> log(size_t(std::max(len, 1)));
-    glGetShaderInfoLog(s, len, nullptr, log.data());
+    const std::string log = info_log(s, glGetShaderiv, glGetShaderInfoLog);
     glDeleteShader(s);
     throw std::runtime_error(std::string("shader ") + name +
                              (type == GL_VERTEX_SHADER ? ".vert" : ".frag") +
-                             " failed to compile: " + log.data());
+                             " failed to compile: " + log);
   }
   return s;
 }
@@ -48,15 +56,21 @@ GLuint make_program(const char* name, const char* vertex_src, const char* fragme
   GLint ok = 0;
   glGetProgramiv(p, GL_LINK_STATUS, &ok);
   if (!ok) {
-    GLint len = 0;
-    glGetProgramiv(p, GL_INFO_LOG_LENGTH, &len);
-    std::vector<char> log(size_t(std::max(len, 1)));
-    glGetProgramInfoLog(p, len, nullptr, log.data());
+    const std::string log = info_log(p, glGetProgramiv, glGetProgramInfoLog);
     glDeleteProgram(p);
-    throw std::runtime_error(std::string("shader program ") + name +
-                             " failed to link: " + log.data());
+    throw std::runtime_error(std::string("shader program ") + name + " failed to link: " + log);
   }
   return p;
+}
+
+void draw_fullscreen(GLuint program, const char* sampler, GLuint texture, GLuint vao) {
+  GL_CHECK(glUseProgram(program));
+  GL_CHECK(glActiveTexture(GL_TEXTURE0));
+  GL_CHECK(glBindTexture(GL_TEXTURE_2D, texture));
+  GL_CHECK(glUniform1i(glGetUniformLocation(program, sampler), 0));
+  GL_CHECK(glBindVertexArray(vao));
+  GL_CHECK(glDrawArrays(GL_TRIANGLES, 0, 6));
+  GL_CHECK(glBindVertexArray(0));
 }
 
 }  // namespace kdgrid::viewer

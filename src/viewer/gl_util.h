@@ -20,6 +20,10 @@ void check_gl_error(const char* call, const char* file, int line);
 
 /// Compiles and links a program from vertex and fragment source. Throws std::runtime_error
 /// with the driver's log and the shader's name on failure.
+/// Draws the full-screen pair of triangles of shaders/image.vert with `program`, `texture`
+/// bound to its sampler `sampler` (texture unit 0) and `vao` an empty vertex array.
+void draw_fullscreen(GLuint program, const char* sampler, GLuint texture, GLuint vao);
+
 GLuint make_program(const char* name, const char* vertex_src, const char* fragment_src);
 
 }  // namespace kdgrid::viewer

@@ -3,6 +3,7 @@
 #include <cstdlib>
 #include <exception>
 #include <string>
+#include <vector>
 
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
@@ -18,6 +19,8 @@
 #include "util/error.h"
 #include "util/paths.h"
 #include "viewer/viewer.h"
+
+using kdgrid::viewer::ViewerOptions;
 
 namespace {
 
@@ -43,17 +46,18 @@ bool env_set(const char* name) {
   return v && *v;
 }
 
-}  // namespace
+/// An option whose value is one of `choices`; --help shows its default.
+CLI::Option* add_choice(CLI::App& app, const std::string& name, std::string& value,
+                        const std::string& help, const std::vector<std::string>& choices,
+                        const std::string& group) {
+  return app.add_option(name, value, help)
+      ->group(group)
+      ->check(CLI::IsMember(choices))
+      ->capture_default_str();
+}
 
-int main(int argc, char** argv) {
-  using kdgrid::viewer::ViewerOptions;
-  ViewerOptions o;
-  CLI::App app{
-      "kdgrid-viewer: interactive viewer and debugger for kdgrid's acceleration structures"};
-  app.add_option("scene", o.scene,
-                 "Scene file (.gltf .glb .ply .obj); default assets/cornell.gltf");
-  o.accel.add_to(&app);
-  o.camera.add_to(&app);
+/// The Window group: size, resolution, samples, threads.
+void add_window_options(CLI::App& app, ViewerOptions& o, int& threads) {
   const std::string gw = "Window";
   app.add_option("--width", o.width,
                  "Window width in screen units (default: remembered, else 1280)")
@@ -72,12 +76,15 @@ int main(int argc, char** argv) {
       ->group(gw)
       ->check(CLI::Range(1, kdgrid::kMaxSamplesPerPixel))
       ->capture_default_str();
-  int threads = 0;
   app.add_option("--threads", threads,
                  "Threads for rendering and builds; 0 = all. 1 runs everything on the calling "
                  "threads, which ThreadSanitizer can follow (libtbb itself is not instrumented)")
       ->group(gw)
       ->capture_default_str();
+}
+
+/// The scripted runs' group (tests, reports); --pick is parsed by check_options.
+void add_scripted_options(CLI::App& app, ViewerOptions& o, std::string& pick) {
   const std::string gs = "Scripted runs (tests, reports)";
   app.add_option("--frames", o.frames, "Run at least N frames, then write --screenshot and exit 0")
       ->group(gs)
@@ -93,7 +100,6 @@ int main(int argc, char** argv) {
                  "Scripted: give up with exit code 4 after this many seconds")
       ->group(gs)
       ->capture_default_str();
-  std::string pick;
   app.add_option("--pick", pick, "Trace image pixel X,Y (0,0 = top left) and show its traversal")
       ->group(gs);
   app.add_option("--pick-ray", o.pick_ray,
@@ -107,23 +113,18 @@ int main(int argc, char** argv) {
   app.add_flag("--splits-of-pick", o.splits_of_pick,
                "Split overlay: only the planes the picked ray crossed (with --overlay splits)")
       ->group(gs);
-  app.add_option("--heatmap", o.heatmap,
-                 "Show per-pixel traversal steps, triangle tests or time (nanoseconds of the "
-                 "primary ray's query)")
-      ->group(gs)
-      ->check(CLI::IsMember({"steps", "tests", "time"}));
-  app.add_option("--shading", o.shading,
-                 "How the shaded picture is lit: auto (the scene's lights, or the eye light when "
-                 "they leave the view dark), lights, eye (a light at the eye) or normals")
-      ->group(gs)
-      ->check(CLI::IsMember({"auto", "lights", "eye", "normals"}))
-      ->capture_default_str();
-  app.add_option("--offset", o.offset,
-                 "Where secondary rays start on the surface they leave: robust (moved off it), "
-                 "epsilon (skip hits nearer than 1e-4) or none (at the hit point)")
-      ->group(gs)
-      ->check(CLI::IsMember({"robust", "epsilon", "none"}))
-      ->capture_default_str();
+  add_choice(app, "--heatmap", o.heatmap,
+             "Show per-pixel traversal steps, triangle tests or time (nanoseconds of the "
+             "primary ray's query)",
+             {"steps", "tests", "time"}, gs);
+  add_choice(app, "--shading", o.shading,
+             "How the shaded picture is lit: auto (the scene's lights, or the eye light when "
+             "they leave the view dark), lights, eye (a light at the eye) or normals",
+             {"auto", "lights", "eye", "normals"}, gs);
+  add_choice(app, "--offset", o.offset,
+             "Where secondary rays start on the surface they leave: robust (moved off it), "
+             "epsilon (skip hits nearer than 1e-4) or none (at the hit point)",
+             {"robust", "epsilon", "none"}, gs);
   app.add_option("--overlay", o.overlays, "Overlay: splits, cells or boxes (repeatable)")
       ->group(gs)
       ->check(CLI::IsMember({"splits", "cells", "boxes"}));
@@ -154,12 +155,10 @@ int main(int argc, char** argv) {
                  "Scripted: at the end write the difference with the pinned heat map as EXR: "
                  "R = current - pinned, G = current, B = pinned (needs --pin-heatmap)")
       ->group(gs);
-  app.add_option("--diff-view", o.diff_view,
-                 "With a pinned heat map, show the current map, the pinned one, their "
-                 "difference or both side by side")
-      ->group(gs)
-      ->check(CLI::IsMember({"current", "pinned", "difference", "split"}))
-      ->capture_default_str();
+  add_choice(app, "--diff-view", o.diff_view,
+             "With a pinned heat map, show the current map, the pinned one, their "
+             "difference or both side by side",
+             {"current", "pinned", "difference", "split"}, gs);
   app.add_flag("--accuracy", o.accuracy,
                "Show the accuracy map (every pixel's ray tree against a double-precision "
                "reference); a scripted run waits until every pixel is judged")
@@ -185,67 +184,89 @@ int main(int argc, char** argv) {
       ->group(gs)
       ->check(CLI::Range(0, 1000))
       ->capture_default_str();
+}
+
+/// Checks what can be checked before a window opens (a ParamError says what is wrong) and
+/// fills in what the parse leaves: the default scene, the --pick pixel.
+void check_options(ViewerOptions& o, const std::string& pick, int threads) {
+  if (o.scene.empty()) o.scene = kdgrid::find_asset("cornell.gltf");
+  if (o.scene.empty())
+    throw kdgrid::ParamError(
+        "no scene given and assets/cornell.gltf was found neither under "
+        "the current directory nor beside the executable: give a scene file");
+  o.scene = kdgrid::resolve_scene_path(o.scene);
+  // Validate everything that can be validated before a window opens.
+  (void)o.accel.resolve();
+  if (o.accel_given) (void)kdgrid::make_accelerator(o.accel.accel);
+  if (!o.rebuild_cell_size.empty()) (void)kdgrid::cli::parse_cell_size(o.rebuild_cell_size);
+  if (!o.supersede_cell_size.empty()) {
+    if (o.rebuild_cell_size.empty())
+      throw kdgrid::ParamError(
+          "--supersede-cell-size supersedes the --rebuild-cell-size build: give "
+          "--rebuild-cell-size too");
+    (void)kdgrid::viewer::CellChoice::parse(o.supersede_cell_size, "--supersede-cell-size");
+  }
+  if (!pick.empty()) {
+    int x = 0, y = 0;
+    char extra = 0;
+    if (std::sscanf(pick.c_str(), "%d,%d%c", &x, &y, &extra) != 2 || x < 0 || y < 0)
+      throw kdgrid::ParamError("--pick '" + pick +
+                               "' must be X,Y image pixel coordinates, e.g. 320,240");
+    o.pick = std::array<int, 2>{x, y};
+  }
+  kdgrid::check_threads(threads);
+  if (o.pick_ray > 0 && !o.pick)
+    throw kdgrid::ParamError("--pick-ray selects a ray of the --pick X,Y pixel: give --pick too");
+  if (o.frame_pick && !o.pick)
+    throw kdgrid::ParamError("--frame-pick frames the --pick X,Y ray: give --pick too");
+  if (o.frames > 0 && o.hold > 0)
+    throw kdgrid::ParamError("--frames and --hold both end a scripted run; give one of them");
+  if (!o.screenshot.empty() && !o.scripted())
+    throw kdgrid::ParamError(
+        "--screenshot needs --frames N (the number of frames to run first) or --hold SECONDS");
+  if (!o.export_heatmap.empty() && (o.heatmap.empty() || !o.scripted()))
+    throw kdgrid::ParamError("--export-heatmap needs --heatmap steps|tests and --frames N");
+  // The outputs are checked before the window opens, as the CLI checks its own: a missing
+  // folder, a name the file system refuses or a device (written through the atomic writer,
+  // /dev/null would be replaced) fails now, not after the frames.
+  if (!o.export_heatmap.empty())
+    kdgrid::check_output_path(o.export_heatmap, "--export-heatmap", {".png", ".exr"}, {o.scene});
+  if (!o.screenshot.empty())
+    kdgrid::check_output_path(o.screenshot, "--screenshot", {".png"}, {o.scene});
+  if (!o.stats_json.empty())
+    kdgrid::check_output_path(o.stats_json, "--stats-json", {".json"}, {o.scene});
+  if (o.pin_heatmap && (o.heatmap.empty() || !o.scripted()))
+    throw kdgrid::ParamError(
+        "--pin-heatmap pins a heat map: give --heatmap steps|tests and "
+        "--frames N");
+  if (!o.diff_exr.empty() && !o.pin_heatmap)
+    throw kdgrid::ParamError(
+        "--diff-exr writes the difference with the pinned heat map: give "
+        "--pin-heatmap (and --rebuild-cell-size or another change)");
+  if (!o.diff_exr.empty()) kdgrid::check_image_extension(o.diff_exr);
+  if (o.max_samples < o.min_samples) o.max_samples = o.min_samples;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  ViewerOptions o;
+  CLI::App app{
+      "kdgrid-viewer: interactive viewer and debugger for kdgrid's acceleration structures"};
+  app.add_option("scene", o.scene,
+                 "Scene file (.gltf .glb .ply .obj); default assets/cornell.gltf");
+  o.accel.add_to(&app);
+  o.camera.add_to(&app);
+  int threads = 0;
+  std::string pick;
+  add_window_options(app, o, threads);
+  add_scripted_options(app, o, pick);
 
   try {
     app.parse(argc, argv);
     o.accel_given = app.get_option("--accel")->count() > 0;
     o.cell_size_given = app.get_option("--cell-size")->count() > 0;
-    if (o.scene.empty()) o.scene = kdgrid::find_asset("cornell.gltf");
-    if (o.scene.empty())
-      throw kdgrid::ParamError(
-          "no scene given and assets/cornell.gltf was found neither under "
-          "the current directory nor beside the executable: give a scene file");
-    o.scene = kdgrid::resolve_scene_path(o.scene);
-    // Validate everything that can be validated before a window opens.
-    (void)o.accel.resolve();
-    if (o.accel_given) (void)kdgrid::make_accelerator(o.accel.accel);
-    if (!o.rebuild_cell_size.empty()) (void)kdgrid::cli::parse_cell_size(o.rebuild_cell_size);
-    if (!o.supersede_cell_size.empty()) {
-      if (o.rebuild_cell_size.empty())
-        throw kdgrid::ParamError(
-            "--supersede-cell-size supersedes the --rebuild-cell-size build: give "
-            "--rebuild-cell-size too");
-      (void)kdgrid::viewer::CellChoice::parse(o.supersede_cell_size, "--supersede-cell-size");
-    }
-    if (!pick.empty()) {
-      int x = 0, y = 0;
-      char extra = 0;
-      if (std::sscanf(pick.c_str(), "%d,%d%c", &x, &y, &extra) != 2 || x < 0 || y < 0)
-        throw kdgrid::ParamError("--pick '" + pick +
-                                 "' must be X,Y image pixel coordinates, e.g. 320,240");
-      o.pick = std::array<int, 2>{x, y};
-    }
-    kdgrid::check_threads(threads);
-    if (o.pick_ray > 0 && !o.pick)
-      throw kdgrid::ParamError("--pick-ray selects a ray of the --pick X,Y pixel: give --pick too");
-    if (o.frame_pick && !o.pick)
-      throw kdgrid::ParamError("--frame-pick frames the --pick X,Y ray: give --pick too");
-    if (o.frames > 0 && o.hold > 0)
-      throw kdgrid::ParamError("--frames and --hold both end a scripted run; give one of them");
-    if (!o.screenshot.empty() && !o.scripted())
-      throw kdgrid::ParamError(
-          "--screenshot needs --frames N (the number of frames to run first) or --hold SECONDS");
-    if (!o.export_heatmap.empty() && (o.heatmap.empty() || !o.scripted()))
-      throw kdgrid::ParamError("--export-heatmap needs --heatmap steps|tests and --frames N");
-    // The outputs are checked before the window opens, as the CLI checks its own: a missing
-    // folder, a name the file system refuses or a device (written through the atomic writer,
-    // /dev/null would be replaced) fails now, not after the frames.
-    if (!o.export_heatmap.empty())
-      kdgrid::check_output_path(o.export_heatmap, "--export-heatmap", {".png", ".exr"}, {o.scene});
-    if (!o.screenshot.empty())
-      kdgrid::check_output_path(o.screenshot, "--screenshot", {".png"}, {o.scene});
-    if (!o.stats_json.empty())
-      kdgrid::check_output_path(o.stats_json, "--stats-json", {".json"}, {o.scene});
-    if (o.pin_heatmap && (o.heatmap.empty() || !o.scripted()))
-      throw kdgrid::ParamError(
-          "--pin-heatmap pins a heat map: give --heatmap steps|tests and "
-          "--frames N");
-    if (!o.diff_exr.empty() && !o.pin_heatmap)
-      throw kdgrid::ParamError(
-          "--diff-exr writes the difference with the pinned heat map: give "
-          "--pin-heatmap (and --rebuild-cell-size or another change)");
-    if (!o.diff_exr.empty()) kdgrid::check_image_extension(o.diff_exr);
-    if (o.max_samples < o.min_samples) o.max_samples = o.min_samples;
+    check_options(o, pick, threads);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   } catch (const kdgrid::Error& e) {

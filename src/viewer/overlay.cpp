@@ -161,12 +161,19 @@ size_t build_box_overlay(const Accelerator& a, int lo, int hi, LineBatch& out, s
     if (in_range <= room) last = d;
   }
   if (wanted) *wanted += in_range;
-  size_t n = 0;
+  // Level by level, the shallow ones first: a picture drawn a part per frame (LineRenderer)
+  // fills in from the root down.
+  std::vector<std::vector<Box3>> levels(size_t(std::max(last + 1, 0)));
   a.for_each_box([&](const StructureBox& b) {
     if (b.depth < lo || b.depth > last) return;
-    out.box(b.box, ramp((float(b.depth) - float(lo)) / (top - float(lo)), 0.7f));
-    ++n;
+    levels[size_t(b.depth)].push_back(b.box);
   });
+  size_t n = 0;
+  for (int d = std::max(lo, 0); d <= last; ++d) {
+    const Color c = ramp((float(d) - float(lo)) / (top - float(lo)), 0.7f);
+    for (const Box3& b : levels[size_t(d)]) out.box(b, c);
+    n += levels[size_t(d)].size();
+  }
   return n;
 }
 
@@ -178,54 +185,102 @@ void LineRenderer::init() {
   GL_CHECK(glGenBuffers(1, &vbo_));
   GL_CHECK(glBindVertexArray(vao_));
   GL_CHECK(glBindBuffer(GL_ARRAY_BUFFER, vbo_));
+  // Allocated once, for the largest overlay: an upload only writes into it.
+  GL_CHECK(glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(2 * kMaxOverlaySegments * sizeof(LineVertex)),
+                        nullptr, GL_STATIC_DRAW));
   GL_CHECK(glEnableVertexAttribArray(0));
   GL_CHECK(glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, sizeof(LineVertex), nullptr));
   GL_CHECK(glEnableVertexAttribArray(1));
   GL_CHECK(glVertexAttribPointer(1, 4, GL_FLOAT, GL_FALSE, sizeof(LineVertex),
                                  reinterpret_cast<const void*>(3 * sizeof(float))));
   GL_CHECK(glBindVertexArray(0));
+  show_program_ = make_program("picture", shaders::k_image_vert, shaders::k_picture_frag);
+  GL_CHECK(glGenVertexArrays(1, &show_vao_));
+  GL_CHECK(glGenFramebuffers(1, &picture_fbo_));
+  GL_CHECK(glGenTextures(1, &picture_tex_));
 }
 
 void LineRenderer::destroy() {
   if (vbo_) glDeleteBuffers(1, &vbo_);
   if (vao_) glDeleteVertexArrays(1, &vao_);
   if (program_) glDeleteProgram(program_);
-  vbo_ = vao_ = program_ = 0;
+  if (picture_fbo_) glDeleteFramebuffers(1, &picture_fbo_);
+  if (picture_tex_) glDeleteTextures(1, &picture_tex_);
+  if (show_vao_) glDeleteVertexArrays(1, &show_vao_);
+  if (show_program_) glDeleteProgram(show_program_);
+  vbo_ = vao_ = program_ = picture_fbo_ = picture_tex_ = show_vao_ = show_program_ = 0;
 }
 
 void LineRenderer::upload(LineBatch&& batch) {
   pending_ = batch.take();
+  if (pending_.size() > 2 * kMaxOverlaySegments) pending_.resize(2 * kMaxOverlaySegments);
   uploaded_ = 0;
   count_ = 0;
-  GL_CHECK(glBindBuffer(GL_ARRAY_BUFFER, vbo_));
-  GL_CHECK(glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(pending_.size() * sizeof(LineVertex)), nullptr,
-                        GL_STATIC_DRAW));
-  upload_step(kUploadVerticesPerFrame);
+  ++generation_;
 }
 
-bool LineRenderer::upload_step(size_t max_vertices) {
+size_t LineRenderer::upload_step(size_t max_vertices) {
+  size_t n = 0;
   if (uploaded_ < pending_.size()) {
-    const size_t n = std::min(max_vertices, pending_.size() - uploaded_);
+    n = std::min(max_vertices, pending_.size() - uploaded_);
     GL_CHECK(glBindBuffer(GL_ARRAY_BUFFER, vbo_));
     GL_CHECK(glBufferSubData(GL_ARRAY_BUFFER, GLintptr(uploaded_ * sizeof(LineVertex)),
                              GLsizeiptr(n * sizeof(LineVertex)), pending_.data() + uploaded_));
     uploaded_ += n;
     count_ = uploaded_;
   }
-  if (uploaded_ < pending_.size()) return false;
-  pending_ = {};
-  uploaded_ = 0;
-  return true;
+  if (uploaded_ >= pending_.size()) {
+    pending_ = {};
+    uploaded_ = 0;
+  }
+  return n;
 }
 
-void LineRenderer::draw(const std::array<float, 16>& vp, float alpha) const {
-  if (count_ == 0) return;
-  GL_CHECK(glUseProgram(program_));
-  GL_CHECK(glUniformMatrix4fv(u_view_proj_, 1, GL_FALSE, vp.data()));
-  GL_CHECK(glUniform1f(u_alpha_, alpha));
-  GL_CHECK(glBindVertexArray(vao_));
-  GL_CHECK(glDrawArrays(GL_LINES, 0, GLsizei(count_)));
-  GL_CHECK(glBindVertexArray(0));
+void LineRenderer::size_picture(int w, int h) {
+  if (w == picture_w_ && h == picture_h_) return;
+  GL_CHECK(glBindTexture(GL_TEXTURE_2D, picture_tex_));
+  GL_CHECK(glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA8, w, h, 0, GL_RGBA, GL_UNSIGNED_BYTE, nullptr));
+  GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST));
+  GL_CHECK(glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST));
+  GL_CHECK(glBindFramebuffer(GL_FRAMEBUFFER, picture_fbo_));
+  GL_CHECK(
+      glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, picture_tex_, 0));
+  GL_CHECK(glBindFramebuffer(GL_FRAMEBUFFER, 0));
+  picture_w_ = w;
+  picture_h_ = h;
+  picture_key_ = {};  // drawn again from the start at the new size
+}
+
+size_t LineRenderer::draw(const std::array<float, 16>& vp, float alpha, int fb_w, int fb_h) {
+  if (count_ == 0 || fb_w <= 0 || fb_h <= 0) return 0;
+  size_picture(fb_w, fb_h);
+  const PictureKey key{vp, alpha, generation_};
+  GL_CHECK(glBindFramebuffer(GL_FRAMEBUFFER, picture_fbo_));
+  if (!(key == picture_key_)) {
+    picture_key_ = key;
+    drawn_ = 0;
+    GL_CHECK(glClearColor(0, 0, 0, 0));
+    GL_CHECK(glClear(GL_COLOR_BUFFER_BIT));
+  }
+  // The picture holds premultiplied colour: each line goes over it as it would over the image,
+  // so showing the picture with (1, 1 - alpha) gives what drawing every line there would.
+  GL_CHECK(glEnable(GL_BLEND));
+  const size_t n = std::min(count_ - drawn_, 2 * kDrawLinesPerFrame);
+  if (n > 0) {
+    GL_CHECK(
+        glBlendFuncSeparate(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA, GL_ONE, GL_ONE_MINUS_SRC_ALPHA));
+    GL_CHECK(glUseProgram(program_));
+    GL_CHECK(glUniformMatrix4fv(u_view_proj_, 1, GL_FALSE, vp.data()));
+    GL_CHECK(glUniform1f(u_alpha_, alpha));
+    GL_CHECK(glBindVertexArray(vao_));
+    GL_CHECK(glDrawArrays(GL_LINES, GLint(drawn_), GLsizei(n)));
+    drawn_ += n;
+  }
+  GL_CHECK(glBindFramebuffer(GL_FRAMEBUFFER, 0));
+  GL_CHECK(glBlendFunc(GL_ONE, GL_ONE_MINUS_SRC_ALPHA));
+  draw_fullscreen(show_program_, "u_picture", picture_tex_, show_vao_);
+  GL_CHECK(glDisable(GL_BLEND));
+  return n / 2;
 }
 
 }  // namespace kdgrid::viewer

@@ -55,12 +55,15 @@ std::array<float, 16> view_projection(const CameraFrame& f, float near_dist, flo
 bool project_to_pixel(const CameraFrame& f, const Vec3& p, float& px, float& py);
 
 /// Limits that keep overlays of huge structures drawable; reported in the panel when hit.
-/// Every frame draws every segment: with a software GL (Mesa llvmpipe) 250,000 lines cost
-/// about 40 ms a frame, and 1.5 million took up to 270 ms.
 inline constexpr size_t kMaxOverlaySegments = 250'000;
-/// Vertices sent to the GPU per frame when an overlay is uploaded, so that no frame stalls on
-/// one large upload (the overlay fills in over a few frames).
+/// Vertices sent to the GPU per frame when an overlay is uploaded, into a buffer allocated once
+/// for kMaxOverlaySegments, so that no frame stalls on one large upload or allocation.
 inline constexpr size_t kUploadVerticesPerFrame = 100'000;
+/// Lines drawn per frame. A software GL (Mesa llvmpipe) transforms and bins every line on the
+/// thread that draws it, so drawing a whole capped overlay in every frame would cost that
+/// thread time in proportion to the lines; instead the lines are drawn into an offscreen
+/// picture this many per frame (the shallow levels first) and the picture is shown whole.
+inline constexpr size_t kDrawLinesPerFrame = 25'000;
 
 /// A stretch [t0, t1] of a ray: the part of a picked ray its traversal covered.
 struct RaySegment {
@@ -83,26 +86,45 @@ size_t build_cell_overlay(const Accelerator& a, LineBatch& out, size_t* wanted =
 /// counts as build_cell_overlay.
 size_t build_box_overlay(const Accelerator& a, int depth_lo, int depth_hi, LineBatch& out,
                          size_t* wanted = nullptr);
-/// GL side: one VBO of lines and the lines shader.
+/// GL side: the lines' vertex buffer, the lines shader, and the offscreen picture the lines are
+/// drawn into, a bounded number per frame (kUploadVerticesPerFrame, kDrawLinesPerFrame).
 class LineRenderer {
  public:
   void init();
   void destroy();
-  /// Starts replacing the lines with `batch`'s: the first kUploadVerticesPerFrame are sent at
-  /// once, the rest by upload_step(); until then only what has been sent is drawn.
+  /// Starts replacing the lines with `batch`'s (at most kMaxOverlaySegments; more are dropped):
+  /// upload_step() sends them; until then only what has been sent is drawn.
   void upload(LineBatch&& batch);
-  /// Sends up to `max_vertices` more; true when every vertex is on the GPU.
-  bool upload_step(size_t max_vertices);
+  /// Sends up to `max_vertices` more; returns how many it sent.
+  size_t upload_step(size_t max_vertices);
   bool uploading() const { return uploaded_ < pending_.size(); }
-  void draw(const std::array<float, 16>& view_proj, float alpha) const;
+  /// Draws up to kDrawLinesPerFrame more of the uploaded lines into the offscreen picture of
+  /// this view (a new view, size, opacity or overlay starts it again) and shows the picture
+  /// over the framebuffer (fb_w x fb_h). Returns the lines drawn in this call.
+  size_t draw(const std::array<float, 16>& view_proj, float alpha, int fb_w, int fb_h);
+  /// Lines uploaded but not yet in the picture of the last drawn view.
+  bool drawing() const { return drawn_ < count_; }
   size_t vertex_count() const { return count_; }
 
  private:
+  /// Resizes the offscreen picture to w x h (when it differs).
+  void size_picture(int w, int h);
   GLuint program_ = 0, vao_ = 0, vbo_ = 0;
   GLint u_view_proj_ = -1, u_alpha_ = -1;
-  size_t count_ = 0;
+  GLuint picture_fbo_ = 0, picture_tex_ = 0, show_program_ = 0, show_vao_ = 0;
+  int picture_w_ = 0, picture_h_ = 0;
+  size_t count_ = 0;                 ///< vertices on the GPU
   std::vector<LineVertex> pending_;  ///< the lines being uploaded
   size_t uploaded_ = 0;              ///< how many of pending_ are on the GPU
+  uint64_t generation_ = 0;          ///< counts upload() calls: a new overlay
+  /// What the offscreen picture shows: the view, the opacity and the overlay (generation_).
+  struct PictureKey {
+    std::array<float, 16> view_proj{};
+    float alpha = -1;
+    uint64_t generation = ~uint64_t(0);
+    bool operator==(const PictureKey&) const = default;
+  } picture_key_;
+  size_t drawn_ = 0;  ///< vertices in the offscreen picture
 };
 
 }  // namespace kdgrid::viewer

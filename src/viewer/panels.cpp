@@ -148,8 +148,38 @@ void Viewer::draw_panels() {
                         "split depths", "box depths", "opacity", "min", "max"})
     label_w = std::max(label_w, ImGui::CalcTextSize(l).x);
   ImGui::PushItemWidth(-(label_w + style.ItemInnerSpacing.x + 1));
-  const auto chk = [this](const char* label) { audit_.item(label); };
 
+  draw_status_area();
+  if (!world_ && !task_) {
+    ImGui::PushTextWrapPos(0.0f);
+    ImGui::TextDisabled("no scene loaded: drop a .gltf/.glb/.ply/.obj file to load one");
+    ImGui::PopTextWrapPos();
+  }
+  if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_)
+    draw_scene_section();
+  if (ImGui::CollapsingHeader("Structure", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
+    draw_structure_knobs();
+    draw_build_stats();
+  }
+  if (ImGui::CollapsingHeader("Render", ImGuiTreeNodeFlags_DefaultOpen)) draw_render_section();
+
+  if (ImGui::CollapsingHeader("Accuracy")) draw_accuracy_panel();
+  if (mode_ != RenderMode::Shaded &&
+      ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen))
+    draw_heat_map_section();
+  if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) draw_overlay_section();
+
+  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
+  if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
+  ImGui::PopItemWidth();
+  ImGui::End();
+
+  draw_pick_steps();
+  if (have_image_ && image_.mode != RenderMode::Shaded) draw_heat_legend();
+  reset_layout_ = false;
+}
+
+void Viewer::draw_status_area() {
   // The status area: a fixed height for the build's progress and the errors, scrolling when
   // they need more, so that nothing under it moves when a build starts or ends or an error
   // appears.
@@ -163,13 +193,13 @@ void Viewer::draw_panels() {
                   task_->expected_seconds);
     else
       ImGui::Text("%s ... %.1f s", task_->what.c_str(), secs);
-    chk(task_->what.c_str());
+    audit_.item(task_->what.c_str());
     same_line_if_fits(task_->cancel->cancelled() ? "cancelling" : "cancel (Esc)");
     if (task_->cancel->cancelled())
       ImGui::TextDisabled("cancelling");
     else if (ImGui::SmallButton("cancel (Esc)"))
       cancel_task();
-    chk("cancel (Esc)");
+    audit_.item("cancel (Esc)");
     // Builds report no progress: the bar runs towards the expected time, monotonically.
     const double f = task_progress(secs, task_->expected_seconds);
     if (progress_log_.empty() || progress_log_.back()[0] != secs)
@@ -196,277 +226,266 @@ void Viewer::draw_panels() {
   auto& ys = below_status_y_by_state_[task_ ? "build" : (!task_error_.empty() ? "error" : "idle")];
   if (std::find(ys.begin(), ys.end(), audit_.below_status_y) == ys.end())
     ys.push_back(audit_.below_status_y);
+}
 
-  if (!world_ && !task_) {
-    ImGui::PushTextWrapPos(0.0f);
-    ImGui::TextDisabled("no scene loaded: drop a .gltf/.glb/.ply/.obj file to load one");
-    ImGui::PopTextWrapPos();
-  }
-  if (ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
-    const Scene& s = *world_->scene;
-    ImGui::TextWrapped("%s", s.source.c_str());
-    ImGui::TextWrapped("%zu triangles, %zu vertices", s.mesh.num_triangles(),
-                       s.mesh.num_vertices());
-    ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(),
-                       s.lights.size(), s.textures.size());
-    const Box3& b = scene_bounds_;
-    ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x,
-                       b.hi.y, b.hi.z);
-    ImGui::PushTextWrapPos(0.0f);
-    ImGui::TextDisabled("drop a .gltf/.glb/.ply/.obj file to load it");
-    ImGui::PopTextWrapPos();
-  }
+void Viewer::draw_scene_section() {
+  const Scene& s = *world_->scene;
+  ImGui::TextWrapped("%s", s.source.c_str());
+  ImGui::TextWrapped("%zu triangles, %zu vertices", s.mesh.num_triangles(), s.mesh.num_vertices());
+  ImGui::TextWrapped("%zu materials, %zu lights, %zu textures", s.materials.size(), s.lights.size(),
+                     s.textures.size());
+  const Box3& b = scene_bounds_;
+  ImGui::TextWrapped("bounds (%.3g %.3g %.3g) - (%.3g %.3g %.3g)", b.lo.x, b.lo.y, b.lo.z, b.hi.x,
+                     b.hi.y, b.hi.z);
+  ImGui::PushTextWrapPos(0.0f);
+  ImGui::TextDisabled("drop a .gltf/.glb/.ply/.obj file to load it");
+  ImGui::PopTextWrapPos();
+}
 
-  if (ImGui::CollapsingHeader("Structure", ImGuiTreeNodeFlags_DefaultOpen) && world_) {
-    const auto names = accelerator_names();
-    if (ImGui::BeginCombo("structure", accel_name_.c_str())) {
-      for (const auto& n : names) {
-        const bool built = built_.count(n) > 0;
-        const std::string label = n + (built ? "" : "  (build)");
-        if (ImGui::Selectable(label.c_str(), n == accel_name_) && n != accel_name_) {
-          if (built)
-            install_world(built_[n], false);  // switch on the same view, no rebuild
-          else
-            start_build(n, params_);
-        }
-      }
-      ImGui::EndCombo();
-    }
-    chk("structure");
-    // The main build knob of the selected structure; any change rebuilds off the UI thread.
-    bool rebuild = false;
-    BuildParams p = params_;
-    const float r = scene_radius();
-    if (accel_name_ == "bvh") {
-      ImGui::SliderInt("max leaf size", &p.bvh_max_leaf, 1, 32);
-      rebuild = committed_edit();
-      chk("max leaf size");
-    } else if (accel_name_ == "kdtree") {
-      ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
-                         ImGuiSliderFlags_Logarithmic);
-      rebuild = committed_edit();
-      chk("test/step cost");
-    } else if (accel_name_ == "hybrid") {
-      draw_cell_size_controls(p, rebuild);
-    } else if (accel_name_ == "irregular") {
-      // The irregular grid has no cell size: its two densities (BuildParams) set its cells.
-      ImGui::SliderFloat("top density", &p.irregular_top_density, 0.01f, 2.0f, "%.3g",
-                         ImGuiSliderFlags_Logarithmic);
-      rebuild = committed_edit();
-      chk("top density");
-      ImGui::SliderFloat("sub density", &p.irregular_sub_density, 0.25f, 16.0f, "%.3g",
-                         ImGuiSliderFlags_Logarithmic);
-      rebuild = rebuild || committed_edit();
-      chk("sub density");
-    } else if (accel_name_ == "grid") {
-      if (cell_size_slider_ <= 0)
-        cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
-      ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
-                         ImGuiSliderFlags_Logarithmic);
-      audit_.item("cell size");
-      if (committed_edit()) {
-        p = params_with_cell_size(accel_name_, cell_size_slider_);
-        rebuild = true;
-      }
-      ImGui::InputFloat("##cellvalue", &cell_size_slider_, 0, 0, "%.6g");
-      if (committed_edit() && cell_size_slider_ > 0) {
-        p = params_with_cell_size(accel_name_, cell_size_slider_);
-        rebuild = true;
-      }
-      ImGui::PushTextWrapPos(0.0f);
-      ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
-      ImGui::PopTextWrapPos();
-    }
-    if (rebuild) start_build(accel_name_, p);
-
-    const BuildStats& st = world_->accel->stats();
-    if (ImGui::BeginTable("stats", 2)) {
-      // Labels keep their whole width; long values (the hybrid's build notes) wrap instead.
-      ImGui::TableSetupColumn("name", ImGuiTableColumnFlags_WidthFixed);
-      ImGui::TableSetupColumn("value", ImGuiTableColumnFlags_WidthStretch);
-      const auto row = [](const char* k, const std::string& v) {
-        ImGui::TableNextRow();
-        ImGui::TableNextColumn();
-        ImGui::TextUnformatted(k);
-        ImGui::TableNextColumn();
-        ImGui::TextWrapped("%s", v.c_str());
-      };
-      char buf[64];
-      std::snprintf(buf, sizeof buf, "%.3f s", st.seconds > 0 ? st.seconds : world_->build_seconds);
-      row("build time", buf);
-      row("bytes", format_bytes_iec(double(st.bytes)));
-      row("nodes", std::to_string(st.nodes));
-      row("leaves", std::to_string(st.leaves) + " (" + std::to_string(st.empty_leaves) + " empty)");
-      row("references", std::to_string(st.references));
-      row("max depth", std::to_string(st.max_depth));
-      for (const auto& [k, v] : st.extra) row(k.c_str(), v);
-      ImGui::EndTable();
-    }
-  }
-
-  if (ImGui::CollapsingHeader("Render", ImGuiTreeNodeFlags_DefaultOpen)) {
-    int m = int(mode_);
-    ImGui::RadioButton("shaded", &m, int(RenderMode::Shaded));
-    ImGui::SameLine();
-    ImGui::RadioButton("steps", &m, int(RenderMode::HeatSteps));
-    ImGui::SameLine();
-    ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
-    chk("tri tests");
-    ImGui::SameLine();
-    ImGui::RadioButton("time", &m, int(RenderMode::HeatTime));
-    mode_ = RenderMode(m);
-    chk("time");
-    if (mode_ == RenderMode::Shaded) {
-      // The shading (key L): auto shows the eye light where the scene's lights leave the view
-      // dark (update_auto_shading).
-      int sc = int(shading_choice_);
-      ImGui::PushID("shading");
-      ImGui::TextUnformatted("light (L):");
-      for (const auto& [v, label] :
-           {std::pair{ShadingChoice::Auto, "auto"}, std::pair{ShadingChoice::Lights, "lights"},
-            std::pair{ShadingChoice::Eye, "eye"}, std::pair{ShadingChoice::Normals, "normals"}}) {
-        same_line_if_fits(label);
-        ImGui::RadioButton(label, &sc, int(v));
-      }
-      ImGui::PopID();
-      shading_choice_ = ShadingChoice(sc);
-      chk("normals");
-      if (shading_choice_ == ShadingChoice::Auto) {
-        ImGui::PushTextWrapPos(0.0f);
-        if (lit_fraction_ < 0)
-          ImGui::TextDisabled("auto: the scene's lights");
+void Viewer::draw_structure_knobs() {
+  const auto names = accelerator_names();
+  if (ImGui::BeginCombo("structure", accel_name_.c_str())) {
+    for (const auto& n : names) {
+      const bool built = built_.count(n) > 0;
+      const std::string label = n + (built ? "" : "  (build)");
+      if (ImGui::Selectable(label.c_str(), n == accel_name_) && n != accel_name_) {
+        if (built)
+          install_world(built_[n], false);  // switch on the same view, no rebuild
         else
-          ImGui::TextDisabled("auto: %s (the lights reach %.1f%% of the view)",
-                              auto_eye_ ? "eye light" : "the scene's lights",
-                              100.0 * lit_fraction_);
-        ImGui::PopTextWrapPos();
+          start_build(n, params_);
       }
     }
-    ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s, %d previews/s", posted_w_, posted_h_,
-                       have_image_ ? image_.samples : 0, last_mrays_, previews_last_second());
-    chk("previews/s");
-    ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d",
-                     ImGuiSliderFlags_Logarithmic);
-    chk("max samples");
-    if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
-      opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
-    }
-    chk("resolution");
-    // Both plots run from 0 to their history's maximum, which the overlay names (with the
-    // latest value), so that their height reads as a fraction of a stated value.
-    const auto plot = [&chk](const char* name, const std::deque<float>& hist, const char* unit) {
-      std::vector<float> v(hist.begin(), hist.end());
-      const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
-      char overlay[64];
-      std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(),
-                    unit, hi);
-      ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f,
-                       ImVec2(0, 40));
-      chk(name);
-    };
-    plot("Mrays/s", mrays_hist_, "");
-    // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
-    plot("frame work", frame_ms_hist_, " ms");
-    ImGui::TextWrapped("camera: %s (Tab), speed x%.2f (+/-)",
-                       cam_.mode() == CameraMode::Fly ? "fly" : "orbit", cam_.speed_scale());
-    if (ImGui::Button("print camera (C)")) print_camera();
-    chk("print camera (C)");
-    same_line_if_fits("frame scene (Home)");
-    if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
-    chk("frame scene (Home)");
-    same_line_if_fits("screenshot (P)");
-    if (ImGui::Button("screenshot (P)"))
-      save_screenshot(default_output_name("kdgrid-screenshot", "png"));
-    chk("screenshot (P)");
-    same_line_if_fits("reset layout (R)");
-    if (ImGui::Button("reset layout (R)")) reset_layout_ = true;
-    chk("reset layout (R)");
+    ImGui::EndCombo();
   }
-
-  if (ImGui::CollapsingHeader("Accuracy")) draw_accuracy_panel();
-
-  if (mode_ != RenderMode::Shaded &&
-      ImGui::CollapsingHeader("Heat map", ImGuiTreeNodeFlags_DefaultOpen)) {
-    int s = int(settings_.heat_scale);
-    bool changed = ImGui::RadioButton("auto", &s, int(HeatScale::Auto));
-    ImGui::SameLine();
-    changed |= ImGui::RadioButton("fixed", &s, int(HeatScale::Fixed));
-    ImGui::SameLine();
-    changed |= ImGui::RadioButton("log", &s, int(HeatScale::Log));
-    chk("log");
-    settings_.heat_scale = HeatScale(s);
-    if (settings_.heat_scale == HeatScale::Fixed) {
-      changed |= ImGui::InputFloat("min", &settings_.heat_fixed_min);
-      changed |= ImGui::InputFloat("max", &settings_.heat_fixed_max);
+  audit_.item("structure");
+  // The main build knob of the selected structure; any change rebuilds off the UI thread.
+  bool rebuild = false;
+  BuildParams p = params_;
+  const float r = scene_radius();
+  if (accel_name_ == "bvh") {
+    ImGui::SliderInt("max leaf size", &p.bvh_max_leaf, 1, 32);
+    rebuild = committed_edit();
+    audit_.item("max leaf size");
+  } else if (accel_name_ == "kdtree") {
+    ImGui::SliderFloat("test/step cost", &p.kd_intersection_cost, 0.1f, 20.0f, "%.2f",
+                       ImGuiSliderFlags_Logarithmic);
+    rebuild = committed_edit();
+    audit_.item("test/step cost");
+  } else if (accel_name_ == "hybrid") {
+    draw_cell_size_controls(p, rebuild);
+  } else if (accel_name_ == "irregular") {
+    // The irregular grid has no cell size: its two densities (BuildParams) set its cells.
+    ImGui::SliderFloat("top density", &p.irregular_top_density, 0.01f, 2.0f, "%.3g",
+                       ImGuiSliderFlags_Logarithmic);
+    rebuild = committed_edit();
+    audit_.item("top density");
+    ImGui::SliderFloat("sub density", &p.irregular_sub_density, 0.25f, 16.0f, "%.3g",
+                       ImGuiSliderFlags_Logarithmic);
+    rebuild = rebuild || committed_edit();
+    audit_.item("sub density");
+  } else if (accel_name_ == "grid") {
+    if (cell_size_slider_ <= 0)
+      cell_size_slider_ = params_.cell_size > 0 ? params_.cell_size : r * 0.05f;
+    ImGui::SliderFloat("cell size", &cell_size_slider_, r * 1e-3f, r * 0.5f, "%.4g",
+                       ImGuiSliderFlags_Logarithmic);
+    audit_.item("cell size");
+    if (committed_edit()) {
+      p = params_with_cell_size(accel_name_, cell_size_slider_);
+      rebuild = true;
     }
-    if (changed) recolor_ = true;
-    if (ImGui::Button("export EXR") && have_image_ && image_.mode != RenderMode::Shaded) {
-      const std::string path =
-          default_output_name((std::string("kdgrid-") + mode_name(image_.mode)).c_str(), "exr");
-      const std::string err = write_counts_exr(
-          path, image_,
-          std::string("kdgrid ") + mode_name(image_.mode) + " per pixel, " + accel_name_);
-      message_ = err.empty() ? "wrote " + path : err;
-      std::printf("kdgrid-viewer: %s\n", message_.c_str());
+    ImGui::InputFloat("##cellvalue", &cell_size_slider_, 0, 0, "%.6g");
+    if (committed_edit() && cell_size_slider_ > 0) {
+      p = params_with_cell_size(accel_name_, cell_size_slider_);
+      rebuild = true;
     }
-    draw_diff_panel();
+    ImGui::PushTextWrapPos(0.0f);
+    ImGui::TextDisabled("grid: cell size sets lambda = %.3g", params_.grid_lambda);
+    ImGui::PopTextWrapPos();
   }
+  if (rebuild) start_build(accel_name_, p);
+}
 
-  if (ImGui::CollapsingHeader("Overlays", ImGuiTreeNodeFlags_DefaultOpen)) {
-    bool dirty = false;
-    // A depth-range slider with its colour ramp; the legend is recorded for --stats-json.
-    const auto depth_range = [&](const char* label, const char* what, int range[2]) {
-      ImGui::SliderInt2(label, range, 0, 64);
-      dirty |= committed_edit();
-      chk(label);
-      char l0[32], l2[32];
-      std::snprintf(l0, sizeof l0, "depth %d", range[0]);
-      std::snprintf(l2, sizeof l2, "%d", range[1]);
-      draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
-      audit_.legends.push_back(std::string(what) + ": " + l0 + " .. " + l2);
+void Viewer::draw_build_stats() {
+  const BuildStats& st = world_->accel->stats();
+  if (ImGui::BeginTable("stats", 2)) {
+    // Labels keep their whole width; long values (the hybrid's build notes) wrap instead.
+    ImGui::TableSetupColumn("name", ImGuiTableColumnFlags_WidthFixed);
+    ImGui::TableSetupColumn("value", ImGuiTableColumnFlags_WidthStretch);
+    const auto row = [](const char* k, const std::string& v) {
+      ImGui::TableNextRow();
+      ImGui::TableNextColumn();
+      ImGui::TextUnformatted(k);
+      ImGui::TableNextColumn();
+      ImGui::TextWrapped("%s", v.c_str());
     };
-    dirty |= ImGui::Checkbox("kd split planes", &show_splits_);
-    if (show_splits_) {
-      dirty |= ImGui::Checkbox("splits of the picked ray", &splits_of_pick_);
-      chk("splits of the picked ray");
-      if (splits_of_pick_ && !pick_) {
-        ImGui::PushTextWrapPos(0.0f);
-        ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
-        ImGui::PopTextWrapPos();
-      }
-      depth_range("split depths", "split depth", split_depth_);
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%.3f s", st.seconds > 0 ? st.seconds : world_->build_seconds);
+    row("build time", buf);
+    row("bytes", format_bytes_iec(double(st.bytes)));
+    row("nodes", std::to_string(st.nodes));
+    row("leaves", std::to_string(st.leaves) + " (" + std::to_string(st.empty_leaves) + " empty)");
+    row("references", std::to_string(st.references));
+    row("max depth", std::to_string(st.max_depth));
+    for (const auto& [k, v] : st.extra) row(k.c_str(), v);
+    ImGui::EndTable();
+  }
+}
+
+void Viewer::draw_render_section() {
+  int m = int(mode_);
+  ImGui::RadioButton("shaded", &m, int(RenderMode::Shaded));
+  ImGui::SameLine();
+  ImGui::RadioButton("steps", &m, int(RenderMode::HeatSteps));
+  ImGui::SameLine();
+  ImGui::RadioButton("tri tests", &m, int(RenderMode::HeatTests));
+  audit_.item("tri tests");
+  ImGui::SameLine();
+  ImGui::RadioButton("time", &m, int(RenderMode::HeatTime));
+  mode_ = RenderMode(m);
+  audit_.item("time");
+  if (mode_ == RenderMode::Shaded) {
+    // The shading (key L): auto shows the eye light where the scene's lights leave the view
+    // dark (update_auto_shading).
+    int sc = int(shading_choice_);
+    ImGui::PushID("shading");
+    ImGui::TextUnformatted("light (L):");
+    for (const auto& [v, label] :
+         {std::pair{ShadingChoice::Auto, "auto"}, std::pair{ShadingChoice::Lights, "lights"},
+          std::pair{ShadingChoice::Eye, "eye"}, std::pair{ShadingChoice::Normals, "normals"}}) {
+      same_line_if_fits(label);
+      ImGui::RadioButton(label, &sc, int(v));
     }
-    dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
-    dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
-    if (show_boxes_) {
-      depth_range("box depths", "box depth", box_depth_);
-    }
-    ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
-    chk("opacity");
-    if (dirty) overlay_dirty_ = true;
-    ImGui::TextWrapped("%zu items, %zu lines%s", overlay_items_,
-                       structure_lines_.vertex_count() / 2,
-                       overlay_job_.valid() ? " (building the overlay ...)" : "");
-    if (overlay_items_ < overlay_wanted_) {
-      // The cap keeps the overlay drawable: say what it left out and how to see the rest.
+    ImGui::PopID();
+    shading_choice_ = ShadingChoice(sc);
+    audit_.item("normals");
+    if (shading_choice_ == ShadingChoice::Auto) {
       ImGui::PushTextWrapPos(0.0f);
-      ImGui::TextColored(kRefusalColor,
-                         "capped at %zu lines: %zu of %zu boxes drawn (the deepest levels left "
-                         "out); narrow the depth range to see them",
-                         kMaxOverlaySegments, overlay_items_, overlay_wanted_);
+      if (lit_fraction_ < 0)
+        ImGui::TextDisabled("auto: the scene's lights");
+      else
+        ImGui::TextDisabled("auto: %s (the lights reach %.1f%% of the view)",
+                            auto_eye_ ? "eye light" : "the scene's lights", 100.0 * lit_fraction_);
       ImGui::PopTextWrapPos();
-      chk("capped");
     }
   }
+  ImGui::TextWrapped("%d x %d, %d samples, %.3g Mrays/s, %d previews/s", posted_w_, posted_h_,
+                     have_image_ ? image_.samples : 0, last_mrays_, previews_last_second());
+  audit_.item("previews/s");
+  ImGui::SliderInt("max samples", &opts_.max_samples, 1, 4096, "%d", ImGuiSliderFlags_Logarithmic);
+  audit_.item("max samples");
+  if (ImGui::SliderFloat("resolution", &opts_.resolution_scale, 0.1f, 1.0f, "%.2f")) {
+    opts_.resolution_scale = std::clamp(opts_.resolution_scale, 0.1f, 1.0f);
+  }
+  audit_.item("resolution");
+  // Both plots run from 0 to their history's maximum, which the overlay names (with the
+  // latest value), so that their height reads as a fraction of a stated value.
+  const auto plot = [this](const char* name, const std::deque<float>& hist, const char* unit) {
+    std::vector<float> v(hist.begin(), hist.end());
+    const float hi = v.empty() ? 0.0f : *std::max_element(v.begin(), v.end());
+    char overlay[64];
+    std::snprintf(overlay, sizeof overlay, "%.3g%s, axis 0-%.3g", v.empty() ? 0.0f : v.back(), unit,
+                  hi);
+    ImGui::PlotLines(name, v.data(), int(v.size()), 0, overlay, 0.0f, hi > 0 ? hi : 1.0f,
+                     ImVec2(0, 40));
+    audit_.item(name);
+  };
+  plot("Mrays/s", mrays_hist_, "");
+  // Work per frame (events, hand-over, upload, drawing), not the idle sleep between frames.
+  plot("frame work", frame_ms_hist_, " ms");
+  ImGui::TextWrapped("camera: %s (Tab), speed x%.2f (+/-)",
+                     cam_.mode() == CameraMode::Fly ? "fly" : "orbit", cam_.speed_scale());
+  if (ImGui::Button("print camera (C)")) print_camera();
+  audit_.item("print camera (C)");
+  same_line_if_fits("frame scene (Home)");
+  if (ImGui::Button("frame scene (Home)")) cam_.frame_scene();
+  audit_.item("frame scene (Home)");
+  same_line_if_fits("screenshot (P)");
+  if (ImGui::Button("screenshot (P)"))
+    save_screenshot(default_output_name("kdgrid-screenshot", "png"));
+  audit_.item("screenshot (P)");
+  same_line_if_fits("reset layout (R)");
+  if (ImGui::Button("reset layout (R)")) reset_layout_ = true;
+  audit_.item("reset layout (R)");
+}
 
-  if (ImGui::CollapsingHeader("Pick", ImGuiTreeNodeFlags_DefaultOpen)) draw_pick_panel();
-  if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
-  ImGui::PopItemWidth();
-  ImGui::End();
+void Viewer::draw_heat_map_section() {
+  int s = int(settings_.heat_scale);
+  bool changed = ImGui::RadioButton("auto", &s, int(HeatScale::Auto));
+  ImGui::SameLine();
+  changed |= ImGui::RadioButton("fixed", &s, int(HeatScale::Fixed));
+  ImGui::SameLine();
+  changed |= ImGui::RadioButton("log", &s, int(HeatScale::Log));
+  audit_.item("log");
+  settings_.heat_scale = HeatScale(s);
+  if (settings_.heat_scale == HeatScale::Fixed) {
+    changed |= ImGui::InputFloat("min", &settings_.heat_fixed_min);
+    changed |= ImGui::InputFloat("max", &settings_.heat_fixed_max);
+  }
+  if (changed) recolor_ = true;
+  if (ImGui::Button("export EXR") && have_image_ && image_.mode != RenderMode::Shaded) {
+    const std::string path =
+        default_output_name((std::string("kdgrid-") + mode_name(image_.mode)).c_str(), "exr");
+    const std::string err = write_counts_exr(
+        path, image_,
+        std::string("kdgrid ") + mode_name(image_.mode) + " per pixel, " + accel_name_);
+    message_ = err.empty() ? "wrote " + path : err;
+    std::printf("kdgrid-viewer: %s\n", message_.c_str());
+  }
+  draw_diff_panel();
+}
 
-  draw_pick_steps();
-  if (have_image_ && image_.mode != RenderMode::Shaded) draw_heat_legend();
-  reset_layout_ = false;
+void Viewer::draw_overlay_section() {
+  bool dirty = false;
+  // A depth-range slider with its colour ramp; the legend is recorded for --stats-json.
+  const auto depth_range = [&](const char* label, const char* what, int range[2]) {
+    ImGui::SliderInt2(label, range, 0, 64);
+    dirty |= committed_edit();
+    audit_.item(label);
+    char l0[32], l2[32];
+    std::snprintf(l0, sizeof l0, "depth %d", range[0]);
+    std::snprintf(l2, sizeof l2, "%d", range[1]);
+    draw_ramp_bar(ImGui::CalcItemWidth(), l0, "", l2);
+    audit_.legends.push_back(std::string(what) + ": " + l0 + " .. " + l2);
+  };
+  dirty |= ImGui::Checkbox("kd split planes", &show_splits_);
+  if (show_splits_) {
+    dirty |= ImGui::Checkbox("splits of the picked ray", &splits_of_pick_);
+    audit_.item("splits of the picked ray");
+    if (splits_of_pick_ && !pick_) {
+      ImGui::PushTextWrapPos(0.0f);
+      ImGui::TextDisabled("pick a pixel to see the planes its ray crosses");
+      ImGui::PopTextWrapPos();
+    }
+    depth_range("split depths", "split depth", split_depth_);
+  }
+  dirty |= ImGui::Checkbox("cells / leaves", &show_cells_);
+  dirty |= ImGui::Checkbox("boxes by depth", &show_boxes_);
+  if (show_boxes_) {
+    depth_range("box depths", "box depth", box_depth_);
+  }
+  ImGui::SliderFloat("opacity", &overlay_alpha_, 0.05f, 1.0f);
+  audit_.item("opacity");
+  if (dirty) overlay_dirty_ = true;
+  ImGui::TextWrapped("%zu items, %zu lines%s", overlay_items_, structure_lines_.vertex_count() / 2,
+                     overlay_job_.valid() ? " (building the overlay ...)" : "");
+  if (overlay_items_ < overlay_wanted_) {
+    // The cap keeps the overlay drawable: say what it left out and how to see the rest.
+    ImGui::PushTextWrapPos(0.0f);
+    ImGui::TextColored(kRefusalColor,
+                       "capped at %zu lines: %zu of %zu boxes drawn (the deepest levels left "
+                       "out); narrow the depth range to see them",
+                       kMaxOverlaySegments, overlay_items_, overlay_wanted_);
+    ImGui::PopTextWrapPos();
+    audit_.item("capped");
+  }
+}
+
+int Viewer::previews_last_second() const {
+  const double now = std::chrono::duration<double>(Clock::now() - run_started_).count();
+  int n = 0;
+  for (auto it = passes_.rbegin(); it != passes_.rend() && it->shown_at > now - 1.0; ++it)
+    n += it->preview;
+  return n;
 }
 
 void Viewer::keep_in_window() {

@@ -266,6 +266,33 @@ void UiAudit::cell(const char* text) {
 
 // ---- the Viewer's pick members ----------------------------------------------------------------
 
+void Viewer::do_pick(int px, int py) {
+  if (!world_ || posted_w_ <= 0 || posted_h_ <= 0) return;
+  Pick p;
+  p.x = std::clamp(px, 0, posted_w_ - 1);
+  p.y = std::clamp(py, 0, posted_h_ - 1);
+  p.w = posted_w_;
+  p.h = posted_h_;
+  p.camera = cam_.camera();
+  const CameraFrame f = CameraFrame::make(p.camera, p.w, p.h);
+  p.ray = f.ray(float(p.x) + 0.5f, float(p.y) + 0.5f);  // the pixel centre, as `trace --pixel`
+  pick_ = std::move(p);
+  trace_pick_tree(0);
+  const Trace& t = pick_->trace;
+  std::printf(
+      "kdgrid-viewer: pick %d,%d: %zu steps, %llu triangle tests, %s; %zu rays in its ray "
+      "tree\n  %s\n",
+      pick_->x, pick_->y, t.steps.size(), (unsigned long long)t.counters.tri_tests,
+      t.hit.valid() ? ("hit triangle " + std::to_string(t.hit.prim)).c_str() : "miss",
+      pick_->tree.nodes.size(), pick_->command.c_str());
+  std::fflush(stdout);
+}
+
+void Viewer::retrace_pick() {
+  if (!pick_ || !world_) return;
+  trace_pick_tree(pick_->selected);
+}
+
 void Viewer::frame_pick() {
   if (!pick_ || !world_) return;
   int fw = 0, fh = 0;

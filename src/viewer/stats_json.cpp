@@ -43,41 +43,52 @@ nlohmann::json summarize_ms(std::vector<float> ms) {
 
 }  // namespace
 
-bool Viewer::write_stats(const std::string& path, int exit_code) const {
+nlohmann::json Viewer::pick_json() const {
   using nlohmann::json;
-  int ww = 0, wh = 0, fw = 0, fh = 0;
-  glfwGetWindowSize(window_, &ww, &wh);
-  glfwGetFramebufferSize(window_, &fw, &fh);
-  json j;
-  j["exit_code"] = exit_code;
-  j["end"] = end_reason_;
-  j["display"] = {
-      {"window", {ww, wh}},
-      {"framebuffer", {fw, fh}},
-      {"content_scale", {content_scale_[0], content_scale_[1]}},
-      {"ui_scale", ui_scale_},
-      {"font_size",
-       ImGui::GetIO().Fonts->Fonts.empty() ? 0.0f : ImGui::GetIO().Fonts->Fonts[0]->FontSize},
-      {"image", {posted_w_, posted_h_}},
-      {"panel", opts_.hide_ui ? json(nullptr)
-                              : json{{"x", panel_rect_[0]},
-                                     {"y", panel_rect_[1]},
-                                     {"w", panel_rect_[2]},
-                                     {"h", panel_rect_[3]}}},
-      {"gl_renderer", gl_renderer_},
-      {"gl_version", gl_version_}};
-  const RenderSettings rs;  // what sync_render_job leaves at its defaults
-  j["settings"] = {
-      {"threads", tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)},
-      {"threads_option", opts_.threads},
-      {"max_samples", opts_.max_samples},
-      {"samples_per_pass", 1},
-      {"shadows", rs.shadows},
-      {"max_depth", rs.max_depth},
-      {"offset", to_string(offset_)},
-      {"resolution_scale", opts_.resolution_scale},
-      {"max_fps", opts_.max_fps},
-      {"mode", mode_name(mode_)}};
+  json p;
+  if (pick_) {
+    p = {{"x", pick_->x},
+         {"y", pick_->y},
+         {"steps", pick_->trace.steps.size()},
+         {"hit", pick_->trace.hit.valid()},
+         {"command", pick_->command},
+         {"framed", pick_->framed},
+         {"segment", {pick_->segment.t0, pick_->segment.t1}},
+         {"selected", pick_->selected}};
+    // The pixel's ray tree, in the order the renderer traced it.
+    json tree = json::array();
+    for (size_t k = 0; k < pick_->tree.nodes.size(); ++k) {
+      const RayTreeNode& n = pick_->tree.nodes[k];
+      const Trace& t = n.trace;
+      json e = {{"kind", to_string(n.kind)},
+                {"parent", n.parent},
+                {"depth", n.depth},
+                {"origin", vec_json(n.ray.org)},
+                {"dir", vec_json(n.ray.dir)},
+                {"tmin", n.ray.tmin},
+                {"tmax", std::isfinite(n.ray.tmax) ? json(n.ray.tmax) : json("inf")},
+                {"steps", t.steps.size()},
+                {"leaves", t.counters.leaves},
+                {"tests", t.counters.tri_tests},
+                {"seconds", n.seconds},
+                {"command", pick_->commands[k]}};
+      if (n.kind == RayKind::Shadow) {
+        e["light"] = n.light;
+        e["occluded"] = t.occluded;
+      } else {
+        e["hit"] = t.hit.valid() ? json{{"prim", t.hit.prim}, {"t", t.hit.t}} : json(nullptr);
+      }
+      tree.push_back(e);
+    }
+    p["tree"] = tree;
+  } else {
+    p = nullptr;
+  }
+  return p;
+}
+
+nlohmann::json Viewer::state_json() const {
+  using nlohmann::json;
   json st;
   if (world_) {
     st["scene"] = world_->scene->source;
@@ -107,44 +118,7 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
   st["speed_scale"] = cam_.speed_scale();
   st["speed"] = cam_.speed();
   st["camera_flags"] = cam_.cli_flags();
-  if (pick_) {
-    st["pick"] = {{"x", pick_->x},
-                  {"y", pick_->y},
-                  {"steps", pick_->trace.steps.size()},
-                  {"hit", pick_->trace.hit.valid()},
-                  {"command", pick_->command},
-                  {"framed", pick_->framed},
-                  {"segment", {pick_->segment.t0, pick_->segment.t1}},
-                  {"selected", pick_->selected}};
-    // The pixel's ray tree, in the order the renderer traced it.
-    json tree = json::array();
-    for (size_t k = 0; k < pick_->tree.nodes.size(); ++k) {
-      const RayTreeNode& n = pick_->tree.nodes[k];
-      const Trace& t = n.trace;
-      json e = {{"kind", to_string(n.kind)},
-                {"parent", n.parent},
-                {"depth", n.depth},
-                {"origin", vec_json(n.ray.org)},
-                {"dir", vec_json(n.ray.dir)},
-                {"tmin", n.ray.tmin},
-                {"tmax", std::isfinite(n.ray.tmax) ? json(n.ray.tmax) : json("inf")},
-                {"steps", t.steps.size()},
-                {"leaves", t.counters.leaves},
-                {"tests", t.counters.tri_tests},
-                {"seconds", n.seconds},
-                {"command", pick_->commands[k]}};
-      if (n.kind == RayKind::Shadow) {
-        e["light"] = n.light;
-        e["occluded"] = t.occluded;
-      } else {
-        e["hit"] = t.hit.valid() ? json{{"prim", t.hit.prim}, {"t", t.hit.t}} : json(nullptr);
-      }
-      tree.push_back(e);
-    }
-    st["pick"]["tree"] = tree;
-  } else {
-    st["pick"] = nullptr;
-  }
+  st["pick"] = pick_json();
   st["overlay"] = {{"splits", show_splits_},
                    {"cells", show_cells_},
                    {"boxes", show_boxes_},
@@ -152,7 +126,15 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
                    {"split_depths", {split_depth_[0], split_depth_[1]}},
                    {"items", overlay_items_},
                    {"wanted", overlay_wanted_},
-                   {"lines", structure_lines_.vertex_count() / 2}};
+                   {"lines", structure_lines_.vertex_count() / 2},
+                   {"upload_limit", kUploadVerticesPerFrame},
+                   {"draw_limit", kDrawLinesPerFrame},
+                   {"max_vertices_uploaded_per_frame", overlay_frames_.max_uploaded},
+                   {"max_lines_drawn_per_frame", overlay_frames_.max_drawn},
+                   {"vertices_uploaded", overlay_frames_.uploaded},
+                   {"upload_frames", overlay_frames_.upload_frames},
+                   {"draw_frames", overlay_frames_.draw_frames},
+                   {"complete", !structure_lines_.uploading() && !structure_lines_.drawing()}};
   if (pinned_) {
     DiffStats ds;
     diff_stats(ds);
@@ -200,7 +182,45 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
   st["render_error"] = worker_ ? worker_->error() : std::string();
   st["render_refusal"] = brute_refusal_;
   st["samples"] = have_image_ ? image_.samples : 0;
-  j["state"] = st;
+  return st;
+}
+
+bool Viewer::write_stats(const std::string& path, int exit_code) const {
+  using nlohmann::json;
+  int ww = 0, wh = 0, fw = 0, fh = 0;
+  glfwGetWindowSize(window_, &ww, &wh);
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  json j;
+  j["exit_code"] = exit_code;
+  j["end"] = end_reason_;
+  j["display"] = {
+      {"window", {ww, wh}},
+      {"framebuffer", {fw, fh}},
+      {"content_scale", {content_scale_[0], content_scale_[1]}},
+      {"ui_scale", ui_scale_},
+      {"font_size",
+       ImGui::GetIO().Fonts->Fonts.empty() ? 0.0f : ImGui::GetIO().Fonts->Fonts[0]->FontSize},
+      {"image", {posted_w_, posted_h_}},
+      {"panel", opts_.hide_ui ? json(nullptr)
+                              : json{{"x", panel_rect_[0]},
+                                     {"y", panel_rect_[1]},
+                                     {"w", panel_rect_[2]},
+                                     {"h", panel_rect_[3]}}},
+      {"gl_renderer", gl_renderer_},
+      {"gl_version", gl_version_}};
+  const RenderSettings rs;  // what sync_render_job leaves at its defaults
+  j["settings"] = {
+      {"threads", tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)},
+      {"threads_option", opts_.threads},
+      {"max_samples", opts_.max_samples},
+      {"samples_per_pass", 1},
+      {"shadows", rs.shadows},
+      {"max_depth", rs.max_depth},
+      {"offset", to_string(offset_)},
+      {"resolution_scale", opts_.resolution_scale},
+      {"max_fps", opts_.max_fps},
+      {"mode", mode_name(mode_)}};
+  j["state"] = state_json();
   // What the last frame's panels showed (empty with the panels hidden).
   j["ui"] = {{"clipped", audit_.clipped},
              {"legends", audit_.legends},

@@ -1,8 +1,9 @@
 // kdgrid-viewer's application: window, input, panels, overlays, and the hand-over between
 // the UI thread and the render worker / background builds. The core library does all the
 // ray tracing; the viewer only shows it. The Viewer class is defined over several files, each
-// named above the methods it holds: viewer.cpp, background_tasks.cpp, panels.cpp,
-// pick_view.cpp, stats_json.cpp.
+// named above the methods it holds: viewer.cpp, input.cpp, display.cpp, structure_overlay.cpp,
+// background_tasks.cpp, panels.cpp, pick_view.cpp, ray_tree.cpp, diff_map.cpp,
+// accuracy_map.cpp, stats_json.cpp.
 #pragma once
 
 #include <array>
@@ -16,6 +17,8 @@
 #include <set>
 #include <string>
 #include <vector>
+
+#include <nlohmann/json_fwd.hpp>
 
 #include "bench/check.h"
 #include "cli/common.h"
@@ -135,12 +138,25 @@ class Viewer {
   void on_drop(int count, const char** paths);
 
  private:
-  // ---- viewer.cpp: set-up, input, the render hand-over, the main loop
+  // ---- viewer.cpp: set-up, shutdown, the main loop
   bool create_window();
   void init_gl();
   void apply_ui_scale(float scale);
   void shutdown();
   float scene_radius() const;
+  /// The scripted requests due this frame (--pick, --pin-heatmap, --rebuild-cell-size,
+  /// --supersede-cell-size, --drop); `pick_done` turns true once --pick is made.
+  void run_script_requests(bool& pick_done);
+  /// One frame: the ImGui frame (pick overlay, panels, key list), the scene under it.
+  void draw_frame();
+  /// A scripted run's end: true (with `exit_code` and end_reason_ set, the outputs written)
+  /// when it is done, failed or timed out.
+  bool script_finished(bool closing, bool no_scene, bool pick_done,
+                       std::chrono::steady_clock::time_point started, int& exit_code);
+  /// Writes --export-heatmap, --diff-exr and --screenshot; 1 when one failed or a task erred.
+  int write_script_outputs();
+
+  // ---- input.cpp: the GLFW callbacks' handling, held keys
   void note_input();
   /// A key pressed and released within one frame is shown to ImGui as down in this frame
   /// (ImGui 1.86 samples key states once per frame) and released before the next.
@@ -149,15 +165,16 @@ class Viewer {
   bool wants_continuous_frames() const;
   void handle_continuous_input(float dt);
   void print_camera();
+
+  // ---- display.cpp: the render hand-over, the picture, screenshots
   void sync_render_job();
   void receive_image();
   void draw_scene();
-  void rebuild_structure_overlay();
-  void do_pick(int px, int py);
-  /// Traces the pick's ray again (a new structure) and refreshes what is derived from it.
-  void retrace_pick();
   void save_screenshot(const std::string& path);
   std::string default_output_name(const char* prefix, const char* ext) const;
+
+  // ---- structure_overlay.cpp: the structure overlay, built off the UI thread
+  void rebuild_structure_overlay();
 
   // ---- background_tasks.cpp: the scene and its structure, loaded and built off the UI thread
   void start_load(const std::string& path);
@@ -182,7 +199,22 @@ class Viewer {
   /// The cell-size controls show the built size again (a requested build was cancelled or
   /// failed).
   void show_built_cell_size();
+  /// The main panel: the status area, then one collapsing section each for the scene, the
+  /// structure, the render, the accuracy map, the heat map, the overlays and the pick.
   void draw_panels();
+  /// The build's progress and the errors, in a fixed height (nothing under it moves).
+  void draw_status_area();
+  void draw_scene_section();
+  /// The structure's choice and its main build knob (a change rebuilds off the UI thread).
+  void draw_structure_knobs();
+  /// The built structure's statistics table.
+  void draw_build_stats();
+  /// Mode, shading, samples, resolution, the speed and frame plots, the camera's buttons.
+  void draw_render_section();
+  /// The heat map's scale, its EXR export and the pinned-map comparison.
+  void draw_heat_map_section();
+  /// The overlays' switches, depth ranges and opacity, with what the cap left out.
+  void draw_overlay_section();
   /// Moves the current ImGui window back inside the display (after the OS window shrank).
   void keep_in_window();
   /// Preview pictures shown in the last second (the Render section's previews/s).
@@ -194,6 +226,9 @@ class Viewer {
   void draw_ramp_bar(float width, const char* lo, const char* mid, const char* hi);
 
   // ---- pick_view.cpp: the picked ray's view
+  void do_pick(int px, int py);
+  /// Traces the pick's ray again (a new structure) and refreshes what is derived from it.
+  void retrace_pick();
   /// Moves the camera so that the picked ray's leaves/cells and its segment in the scene fill
   /// the view, keeping the view direction (key F, "frame pick").
   void frame_pick();
@@ -250,6 +285,10 @@ class Viewer {
   /// Writes the statistics through the atomic writer; false (after an error on stderr) when
   /// the file could not be written.
   bool write_stats(const std::string& path, int exit_code) const;
+  /// The final state: scene, structure, shading, camera, pick, overlay, maps, messages.
+  nlohmann::json state_json() const;
+  /// The pick and its ray tree (null without a pick).
+  nlohmann::json pick_json() const;
 
   ViewerOptions opts_;
   GLFWwindow* window_ = nullptr;
@@ -425,6 +464,12 @@ class Viewer {
   /// Uploads the overlay built off the UI thread once it is ready.
   void poll_structure_overlay();
   LineRenderer structure_lines_;
+  /// The overlay's work per frame over the run (--stats-json): the most vertices uploaded and
+  /// lines drawn in one frame, the vertices uploaded, the frames that uploaded or drew.
+  struct OverlayFrames {
+    size_t max_uploaded = 0, max_drawn = 0, uploaded = 0;
+    int upload_frames = 0, draw_frames = 0;
+  } overlay_frames_;
   float overlay_alpha_ = 1.0f;
   /// The split overlay shows only the planes the picked ray crossed ("splits of the picked
   /// ray"), within the depth range.

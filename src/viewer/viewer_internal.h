@@ -1,8 +1,9 @@
-// What the viewer's source files (viewer.cpp, panels.cpp, background_tasks.cpp,
-// stats_json.cpp) share besides the Viewer class itself.
+// What the Viewer's source files (viewer.cpp, input.cpp, display.cpp, panels.cpp, ...) share
+// besides the Viewer class itself.
 #pragma once
 
 #include <chrono>
+#include <deque>
 
 #include <imgui.h>
 
@@ -27,6 +28,12 @@ inline const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
 /// The same camera, exactly (a moved camera restarts what depends on the view).
 inline bool same_camera(const Camera& a, const Camera& b) {
   return a.eye == b.eye && a.target == b.target && a.up == b.up && a.fov_deg == b.fov_deg;
+}
+
+/// Appends `v` to a plot's history, which keeps the last 120 values.
+inline void push_history(std::deque<float>& h, float v) {
+  h.push_back(v);
+  while (h.size() > 120) h.pop_front();
 }
 
 /// The render mode as --heatmap and --stats-json spell it ("shaded", "steps", "tests").
