@@ -5,8 +5,6 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <filesystem>
-#include <fstream>
 #include <string>
 
 #include <nlohmann/json.hpp>
@@ -21,31 +19,19 @@
 namespace kdgrid::test {
 namespace {
 
-namespace fs = std::filesystem;
-
-std::string boxes_scratch_dir() {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path d = fs::temp_directory_path() / ("kdgrid_viewer_" + std::string(info->name()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d.string();
-}
-
-TEST(Viewer, BoxOverlayGoesUpAndIsDrawnABoundedPartPerFrameAndSaysHowManyBoxes) {
+TEST_F(Viewer, BoxOverlayGoesUpAndIsDrawnABoundedPartPerFrameAndSaysHowManyBoxes) {
   KDGRID_REQUIRE_XVFB();
   KDGRID_REQUIRE_SCENE(bunny, "bunny/bun_zipper.ply");
   const auto names = accelerator_names();
   if (std::find(names.begin(), names.end(), "bvh") == names.end())
     GTEST_SKIP() << "the BVH is not built into this binary";
-  const std::string dir = boxes_scratch_dir();
   // The bunny's BVH has about 35k boxes, more than the 250k-line cap allows (20,833 boxes).
-  const RunResult r = run_viewer(
-      dir, "'" + bunny +
-               "' --accel bvh --overlay boxes --width 320 --height 240 --frames 2 "
-               "--min-samples 1 --max-samples 1 --stats-json stats.json --screenshot shot.png");
+  const RunResult r =
+      run("'" + bunny +
+          "' --accel bvh --overlay boxes --width 320 --height 240 --frames 2 "
+          "--min-samples 1 --max-samples 1 --stats-json stats.json --screenshot shot.png");
   ASSERT_EQ(r.code, 0) << r.output;
-  std::ifstream in(dir + "/stats.json");
-  const nlohmann::json s = nlohmann::json::parse(in);
+  const nlohmann::json s = json("stats.json");
   const nlohmann::json& o = s["state"]["overlay"];
   const size_t items = o["items"], wanted = o["wanted"], lines = o["lines"];
   const size_t upload_limit = o["upload_limit"], draw_limit = o["draw_limit"];
@@ -68,7 +54,7 @@ TEST(Viewer, BoxOverlayGoesUpAndIsDrawnABoundedPartPerFrameAndSaysHowManyBoxes) 
   EXPECT_NE(std::find(ui.begin(), ui.end(), "capped"), ui.end()) << ui.dump();
 
   // The picture is shown: the overlay's saturated colours cover the model, right of the panel.
-  const ImageRGB img = read_image(dir + "/shot.png");
+  const ImageRGB img = image("shot.png");
   int coloured = 0;
   for (int y = 0; y < img.height; ++y)
     for (int x = img.width * 6 / 10; x < img.width; ++x) {
