@@ -63,7 +63,7 @@ inline constexpr size_t kUploadVerticesPerFrame = 100'000;
 /// thread that draws it, so drawing a whole capped overlay in every frame would cost that
 /// thread time in proportion to the lines; instead the lines are drawn into an offscreen
 /// picture this many per frame (the shallow levels first) and the picture is shown whole.
-inline constexpr size_t kDrawLinesPerFrame = 25'000;
+inline constexpr size_t kDrawLinesPerFrame = 10'000;
 
 /// A stretch [t0, t1] of a ray: the part of a picked ray its traversal covered.
 struct RaySegment {
