@@ -4,18 +4,12 @@
 
 #include "file_input.h"
 #include "scene/load.h"
-#include "util/error.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   // Binary glTF starts with the magic "glTF"; anything else goes through the JSON path.
   const bool glb =
       size >= 4 && data[0] == 'g' && data[1] == 'l' && data[2] == 'T' && data[3] == 'F';
   const std::string path = kdgrid::fuzz::write_input(data, size, glb ? ".glb" : ".gltf");
-  try {
-    kdgrid::Scene s = kdgrid::load_gltf(path);
-    s.source = path;
-    s.finalize();
-  } catch (const kdgrid::Error&) {
-  }
+  kdgrid::fuzz::load_and_finalize([&] { return kdgrid::load_gltf(path); }, path);
   return 0;
 }

@@ -2,15 +2,12 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "file_input.h"
 #include "scene/load.h"
-#include "util/error.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  try {
-    kdgrid::Scene s = kdgrid::parse_ply(reinterpret_cast<const char*>(data), size, "fuzz.ply");
-    s.source = "fuzz.ply";
-    s.finalize();
-  } catch (const kdgrid::Error&) {
-  }
+  kdgrid::fuzz::load_and_finalize(
+      [&] { return kdgrid::parse_ply(reinterpret_cast<const char*>(data), size, "fuzz.ply"); },
+      "fuzz.ply");
   return 0;
 }

@@ -20,27 +20,20 @@
 #   ONLY=PARTS      only these comma-separated parts: suite, sweeps, check (default: all). The
 #                   results of the parts not run are kept, and so are their lines in
 #                   commands.tsv; each command's line records the commit it ran at.
-set -euo pipefail
-cd "$(dirname "$0")/.."
-root=$(pwd)
-results="${1:-docs/results}"
-kdgrid="$root/build/release/src/cli/kdgrid"
-python=/usr/bin/python3  # Debian's, which has python3-matplotlib
+me=bench-all
 # Shared scenes: $KDGRID_SCENES, else ../shared/scenes beside the checkout (or beside a parent
 # folder, as util/paths.h looks for it).
-source scripts/scenes-dir.sh
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
+results="${1:-docs/results}"
+kdgrid="$root/build/release/src/cli/kdgrid"
 res="${BENCH_RES:-1024}"
 reps="${BENCH_REPS:-5}"
 threads="${BENCH_THREADS:-0}"
 sweep_scene="${SWEEP_SCENE:-$scenes/dragon/dragon_vrip_res2.ply}"
 
-if [[ "${SKIP_BUILD:-0}" != 1 ]]; then
-  bash scripts/build.sh release -DKDGRID_BUILD_VIEWER=OFF
-fi
-if [[ ! -f "$scenes/suite.json" ]]; then
-  echo "bench-all: $scenes/suite.json not found; set KDGRID_SCENES to the shared scenes" >&2
-  exit 1
-fi
+build_release OFF
+need_scenes "$scenes/suite.json"
 only="${ONLY:-suite,sweeps,check}"
 part() { [[ ",$only," == *",$1,"* ]]; }
 for p in ${only//,/ }; do

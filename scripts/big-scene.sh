@@ -26,12 +26,11 @@
 #   SKIP_BUILD=1    use the existing build/release
 #   SKIP_PLY=1      do not time the PLY writer
 # Then scripts/bench-report docs/results shows the figures in docs/RESULTS.md.
-set -euo pipefail
-cd "$(dirname "$0")/.."
-root=$(pwd)
+me=big-scene
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
 out_json="${1:-docs/results/big-scene.json}"
 kdgrid="$root/build/release/src/cli/kdgrid"
-python=/usr/bin/python3
 n="${BIG_TRIANGLES:-10000000}"
 res="${BIG_RES:-256}"
 brute_res="${BIG_BRUTE_RES:-16}"
@@ -42,10 +41,8 @@ tight="${BIG_TIGHT_MB:-512}"
 tight_res="${BIG_TIGHT_RES:-64}"
 keep_image="${BIG_IMAGE-bvh}"
 
-if [[ "${SKIP_BUILD:-0}" != 1 ]]; then
-  bash scripts/build.sh release -DKDGRID_BUILD_VIEWER=OFF
-fi
-[[ -x "$kdgrid" ]] || { echo "big-scene: $kdgrid not built" >&2; exit 1; }
+build_release OFF
+need_built "$kdgrid"
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/kdgrid-big.XXXXXX")
 trap 'rm -rf "$tmp"' EXIT
 mkdir -p "$(dirname "$out_json")"

@@ -25,14 +25,12 @@
 #              CACHE_ACCELS (kdtree,hybrid,embree), CACHE_LL (2097152,16,64: size,ways,line),
 #              CACHE_SCENES (newline-separated "file|camera options" under KDGRID_SCENES; default
 #              the dragon and the bunny with the canonical camera, Sponza with the suite's).
-set -euo pipefail
-cd "$(dirname "$0")/.."
-out="${1:-docs/CACHE-PROFILE.md}"
-root=$(pwd)
-source scripts/scenes-dir.sh
-command -v callgrind_annotate >/dev/null || { echo "cache-profile: callgrind_annotate not found (package valgrind)" >&2; exit 1; }
-[[ -d "$scenes" ]] || { echo "cache-profile: $scenes not found; set KDGRID_SCENES" >&2; exit 1; }
 me=cache-profile
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
+out="${1:-docs/CACHE-PROFILE.md}"
+command -v callgrind_annotate >/dev/null || die "callgrind_annotate not found (package valgrind)"
+need_scenes "$scenes"
 source scripts/callgrind-build.sh
 ll="${CACHE_LL:-2097152,16,64}"
 common=(--res "${CACHE_RES:-1024}" --accel "${CACHE_ACCELS:-kdtree,hybrid,embree}" --cache-sim)

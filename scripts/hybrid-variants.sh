@@ -12,14 +12,13 @@
 # Usage: scripts/hybrid-variants.sh [RESULTS_DIR]    (default docs/results)
 # Environment: KDGRID_SCENES (default ../shared/scenes), BENCH_RES (1024), BENCH_REPS (3),
 #              BENCH_THREADS (0 = all).
-set -euo pipefail
-cd "$(dirname "$0")/.."
+me=hybrid-variants
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
 results="${1:-docs/results}"
 kdgrid="build/release/src/cli/kdgrid"
-root=$(pwd)
-source scripts/scenes-dir.sh
-[[ -x "$kdgrid" ]] || { echo "hybrid-variants: build first: bash scripts/build.sh release" >&2; exit 1; }
-[[ -f "$scenes/suite.json" ]] || { echo "hybrid-variants: $scenes/suite.json not found; set KDGRID_SCENES" >&2; exit 1; }
+need_built "$kdgrid"
+need_scenes "$scenes/suite.json"
 mkdir -p "$results"
 common=(bench --suite "$scenes/suite.json" --sets primary --accel hybrid,kdtree --clock cpu
         --res "${BENCH_RES:-1024}" --reps "${BENCH_REPS:-3}" --threads "${BENCH_THREADS:-0}")

@@ -23,24 +23,17 @@
 # Environment: KDGRID_SCENES (default ../shared/scenes), RES (1024), ROWS (64), and
 #              KDGRID_ARGS (extra options for `kdgrid rays` and `kdgrid trace`, e.g. a camera:
 #              "--eye -14,3,0 --target 10,5,0 --fov 60" for the suite's Sponza view).
-set -euo pipefail
-cd "$(dirname "$0")/.."
-# shellcheck disable=SC2034  # read by scenes-dir.sh
-root=$(pwd)
-source scripts/scenes-dir.sh
-scene="${1:-$scenes/dragon/dragon_vrip.ply}"
-accels="${2:-kdtree,hybrid}"
-res="${RES:-1024}"
-rows="${ROWS:-64}"
-[[ -f "$scene" ]] || { echo "instr-count: scene $scene not found; pass a scene file or set KDGRID_SCENES" >&2; exit 1; }
-[[ "$res" =~ ^[0-9]+$ && "$rows" =~ ^[0-9]+$ && "$rows" -ge 1 && "$rows" -le "$res" ]] ||
-  { echo "instr-count: RES ($res) and ROWS ($rows) must be whole numbers with 1 <= ROWS <= RES" >&2; exit 1; }
 me=instr-count
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
+ray_cost_arguments "$@"
+rows="${ROWS:-64}"
+[[ "$res" =~ ^[0-9]+$ && "$rows" =~ ^[0-9]+$ && "$rows" -ge 1 && "$rows" -le "$res" ]] ||
+  die "RES ($res) and ROWS ($rows) must be whole numbers with 1 <= ROWS <= RES"
 source scripts/callgrind-build.sh
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-# shellcheck disable=SC2086
-"$kdgrid" rays "$scene" --set primary --res "$res" -o "$work/all.rays" ${KDGRID_ARGS:-} >/dev/null
+set_rays primary "$work/all.rays"
 # The band: rows [res/2 - rows/2, +rows) of the square image (docs/RAYSETS.md's header: "RAYS",
 # u32 version, u64 count, then 32 bytes per ray in image order).
 /usr/bin/python3 - "$work/all.rays" "$work/band.rays" "$res" "$rows" <<'EOF'
@@ -63,9 +56,8 @@ echo "Instructions per closest-hit ray (callgrind, AcceleratorBase::intersect in
 echo
 echo "| structure | instructions per ray | hit fraction |"
 echo "|---|---:|---:|"
-IFS=, read -ra list <<< "$accels"
-for a in "${list[@]}"; do
-  [[ "$a" != embree ]] || { echo "instr-count: embree is not counted here (see the usage); docs/CACHE-PROFILE.md has its instructions per ray" >&2; exit 1; }
+for a in "${accel_list[@]}"; do
+  [[ "$a" != embree ]] || die "embree is not counted here (see the usage); docs/CACHE-PROFILE.md has its instructions per ray"
   # shellcheck disable=SC2086
   valgrind --tool=callgrind --toggle-collect='kdgrid::AcceleratorBase<*>::intersect(kdgrid::Ray const&, kdgrid::Hit&) const' \
     --callgrind-out-file="$work/cg.$a" "$kdgrid" trace "$scene" --rays "$work/band.rays" --accel "$a" --threads 1 \

@@ -12,14 +12,13 @@
 #              PROFILE_ACCELS (kdtree,hybrid,embree),
 #              PROFILE_TRAVERSAL_ACCELS (kdtree,hybrid,bvh,grid,irregular),
 #              PROFILE_PATH_ACCELS (kdtree,hybrid,bvh,embree).
-set -euo pipefail
-cd "$(dirname "$0")/.."
+me=profile
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
 out="${1:-docs/PROFILE.md}"
 kdgrid="build/release/src/cli/kdgrid"
-root=$(pwd)
-source scripts/scenes-dir.sh
-[[ -x "$kdgrid" ]] || { echo "profile: build first: bash scripts/build.sh release" >&2; exit 1; }
-[[ -d "$scenes/dragon" ]] || { echo "profile: $scenes/dragon not found; set KDGRID_SCENES" >&2; exit 1; }
+need_built "$kdgrid"
+need_scenes "$scenes/dragon"
 common=(--res "${PROFILE_RES:-1024}" --reps "${PROFILE_REPS:-7}" --accel "${PROFILE_ACCELS:-kdtree,hybrid,embree}")
 tmp=$(mktemp)
 trap 'rm -f "$tmp" "$tmp.rays"' EXIT

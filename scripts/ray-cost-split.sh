@@ -27,24 +27,17 @@
 #              (extra options for `kdgrid rays` and `kdgrid trace`, e.g. the suite's Sponza
 #              camera "--eye -14,3,0 --target 10,5,0 --fov 60"), CACHE_SIM (1: simulate the
 #              caches and branches; 0 leaves their columns empty and runs about twice as fast).
-set -euo pipefail
-cd "$(dirname "$0")/.."
-# shellcheck disable=SC2034  # read by scenes-dir.sh
-root=$(pwd)
-source scripts/scenes-dir.sh
-scene="${1:-$scenes/dragon/dragon_vrip.ply}"
-accels="${2:-kdtree,hybrid}"
-sets="${3:-primary,shadow,diffuse}"
-res="${RES:-1024}"
+me=ray-cost-split
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
+ray_cost_arguments "$@"
 count="${COUNT:-32768}"
 sim=()
 # shellcheck disable=SC2054  # the commas are valgrind's (size,ways,line)
 [[ "${CACHE_SIM:-1}" == 0 ]] || sim=(--cache-sim=yes --branch-sim=yes --I1=32768,8,64 --D1=32768,8,64 --LL=2097152,16,64)
-command -v addr2line >/dev/null || { echo "ray-cost-split: addr2line not found: apt-get install binutils" >&2; exit 1; }
-[[ -f "$scene" ]] || { echo "ray-cost-split: scene $scene not found; pass a scene file or set KDGRID_SCENES" >&2; exit 1; }
+command -v addr2line >/dev/null || die "addr2line not found: apt-get install binutils"
 [[ "$res" =~ ^[0-9]+$ && "$count" =~ ^[0-9]+$ && "$count" -ge 1 ]] ||
-  { echo "ray-cost-split: RES ($res) and COUNT ($count) must be whole numbers, COUNT >= 1" >&2; exit 1; }
-me=ray-cost-split
+  die "RES ($res) and COUNT ($count) must be whole numbers, COUNT >= 1"
 source scripts/callgrind-build.sh
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -52,11 +45,8 @@ echo "Instructions per ray by where they go (callgrind, x86-64-v3), $(basename "
 echo
 echo "| structure | rays | instructions | setup | steps | subtree | tests | mailbox | other | D1 misses | LL misses | mispredicted | steps | leaves | tests | hit fraction |"
 echo "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
-IFS=, read -ra set_list <<< "$sets"
-IFS=, read -ra accel_list <<< "$accels"
 for set in "${set_list[@]}"; do
-  # shellcheck disable=SC2086
-  "$kdgrid" rays "$scene" --set "$set" --res "$res" -o "$work/$set.all.rays" ${KDGRID_ARGS:-} >/dev/null
+  set_rays "$set" "$work/$set.all.rays"
   # The middle rays (docs/RAYSETS.md's header: "RAYS", u32 version, u64 count, 32 bytes a ray).
   /usr/bin/python3 - "$work/$set.all.rays" "$work/$set.rays" "$count" <<'EOF'
 import struct, sys
@@ -74,7 +64,7 @@ with open(dst, "wb") as f:
     f.write(body)
 EOF
   for a in "${accel_list[@]}"; do
-    [[ "$a" != embree* ]] || { echo "ray-cost-split: $a has no line info to split; use kdtree, hybrid" >&2; exit 1; }
+    [[ "$a" != embree* ]] || die "$a has no line info to split; use kdtree, hybrid"
     query=intersect any=()
     [[ "$set" != shadow ]] || { query=occluded; any=(--any); }
     sig='kdgrid::AcceleratorBase<*>::intersect(kdgrid::Ray const&, kdgrid::Hit&) const'

@@ -21,24 +21,17 @@
 # Environment: KDGRID_SCENES (default ../shared/scenes), RES (1024), REPEAT (timed passes, 10),
 #              KDGRID_ARGS (extra options for `kdgrid rays` and `kdgrid trace`, e.g. the suite's
 #              Sponza camera "--eye -14,3,0 --target 10,5,0 --fov 60").
-set -euo pipefail
-cd "$(dirname "$0")/.."
-# shellcheck disable=SC2034  # read by scenes-dir.sh
-root=$(pwd)
-source scripts/scenes-dir.sh
-scene="${1:-$scenes/dragon/dragon_vrip.ply}"
-accels="${2:-kdtree,hybrid}"
-sets="${3:-primary,shadow,diffuse}"
-res="${RES:-1024}"
-repeat="${REPEAT:-10}"
 me=time-split
-command -v perf >/dev/null || { echo "$me: perf not found: bash scripts/install-deps.sh (or apt-get install linux-perf)" >&2; exit 1; }
-command -v addr2line >/dev/null || { echo "$me: addr2line not found: apt-get install binutils" >&2; exit 1; }
-[[ -f "$scene" ]] || { echo "$me: scene $scene not found; pass a scene file or set KDGRID_SCENES" >&2; exit 1; }
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
+ray_cost_arguments "$@"
+repeat="${REPEAT:-10}"
+command -v perf >/dev/null || die "perf not found: bash scripts/install-deps.sh (or apt-get install linux-perf)"
+command -v addr2line >/dev/null || die "addr2line not found: apt-get install binutils"
 [[ "$res" =~ ^[0-9]+$ && "$repeat" =~ ^[0-9]+$ && "$repeat" -ge 1 ]] ||
-  { echo "$me: RES ($res) and REPEAT ($repeat) must be whole numbers, REPEAT >= 1" >&2; exit 1; }
+  die "RES ($res) and REPEAT ($repeat) must be whole numbers, REPEAT >= 1"
 perf record -q -e cpu-clock -o /dev/null true 2>/dev/null ||
-  { echo "$me: perf cannot sample here (perf record -e cpu-clock true fails; see /proc/sys/kernel/perf_event_paranoid)" >&2; exit 1; }
+  die "perf cannot sample here (perf record -e cpu-clock true fails; see /proc/sys/kernel/perf_event_paranoid)"
 cmake --preset perf >/dev/null
 cmake --build build/perf --target kdgrid -j "${KDGRID_JOBS:-$(nproc)}" >&2
 kdgrid="$(pwd)/build/perf/src/cli/kdgrid"
@@ -48,13 +41,10 @@ echo "Time per ray by where it goes (perf cpu-clock samples, one thread, $(grep 
 echo
 echo "| structure | rays | ns a ray | setup | steps | subtree | tests | mailbox | other | samples |"
 echo "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"
-IFS=, read -ra set_list <<< "$sets"
-IFS=, read -ra accel_list <<< "$accels"
 for set in "${set_list[@]}"; do
-  # shellcheck disable=SC2086
-  "$kdgrid" rays "$scene" --set "$set" --res "$res" -o "$work/$set.rays" ${KDGRID_ARGS:-} >/dev/null
+  set_rays "$set" "$work/$set.rays"
   for a in "${accel_list[@]}"; do
-    [[ "$a" != embree* ]] || { echo "$me: $a has no line info to split; use kdtree, hybrid" >&2; exit 1; }
+    [[ "$a" != embree* ]] || die "$a has no line info to split; use kdtree, hybrid"
     any=()
     [[ "$set" != shadow ]] || any=(--any)
     # shellcheck disable=SC2086

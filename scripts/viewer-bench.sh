@@ -17,26 +17,17 @@
 #   VIEWER_REBUILDS  dragon rebuild runs (default 3)
 #   SKIP_BUILD=1     use the existing build/release
 #   SKIP_REPORT=1    only write viewer.json
-set -euo pipefail
-cd "$(dirname "$0")/.."
-root=$(pwd)
+me="viewer-bench"
+# shellcheck source=scripts/measure-setup.sh
+source "$(dirname "$0")/measure-setup.sh"
 results="${1:-docs/results}"
 viewer="$root/build/release/src/viewer/kdgrid-viewer"
-python=/usr/bin/python3
-source scripts/scenes-dir.sh
 passes="${VIEWER_PASSES:-16}"
 threads="${VIEWER_THREADS:-2}"
 
-if [[ "${SKIP_BUILD:-0}" != 1 ]]; then
-  bash scripts/build.sh release -DKDGRID_BUILD_VIEWER=ON
-fi
-if [[ ! -x "$viewer" ]]; then
-  echo "viewer-bench: $viewer not built (configure with the viewer on: cmake --preset release)" >&2
-  exit 1
-fi
-for tool in xvfb-run; do
-  command -v "$tool" >/dev/null || { echo "viewer-bench: $tool missing (scripts/install-deps.sh)" >&2; exit 1; }
-done
+build_release ON
+[[ -x "$viewer" ]] || die "$viewer not built (configure with the viewer on: cmake --preset release)"
+command -v xvfb-run >/dev/null || die "xvfb-run missing (scripts/install-deps.sh)"
 mkdir -p "$results"
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT

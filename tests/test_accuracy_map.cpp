@@ -109,12 +109,14 @@ TEST(AccuracyMap, OnlyACrossingOfAClosedSurfaceIsALeak) {
   const AccuracyReference closed(cube);
   const Hit none;
   const Vec3 down(0, 0, -1);
+  // The verdict on a closest-hit query straight down from `org` that missed.
+  const auto missed_down = [&](const AccuracyReference& ref, const Vec3& org) {
+    return ref.judge_closest(Ray{org, 0, down, kInf}, false, none);
+  };
   // Through a diagonal edge and through the centre vertex of the top face: a miss leaked, and
   // so did an any-hit query that answers "not occluded".
-  EXPECT_EQ(closed.judge_closest(Ray{{0.5f, 0.5f, 3}, 0, down, kInf}, false, none),
-            AccuracyVerdict::Leak);
-  EXPECT_EQ(closed.judge_closest(Ray{{0.0f, 0.0f, 3}, 0, down, kInf}, false, none),
-            AccuracyVerdict::Leak);
+  EXPECT_EQ(missed_down(closed, {0.5f, 0.5f, 3}), AccuracyVerdict::Leak);
+  EXPECT_EQ(missed_down(closed, {0.0f, 0.0f, 3}), AccuracyVerdict::Leak);
   EXPECT_EQ(closed.judge_occluded(Ray{{0.5f, 0.5f, 3}, 0, down, kInf}, false),
             AccuracyVerdict::Leak);
   // A hit on the far side instead of the top face: beyond the crossing, a leak as well.
@@ -132,12 +134,9 @@ TEST(AccuracyMap, OnlyACrossingOfAClosedSurfaceIsALeak) {
   quad.positions = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
   quad.triangles = {{0, 1, 2}, {0, 2, 3}};
   const AccuracyReference open(quad);
-  EXPECT_EQ(open.judge_closest(Ray{{1.0f, 0.5f, 1}, 0, down, kInf}, false, none),
-            AccuracyVerdict::Ambiguous);
-  EXPECT_EQ(open.judge_closest(Ray{{1.0f, 1.0f, 1}, 0, down, kInf}, false, none),
-            AccuracyVerdict::Ambiguous);
-  EXPECT_EQ(open.judge_closest(Ray{{0.25f, 0.5f, 1}, 0, down, kInf}, false, none),
-            AccuracyVerdict::Disagree);
+  EXPECT_EQ(missed_down(open, {1.0f, 0.5f, 1}), AccuracyVerdict::Ambiguous);
+  EXPECT_EQ(missed_down(open, {1.0f, 1.0f, 1}), AccuracyVerdict::Ambiguous);
+  EXPECT_EQ(missed_down(open, {0.25f, 0.5f, 1}), AccuracyVerdict::Disagree);
   EXPECT_EQ(open.judge_occluded(Ray{{0.25f, 0.5f, 1}, 0, down, kInf}, false),
             AccuracyVerdict::Disagree);
 }

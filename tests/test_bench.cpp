@@ -277,10 +277,17 @@ void expect_every_field(const BenchReport& rep, const std::vector<std::string>& 
   }
 }
 
-BenchOptions small_options() {
+/// Every structure on the small suite at 24x20, two repetitions on two threads, against
+/// `reference` (brute force by default: it is among the structures).
+/// The small suite (write_small_suite) written to `dir` and loaded.
+Suite small_suite(const TempDir& dir) {
+  return load_suite(write_small_suite(dir).string());
+}
+
+BenchOptions small_options(const std::string& reference = "brute") {
   BenchOptions o;
-  o.accels = accelerator_names();  // brute included: it is the reference here
-  o.reference = "brute";
+  o.accels = accelerator_names();
+  o.reference = reference;
   o.width = 24;
   o.height = 20;
   o.reps = 2;
@@ -288,9 +295,17 @@ BenchOptions small_options() {
   return o;
 }
 
+/// Calls `f(scene, structure, set)` for each ray set of each structure of each scene of `rep`.
+template <class F>
+void for_each_set(const BenchReport& rep, F f) {
+  for (const auto& s : rep.scenes)
+    for (const auto& a : s.structures)
+      for (const auto& x : a.sets) f(s, a, x);
+}
+
 TEST(Bench, SmallSuiteHasEveryFieldForEveryStructureAndSet) {
   TempDir dir("small");
-  const Suite suite = load_suite(write_small_suite(dir).string());
+  const Suite suite = small_suite(dir);
   const BenchOptions o = small_options();
   const BenchReport rep = run_bench(suite, o);
   EXPECT_FALSE(rep.any_failed());
@@ -330,41 +345,38 @@ TEST(Bench, SmallSuiteHasEveryFieldForEveryStructureAndSet) {
 
 TEST(Bench, PacketColumnTimesEveryStructuresPacketQueryBesideTheReferences) {
   TempDir dir("packets");
-  const Suite suite = load_suite(write_small_suite(dir).string());
-  BenchOptions o = small_options();
-  o.reference = "embree";
+  const Suite suite = small_suite(dir);
+  BenchOptions o = small_options("embree");
   o.packet_tile = 4;
   const BenchReport rep = run_bench(suite, o);
   EXPECT_FALSE(rep.any_failed());
   EXPECT_EQ(rep.packet_tile, 4);
   int rows = 0;
-  for (const auto& s : rep.scenes)
-    for (const auto& a : s.structures)
-      for (const auto& x : a.sets) {
-        const std::string where = s.name + " " + a.accel + " " + x.set;
-        if (x.set == "diffuse") {  // incoherent: no packet column
-          EXPECT_EQ(x.packet_rays, 0) << where;
-          continue;
-        }
-        ++rows;
-        EXPECT_EQ(x.packet_rays, 16) << where;
-        // Embree's native packets; the hybrid's packet walk (four packets of 16 lanes) where the
-        // build has it; the other structures loop over single rays.
-        const int own = a.accel == "hybrid" && hybrid::kSharedCorners ? 64 : 1;
-        EXPECT_EQ(x.packet_width, is_embree(a.accel) ? embree_isa().native_packet : own) << where;
-        EXPECT_EQ(x.packet_mrays_reps.size(), 2u) << where;
-        EXPECT_GT(x.packet_mrays_median, 0.0) << where;
-        EXPECT_GT(x.packet_single_mrays, 0.0) << where;
-        EXPECT_GT(x.packet_speedup, 0.0) << where;
-        EXPECT_GT(x.packet_ratio_to_reference, 0.0) << where;
-        EXPECT_GT(x.packet_reference_mrays, 0.0) << where;
-        // Every structure's packet answers are its single-ray answers; Embree's may only
-        // differ on exact ties (none on these boxes' pixel-centre rays).
-        EXPECT_EQ(x.packet_mismatches, x.packet_ties) << where;
-        if (!is_embree(a.accel)) {
-          EXPECT_EQ(x.packet_mismatches, 0u) << where;
-        }
-      }
+  for_each_set(rep, [&](const SceneFigures& s, const StructureFigures& a, const SetFigures& x) {
+    const std::string where = s.name + " " + a.accel + " " + x.set;
+    if (x.set == "diffuse") {  // incoherent: no packet column
+      EXPECT_EQ(x.packet_rays, 0) << where;
+      return;
+    }
+    ++rows;
+    EXPECT_EQ(x.packet_rays, 16) << where;
+    // Embree's native packets; the hybrid's packet walk (four packets of 16 lanes) where the
+    // build has it; the other structures loop over single rays.
+    const int own = a.accel == "hybrid" && hybrid::kSharedCorners ? 64 : 1;
+    EXPECT_EQ(x.packet_width, is_embree(a.accel) ? embree_isa().native_packet : own) << where;
+    EXPECT_EQ(x.packet_mrays_reps.size(), 2u) << where;
+    EXPECT_GT(x.packet_mrays_median, 0.0) << where;
+    EXPECT_GT(x.packet_single_mrays, 0.0) << where;
+    EXPECT_GT(x.packet_speedup, 0.0) << where;
+    EXPECT_GT(x.packet_ratio_to_reference, 0.0) << where;
+    EXPECT_GT(x.packet_reference_mrays, 0.0) << where;
+    // Every structure's packet answers are its single-ray answers; Embree's may only
+    // differ on exact ties (none on these boxes' pixel-centre rays).
+    EXPECT_EQ(x.packet_mismatches, x.packet_ties) << where;
+    if (!is_embree(a.accel)) {
+      EXPECT_EQ(x.packet_mismatches, 0u) << where;
+    }
+  });
   EXPECT_EQ(rows, 2 * int(o.accels.size()) * 2);
   const json j = json::parse(bench_to_json(rep));
   EXPECT_EQ(j["meta"]["packet_tile"], 4);
@@ -385,9 +397,9 @@ TEST(Bench, PacketColumnTimesEveryStructuresPacketQueryBesideTheReferences) {
   o.packet_tile = 0;
   o.accels = {"bvh"};
   const BenchReport none = run_bench(suite, o);
-  for (const auto& s : none.scenes)
-    for (const auto& a : s.structures)
-      for (const auto& x : a.sets) EXPECT_EQ(x.packet_rays, 0);
+  for_each_set(none, [](const SceneFigures&, const StructureFigures&, const SetFigures& x) {
+    EXPECT_EQ(x.packet_rays, 0);
+  });
   EXPECT_EQ(bench_to_markdown(none).find("### Packets"), std::string::npos);
 }
 
@@ -396,17 +408,15 @@ TEST(Bench, ExactStructuresAgreeWithEmbree) {
   if (std::find(names.begin(), names.end(), "embree") == names.end())
     GTEST_SKIP() << "embree is not registered in accel/factory.cpp yet";
   TempDir dir("embree");
-  const Suite suite = load_suite(write_small_suite(dir).string());
-  BenchOptions o = small_options();
-  o.reference = "embree";
+  const Suite suite = small_suite(dir);
+  BenchOptions o = small_options("embree");
   o.reps = 1;
   const BenchReport rep = run_bench(suite, o);
-  for (const auto& s : rep.scenes)
-    for (const auto& a : s.structures)
-      for (const auto& x : a.sets)
-        if (!is_embree(a.accel)) {
-          EXPECT_GE(x.agreement, 0.999) << s.name << " " << a.accel << " " << x.set;
-        }
+  for_each_set(rep, [](const SceneFigures& s, const StructureFigures& a, const SetFigures& x) {
+    if (!is_embree(a.accel)) {
+      EXPECT_GE(x.agreement, 0.999) << s.name << " " << a.accel << " " << x.set;
+    }
+  });
 }
 
 TEST(Bench, BadScenesAreReportedAndTheOthersRun) {
@@ -434,7 +444,7 @@ TEST(Bench, BadScenesAreReportedAndTheOthersRun) {
 
 TEST(Bench, UnpairedRatiosDivideByTheReferenceMedian) {
   TempDir dir("unpaired");
-  const Suite suite = load_suite(write_small_suite(dir).string());
+  const Suite suite = small_suite(dir);
   BenchOptions o = small_options();
   o.accels = {"brute", "bvh"};
   o.interleave_reference = false;
@@ -481,7 +491,7 @@ TEST(Bench, CpuClockTimesTheTracingThreads) {
   BenchOptions o = small_options();
   o.accels = {"bvh"};
   o.cpu_clock = true;
-  const BenchReport rep = run_bench(load_suite(write_small_suite(dir).string()), o);
+  const BenchReport rep = run_bench(small_suite(dir), o);
   ASSERT_FALSE(rep.any_failed());
   EXPECT_EQ(rep.clock, "cpu");
   EXPECT_NE(bench_to_markdown(rep).find("CPU clocks"), std::string::npos);
@@ -507,7 +517,7 @@ TEST(Bench, RejectsBadOptions) {
 
 TEST(Bench, RaysDirWritesThenReadsTheSameRays) {
   TempDir dir("raysdir");
-  const Suite suite = load_suite(write_small_suite(dir).string());
+  const Suite suite = small_suite(dir);
   BenchOptions o = small_options();
   o.accels = {"brute"};
   o.reps = 1;

@@ -114,12 +114,9 @@ TEST(Bvh, CoincidentCentroidsFallBackToMedianSplit) {
 TEST(Bvh, RejectsBadParameters) {
   const Mesh mesh = test::triangle_soup(10, 1);
   Bvh bvh;
-  BuildParams p;
-  p.bvh_bins = 1;
-  EXPECT_THROW(bvh.build(mesh, p), ParamError);
-  p = {};
-  p.bvh_max_leaf = 0;
-  EXPECT_THROW(bvh.build(mesh, p), ParamError);
+  test::expect_params_refused(
+      bvh, mesh,
+      {[](BuildParams& p) { p.bvh_bins = 1; }, [](BuildParams& p) { p.bvh_max_leaf = 0; }});
 }
 
 TEST(Bvh, EmptyMeshMissesEverything) {

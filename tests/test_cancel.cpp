@@ -13,6 +13,8 @@
 #include <thread>
 
 #include "accel/accelerator.h"
+#include "cancel_build.h"
+#include "cli_util.h"
 #include "scene/procedural.h"
 #include "test_util.h"
 #include "util/cancel.h"
@@ -82,31 +84,15 @@ TEST(Cancel, TokenSetMidBuildFromAnotherThreadStopsEveryBuilderPromptly) {
   const auto brute = build_accelerator("brute", small, BuildParams{});
   for (const auto& name : built_structures()) {
     SCOPED_TRACE(name);
-    CancelToken token;
-    BuildParams p = slow_params(name);
-    p.cancel = &token;
     auto a = make_accelerator(name);
-    Clock::time_point cancelled_at{};
-    std::thread canceller([&] {
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
-      cancelled_at = Clock::now();
-      token.cancel();
-    });
-    const auto t0 = Clock::now();
-    bool threw = false;
-    try {
-      a->build(soup, p);
-    } catch (const BuildCancelled&) {
-      threw = true;
-    }
-    const auto t1 = Clock::now();
-    canceller.join();
-    ASSERT_TRUE(threw)
+    const CancelledBuild run =
+        build_cancelled_after(*a, soup, slow_params(name), std::chrono::milliseconds(100));
+    ASSERT_TRUE(run.threw)
         << name << " finished its build of " << soup.num_triangles() << " triangles in "
-        << std::chrono::duration<double>(t1 - t0).count()
+        << run.build_seconds
         << " s without noticing the cancel at 0.1 s (or before it: then slow_params needs a "
            "slower build)";
-    const double latency = std::chrono::duration<double>(t1 - cancelled_at).count();
+    const double latency = run.after_cancel;
     std::printf("[ cancel   ] %-9s stopped %.3f s after the cancel\n", name.c_str(), latency);
     // Generous: the builders poll at least once per node or block, ~100 ms apart at worst.
     EXPECT_LT(latency, 2.0) << name << " took " << latency << " s to stop";
@@ -142,21 +128,9 @@ TEST(Cancel, CancelsAtAnyMomentOfParallelBuildsNeverTerminate) {
     SCOPED_TRACE(name);
     int cancelled = 0;
     for (int i = 0; i < 40; ++i) {
-      CancelToken token;
-      BuildParams p = slow_params(name);
-      p.cancel = &token;
       auto a = make_accelerator(name);
-      const int delay_us = int(rng() % 40'000);
-      std::thread canceller([&] {
-        std::this_thread::sleep_for(std::chrono::microseconds(delay_us));
-        token.cancel();
-      });
-      try {
-        a->build(soup, p);
-      } catch (const BuildCancelled&) {
-        ++cancelled;
-      }
-      canceller.join();
+      const auto delay = std::chrono::microseconds(rng() % 40'000);
+      cancelled += build_cancelled_after(*a, soup, slow_params(name), delay).threw;
     }
     EXPECT_GT(cancelled, 0) << "no build was cancelled: the soup builds too fast for the delays";
   }
@@ -212,13 +186,7 @@ TEST(Cancel, CtrlCInTheCliStopsABuildWithAClearMessageAndExitCode130) {
       "kill -INT $pid 2>/dev/null; sleep 0.2; i=$((i+1)); done; t1=$(date +%s%N); kill -KILL $pid "
       "2>/dev/null; "
       "wait $pid; echo rc=$? signals=$i ms=$(( (t1 - t0) / 1000000 ))' 2>&1";
-  FILE* pipe = ::popen(cmd.c_str(), "r");
-  ASSERT_NE(pipe, nullptr);
-  std::string out;
-  char buf[4096];
-  size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, pipe)) > 0) out.append(buf, n);
-  ::pclose(pipe);
+  const std::string out = test::run_shell_command(cmd).output;
   EXPECT_NE(out.find("rc=130"), std::string::npos) << out;
   const std::string says = "interrupted (Ctrl-C) while building hybrid over ";
   const size_t msg = out.find(says);

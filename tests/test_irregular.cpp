@@ -14,6 +14,7 @@
 #include "accel/irregular.h"
 #include "comparator_meshes.h"
 #include "extreme_rays.h"
+#include "test_util.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -330,21 +331,21 @@ TEST(Irregular, AbsurdParametersThrowParamError) {
   IrregularGrid g;
   BuildParams p;
   p.memory_budget = uint64_t(1) << 30;
+  // The message of the ParamError that building with `p` must throw.
+  const auto refusal = [&]() -> std::string {
+    try {
+      g.build(m, p);
+    } catch (const ParamError& e) {
+      return e.what();
+    }
+    ADD_FAILURE() << "expected ParamError";
+    return "";
+  };
   p.irregular_top_density = 1e12f;
-  try {
-    g.build(m, p);
-    FAIL() << "expected ParamError";
-  } catch (const ParamError& e) {
-    EXPECT_NE(std::string(e.what()).find("irregular_top_density"), std::string::npos) << e.what();
-  }
+  EXPECT_CONTAINS(refusal(), "irregular_top_density");
   p.irregular_top_density = 0.12f;
   p.irregular_sub_density = 1e12f;
-  try {
-    g.build(m, p);
-    FAIL() << "expected ParamError";
-  } catch (const ParamError& e) {
-    EXPECT_NE(std::string(e.what()).find("irregular_sub_density"), std::string::npos) << e.what();
-  }
+  EXPECT_CONTAINS(refusal(), "irregular_sub_density");
   for (float bad : {0.0f, -1.0f, std::numeric_limits<float>::quiet_NaN(), kInf}) {
     p.irregular_sub_density = 2.4f;
     p.irregular_top_density = bad;

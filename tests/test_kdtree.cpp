@@ -10,12 +10,14 @@
 
 #include "accel/kdtree.h"
 #include "comparator_meshes.h"
+#include "test_util.h"
 #include "util/error.h"
 
 namespace kdgrid {
 namespace {
 
 using test::count_disagreements;
+using test::kSanitizerBuild;
 
 std::vector<std::pair<int, float>> split_planes(const KdTree& kd, size_t max_planes) {
   std::vector<std::pair<int, float>> planes;
@@ -136,29 +138,11 @@ TEST(KdTree, PlanarTrianglesAreNotDuplicated) {
 TEST(KdTree, RejectsBadParameters) {
   const Mesh mesh = test::sphere(4, 8);
   KdTree kd;
-  BuildParams p;
-  p.kd_max_depth = 1000;
-  EXPECT_THROW(kd.build(mesh, p), ParamError);
-  p = {};
-  p.kd_intersection_cost = 0.0f;
-  EXPECT_THROW(kd.build(mesh, p), ParamError);
-  p = {};
-  p.kd_empty_bonus = 1.0f;
-  EXPECT_THROW(kd.build(mesh, p), ParamError);
+  test::expect_params_refused(kd, mesh,
+                              {[](BuildParams& p) { p.kd_max_depth = 1000; },
+                               [](BuildParams& p) { p.kd_intersection_cost = 0.0f; },
+                               [](BuildParams& p) { p.kd_empty_bonus = 1.0f; }});
 }
-
-// Sanitizer builds (scripts/sanitize.sh) run the same code many times slower, and unevenly.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-constexpr bool kSanitizerBuild = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-constexpr bool kSanitizerBuild = true;
-#else
-constexpr bool kSanitizerBuild = false;
-#endif
-#else
-constexpr bool kSanitizerBuild = false;
-#endif
 
 TEST(KdTree, BuildsLargeMeshQuickly) {
   // 300K triangles: checks the O(N log N) build stays far from quadratic (about 3 s of CPU).
@@ -190,6 +174,43 @@ KdRay scalar_kd_ray(const Ray& ray, float max_abs) {
   return ref;
 }
 
+/// A ray clipped to `box` by kd_clip of its scalar KdRay and by kd_begin (whose lane form r4
+/// kd_clip_x4 reads).
+struct BothClips {
+  KdRay ref;
+  float r0, r1;  // kd_clip's interval
+  bool ref_hit;
+  KdRay kr;
+  KdRayX4 r4;
+  float t0, t1;  // kd_begin's interval
+  bool hit;
+};
+
+BothClips clip_both(const Ray& ray, const Box3& box, const ClipBox4& cb, float max_abs) {
+  BothClips c{};
+  c.ref = scalar_kd_ray(ray, max_abs);
+  c.r0 = ray.tmin;
+  c.r1 = ray.tmax;
+  c.ref_hit = kd_clip(c.ref, box, c.r0, c.r1);
+  c.hit = kd_begin(ray, cb, max_abs, c.kr, c.t0, c.t1, &c.r4);
+  return c;
+}
+
+/// The bits of `f`.
+uint32_t bits(float f) {
+  uint32_t b;
+  std::memcpy(&b, &f, sizeof b);
+  return b;
+}
+
+/// kd_begin's reciprocals and error bounds are the scalar KdRay's, bit for bit.
+void assert_same_kd_ray(const KdRay& got, const KdRay& want, int ray) {
+  for (int a = 0; a < 3; ++a) {
+    ASSERT_EQ(bits(got.inv_dir[a]), bits(want.inv_dir[a])) << "ray " << ray << " axis " << a;
+    ASSERT_EQ(bits(got.err[a]), bits(want.err[a])) << "ray " << ray << " axis " << a;
+  }
+}
+
 // kd_begin, the traversals' set-up computed for three axes at once, gives what the scalar form
 // (reciprocal, err, kd_clip per axis) gives, bit for bit: reciprocals, err, hit or miss and the
 // clipped interval; and kd_clip_x4 (the hybrid's clip to a leaf subtree's box, from kd_begin's
@@ -197,11 +218,6 @@ KdRay scalar_kd_ray(const Ray& ray, float max_abs) {
 // components (inside and outside their slab), origins on the box's faces, far origins and
 // finite tmin/tmax.
 TEST(KdTree, BeginMatchesScalarClipBitForBit) {
-  auto bits = [](float f) {
-    uint32_t b;
-    std::memcpy(&b, &f, sizeof b);
-    return b;
-  };
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> u(-1.0f, 1.0f);
   const Box3 box(Vec3(-1.0f, 0.5f, 2.0f), Vec3(3.0f, 0.75f, 1e3f));
@@ -230,14 +246,8 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
       ray.tmin = 0.5f;
       ray.tmax = 200.0f;
     }
-    // The scalar form.
-    const KdRay ref = scalar_kd_ray(ray, max_abs);
-    float r0 = ray.tmin, r1 = ray.tmax;
-    const bool ref_hit = kd_clip(ref, box, r0, r1);
-    KdRay kr;
-    KdRayX4 r4;
-    float t0 = 0.0f, t1 = 0.0f;
-    const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1, &r4);
+    // The scalar form and kd_begin's.
+    const auto [ref, r0, r1, ref_hit, kr, r4, t0, t1, hit] = clip_both(ray, box, cb, max_abs);
     // The same answer and, for a hit, the same interval bit for bit; counts the outcomes.
     auto same_clip = [&](bool got, float g0, float g1, bool want, float w0, float w1, int& n_hit,
                          int& n_miss) {
@@ -251,10 +261,7 @@ TEST(KdTree, BeginMatchesScalarClipBitForBit) {
       ++n_hit;
     };
     same_clip(hit, t0, t1, ref_hit, r0, r1, hits, misses);
-    for (int a = 0; a < 3; ++a) {
-      ASSERT_EQ(bits(kr.inv_dir[a]), bits(ref.inv_dir[a])) << "ray " << i << " axis " << a;
-      ASSERT_EQ(bits(kr.err[a]), bits(ref.err[a])) << "ray " << i << " axis " << a;
-    }
+    ASSERT_NO_FATAL_FAILURE(assert_same_kd_ray(kr, ref, i));
     if (hit) {
       // kd_clip_x4 against kd_clip on the smaller box, over an interval within [t0, t1].
       float s0 = t0 + 0.25f * (t1 - t0), s1 = t1, q0 = s0, q1 = s1;
@@ -296,19 +303,10 @@ TEST(KdTree, LaneClipsContainScalarClipWithSubnormalDirections) {
       if (k == 0) ray.dir[a] = (i % 2 ? -1.0f : 1.0f) * 1e-40f;  // subnormal
       if (k == 1 && i % 2) ray.org[a] = (i % 4 < 2) ? box.lo[a] : box.hi[a];
     }
-    KdRay ref = scalar_kd_ray(ray, max_abs);
+    const auto [ref, r0, r1, ref_hit, kr, r4, t0, t1, hit] = clip_both(ray, box, cb, max_abs);
     for (int a = 0; a < 3; ++a)
       if (std::isinf(ref.inv_dir[a])) ++nan_axes;
-    float r0 = ray.tmin, r1 = ray.tmax;
-    const bool ref_hit = kd_clip(ref, box, r0, r1);
-    KdRay kr;
-    KdRayX4 r4;
-    float t0 = 0.0f, t1 = 0.0f;
-    const bool hit = kd_begin(ray, cb, max_abs, kr, t0, t1, &r4);
-    for (int a = 0; a < 3; ++a) {
-      ASSERT_EQ(std::memcmp(&kr.inv_dir[a], &ref.inv_dir[a], sizeof(float)), 0) << "ray " << i;
-      ASSERT_EQ(std::memcmp(&kr.err[a], &ref.err[a], sizeof(float)), 0) << "ray " << i;
-    }
+    ASSERT_NO_FATAL_FAILURE(assert_same_kd_ray(kr, ref, i));
     if (!ref_hit) continue;
     ++hits;
     ASSERT_TRUE(hit) << "ray " << i;

@@ -41,19 +41,23 @@ using test::slurp;
 using test::TempDir;
 using test::write_ascii_ply;
 
+/// The primary rays of an n x n image from `eye` towards the origin, with a vertical field of
+/// view of `fov_deg` degrees.
+std::vector<Ray> square_image_rays(const Vec3& eye, int n, float fov_deg = Camera{}.fov_deg) {
+  Camera cam;
+  cam.eye = eye;
+  cam.fov_deg = fov_deg;
+  return primary_rays(cam, n, n);
+}
+
 // ---- profile: per-class single-thread costs -------------------------------------------------
 
 TEST(Profile, ClassesPartitionTheRaysByTheReferenceAndTheBox) {
   const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
-  BuildParams p;
-  const auto ref = build_accelerator("bvh", m, p);
+  const auto ref = build_accelerator("bvh", m, BuildParams{});
   // A camera close enough that some rays miss the sphere inside its box (near the box's
   // corners) and far enough that the image's corners miss the box.
-  Camera cam;
-  cam.eye = Vec3(0.0f, 0.0f, 4.0f);
-  cam.target = Vec3(0.0f);
-  cam.fov_deg = 50.0f;
-  const std::vector<Ray> rays = primary_rays(cam, 48, 48);
+  const std::vector<Ray> rays = square_image_rays(Vec3(0.0f, 0.0f, 4.0f), 48, 50.0f);
   const RayClasses c = classify_rays(*ref, m.bounds(), rays);
   EXPECT_EQ(c.hit.size() + c.miss_box.size() + c.miss_out.size(), rays.size());
   ASSERT_FALSE(c.hit.empty());
@@ -84,11 +88,8 @@ TEST(Profile, ClassesPartitionTheRaysByTheReferenceAndTheBox) {
 
 TEST(Profile, FiguresMatchTheCountedPassAndHitCounts) {
   const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
-  BuildParams p;
-  const auto kd = build_accelerator("kdtree", m, p);
-  Camera cam;
-  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
-  const std::vector<Ray> rays = primary_rays(cam, 32, 32);
+  const auto kd = build_accelerator("kdtree", m, BuildParams{});
+  const std::vector<Ray> rays = square_image_rays(Vec3(0.3f, 0.2f, 4.0f), 32);
   const ProfileFigures f = profile_rays(*kd, rays, 2);
   EXPECT_EQ(f.rays, rays.size());
   RayCounters c;
@@ -116,9 +117,7 @@ TEST(Profile, FiguresMatchTheCountedPassAndHitCounts) {
 // hit. Embree cannot run without its own tests and says so.
 TEST(TraversalOnly, EveryRayMissesAndEachStructureVisitsAtLeastAsMuch) {
   const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
-  Camera cam;
-  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
-  const std::vector<Ray> rays = primary_rays(cam, 24, 24);
+  const std::vector<Ray> rays = square_image_rays(Vec3(0.3f, 0.2f, 4.0f), 24);
   BuildParams none;
   none.triangle_test = TriangleTestKind::None;
   for (const std::string name : {"brute", "bvh", "grid", "kdtree", "hybrid", "irregular"}) {
@@ -149,9 +148,7 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   TempDir dir("trace");
   const fs::path ply = dir / "sphere.ply", rays = dir / "r.rays", log = dir / "log.txt";
   write_ascii_ply(make_icosphere(2, Vec3(0.0f), 1.0f), ply);
-  Camera cam;
-  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
-  write_rays(rays.string(), primary_rays(cam, 16, 16));
+  write_rays(rays.string(), square_image_rays(Vec3(0.3f, 0.2f, 4.0f), 16));
   const std::string base =
       "trace \"" + ply.string() + "\" --rays \"" + rays.string() + "\" --repeat 1 ";
   ASSERT_EQ(run_cli(base + "--accel hybrid --traversal-only", log), 0) << slurp(log);
@@ -160,7 +157,7 @@ TEST(TraceCli, TraversalOnlyReportsTimePerStepAndRefusesEmbree) {
   // The next leaves taken from the next-leaf cache, counted: neighbouring rays of a finer
   // image take some, and none without the cache.
   const fs::path fine = dir / "fine.rays";
-  write_rays(fine.string(), primary_rays(cam, 128, 128));
+  write_rays(fine.string(), square_image_rays(Vec3(0.3f, 0.2f, 4.0f), 128));
   const std::string fine_base =
       "trace \"" + ply.string() + "\" --rays \"" + fine.string() + "\" --repeat 1 ";
   ASSERT_EQ(run_cli(fine_base + "--accel hybrid --threads 1", log), 0) << slurp(log);
@@ -266,9 +263,7 @@ TEST(ProfileCli, PrintsEveryStructureAndClass) {
 TEST(Profile, CacheSimPassTracesEachRayOnceAndCountRaysMatchesTheCountedPass) {
   const Mesh m = make_icosphere(3, Vec3(0.0f), 1.0f);
   const auto hy = build_accelerator("hybrid", m, BuildParams{});
-  Camera cam;
-  cam.eye = Vec3(0.3f, 0.2f, 4.0f);
-  const std::vector<Ray> rays = primary_rays(cam, 32, 32);
+  const std::vector<Ray> rays = square_image_rays(Vec3(0.3f, 0.2f, 4.0f), 32);
   uint64_t hits = 0;
   RayCounters c;
   for (const Ray& r : rays) {

@@ -71,6 +71,14 @@ Scene floor_and_blocker() {
   return s;
 }
 
+/// Render settings of `width` x `height` pixels, the rest the defaults.
+RenderSettings sized(int width, int height) {
+  RenderSettings rs;
+  rs.width = width;
+  rs.height = height;
+  return rs;
+}
+
 std::vector<float> render(const Scene& scene, const Accelerator& accel, RenderSettings rs,
                           int passes, RenderCounters* counters = nullptr) {
   Renderer r(scene, accel, rs);
@@ -86,9 +94,7 @@ std::vector<float> render(const Scene& scene, const Accelerator& accel, RenderSe
 TEST(Renderer, SameSeedSameImageAcrossThreadCounts) {
   const Scene scene = cornell_scene();
   const auto accel = build_accelerator("brute", scene.mesh, {});
-  RenderSettings rs;
-  rs.width = 40;
-  rs.height = 30;
+  RenderSettings rs = sized(40, 30);
   rs.tile_size = 8;
   std::vector<float> one, two, other_seed;
   {
@@ -164,9 +170,8 @@ TEST(Renderer, PacketRenderIsBitwiseTheSingleRayRender) {
     scene.lights.push_back(l);
   }
   ASSERT_EQ(scene.lights.size(), 6u);
-  RenderSettings rs;
-  rs.width = 83;  // tiles cut at the edges; 70-pixel tiles are wider than a packet
-  rs.height = 37;
+  // 83 wide: tiles cut at the edges; 70-pixel tiles are wider than a packet.
+  RenderSettings rs = sized(83, 37);
   for (const std::string name : {"hybrid", "embree", "bvh"}) {
     const auto accel = build_accelerator(name, scene.mesh, {});
     for (const int tile : {16, 8, 5, 70}) {
@@ -206,9 +211,7 @@ TEST(Renderer, PacketRenderIsBitwiseTheSingleRayRender) {
 TEST(Renderer, CancelledPassLeavesFilmUnchanged) {
   const Scene scene = cornell_scene();
   const auto accel = build_accelerator("brute", scene.mesh, {});
-  RenderSettings rs;
-  rs.width = 48;
-  rs.height = 32;
+  RenderSettings rs = sized(48, 32);
   Renderer r(scene, *accel, rs);
   ASSERT_TRUE(r.render_pass());
   std::vector<float> before, after;
@@ -251,9 +254,7 @@ TEST(Renderer, TracesOnlyTheRayKindsMaterialsNeed) {
   const Scene diffuse = floor_and_blocker();
   ASSERT_FALSE(diffuse.has_reflective_material());
   const auto accel = build_accelerator("brute", diffuse.mesh, {});
-  RenderSettings rs;
-  rs.width = 32;
-  rs.height = 24;
+  RenderSettings rs = sized(32, 24);
   RenderCounters c;
   render(diffuse, *accel, rs, 1, &c);
   EXPECT_EQ(c.primary, 32u * 24u);
@@ -278,9 +279,7 @@ TEST(Renderer, TracesOnlyTheRayKindsMaterialsNeed) {
 TEST(Renderer, HeatMapCountsPrimaryTraversal) {
   const Scene scene = floor_and_blocker();
   const auto accel = build_accelerator("brute", scene.mesh, {});
-  RenderSettings rs;
-  rs.width = 8;
-  rs.height = 8;
+  RenderSettings rs = sized(8, 8);
   rs.mode = RenderMode::HeatTests;
   RenderCounters c;
   const auto rgb = render(scene, *accel, rs, 2, &c);
@@ -598,9 +597,7 @@ TEST(RenderRegression, CornellMatchesReference) {
   const std::string ref_path = test::source_path("tests/data/cornell_ref.exr");
   const Scene scene = load_scene(scene_path);
   const auto accel = build_accelerator("brute", scene.mesh, {});
-  RenderSettings rs;
-  rs.width = 64;
-  rs.height = 48;
+  RenderSettings rs = sized(64, 48);
   rs.seed = 1;
   rs.max_depth = 5;
   ImageRGB img;
@@ -723,13 +720,7 @@ TEST(RenderCli, InterruptWritesWhatIsDone) {
       "i=0; while kill -0 $pid 2>/dev/null && [ $i -lt 120 ]; do sleep 0.5; "
       "kill -INT $pid 2>/dev/null; i=$((i+1)); done; kill -KILL $pid 2>/dev/null; "
       "wait $pid; echo rc=$?' 2>&1";
-  FILE* pipe = ::popen(cmd.c_str(), "r");
-  ASSERT_NE(pipe, nullptr);
-  std::string output;
-  char buf[4096];
-  size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, pipe)) > 0) output.append(buf, n);
-  ::pclose(pipe);
+  const std::string output = test::run_shell_command(cmd).output;
   EXPECT_TRUE(contains(output, "rc=130")) << output;
   EXPECT_TRUE(contains(output, "interrupted")) << output;
   if (contains(output, "wrote the")) {

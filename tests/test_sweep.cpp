@@ -28,6 +28,26 @@ using test::gridded_box;
 using test::TempDir;
 using test::write_ascii_ply;
 
+/// The index of column `name` of `t` (t.columns.size() when it has none).
+size_t column(const SweepTable& t, const std::string& name) {
+  return size_t(std::find(t.columns.begin(), t.columns.end(), name) - t.columns.begin());
+}
+
+/// The sweep of `kind` over `values` on a 6x6-gridded box written to a fresh folder named with
+/// `tag`: one repetition of 32x32 rays.
+SweepTable sweep_on_box(const std::string& kind, const std::vector<double>& values,
+                        const std::string& tag) {
+  TempDir dir(tag);
+  write_ascii_ply(gridded_box(6, {0, 0, 0}, 1.0f), dir / "box.ply");
+  SweepOptions o;
+  o.kind = kind;
+  o.scene = (dir / "box.ply").string();
+  o.values = values;
+  o.reps = 1;
+  o.width = o.height = 32;
+  return run_sweep(o);
+}
+
 TEST(Sweep, EdgeVertexRaysAllHitAClosedMeshWithTheWatertightTest) {
   const Mesh m = make_icosphere(2);  // 320 triangles, 480 edges, 162 vertices
   const std::vector<Ray> rays = edge_vertex_rays(m, 2, 3);
@@ -47,15 +67,7 @@ TEST(Sweep, EdgeVertexRaysAllHitAClosedMeshWithTheWatertightTest) {
 }
 
 TEST(Sweep, LambdaRowsAndBothOutputs) {
-  TempDir dir("sweep");
-  write_ascii_ply(gridded_box(6, {0, 0, 0}, 1.0f), dir / "box.ply");
-  SweepOptions o;
-  o.kind = "lambda";
-  o.scene = (dir / "box.ply").string();
-  o.values = {1, 8};
-  o.reps = 1;
-  o.width = o.height = 32;
-  const SweepTable t = run_sweep(o);
+  const SweepTable t = sweep_on_box("lambda", {1, 8}, "sweep");
   ASSERT_EQ(t.rows.size(), 2u);
   auto col = [&](const std::string& c) {
     const auto it = std::find(t.columns.begin(), t.columns.end(), c);
@@ -83,12 +95,9 @@ TEST(Sweep, TriangleLeaksWatertightNever) {
   o.accels = {"bvh"};
   o.leak_rays_per_target = 1;
   const SweepTable t = run_sweep(o);  // no scene: the leak part only
-  const size_t part =
-      size_t(std::find(t.columns.begin(), t.columns.end(), "part") - t.columns.begin());
-  const size_t test =
-      size_t(std::find(t.columns.begin(), t.columns.end(), "test") - t.columns.begin());
-  const size_t leaks =
-      size_t(std::find(t.columns.begin(), t.columns.end(), "leaks") - t.columns.begin());
+  const size_t part = column(t, "part");
+  const size_t test = column(t, "test");
+  const size_t leaks = column(t, "leaks");
   ASSERT_LT(leaks, t.columns.size());
   size_t rows = 0;
   for (const auto& r : t.rows) {
@@ -109,8 +118,7 @@ TEST(Sweep, SppErrorFallsWithSamples) {
   o.spp_reference = 64;
   const SweepTable t = run_sweep(o);
   ASSERT_EQ(t.rows.size(), 5u);  // 1, 2, 4, 8, 16
-  const size_t e =
-      size_t(std::find(t.columns.begin(), t.columns.end(), "rmse_display") - t.columns.begin());
+  const size_t e = column(t, "rmse_display");
   ASSERT_LT(e, t.columns.size());
   const double first = std::get<double>(t.rows.front()[e]),
                last = std::get<double>(t.rows.back()[e]);
@@ -122,21 +130,11 @@ TEST(Sweep, CellsizeHasAnAutoRow) {
   const auto names = accelerator_names();
   if (std::find(names.begin(), names.end(), "hybrid") == names.end())
     GTEST_SKIP() << "hybrid is not registered in accel/factory.cpp yet";
-  TempDir dir("cellsize");
-  write_ascii_ply(gridded_box(6, {0, 0, 0}, 1.0f), dir / "box.ply");
-  SweepOptions o;
-  o.kind = "cellsize";
-  o.scene = (dir / "box.ply").string();
-  o.values = {0.5, 2};
-  o.reps = 1;
-  o.width = o.height = 32;
-  const SweepTable t = run_sweep(o);
+  const SweepTable t = sweep_on_box("cellsize", {0.5, 2}, "cellsize");
   ASSERT_EQ(t.rows.size(), 3u);
   EXPECT_EQ(std::get<std::string>(t.rows[0][0]), "auto");
   // Accuracy beside speed: every cell size judged by check's reference, none contradicting it.
-  auto col = [&](const std::string& n) {
-    return size_t(std::find(t.columns.begin(), t.columns.end(), n) - t.columns.begin());
-  };
+  auto col = [&](const std::string& n) { return column(t, n); };
   for (const auto& row : t.rows) {
     EXPECT_GT(std::get<double>(row.at(col("check_rays"))), 0.0);
     EXPECT_GT(std::get<double>(row.at(col("check_agree"))), 0.0);

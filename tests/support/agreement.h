@@ -41,6 +41,7 @@
 #include "accel/brute.h"
 #include "accel/embree.h"
 #include "bench/rayfile.h"
+#include "comparator_meshes.h"
 #include "scene/mesh.h"
 
 #ifndef KDGRID_REFERENCE_CACHE_DIR
@@ -345,17 +346,14 @@ inline size_t compare_instrumented(const Accelerator& accel, const std::vector<R
 
 /// `n` random triangles of random size and orientation in [-1, 1]^3.
 inline Mesh triangle_soup(size_t n, uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> pos(-1.0f, 1.0f), size(0.01f, 0.3f);
-  Mesh m;
-  for (size_t i = 0; i < n; ++i) {
+  return generated_triangles(n, seed, [&](std::mt19937& rng) {
     const Vec3 c(pos(rng), pos(rng), pos(rng));
     const float s = size(rng);
-    const uint32_t b = uint32_t(m.positions.size());
-    for (int k = 0; k < 3; ++k) m.positions.push_back(c + Vec3(pos(rng), pos(rng), pos(rng)) * s);
-    m.triangles.push_back({b, b + 1, b + 2});
-  }
-  return m;
+    std::array<Vec3, 3> v;
+    for (Vec3& corner : v) corner = c + Vec3(pos(rng), pos(rng), pos(rng)) * s;
+    return v;
+  });
 }
 
 /// An icosphere of radius `r` about `c`, `levels` times subdivided (20 * 4^levels triangles),
@@ -423,20 +421,13 @@ inline Mesh coplanar_quads(int n) {
 /// Long thin triangles (length 0.2-0.8, width ~1e-3) in random directions in [-1, 1]^3:
 /// boxes far larger than the triangles, the worst case for bounding volumes.
 inline Mesh thin_triangles(size_t n, uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(-1.0f, 1.0f), len(0.2f, 0.8f);
-  Mesh m;
-  for (size_t i = 0; i < n; ++i) {
+  return generated_triangles(n, seed, [&](std::mt19937& rng) {
     const Vec3 a(u(rng), u(rng), u(rng));
     const Vec3 b = a + normalize(Vec3(u(rng), u(rng), u(rng))) * len(rng);
     const Vec3 side = normalize(cross(b - a, Vec3(u(rng), u(rng), u(rng)))) * 1e-3f;
-    const uint32_t base = uint32_t(m.positions.size());
-    m.positions.push_back(a);
-    m.positions.push_back(b);
-    m.positions.push_back((a + b) * 0.5f + side);
-    m.triangles.push_back({base, base + 1, base + 2});
-  }
-  return m;
+    return std::array<Vec3, 3>{a, b, (a + b) * 0.5f + side};
+  });
 }
 
 /// A random soup in which every triangle appears twice (same vertices, separate indices) and

@@ -1,17 +1,21 @@
-// Procedural meshes, seeded rays and the brute-force agreement check shared by the tests of
-// the structures (test_structures.cpp, test_grid.cpp, test_kdtree.cpp, test_embree.cpp).
+// Procedural meshes, seeded rays, the brute-force agreement check and the check of refused
+// build parameters, shared by the tests of the structures (test_structures.cpp, test_grid.cpp,
+// test_kdtree.cpp, test_bvh.cpp, test_hybrid_*.cpp, test_embree.cpp).
 #pragma once
 
 #include <gtest/gtest.h>
 
 #include <array>
 #include <cmath>
+#include <functional>
+#include <initializer_list>
 #include <random>
 #include <string>
 #include <vector>
 
 #include "accel/accelerator.h"
 #include "accel/brute.h"
+#include "util/error.h"
 
 namespace kdgrid::test {
 
@@ -19,6 +23,19 @@ inline void add_tri(Mesh& m, const Vec3& a, const Vec3& b, const Vec3& c) {
   const uint32_t base = uint32_t(m.positions.size());
   m.positions.insert(m.positions.end(), {a, b, c});
   m.triangles.push_back({base, base + 1, base + 2});
+}
+
+/// A mesh of `n` triangles whose corners `make(rng)` returns, from one generator seeded with
+/// `seed`.
+template <class MakeTriangle>
+Mesh generated_triangles(size_t n, uint32_t seed, MakeTriangle make) {
+  std::mt19937 rng(seed);
+  Mesh m;
+  for (size_t i = 0; i < n; ++i) {
+    const std::array<Vec3, 3> c = make(rng);
+    add_tri(m, c[0], c[1], c[2]);
+  }
+  return m;
 }
 
 /// The quad a, b, c, d (in order around it) as the triangles abc and acd.
@@ -272,6 +289,17 @@ inline int count_disagreements(const Mesh& mesh, const Accelerator& acc,
                                const std::vector<Ray>& rays, int report = 5,
                                int* hits_out = nullptr, double t_tol = 1e-5) {
   return count_disagreements(mesh, acc, rays, brute_answers(mesh, rays), report, hits_out, t_tol);
+}
+
+/// Expects building `acc` on `mesh` to throw ParamError with each of `bad`'s changes to the
+/// default parameters.
+inline void expect_params_refused(Accelerator& acc, const Mesh& mesh,
+                                  std::initializer_list<std::function<void(BuildParams&)>> bad) {
+  for (const auto& change : bad) {
+    BuildParams p;
+    change(p);
+    EXPECT_THROW(acc.build(mesh, p), ParamError);
+  }
 }
 
 /// The named procedural meshes every structure is checked on.

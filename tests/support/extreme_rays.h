@@ -1,7 +1,7 @@
 // The meshes and ray families of the extreme-ray tests (test_extreme_rays.cpp, and the step-bound
-// tests of test_grid.cpp, test_hybrid.cpp and test_irregular.cpp): rays that are axis-parallel,
-// have +0/-0 direction components, lie in cell or split planes, start on boundaries, miss the
-// box or graze its edges, in scenes far from the unit scale.
+// tests of test_grid.cpp, test_hybrid_agreement.cpp and test_irregular.cpp): rays that are
+// axis-parallel, have +0/-0 direction components, lie in cell or split planes, start on boundaries,
+// miss the box or graze its edges, in scenes far from the unit scale.
 #pragma once
 
 #include <algorithm>
@@ -152,6 +152,16 @@ inline std::vector<std::pair<int, float>> lattice_planes(float lo, float step, i
   return out;
 }
 
+/// `n` rays made by `make(i, rng)` for i = 0 .. n-1 from one generator seeded with `seed`.
+template <class MakeRay>
+std::vector<Ray> generated_rays(int n, uint32_t seed, MakeRay make) {
+  std::mt19937 rng(seed);
+  std::vector<Ray> rays;
+  rays.reserve(size_t(std::max(n, 0)));
+  for (int i = 0; i < n; ++i) rays.push_back(make(i, rng));
+  return rays;
+}
+
 /// Rays lying in the given planes, inside the plane's box or starting outside it in the
 /// plane, with a +0 or -0 normal component; every fifth also lies in a plane of another axis.
 inline std::vector<Ray> rays_in_planes(const std::vector<PlaneInBox>& planes, int n,
@@ -184,26 +194,21 @@ inline std::vector<Ray> rays_in_planes(const std::vector<PlaneInBox>& planes, in
 
 /// Axis-parallel rays, both signs in turn on each axis, from origins in [lo, hi]^3.
 inline std::vector<Ray> axis_parallel_rays(float lo, float hi, int n, uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(lo, hi);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Ray r;
     r.org = Vec3(u(rng), u(rng), u(rng));
     r.dir = Vec3(0.0f);
     r.dir[i % 3] = (i / 3) % 2 ? 1.0f : -1.0f;
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// Axis-parallel rays from outside [-1.3, 1.3]^3 (at +-1.5 on their axis) through it, every
 /// fourth starting on a line of grid_quads() (a multiple of 0.5) in one other coordinate.
 inline std::vector<Ray> axis_parallel_rays_from_outside(int n, uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(-1.3f, 1.3f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Ray r;
     r.org = Vec3(u(rng), u(rng), u(rng));
     const int a = i % 3;
@@ -211,9 +216,8 @@ inline std::vector<Ray> axis_parallel_rays_from_outside(int n, uint32_t seed) {
     r.dir = Vec3(0.0f);
     r.dir[a] = r.org[a] > 0 ? -1.0f : 1.0f;
     if (i % 4 == 0) r.org[(a + 1) % 3] = 0.5f * float(int(u(rng) * 2.0f));
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// Axis-parallel rays with +0/-0 in their other components from outside the integer quads
@@ -243,10 +247,8 @@ inline std::vector<Ray> signed_zero_axis_rays(int n, uint32_t seed, bool on_edge
 /// `two_every` picks which rays zero a second component (the sign of which alternates).
 inline std::vector<Ray> zero_component_rays(float lo, float hi, int n, uint32_t seed,
                                             int two_every) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(lo, hi), s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Ray r;
     r.org = Vec3(u(rng), u(rng), u(rng));
     r.dir = Vec3(s(rng), s(rng), s(rng));
@@ -254,9 +256,8 @@ inline std::vector<Ray> zero_component_rays(float lo, float hi, int n, uint32_t 
     r.dir[a] = (i / 3) % 2 ? 0.0f : -0.0f;
     if (i % two_every == 0) r.dir[(a + 1) % 3] = (i / two_every) % 2 ? -0.0f : 0.0f;
     if (r.dir == Vec3(0.0f)) r.dir[(a + 2) % 3] = 1.0f;
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// Rays along the lines of coplanar_quads(8) (agreement.h): axis-parallel with +0/-0 in the
@@ -289,11 +290,9 @@ inline std::vector<Ray> coplanar_quad_line_rays() {
 /// it; every fifth also lies in a second lattice plane (along a lattice line).
 inline std::vector<Ray> rays_in_lattice_planes(float cell, int kmin, int kmax, float lo, float hi,
                                                int n, uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(lo, hi), s(-1.0f, 1.0f);
   std::uniform_int_distribution<int> k(kmin, kmax);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Ray r;
     r.org = Vec3(u(rng), u(rng), u(rng));
     r.dir = Vec3(s(rng), s(rng), s(rng));
@@ -306,27 +305,23 @@ inline std::vector<Ray> rays_in_lattice_planes(float cell, int kmin, int kmax, f
       r.dir[b] = 0.0f;
     }
     if (r.dir == Vec3(0.0f)) r.dir[(a + 2) % 3] = 1.0f;
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// Rays from the points of a lattice of `cell` (k = kmin .. kmax), a third of them along the
 /// diagonal through the cell corners.
 inline std::vector<Ray> rays_from_lattice_points(float cell, int kmin, int kmax, int n,
                                                  uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_int_distribution<int> k(kmin, kmax);
   std::uniform_real_distribution<float> s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Ray r;
     r.org = Vec3(float(k(rng)), float(k(rng)), float(k(rng))) * cell;
     r.dir = Vec3(s(rng), s(rng), s(rng));
     if (i % 3 == 0) r.dir = Vec3(1.0f, 1.0f, 1.0f) * (i % 2 ? 1.0f : -1.0f);
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// Rays starting on the boundaries of a structure: on one of its planes (a face of a node, a
@@ -370,10 +365,8 @@ inline std::vector<Ray> rays_from_structure_boundaries(const std::vector<PlaneIn
 /// points near it.
 inline std::vector<Ray> rays_inside_and_outside(const Vec3& center, float in_lo, float in_hi, int n,
                                                 uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> in(in_lo, in_hi), out(4.0f, 10.0f), s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Ray r;
     if (i % 2) {
       r.org = Vec3(in(rng), in(rng), in(rng));
@@ -382,18 +375,15 @@ inline std::vector<Ray> rays_inside_and_outside(const Vec3& center, float in_lo,
       r.org = center + normalize(Vec3(s(rng), s(rng), s(rng))) * out(rng);
       r.dir = center + Vec3(s(rng), s(rng), s(rng)) - r.org;
     }
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// Rays from beside the box of extreme_scene() (x about 5) that miss it: pointing away,
 /// parallel to it outside its slab, or pointing at it but ending before it.
 inline std::vector<Ray> rays_beside_the_box(int n, uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Ray r;
     r.org = Vec3(5.0f + s(rng), s(rng), s(rng));
     r.dir = Vec3(std::abs(s(rng)) + 0.01f, s(rng), s(rng));
@@ -403,9 +393,8 @@ inline std::vector<Ray> rays_beside_the_box(int n, uint32_t seed) {
       r.org = Vec3(5.0f, 1.0f, 1.0f);
       r.tmax = 2.0f;
     }
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// Rays from 5 units around the unit sphere in threes: pointing away, passing by, and aimed
@@ -437,10 +426,8 @@ inline std::vector<Ray> invalid_rays() {
 /// the box in a point or segment, where the rounding of a float pre-clip matters.
 inline std::vector<Ray> rays_at_box_edges(const Vec3& lo, const Vec3& hi, float distance,
                                           float offset, int n, uint32_t seed) {
-  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(0.0f, 1.0f), s(-1.0f, 1.0f);
-  std::vector<Ray> rays;
-  for (int i = 0; i < n; ++i) {
+  return generated_rays(n, seed, [&](int i, std::mt19937& rng) {
     Vec3 target;
     for (int a = 0; a < 3; ++a) target[a] = lo[a] + (hi[a] - lo[a]) * u(rng);
     const int fixed = i % 4 == 0 ? 3 : 2, skip = i % 3;
@@ -452,9 +439,8 @@ inline std::vector<Ray> rays_at_box_edges(const Vec3& lo, const Vec3& hi, float 
     Ray r;
     r.org = target + Vec3(s(rng), s(rng), s(rng)) * (distance + offset * 1e-3f);
     r.dir = target - r.org;
-    rays.push_back(r);
-  }
-  return rays;
+    return r;
+  });
 }
 
 /// The rays with origins scaled by `scale` and moved by `offset`, directions scaled (t keeps

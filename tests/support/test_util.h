@@ -1,4 +1,5 @@
-// Helpers shared by the test files: locating the shared scenes and the project's assets.
+// Helpers shared by the test files: locating the shared scenes and the project's assets, whether
+// a sanitizer runs, and the messages of failed loads.
 #pragma once
 
 #include <gtest/gtest.h>
@@ -17,7 +18,27 @@
   EXPECT_NE(std::string(haystack).find(needle), std::string::npos) \
       << "message: \"" << (haystack) << "\"\nshould contain: \"" << (needle) << "\""
 
+#if defined(__has_feature)
+#define KDGRID_TEST_HAS_FEATURE(x) __has_feature(x)
+#else
+#define KDGRID_TEST_HAS_FEATURE(x) 0
+#endif
+
 namespace kdgrid::test {
+
+/// Whether this build runs under AddressSanitizer (gcc defines __SANITIZE_ADDRESS__, clang has
+/// the feature), and under any sanitizer (scripts/sanitize.sh), which runs the same code many
+/// times slower, and unevenly.
+#if defined(__SANITIZE_ADDRESS__) || KDGRID_TEST_HAS_FEATURE(address_sanitizer)
+inline constexpr bool kAddressSanitizer = true;
+#else
+inline constexpr bool kAddressSanitizer = false;
+#endif
+#if defined(__SANITIZE_THREAD__) || KDGRID_TEST_HAS_FEATURE(thread_sanitizer)
+inline constexpr bool kSanitizerBuild = true;
+#else
+inline constexpr bool kSanitizerBuild = kAddressSanitizer;
+#endif
 
 /// Absolute path of a file under the shared scenes directory ($KDGRID_SCENES or
 /// ../shared/scenes beside the checkout), or "" if it is not there.
