@@ -254,6 +254,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   template <bool kAny, int K>
   bool packet_walk(const hybrid::PacketRays* R, const uint32_t* lanes, const int* which, Hit* hits,
                    bool* out) const;
+  /// One packet walk's state and steps (packet.cpp).
+  template <bool kAny, int K>
+  struct PacketWalk;
 
   // ---- the build (build.cpp, tree.cpp) ----
   /// Where build_tree puts the groups (records.h, "Triangle groups"): group g's lanes (mesh
