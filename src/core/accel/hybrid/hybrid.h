@@ -272,6 +272,18 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// references.
   void build_tree(const Mesh& mesh, const BuildParams& params, GroupPlan& plan,
                   uint64_t& references);
+  /// build's steps (build.cpp), in order: the state emptied, the grid's box and the walk's
+  /// constants set, the parts built (tree, groups, matrix, empty-leaf boxes; `bound`: the peak
+  /// bound), the figures reported.
+  struct BuildPhases;
+  void reset_for_build(const Mesh& mesh, const BuildParams& params, uint64_t estimate);
+  void set_grid_box();
+  void build_parts(const Mesh& mesh, const BuildParams& params, uint64_t bound,
+                   BuildPhases& phases);
+  void fill_groups(const Mesh& mesh, const GroupPlan& plan);
+  void report_build(const BuildParams& params, const std::string& rule, const BuildPhases& phases);
+  std::string subtrees_text(const BuildParams& params) const;
+  std::string groups_text(uint64_t references) const;
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
