@@ -284,6 +284,8 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   void report_build(const BuildParams& params, const std::string& rule, const BuildPhases& phases);
   std::string subtrees_text(const BuildParams& params) const;
   std::string groups_text(uint64_t references) const;
+  /// build_tree's flattening of the build tree (tree.cpp).
+  struct TreeFlattener;
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};
