@@ -51,6 +51,9 @@ class UniformGrid final : public AcceleratorBase<UniformGrid> {
   uint64_t max_steps() const { return uint64_t(res_[0]) + res_[1] + res_[2] + 3; }
 
  private:
+  /// The build's steps and scratch state (grid.cpp).
+  struct Builder;
+
   Box3 cell_box(const int c[3]) const {
     Box3 b;
     for (int a = 0; a < 3; ++a) {

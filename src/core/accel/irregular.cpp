@@ -1,3 +1,7 @@
+// The irregular grid's build driver (IrregularGrid::build), its top level (step 1: the grid
+// box, the top resolution, the top cells' references) and its subdivision (step 2: the
+// sub-levels, the lattice, the sub-cells' references, the cells and voxel map); irregular.h
+// describes the structure, irregular_merge.cpp the merging and expansion.
 #include "accel/irregular.h"
 
 #include <tbb/blocked_range.h>
@@ -13,6 +17,7 @@
 #include <string>
 
 #include "accel/guards.h"
+#include "accel/irregular_build.h"
 #include "scene/scene.h"
 #include "util/cancel.h"
 #include "util/error.h"
@@ -20,8 +25,6 @@
 namespace kdgrid {
 
 namespace {
-
-constexpr uint32_t kNone = 0xFFFFFFFFu;
 
 /// Separating-axis test of a triangle against a box given by centre and half size, in double
 /// (Akenine-Möller's 13 axes: the 3 box axes, the triangle normal and the 9 edge/axis cross
@@ -51,31 +54,6 @@ bool triangle_overlaps_box(const Vec3d& a, const Vec3d& b, const Vec3d& c, const
   return true;
 }
 
-/// Size of the union of two sorted reference lists.
-uint32_t count_union(const uint32_t* p, uint32_t n, const uint32_t* q, uint32_t m) {
-  uint32_t i = 0, j = 0, c = 0;
-  while (i < n && j < m) {
-    const uint32_t x = p[i], y = q[j];
-    i += x <= y;
-    j += y <= x;
-    ++c;
-  }
-  return c + (n - i) + (m - j);
-}
-
-/// Writes the sorted union of two sorted lists to out.
-void write_union(const uint32_t* p, uint32_t n, const uint32_t* q, uint32_t m, uint32_t* out) {
-  uint32_t i = 0, j = 0;
-  while (i < n && j < m) {
-    const uint32_t x = p[i], y = q[j];
-    *out++ = x < y ? x : y;
-    i += x <= y;
-    j += y <= x;
-  }
-  while (i < n) *out++ = p[i++];
-  while (j < m) *out++ = q[j++];
-}
-
 std::string format_bytes(double b) {
   return format_bytes_iec(b);
 }
@@ -86,656 +64,405 @@ std::string format_res(const int32_t r[3]) {
 
 }  // namespace
 
-/// The build, step by step, with its scratch state. A nested class so it can fill the
-/// grid's private members directly.
-struct IrregularGrid::Builder {
-  /// A cell during the build: its own box on the lattice [lo, hi) and its sorted references.
-  struct BCell {
-    int32_t lo[3], hi[3];
-    uint32_t begin, count;
-  };
+void IrregularGrid::Builder::require(const char* phase, double extra) {
+  const double need = held_bytes() + extra;
+  peak = std::max(peak, need);
+  if (need > double(budget))
+    throw ParamError(std::string("irregular: the ") + phase + " needs " + format_bytes_iec(extra) +
+                     " more on top of the " + format_bytes_iec(held_bytes()) + " held (" +
+                     std::to_string(cells.size()) + " cells, " + std::to_string(refs.size()) +
+                     " references over " + std::to_string(valid.size()) +
+                     " triangles), above the memory budget of " + format_bytes_iec(double(budget)) +
+                     "; lower --irregular-sub-density or --irregular-top-density, or raise "
+                     "--memory-budget-mb (0 = half of the memory available) if the machine has "
+                     "the memory");
+}
 
-  IrregularGrid& g;
-  const Mesh& mesh;
-  const BuildParams& params;
-  const uint64_t budget;
-  std::vector<uint32_t> valid;  ///< triangles with finite corners and valid indices
-  std::vector<BCell> cells;
-  std::vector<uint32_t> refs;
-  std::vector<std::array<int32_t, 6>> exit_boxes;
-  double top_vs[3] = {1, 1, 1};  ///< top cell size
-  uint64_t cells_before_merge = 0, cells_after_merge = 0, expanded_cells = 0;
-  uint64_t merge_rounds = 0, merge_evaluations = 0;
-  double peak = 0;  ///< the most require() saw held and asked for
+void IrregularGrid::Builder::run() {
+  collect_valid_triangles();
+  if (valid.empty()) return;
+  set_up_box_and_top_resolution();
+  std::vector<uint32_t> top_count, top_begin, top_refs;
+  assign_top_references(top_count, top_begin, top_refs);
+  subdivide(top_count, top_begin, top_refs);
+  check_cancel(params.cancel);
+  cells_before_merge = cells.size();
+  if (params.irregular_merge) merge();
+  cells_after_merge = cells.size();
+  check_cancel(params.cancel);
+  expand();
+  check_cancel(params.cancel);
+  finish();
+}
 
-  Builder(IrregularGrid& grid, const Mesh& m, const BuildParams& p)
-      : g(grid), mesh(m), params(p), budget(effective_memory_budget(p)) {}
-
-  /// Bytes the build holds now in its long-lived arrays (capacity, not size).
-  double held_bytes() const {
-    return double(valid.capacity() * sizeof(uint32_t) + cells.capacity() * sizeof(BCell) +
-                  refs.capacity() * sizeof(uint32_t) +
-                  exit_boxes.capacity() * sizeof(exit_boxes[0]) +
-                  g.top_.capacity() * sizeof(TopEntry) + g.sub_.capacity() * sizeof(uint32_t));
+void IrregularGrid::Builder::collect_valid_triangles() {
+  const size_t nv = mesh.positions.size();
+  for (uint32_t i = 0; i < uint32_t(mesh.triangles.size()); ++i) {
+    const auto& t = mesh.triangles[i];
+    if (t[0] >= nv || t[1] >= nv || t[2] >= nv) continue;
+    if (!is_finite(mesh.positions[t[0]]) || !is_finite(mesh.positions[t[1]]) ||
+        !is_finite(mesh.positions[t[2]]))
+      continue;
+    valid.push_back(i);
   }
+}
 
-  /// Throws ParamError when `extra` more bytes on top of held_bytes() exceed the budget:
-  /// checked before each phase allocates, so the build stops at the budget on scenes whose
-  /// triangles cross far more cells than the estimate before building assumed.
-  void require(const char* phase, double extra) {
-    const double need = held_bytes() + extra;
-    peak = std::max(peak, need);
-    if (need > double(budget))
-      throw ParamError(std::string("irregular: the ") + phase + " needs " +
-                       format_bytes_iec(extra) + " more on top of the " +
-                       format_bytes_iec(held_bytes()) + " held (" + std::to_string(cells.size()) +
-                       " cells, " + std::to_string(refs.size()) + " references over " +
-                       std::to_string(valid.size()) + " triangles), above the memory budget of " +
-                       format_bytes_iec(double(budget)) +
-                       "; lower --irregular-sub-density or --irregular-top-density, or raise "
-                       "--memory-budget-mb (0 = half of the memory available) if the machine has "
-                       "the memory");
-  }
-
-  Vec3d corner(uint32_t tri, int k) const { return Vec3d(mesh.positions[mesh.triangles[tri][k]]); }
-
-  /// Conservative padding of boxes in the overlap test: a small fraction of the cell plus
-  /// float rounding of the coordinates, so triangles that touch a cell face within float
-  /// precision are referenced on both sides (the traversal and triangle tests run in float).
-  double pad(int a, double cell_size) const {
-    const double mag = std::max(std::fabs(g.lo_[a]), std::fabs(g.hi_[a]));
-    return cell_size * 1e-5 + mag * 0x1p-20;
-  }
-
-  void run() {
-    collect_valid_triangles();
-    if (valid.empty()) return;
-    set_up_box_and_top_resolution();
-    std::vector<uint32_t> top_count, top_begin, top_refs;
-    assign_top_references(top_count, top_begin, top_refs);
-    subdivide(top_count, top_begin, top_refs);
-    check_cancel(params.cancel);
-    cells_before_merge = cells.size();
-    if (params.irregular_merge) merge();
-    cells_after_merge = cells.size();
-    check_cancel(params.cancel);
-    expand();
-    check_cancel(params.cancel);
-    finish();
-  }
-
-  void collect_valid_triangles() {
-    const size_t nv = mesh.positions.size();
-    for (uint32_t i = 0; i < uint32_t(mesh.triangles.size()); ++i) {
-      const auto& t = mesh.triangles[i];
-      if (t[0] >= nv || t[1] >= nv || t[2] >= nv) continue;
-      if (!is_finite(mesh.positions[t[0]]) || !is_finite(mesh.positions[t[1]]) ||
-          !is_finite(mesh.positions[t[2]]))
-        continue;
-      valid.push_back(i);
-    }
-  }
-
-  // Step 1: the grid box and the top-level resolution.
-  void set_up_box_and_top_resolution() {
-    double blo[3] = {kInf, kInf, kInf}, bhi[3] = {-kInf, -kInf, -kInf};
-    for (uint32_t t : valid)
-      for (int k = 0; k < 3; ++k) {
-        const Vec3 p = mesh.positions[mesh.triangles[t][k]];
-        for (int a = 0; a < 3; ++a) {
-          blo[a] = std::min(blo[a], double(p[a]));
-          bhi[a] = std::max(bhi[a], double(p[a]));
-        }
+// Step 1: the grid box and the top-level resolution.
+void IrregularGrid::Builder::set_up_box_and_top_resolution() {
+  double blo[3] = {kInf, kInf, kInf}, bhi[3] = {-kInf, -kInf, -kInf};
+  for (uint32_t t : valid)
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 p = mesh.positions[mesh.triangles[t][k]];
+      for (int a = 0; a < 3; ++a) {
+        blo[a] = std::min(blo[a], double(p[a]));
+        bhi[a] = std::max(bhi[a], double(p[a]));
       }
-    const double max_ext = std::max({bhi[0] - blo[0], bhi[1] - blo[1], bhi[2] - blo[2]});
-    // Pad so that geometry on the box faces is strictly inside, then give flat axes a minimum
-    // thickness (1e-3 of the largest extent) so the density rule has a volume to work with.
-    for (int a = 0; a < 3; ++a) {
-      const double mag = std::max(std::fabs(blo[a]), std::fabs(bhi[a]));
-      const double p = max_ext * 1e-5 + mag * 0x1p-20 + 1e-30;
-      g.lo_[a] = blo[a] - p;
-      g.hi_[a] = bhi[a] + p;
     }
-    double ext[3], big = 0;
-    for (int a = 0; a < 3; ++a) big = std::max(big, g.hi_[a] - g.lo_[a]);
-    for (int a = 0; a < 3; ++a) {
-      if (g.hi_[a] - g.lo_[a] < 1e-3 * big) {
-        const double c = 0.5 * (g.lo_[a] + g.hi_[a]);
-        g.lo_[a] = c - 0.5e-3 * big;
-        g.hi_[a] = c + 0.5e-3 * big;
-      }
-      ext[a] = g.hi_[a] - g.lo_[a];
+  const double max_ext = std::max({bhi[0] - blo[0], bhi[1] - blo[1], bhi[2] - blo[2]});
+  // Pad so that geometry on the box faces is strictly inside, then give flat axes a minimum
+  // thickness (1e-3 of the largest extent) so the density rule has a volume to work with.
+  for (int a = 0; a < 3; ++a) {
+    const double mag = std::max(std::fabs(blo[a]), std::fabs(bhi[a]));
+    const double p = max_ext * 1e-5 + mag * 0x1p-20 + 1e-30;
+    g.lo_[a] = blo[a] - p;
+    g.hi_[a] = bhi[a] + p;
+  }
+  double ext[3], big = 0;
+  for (int a = 0; a < 3; ++a) big = std::max(big, g.hi_[a] - g.lo_[a]);
+  for (int a = 0; a < 3; ++a) {
+    if (g.hi_[a] - g.lo_[a] < 1e-3 * big) {
+      const double c = 0.5 * (g.lo_[a] + g.hi_[a]);
+      g.lo_[a] = c - 0.5e-3 * big;
+      g.hi_[a] = c + 0.5e-3 * big;
     }
-    // Cleary's / Wald et al.'s rule: cells = density * N with cubic cells shaped by the box:
-    // resolution_a = round(extent_a * cbrt(density * N / volume)), at least 1.
-    const double n = double(valid.size());
-    const double k =
-        std::cbrt(double(params.irregular_top_density) * n / (ext[0] * ext[1] * ext[2]));
-    double r[3], top_cells = 1;
+    ext[a] = g.hi_[a] - g.lo_[a];
+  }
+  // Cleary's / Wald et al.'s rule: cells = density * N with cubic cells shaped by the box:
+  // resolution_a = round(extent_a * cbrt(density * N / volume)), at least 1.
+  const double n = double(valid.size());
+  const double k = std::cbrt(double(params.irregular_top_density) * n / (ext[0] * ext[1] * ext[2]));
+  double r[3], top_cells = 1;
+  for (int a = 0; a < 3; ++a) {
+    r[a] = std::max(1.0, std::round(ext[a] * k));
+    top_cells *= r[a];
+  }
+  // Work guard (accel/guards.h): halve the resolution while the references pile up.
+  for (;;) {
+    const int32_t res[3] = {int32_t(std::min(r[0], 1e9)), int32_t(std::min(r[1], 1e9)),
+                            int32_t(std::min(r[2], 1e9))};
+    if (res[0] == 1 && res[1] == 1 && res[2] == 1) break;
+    const double cs[3] = {ext[0] / r[0], ext[1] / r[1], ext[2] / r[2]};
+    const double estimated = tbb::parallel_reduce(
+        tbb::blocked_range<size_t>(0, valid.size(), 4096), 0.0,
+        [&](const tbb::blocked_range<size_t>& rg, double sum) {
+          check_cancel(params.cancel);
+          return sum +
+                 estimate_grid_references(mesh, valid.data(), rg.begin(), rg.end(), g.lo_, cs, res);
+        },
+        std::plus<double>());
+    if (!grid_references_pile_up(estimated, n, top_cells)) break;
+    top_cells = 1;
     for (int a = 0; a < 3; ++a) {
-      r[a] = std::max(1.0, std::round(ext[a] * k));
+      r[a] = std::max(1.0, std::floor(r[a] / 2));
       top_cells *= r[a];
     }
-    // Work guard (accel/guards.h): halve the resolution while the references pile up.
-    for (;;) {
-      const int32_t res[3] = {int32_t(std::min(r[0], 1e9)), int32_t(std::min(r[1], 1e9)),
-                              int32_t(std::min(r[2], 1e9))};
-      if (res[0] == 1 && res[1] == 1 && res[2] == 1) break;
-      const double cs[3] = {ext[0] / r[0], ext[1] / r[1], ext[2] / r[2]};
-      const double estimated = tbb::parallel_reduce(
-          tbb::blocked_range<size_t>(0, valid.size(), 4096), 0.0,
-          [&](const tbb::blocked_range<size_t>& rg, double sum) {
-            check_cancel(params.cancel);
-            return sum + estimate_grid_references(mesh, valid.data(), rg.begin(), rg.end(), g.lo_,
-                                                  cs, res);
-          },
-          std::plus<double>());
-      if (!grid_references_pile_up(estimated, n, top_cells)) break;
-      top_cells = 1;
-      for (int a = 0; a < 3; ++a) {
-        r[a] = std::max(1.0, std::floor(r[a] / 2));
-        top_cells *= r[a];
+  }
+  // Every top cell costs at least its voxel-map entry and one build cell.
+  const double need = top_cells * double(sizeof(TopEntry) + sizeof(BCell) + sizeof(Cell));
+  if (need > double(budget) || std::max({r[0], r[1], r[2]}) > double(1 << 24))
+    throw ParamError("irregular_top_density = " + std::to_string(params.irregular_top_density) +
+                     " asks for " + std::to_string(uint64_t(std::min(top_cells, 1e19))) +
+                     " top-level cells (about " + format_bytes(need) +
+                     "), beyond the memory budget of " + format_bytes(double(budget)) +
+                     " or the lattice limit of 2^24 cells per axis: lower --irregular-top-density "
+                     "(default 0.12), or raise --memory-budget-mb (0 = half of physical "
+                     "memory) if the machine has the memory");
+  for (int a = 0; a < 3; ++a) {
+    g.top_res_[a] = int32_t(r[a]);
+    top_vs[a] = ext[a] / r[a];
+  }
+}
+
+void IrregularGrid::Builder::cell_range(double mn, double mx, double o, double cs, int32_t res,
+                                        int32_t& lo, int32_t& hi) {
+  const double flo = std::floor((mn - o) / cs), fhi = std::floor((mx - o) / cs);
+  lo = int32_t(std::clamp(flo, 0.0, double(res - 1)));
+  hi = int32_t(std::clamp(fhi, 0.0, double(res - 1)));
+}
+
+template <class Fn>
+void IrregularGrid::Builder::for_each_overlapped_cell(uint32_t tri, const double o[3],
+                                                      const double cs[3], const int32_t res[3],
+                                                      const double padding[3], Fn&& fn) const {
+  const Vec3d a = corner(tri, 0), b = corner(tri, 1), c = corner(tri, 2);
+  int32_t lo[3], hi[3];
+  for (int k = 0; k < 3; ++k)
+    cell_range(std::min({a[k], b[k], c[k]}) - padding[k], std::max({a[k], b[k], c[k]}) + padding[k],
+               o[k], cs[k], res[k], lo[k], hi[k]);
+  const bool single = lo[0] == hi[0] && lo[1] == hi[1] && lo[2] == hi[2];
+  double half[3], ctr[3];
+  for (int k = 0; k < 3; ++k) half[k] = 0.5 * cs[k] + padding[k];
+  for (int32_t z = lo[2]; z <= hi[2]; ++z)
+    for (int32_t y = lo[1]; y <= hi[1]; ++y)
+      for (int32_t x = lo[0]; x <= hi[0]; ++x) {
+        if (!single) {
+          ctr[0] = o[0] + (x + 0.5) * cs[0];
+          ctr[1] = o[1] + (y + 0.5) * cs[1];
+          ctr[2] = o[2] + (z + 0.5) * cs[2];
+          if (!triangle_overlaps_box(a, b, c, ctr, half)) continue;
+        }
+        fn(x, y, z);
       }
+}
+
+// Step 1b: references of the top cells, sorted by cell then triangle.
+void IrregularGrid::Builder::assign_top_references(std::vector<uint32_t>& count,
+                                                   std::vector<uint32_t>& begin,
+                                                   std::vector<uint32_t>& top_refs) {
+  const int32_t* r = g.top_res_;
+  const size_t num_top = size_t(r[0]) * r[1] * r[2];
+  double padding[3];
+  for (int a = 0; a < 3; ++a) padding[a] = pad(a, top_vs[a]);
+  // Parallel over chunks of triangles; each chunk lists (cell, triangle) pairs in triangle
+  // order, so a stable counting sort by cell keeps every cell's list sorted by triangle.
+  constexpr size_t kChunk = 2048;
+  const size_t num_chunks = (valid.size() + kChunk - 1) / kChunk;
+  std::vector<std::vector<std::pair<uint32_t, uint32_t>>> pairs(num_chunks);
+  // The (cell, triangle) pairs are the first allocation that grows with the references, whose
+  // number is unknown until they are listed: stop listing once they pass the budget.
+  std::atomic<uint64_t> listed{0};
+  std::atomic<bool> over{false};
+  tbb::parallel_for(size_t(0), num_chunks, [&](size_t ch) {
+    check_cancel(params.cancel);
+    if (over.load(std::memory_order_relaxed)) return;
+    auto& out = pairs[ch];
+    const size_t end = std::min(valid.size(), (ch + 1) * kChunk);
+    for (size_t i = ch * kChunk; i < end; ++i) {
+      const uint32_t tri = valid[i];
+      for_each_overlapped_cell(tri, g.lo_, top_vs, r, padding,
+                               [&](int32_t x, int32_t y, int32_t z) {
+                                 out.emplace_back(uint32_t((size_t(z) * r[1] + y) * r[0] + x), tri);
+                               });
     }
-    // Every top cell costs at least its voxel-map entry and one build cell.
-    const double need = top_cells * double(sizeof(TopEntry) + sizeof(BCell) + sizeof(Cell));
-    if (need > double(budget) || std::max({r[0], r[1], r[2]}) > double(1 << 24))
-      throw ParamError(
-          "irregular_top_density = " + std::to_string(params.irregular_top_density) + " asks for " +
-          std::to_string(uint64_t(std::min(top_cells, 1e19))) + " top-level cells (about " +
-          format_bytes(need) + "), beyond the memory budget of " + format_bytes(double(budget)) +
-          " or the lattice limit of 2^24 cells per axis: lower --irregular-top-density "
-          "(default 0.12), or raise --memory-budget-mb (0 = half of physical "
-          "memory) if the machine has the memory");
+    const uint64_t total_pairs = listed.fetch_add(out.capacity()) + out.capacity();
+    // Pairs now, and later the sorted references (4 bytes) and the per-cell counts.
+    if (double(total_pairs) * (sizeof(out[0]) + sizeof(uint32_t)) > double(budget))
+      over.store(true);
+  });
+  if (over.load()) {
+    const double seen = double(listed.load());
+    for (auto& v : pairs) std::vector<std::pair<uint32_t, uint32_t>>().swap(v);
+    throw ParamError("irregular: the top-level cells' references outgrew the memory budget of " +
+                     format_bytes(double(budget)) + " (" +
+                     format_bytes(seen * (sizeof(pairs[0][0]) + sizeof(uint32_t))) + " for the " +
+                     std::to_string(uint64_t(seen)) + " listed before stopping, over " +
+                     std::to_string(valid.size()) +
+                     " triangles): triangles crossing very many cells; lower "
+                     "--irregular-top-density, or raise --memory-budget-mb (0 = half of physical "
+                     "memory) if the machine has the memory");
+  }
+  count.assign(num_top, 0);
+  size_t total = 0;
+  for (const auto& v : pairs) {
+    total += v.size();
+    for (const auto& p : v) ++count[p.first];
+  }
+  if (total >= kNone)
+    throw ParamError("irregular grid: more than 2^32 references; lower irregular_top_density");
+  begin.assign(num_top + 1, 0);
+  for (size_t i = 0; i < num_top; ++i) begin[i + 1] = begin[i] + count[i];
+  top_refs.resize(total);
+  std::vector<uint32_t> fill(begin.begin(), begin.end() - 1);
+  for (auto& v : pairs) {
+    for (const auto& p : v) top_refs[fill[p.first]++] = p.second;
+    std::vector<std::pair<uint32_t, uint32_t>>().swap(v);
+  }
+}
+
+// Step 2: subdivide every non-empty top cell with sub_density cells per reference, per-axis
+// resolution rounded to a power of two; assemble cells and the two-level voxel map.
+void IrregularGrid::Builder::subdivide(const std::vector<uint32_t>& count,
+                                       const std::vector<uint32_t>& begin,
+                                       const std::vector<uint32_t>& top_refs) {
+  const SubLogs logs = sub_levels(count, begin, top_refs);
+  set_lattice(logs, top_refs.size());
+  std::vector<SubOut> outs = sub_references(count, begin, top_refs, logs);
+  assemble_cells(count, logs, outs);
+}
+
+// Step 2a: each top cell's sub-resolution (log2 per axis), halved while its references pile up.
+IrregularGrid::Builder::SubLogs IrregularGrid::Builder::sub_levels(
+    const std::vector<uint32_t>& count, const std::vector<uint32_t>& begin,
+    const std::vector<uint32_t>& top_refs) const {
+  const int32_t* r = g.top_res_;
+  const size_t num_top = count.size();
+  SubLogs logs(num_top, {0, 0, 0});
+  const double top_volume = top_vs[0] * top_vs[1] * top_vs[2];
+  tbb::parallel_for(size_t(0), num_top, [&](size_t t) {
+    if (count[t] == 0) return;
+    const double k = std::cbrt(double(params.irregular_sub_density) * count[t] / top_volume);
+    int l[3];
     for (int a = 0; a < 3; ++a) {
-      g.top_res_[a] = int32_t(r[a]);
-      top_vs[a] = ext[a] / r[a];
+      const double d = top_vs[a] * k;
+      l[a] = d <= 1.0 ? 0 : std::min(kMaxSubLog, int(std::lround(std::log2(d))));
     }
-  }
-
-  /// Range of cells (of size cs, origin o, count res) overlapped by [mn, mx] on one axis.
-  static void cell_range(double mn, double mx, double o, double cs, int32_t res, int32_t& lo,
-                         int32_t& hi) {
-    const double flo = std::floor((mn - o) / cs), fhi = std::floor((mx - o) / cs);
-    lo = int32_t(std::clamp(flo, 0.0, double(res - 1)));
-    hi = int32_t(std::clamp(fhi, 0.0, double(res - 1)));
-  }
-
-  /// Calls fn(cell) for each cell of a uniform grid (origin o, cell size cs, resolution res)
-  /// that triangle tri overlaps, by bounding box then exact overlap.
-  template <class Fn>
-  void for_each_overlapped_cell(uint32_t tri, const double o[3], const double cs[3],
-                                const int32_t res[3], const double padding[3], Fn&& fn) const {
-    const Vec3d a = corner(tri, 0), b = corner(tri, 1), c = corner(tri, 2);
-    int32_t lo[3], hi[3];
-    for (int k = 0; k < 3; ++k)
-      cell_range(std::min({a[k], b[k], c[k]}) - padding[k],
-                 std::max({a[k], b[k], c[k]}) + padding[k], o[k], cs[k], res[k], lo[k], hi[k]);
-    const bool single = lo[0] == hi[0] && lo[1] == hi[1] && lo[2] == hi[2];
-    double half[3], ctr[3];
-    for (int k = 0; k < 3; ++k) half[k] = 0.5 * cs[k] + padding[k];
-    for (int32_t z = lo[2]; z <= hi[2]; ++z)
-      for (int32_t y = lo[1]; y <= hi[1]; ++y)
-        for (int32_t x = lo[0]; x <= hi[0]; ++x) {
-          if (!single) {
-            ctr[0] = o[0] + (x + 0.5) * cs[0];
-            ctr[1] = o[1] + (y + 0.5) * cs[1];
-            ctr[2] = o[2] + (z + 0.5) * cs[2];
-            if (!triangle_overlaps_box(a, b, c, ctr, half)) continue;
-          }
-          fn(x, y, z);
-        }
-  }
-
-  // Step 1b: references of the top cells, sorted by cell then triangle.
-  void assign_top_references(std::vector<uint32_t>& count, std::vector<uint32_t>& begin,
-                             std::vector<uint32_t>& top_refs) {
-    const int32_t* r = g.top_res_;
-    const size_t num_top = size_t(r[0]) * r[1] * r[2];
-    double padding[3];
-    for (int a = 0; a < 3; ++a) padding[a] = pad(a, top_vs[a]);
-    // Parallel over chunks of triangles; each chunk lists (cell, triangle) pairs in triangle
-    // order, so a stable counting sort by cell keeps every cell's list sorted by triangle.
-    constexpr size_t kChunk = 2048;
-    const size_t num_chunks = (valid.size() + kChunk - 1) / kChunk;
-    std::vector<std::vector<std::pair<uint32_t, uint32_t>>> pairs(num_chunks);
-    // The (cell, triangle) pairs are the first allocation that grows with the references, whose
-    // number is unknown until they are listed: stop listing once they pass the budget.
-    std::atomic<uint64_t> listed{0};
-    std::atomic<bool> over{false};
-    tbb::parallel_for(size_t(0), num_chunks, [&](size_t ch) {
+    // Work guard (accel/guards.h): halve the sub-resolution while the cell's references
+    // pile up (its triangles coincide or cover it many times over).
+    const int32_t tc[3] = {int32_t(t % r[0]), int32_t((t / r[0]) % r[1]),
+                           int32_t(t / (size_t(r[0]) * r[1]))};
+    while (l[0] + l[1] + l[2] > 0) {
       check_cancel(params.cancel);
-      if (over.load(std::memory_order_relaxed)) return;
-      auto& out = pairs[ch];
-      const size_t end = std::min(valid.size(), (ch + 1) * kChunk);
-      for (size_t i = ch * kChunk; i < end; ++i) {
-        const uint32_t tri = valid[i];
-        for_each_overlapped_cell(
-            tri, g.lo_, top_vs, r, padding, [&](int32_t x, int32_t y, int32_t z) {
-              out.emplace_back(uint32_t((size_t(z) * r[1] + y) * r[0] + x), tri);
-            });
+      double o[3], cs[3];
+      int32_t sres[3];
+      for (int a = 0; a < 3; ++a) {
+        o[a] = g.lo_[a] + double(tc[a]) * top_vs[a];
+        sres[a] = 1 << l[a];
+        cs[a] = top_vs[a] / double(sres[a]);
       }
-      const uint64_t total_pairs = listed.fetch_add(out.capacity()) + out.capacity();
-      // Pairs now, and later the sorted references (4 bytes) and the per-cell counts.
-      if (double(total_pairs) * (sizeof(out[0]) + sizeof(uint32_t)) > double(budget))
-        over.store(true);
-    });
-    if (over.load()) {
-      const double seen = double(listed.load());
-      for (auto& v : pairs) std::vector<std::pair<uint32_t, uint32_t>>().swap(v);
-      throw ParamError("irregular: the top-level cells' references outgrew the memory budget of " +
-                       format_bytes(double(budget)) + " (" +
-                       format_bytes(seen * (sizeof(pairs[0][0]) + sizeof(uint32_t))) + " for the " +
-                       std::to_string(uint64_t(seen)) + " listed before stopping, over " +
-                       std::to_string(valid.size()) +
-                       " triangles): triangles crossing very many cells; lower "
-                       "--irregular-top-density, or raise --memory-budget-mb (0 = half of physical "
-                       "memory) if the machine has the memory");
+      const double estimated = estimate_grid_references(mesh, top_refs.data(), begin[t],
+                                                        begin[t] + count[t], o, cs, sres);
+      if (!grid_references_pile_up(estimated, count[t], double(sres[0]) * sres[1] * sres[2])) break;
+      for (int a = 0; a < 3; ++a) l[a] = std::max(0, l[a] - 1);
     }
-    count.assign(num_top, 0);
-    size_t total = 0;
-    for (const auto& v : pairs) {
-      total += v.size();
-      for (const auto& p : v) ++count[p.first];
-    }
-    if (total >= kNone)
-      throw ParamError("irregular grid: more than 2^32 references; lower irregular_top_density");
-    begin.assign(num_top + 1, 0);
-    for (size_t i = 0; i < num_top; ++i) begin[i + 1] = begin[i] + count[i];
-    top_refs.resize(total);
-    std::vector<uint32_t> fill(begin.begin(), begin.end() - 1);
-    for (auto& v : pairs) {
-      for (const auto& p : v) top_refs[fill[p.first]++] = p.second;
-      std::vector<std::pair<uint32_t, uint32_t>>().swap(v);
-    }
-  }
+    for (int a = 0; a < 3; ++a) logs[t][a] = uint8_t(l[a]);
+  });
+  return logs;
+}
 
-  // Step 2: subdivide every non-empty top cell with sub_density cells per reference, per-axis
-  // resolution rounded to a power of two; assemble cells and the two-level voxel map.
-  void subdivide(const std::vector<uint32_t>& count, const std::vector<uint32_t>& begin,
-                 const std::vector<uint32_t>& top_refs) {
-    const int32_t* r = g.top_res_;
-    const size_t num_top = count.size();
-    std::vector<std::array<uint8_t, 3>> logs(num_top, {0, 0, 0});
-    const double top_volume = top_vs[0] * top_vs[1] * top_vs[2];
-    tbb::parallel_for(size_t(0), num_top, [&](size_t t) {
-      if (count[t] == 0) return;
-      const double k = std::cbrt(double(params.irregular_sub_density) * count[t] / top_volume);
-      int l[3];
-      for (int a = 0; a < 3; ++a) {
-        const double d = top_vs[a] * k;
-        l[a] = d <= 1.0 ? 0 : std::min(kMaxSubLog, int(std::lround(std::log2(d))));
-      }
-      // Work guard (accel/guards.h): halve the sub-resolution while the cell's references
-      // pile up (its triangles coincide or cover it many times over).
-      const int32_t tc[3] = {int32_t(t % r[0]), int32_t((t / r[0]) % r[1]),
-                             int32_t(t / (size_t(r[0]) * r[1]))};
-      while (l[0] + l[1] + l[2] > 0) {
-        check_cancel(params.cancel);
-        double o[3], cs[3];
-        int32_t sres[3];
-        for (int a = 0; a < 3; ++a) {
-          o[a] = g.lo_[a] + double(tc[a]) * top_vs[a];
-          sres[a] = 1 << l[a];
-          cs[a] = top_vs[a] / double(sres[a]);
-        }
-        const double estimated = estimate_grid_references(mesh, top_refs.data(), begin[t],
-                                                          begin[t] + count[t], o, cs, sres);
-        if (!grid_references_pile_up(estimated, count[t], double(sres[0]) * sres[1] * sres[2]))
-          break;
-        for (int a = 0; a < 3; ++a) l[a] = std::max(0, l[a] - 1);
-      }
-      for (int a = 0; a < 3; ++a) logs[t][a] = uint8_t(l[a]);
-    });
-    int shift = 0;
-    double sub_cells = 0;
-    for (size_t t = 0; t < num_top; ++t) {
-      int total_log = 0;
-      for (int a = 0; a < 3; ++a) {
-        shift = std::max(shift, int(logs[t][a]));
-        total_log += logs[t][a];
-      }
-      sub_cells += double(uint64_t(1) << total_log);
-    }
-    const double need = sub_cells * double(sizeof(uint32_t) + sizeof(BCell) + sizeof(Cell) + 24) +
-                        double(top_refs.size()) * 3.0 * sizeof(uint32_t);
-    if (need > double(budget) || sub_cells >= double(kNone))
-      throw ParamError(
-          "irregular_sub_density = " + std::to_string(params.irregular_sub_density) + " asks for " +
-          std::to_string(uint64_t(sub_cells)) + " cells (about " + format_bytes(need) + ") over " +
-          std::to_string(valid.size()) + " triangles, beyond the memory budget of " +
-          format_bytes(double(budget)) +
-          ": lower --irregular-sub-density (default 2.4), or raise --memory-budget-mb (0 "
-          "= half of the memory available) if the machine has the memory");
-    g.shift_ = shift;
+// Step 2b: the lattice (the top resolution times 2^shift, shift the largest sub-level), once
+// its cells are known to fit the budget.
+void IrregularGrid::Builder::set_lattice(const SubLogs& logs, size_t top_refs) {
+  const int32_t* r = g.top_res_;
+  int shift = 0;
+  double sub_cells = 0;
+  for (size_t t = 0; t < logs.size(); ++t) {
+    int total_log = 0;
     for (int a = 0; a < 3; ++a) {
-      g.res_[a] = r[a] << shift;
-      g.vs_[a] = (g.hi_[a] - g.lo_[a]) / double(g.res_[a]);
-      g.inv_vs_[a] = 1.0 / g.vs_[a];
+      shift = std::max(shift, int(logs[t][a]));
+      total_log += logs[t][a];
     }
+    sub_cells += double(uint64_t(1) << total_log);
+  }
+  const double need = sub_cells * double(sizeof(uint32_t) + sizeof(BCell) + sizeof(Cell) + 24) +
+                      double(top_refs) * 3.0 * sizeof(uint32_t);
+  if (need > double(budget) || sub_cells >= double(kNone))
+    throw ParamError(
+        "irregular_sub_density = " + std::to_string(params.irregular_sub_density) + " asks for " +
+        std::to_string(uint64_t(sub_cells)) + " cells (about " + format_bytes(need) + ") over " +
+        std::to_string(valid.size()) + " triangles, beyond the memory budget of " +
+        format_bytes(double(budget)) +
+        ": lower --irregular-sub-density (default 2.4), or raise --memory-budget-mb (0 "
+        "= half of the memory available) if the machine has the memory");
+  g.shift_ = shift;
+  for (int a = 0; a < 3; ++a) {
+    g.res_[a] = r[a] << shift;
+    g.vs_[a] = (g.hi_[a] - g.lo_[a]) / double(g.res_[a]);
+    g.inv_vs_[a] = 1.0 / g.vs_[a];
+  }
+}
 
-    // Per non-empty top cell, in parallel: references of each sub-cell.
-    struct SubOut {
-      std::vector<uint32_t> count;  // per sub-cell
-      std::vector<uint32_t> refs;   // sorted by sub-cell, then triangle
-    };
-    std::vector<uint32_t> nonempty;
-    for (size_t t = 0; t < num_top; ++t)
-      if (count[t] > 0) nonempty.push_back(uint32_t(t));
-    std::vector<SubOut> outs(nonempty.size());
-    tbb::parallel_for(size_t(0), nonempty.size(), [&](size_t idx) {
-      check_cancel(params.cancel);
-      const uint32_t t = nonempty[idx];
-      const auto& l = logs[t];
-      const int32_t tx = int32_t(t % r[0]), ty = int32_t((t / r[0]) % r[1]),
-                    tz = int32_t(t / (size_t(r[0]) * r[1]));
-      const int32_t sres[3] = {1 << l[0], 1 << l[1], 1 << l[2]};
-      const size_t nsub = size_t(sres[0]) * sres[1] * sres[2];
-      SubOut& out = outs[idx];
-      if (nsub == 1) {
-        out.count.assign(1, count[t]);
-        out.refs.assign(top_refs.begin() + begin[t], top_refs.begin() + begin[t] + count[t]);
-        return;
-      }
-      double o[3], cs[3], padding[3];
-      const int32_t tc[3] = {tx, ty, tz};
+// Step 2c: per non-empty top cell, in parallel: the references of each of its sub-cells.
+std::vector<IrregularGrid::Builder::SubOut> IrregularGrid::Builder::sub_references(
+    const std::vector<uint32_t>& count, const std::vector<uint32_t>& begin,
+    const std::vector<uint32_t>& top_refs, const SubLogs& logs) const {
+  const int32_t* r = g.top_res_;
+  const int shift = g.shift_;
+  std::vector<uint32_t> nonempty;
+  for (size_t t = 0; t < count.size(); ++t)
+    if (count[t] > 0) nonempty.push_back(uint32_t(t));
+  std::vector<SubOut> outs(nonempty.size());
+  tbb::parallel_for(size_t(0), nonempty.size(), [&](size_t idx) {
+    check_cancel(params.cancel);
+    const uint32_t t = nonempty[idx];
+    const auto& l = logs[t];
+    const int32_t tx = int32_t(t % r[0]), ty = int32_t((t / r[0]) % r[1]),
+                  tz = int32_t(t / (size_t(r[0]) * r[1]));
+    const int32_t sres[3] = {1 << l[0], 1 << l[1], 1 << l[2]};
+    const size_t nsub = size_t(sres[0]) * sres[1] * sres[2];
+    SubOut& out = outs[idx];
+    if (nsub == 1) {
+      out.count.assign(1, count[t]);
+      out.refs.assign(top_refs.begin() + begin[t], top_refs.begin() + begin[t] + count[t]);
+      return;
+    }
+    double o[3], cs[3], padding[3];
+    const int32_t tc[3] = {tx, ty, tz};
+    for (int a = 0; a < 3; ++a) {
+      o[a] = g.lo_[a] + double(tc[a] << shift) * g.vs_[a];
+      cs[a] = double(1 << (shift - l[a])) * g.vs_[a];
+      padding[a] = pad(a, cs[a]);
+    }
+    std::vector<std::pair<uint32_t, uint32_t>> pairs;
+    for (uint32_t i = begin[t]; i < begin[t] + count[t]; ++i) {
+      const uint32_t tri = top_refs[i];
+      for_each_overlapped_cell(tri, o, cs, sres, padding, [&](int32_t x, int32_t y, int32_t z) {
+        pairs.emplace_back(uint32_t((size_t(z) * sres[1] + y) * sres[0] + x), tri);
+      });
+    }
+    out.count.assign(nsub, 0);
+    for (const auto& p : pairs) ++out.count[p.first];
+    std::vector<uint32_t> fill(nsub, 0);
+    for (size_t s = 1; s < nsub; ++s) fill[s] = fill[s - 1] + out.count[s - 1];
+    out.refs.resize(pairs.size());
+    for (const auto& p : pairs) out.refs[fill[p.first]++] = p.second;
+  });
+  return outs;
+}
+
+// Step 2d: the cells in top-cell order, and the voxel map; empty top cells are one cell and
+// one map entry.
+void IrregularGrid::Builder::assemble_cells(const std::vector<uint32_t>& count, const SubLogs& logs,
+                                            std::vector<SubOut>& outs) {
+  const int32_t* r = g.top_res_;
+  const int shift = g.shift_;
+  const size_t num_top = count.size();
+  g.top_.assign(num_top, TopEntry{});
+  size_t next_nonempty = 0;
+  for (size_t t = 0; t < num_top; ++t) {
+    const int32_t tc[3] = {int32_t(t % r[0]), int32_t((t / r[0]) % r[1]),
+                           int32_t(t / (size_t(r[0]) * r[1]))};
+    if (count[t] == 0) {
+      g.top_[t] = TopEntry{uint32_t(cells.size()), {0, 0, 0}, 1};
+      BCell c;
       for (int a = 0; a < 3; ++a) {
-        o[a] = g.lo_[a] + double(tc[a] << shift) * g.vs_[a];
-        cs[a] = double(1 << (shift - l[a])) * g.vs_[a];
-        padding[a] = pad(a, cs[a]);
+        c.lo[a] = tc[a] << shift;
+        c.hi[a] = (tc[a] + 1) << shift;
       }
-      std::vector<std::pair<uint32_t, uint32_t>> pairs;
-      for (uint32_t i = begin[t]; i < begin[t] + count[t]; ++i) {
-        const uint32_t tri = top_refs[i];
-        for_each_overlapped_cell(tri, o, cs, sres, padding, [&](int32_t x, int32_t y, int32_t z) {
-          pairs.emplace_back(uint32_t((size_t(z) * sres[1] + y) * sres[0] + x), tri);
-        });
-      }
-      out.count.assign(nsub, 0);
-      for (const auto& p : pairs) ++out.count[p.first];
-      std::vector<uint32_t> fill(nsub, 0);
-      for (size_t s = 1; s < nsub; ++s) fill[s] = fill[s - 1] + out.count[s - 1];
-      out.refs.resize(pairs.size());
-      for (const auto& p : pairs) out.refs[fill[p.first]++] = p.second;
-    });
-
-    // Assemble cells in top-cell order; empty top cells are one cell and one map entry.
-    g.top_.assign(num_top, TopEntry{});
-    size_t next_nonempty = 0;
-    for (size_t t = 0; t < num_top; ++t) {
-      const int32_t tc[3] = {int32_t(t % r[0]), int32_t((t / r[0]) % r[1]),
-                             int32_t(t / (size_t(r[0]) * r[1]))};
-      if (count[t] == 0) {
-        g.top_[t] = TopEntry{uint32_t(cells.size()), {0, 0, 0}, 1};
-        BCell c;
-        for (int a = 0; a < 3; ++a) {
-          c.lo[a] = tc[a] << shift;
-          c.hi[a] = (tc[a] + 1) << shift;
-        }
-        c.begin = uint32_t(refs.size());
-        c.count = 0;
-        cells.push_back(c);
-        continue;
-      }
-      SubOut& out = outs[next_nonempty++];
-      const auto& l = logs[t];
-      const size_t nsub = out.count.size();
-      if (nsub == 1) {
-        g.top_[t] = TopEntry{uint32_t(cells.size()), {0, 0, 0}, 1};
-      } else {
-        g.top_[t] = TopEntry{uint32_t(g.sub_.size()), {l[0], l[1], l[2]}, 0};
-      }
-      size_t ref_pos = 0;
-      for (size_t s = 0; s < nsub; ++s) {
-        const int32_t sc[3] = {int32_t(s & ((size_t(1) << l[0]) - 1)),
-                               int32_t((s >> l[0]) & ((size_t(1) << l[1]) - 1)),
-                               int32_t(s >> (l[0] + l[1]))};
-        BCell c;
-        for (int a = 0; a < 3; ++a) {
-          const int32_t size = 1 << (shift - l[a]);
-          c.lo[a] = (tc[a] << shift) + sc[a] * size;
-          c.hi[a] = c.lo[a] + size;
-        }
-        c.begin = uint32_t(refs.size());
-        c.count = out.count[s];
-        if (nsub > 1) g.sub_.push_back(uint32_t(cells.size()));
-        cells.push_back(c);
-        refs.insert(refs.end(), out.refs.begin() + ref_pos, out.refs.begin() + ref_pos + c.count);
-        ref_pos += c.count;
-      }
-      std::vector<uint32_t>().swap(out.count);
-      std::vector<uint32_t>().swap(out.refs);
+      c.begin = uint32_t(refs.size());
+      c.count = 0;
+      cells.push_back(c);
+      continue;
     }
-  }
-
-  // Step 4: merging. The cost of a cell is its half surface area (world units) times
-  // (its number of references + kMergeTraversalCost); two aligned neighbours merge when the
-  // cost of the union (references = set union) is no larger than the sum of their costs.
-  double half_area(const int32_t lo[3], const int32_t hi[3]) const {
-    const double ex = (hi[0] - lo[0]) * g.vs_[0], ey = (hi[1] - lo[1]) * g.vs_[1],
-                 ez = (hi[2] - lo[2]) * g.vs_[2];
-    return ex * ey + ey * ez + ez * ex;
-  }
-
-  /// Rewrites every cell id in the voxel map through new_id.
-  void remap_voxel_map(const std::vector<uint32_t>& new_id) {
-    tbb::parallel_for(size_t(0), g.top_.size(), [&](size_t t) {
-      if (g.top_[t].leaf) g.top_[t].base = new_id[g.top_[t].base];
-    });
-    tbb::parallel_for(size_t(0), g.sub_.size(), [&](size_t i) { g.sub_[i] = new_id[g.sub_[i]]; });
-  }
-
-  /// One merge pass along `axis`; returns the number of cells removed.
-  uint64_t merge_pass(int axis) {
-    const size_t n = cells.size();
-    const int b = (axis + 1) % 3, c = (axis + 2) % 3;
-    require("merge pass", double(n) * 3 * sizeof(uint32_t));
-    std::vector<uint32_t> next(n, kNone), prev(n, kNone), ucount(n, 0);
-    std::atomic<uint64_t> evaluations{0};
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& rg) {
-      check_cancel(params.cancel);
-      uint64_t evals = 0;
-      for (size_t i = rg.begin(); i < rg.end(); ++i) {
-        const BCell& c1 = cells[i];
-        if (c1.hi[axis] >= g.res_[axis]) continue;
-        int32_t p[3] = {c1.lo[0], c1.lo[1], c1.lo[2]};
-        p[axis] = c1.hi[axis];
-        const uint32_t j = g.lookup(p);
-        const BCell& c2 = cells[j];
-        if (c2.lo[axis] != c1.hi[axis] || c2.lo[b] != c1.lo[b] || c2.hi[b] != c1.hi[b] ||
-            c2.lo[c] != c1.lo[c] || c2.hi[c] != c1.hi[c])
-          continue;
-        int32_t ulo[3] = {c1.lo[0], c1.lo[1], c1.lo[2]}, uhi[3] = {c2.hi[0], c2.hi[1], c2.hi[2]};
-        const double a1 = half_area(c1.lo, c1.hi), a2 = half_area(c2.lo, c2.hi),
-                     au = half_area(ulo, uhi);
-        const double apart =
-            a1 * (c1.count + kMergeTraversalCost) + a2 * (c2.count + kMergeTraversalCost);
-        // The union holds at least max(n1, n2) references: skip the count when even that loses.
-        if (au * (std::max(c1.count, c2.count) + kMergeTraversalCost) > apart) continue;
-        ++evals;
-        const uint32_t nu = count_union(&refs[c1.begin], c1.count, &refs[c2.begin], c2.count);
-        if (au * (nu + kMergeTraversalCost) <= apart) {
-          next[i] = j;
-          ucount[i] = nu;
-        }
-      }
-      evaluations += evals;
-    });
-    merge_evaluations += evaluations;
-    for (size_t i = 0; i < n; ++i)
-      if (next[i] != kNone) prev[next[i]] = uint32_t(i);
-    // Chains a->b->c->d along the axis merge pairwise (a+b, c+d), as in the paper, so every
-    // cell takes part in at most one merge per pass and the result stays balanced.
-    std::vector<uint32_t> partner(n, kNone);
-    std::vector<uint8_t> kept(n, 1);
-    for (size_t i = 0; i < n; ++i) {
-      if (prev[i] != kNone || next[i] == kNone) continue;
-      bool even = true;
-      for (uint32_t k = uint32_t(i); k != kNone; k = next[k], even = !even) {
-        if (even) {
-          kept[k] = 1;
-          partner[k] = next[k];
-        } else {
-          kept[k] = 0;
-        }
-      }
+    SubOut& out = outs[next_nonempty++];
+    const auto& l = logs[t];
+    const size_t nsub = out.count.size();
+    if (nsub == 1) {
+      g.top_[t] = TopEntry{uint32_t(cells.size()), {0, 0, 0}, 1};
+    } else {
+      g.top_[t] = TopEntry{uint32_t(g.sub_.size()), {l[0], l[1], l[2]}, 0};
     }
-    std::vector<uint32_t> new_id(n, kNone);
-    uint32_t m = 0;
-    for (size_t i = 0; i < n; ++i)
-      if (kept[i]) new_id[i] = m++;
-    for (size_t i = 0; i < n; ++i)
-      if (partner[i] != kNone) new_id[partner[i]] = new_id[i];
-    if (m == n) return 0;
-    // New cells and references: offsets by a serial scan, unions written in parallel.
-    // Chains, ids and the merged cells; the merged references are checked below.
-    require("merge pass", double(n) * (6 * sizeof(uint32_t) + 1) + double(m) * sizeof(BCell));
-    std::vector<BCell> new_cells(m);
-    uint64_t total = 0;
-    for (size_t i = 0; i < n; ++i) {
-      if (!kept[i]) continue;
-      BCell& nc = new_cells[new_id[i]];
-      nc = cells[i];
-      if (partner[i] != kNone)
-        for (int a = 0; a < 3; ++a) nc.hi[a] = cells[partner[i]].hi[a];
-      nc.count = partner[i] != kNone ? ucount[i] : cells[i].count;
-      nc.begin = uint32_t(total);
-      total += nc.count;
-    }
-    require("merge pass", double(n) * (6 * sizeof(uint32_t) + 1) + double(m) * sizeof(BCell) +
-                              double(total) * sizeof(uint32_t));
-    std::vector<uint32_t> new_refs(total);
-    tbb::parallel_for(size_t(0), n, [&](size_t i) {
-      if (!kept[i]) return;
-      const BCell& c1 = cells[i];
-      uint32_t* out = new_refs.data() + new_cells[new_id[i]].begin;
-      if (partner[i] == kNone) {
-        std::copy(refs.begin() + c1.begin, refs.begin() + c1.begin + c1.count, out);
-      } else {
-        const BCell& c2 = cells[partner[i]];
-        write_union(&refs[c1.begin], c1.count, &refs[c2.begin], c2.count, out);
-      }
-    });
-    remap_voxel_map(new_id);
-    cells.swap(new_cells);
-    refs.swap(new_refs);
-    return n - m;
-  }
-
-  void merge() {
-    for (int round = 0; round < kMergeMaxRounds; ++round) {
-      const uint64_t before = cells.size();
-      uint64_t removed = 0;
-      for (int axis = 0; axis < 3; ++axis) {
-        check_cancel(params.cancel);
-        removed += merge_pass(axis);
-      }
-      ++merge_rounds;
-      if (double(removed) < std::max(kMergeStopFraction * double(before), double(kMergeMinCells)))
-        break;
-    }
-  }
-
-  // Step 5: expansion. A face of a cell's exit box moves one layer of neighbouring cells
-  // outwards when every voxel of that layer belongs to cells whose references are a subset of
-  // this cell's (so a ray inside the grown box can only meet triangles already tested). The
-  // six faces take turns, one layer each, for kExpansionRounds rounds (the paper's fixed
-  // iteration count, which keeps the cost linear in the cells: without it an unmerged empty
-  // cell would sweep the whole empty space around it). A face that failed is not retried:
-  // growing other faces only adds voxels to its layer, so it cannot succeed later.
-  bool subset_of(const BCell& small, const BCell& big) const {
-    if (small.count == 0) return true;
-    if (small.count > big.count) return false;
-    return std::includes(refs.begin() + big.begin, refs.begin() + big.begin + big.count,
-                         refs.begin() + small.begin, refs.begin() + small.begin + small.count);
-  }
-
-  /// Tries to move face (axis, dir) of box outwards by one layer of cells.
-  bool grow_face(const BCell& self, std::array<int32_t, 6>& box, int axis, bool positive) const {
-    int32_t* lo = box.data();
-    int32_t* hi = box.data() + 3;
-    const int32_t layer = positive ? hi[axis] : lo[axis] - 1;
-    if (layer < 0 || layer >= g.res_[axis]) return false;
-    const int b = (axis + 1) % 3, c = (axis + 2) % 3;
-    int32_t depth = std::numeric_limits<int32_t>::max();
-    int32_t p[3];
-    p[axis] = layer;
-    // Walk the layer cell by cell: along b by each cell's extent; rows along c advance to
-    // the nearest end of the cells met in the row, since the row looks the same until then.
-    for (int32_t w = lo[c]; w < hi[c];) {
-      int32_t row_end = hi[c];
-      for (int32_t u = lo[b]; u < hi[b];) {
-        p[b] = u;
-        p[c] = w;
-        const BCell& n = cells[g.lookup(p)];
-        if (!subset_of(n, self)) return false;
-        depth = std::min(depth, positive ? n.hi[axis] - layer : layer + 1 - n.lo[axis]);
-        row_end = std::min(row_end, n.hi[c]);
-        u = n.hi[b];
-      }
-      w = row_end;
-    }
-    if (positive)
-      hi[axis] += depth;
-    else
-      lo[axis] -= depth;
-    return true;
-  }
-
-  void expand() {
-    const size_t n = cells.size();
-    require("cell expansion", double(n) * sizeof(exit_boxes[0]));
-    exit_boxes.resize(n);
-    for (size_t i = 0; i < n; ++i)
+    size_t ref_pos = 0;
+    for (size_t s = 0; s < nsub; ++s) {
+      const int32_t sc[3] = {int32_t(s & ((size_t(1) << l[0]) - 1)),
+                             int32_t((s >> l[0]) & ((size_t(1) << l[1]) - 1)),
+                             int32_t(s >> (l[0] + l[1]))};
+      BCell c;
       for (int a = 0; a < 3; ++a) {
-        exit_boxes[i][a] = cells[i].lo[a];
-        exit_boxes[i][3 + a] = cells[i].hi[a];
+        const int32_t size = 1 << (shift - l[a]);
+        c.lo[a] = (tc[a] << shift) + sc[a] * size;
+        c.hi[a] = c.lo[a] + size;
       }
-    if (!params.irregular_expand) return;
-    std::atomic<uint64_t> grown{0};
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& rg) {
-      check_cancel(params.cancel);
-      uint64_t local = 0;
-      for (size_t i = rg.begin(); i < rg.end(); ++i) {
-        bool open[6] = {true, true, true, true, true, true};
-        bool grew = false;
-        for (int round = 0; round < kExpansionRounds; ++round) {
-          bool any = false;
-          for (int f = 0; f < 6; ++f) {
-            if (!open[f]) continue;
-            open[f] = grow_face(cells[i], exit_boxes[i], f >> 1, f & 1);
-            any |= open[f];
-          }
-          if (!any) break;
-          grew = true;
-        }
-        local += grew;
-      }
-      grown += local;
-    });
-    expanded_cells = grown;
-  }
-
-  void finish() {
-    const size_t n = cells.size();
-    require("final cell array",
-            double(n) * (sizeof(IrregularGrid::Cell) + sizeof(g.own_boxes_[0])));
-    g.cells_.resize(n);
-    g.own_boxes_.resize(n);
-    for (size_t i = 0; i < n; ++i) {
-      IrregularGrid::Cell& c = g.cells_[i];
-      for (int a = 0; a < 3; ++a) {
-        c.lo[a] = exit_boxes[i][a];
-        c.hi[a] = exit_boxes[i][3 + a];
-        g.own_boxes_[i][a] = cells[i].lo[a];
-        g.own_boxes_[i][3 + a] = cells[i].hi[a];
-      }
-      c.begin = cells[i].begin;
-      c.end = cells[i].begin + cells[i].count;
+      c.begin = uint32_t(refs.size());
+      c.count = out.count[s];
+      if (nsub > 1) g.sub_.push_back(uint32_t(cells.size()));
+      cells.push_back(c);
+      refs.insert(refs.end(), out.refs.begin() + ref_pos, out.refs.begin() + ref_pos + c.count);
+      ref_pos += c.count;
     }
-    g.refs_.swap(refs);
+    std::vector<uint32_t>().swap(out.count);
+    std::vector<uint32_t>().swap(out.refs);
   }
-};
+}
 
 BuildStats IrregularGrid::build(const Mesh& mesh, const BuildParams& params) {
   const auto t_start = std::chrono::steady_clock::now();

@@ -1,7 +1,7 @@
 // The irregular grid of Pérard-Gayot, Kalojanov & Slusallek, "GPU Ray Tracing Using Irregular
 // Grids" (Computer Graphics Forum 36(2), 2017), built and traversed on the CPU.
 //
-// Build (irregular.cpp has the details of each step):
+// Build (irregular.cpp and irregular_merge.cpp have the details of each step):
 //   1. A top-level uniform grid with irregular_top_density * N cells, shaped by the scene box
 //      (Cleary / Wald et al. rule: resolution_a = round(extent_a * cbrt(density * N / volume))).
 //   2. Each non-empty top cell is subdivided again with irregular_sub_density cells per

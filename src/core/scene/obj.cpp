@@ -284,66 +284,77 @@ double obj_peak_bytes(const ObjScan& s, size_t text_bytes) {
          face_group + shapes + tris * 16 + mesh_vertices;
 }
 
-}  // namespace
-
-Scene load_obj(const std::string& path, const LoadOptions& options) {
-  namespace fs = std::filesystem;
+/// What tinyobjloader made of the file, with the scan's warnings (and usemtl lines naming no
+/// material) and tinyobjloader's own (warn, err: non-fatal once the parse succeeded).
+struct ParsedObj {
   tinyobj::attrib_t attrib;
   std::vector<tinyobj::shape_t> shapes;
   std::vector<tinyobj::material_t> mats;
   std::string warn, err;
-  const std::string base_dir = fs::path(path).parent_path().string();
+  ObjScan scan;
+};
+
+/// Reads, checks and parses the file: refused before tinyobjloader holds several bytes for
+/// each byte of the file when that would pass the memory budget.
+void parse_obj(const std::string& path, const std::string& base_dir, const LoadOptions& options,
+               ParsedObj& o) {
   const std::string file = read_input_file(path);
   std::string_view text = without_bom(file);
-  ObjScan scan = validate_obj_text(text, path);
-  // Refused before tinyobjloader holds several bytes for each byte of the file.
-  const double peak = obj_peak_bytes(scan, file.size());
+  o.scan = validate_obj_text(text, path);
+  const double peak = obj_peak_bytes(o.scan, file.size());
   const uint64_t budget =
       options.memory_budget ? options.memory_budget : default_memory_budget_bytes();
   if (peak > double(budget))
     throw LoadError(path + ": loading it would take about " + format_bytes_iec(peak) + " (" +
-                    std::to_string(scan.vertices) + " vertices, " + std::to_string(scan.faces) +
+                    std::to_string(o.scan.vertices) + " vertices, " + std::to_string(o.scan.faces) +
                     " faces), above the memory budget of " + format_bytes_iec(double(budget)) +
                     (options.memory_budget ? "" : " (half of the memory available)") +
                     "; convert it to PLY or glTF, which load with far less, or run with more "
                     "memory");
   std::string split;
-  if (scan.long_faces) {
+  if (o.scan.long_faces) {
     split = split_long_faces(text);
     text = split;
   }
   ViewBuf buf(text);
   std::istream in(&buf);
   CheckedMaterialReader materials(base_dir);
-  const bool ok = tinyobj::LoadObj(&attrib, &shapes, &mats, &warn, &err, &in, &materials,
+  const bool ok = tinyobj::LoadObj(&o.attrib, &o.shapes, &o.mats, &o.warn, &o.err, &in, &materials,
                                    /*triangulate=*/false, /*default_vcols_fallback=*/false);
   if (!ok) {
-    std::string e = err.empty() ? warn : err;
+    std::string e = o.err.empty() ? o.warn : o.err;
     while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
     std::replace(e.begin(), e.end(), '\n', ' ');
     throw LoadError(path + ": cannot parse OBJ: " + printable(e, 300));
   }
   split = std::string();
-  for (const auto& [name, line] : scan.usemtl) {
+  for (const auto& [name, line] : o.scan.usemtl) {
     bool found = false;
-    for (const auto& m : mats) found = found || m.name == name;
-    if (!found && scan.warnings.size() < 10)
-      scan.warnings.push_back("line " + std::to_string(line) + ": usemtl '" + printable(name, 80) +
-                              "': no material of that name in the material libraries; its "
-                              "faces are rendered grey");
+    for (const auto& m : o.mats) found = found || m.name == name;
+    if (!found && o.scan.warnings.size() < 10)
+      o.scan.warnings.push_back("line " + std::to_string(line) + ": usemtl '" +
+                                printable(name, 80) +
+                                "': no material of that name in the material libraries; its "
+                                "faces are rendered grey");
   }
+}
 
-  Scene scene;
-  const size_t nv = attrib.vertices.size() / 3;
-  const size_t nn = attrib.normals.size() / 3;
-  const size_t nt = attrib.texcoords.size() / 2;
-
-  // First pass: validate indices, count triangles and see whether every corner shares one
-  // index for position, normal and uv (then the arrays can be used as they are).
+/// The faces' corners as the first pass over them found them.
+struct FaceSurvey {
   size_t num_tris = 0;
-  bool all_normals = true, any_uvs = false, shared_index = true;
+  bool all_normals = true, any_uvs = false;
+  bool shared_index = true;  ///< every corner has one index for position, normal and uv
+};
+
+/// First pass: validates indices, counts triangles and sees whether every corner shares one
+/// index for position, normal and uv (then the arrays can be used as they are).
+FaceSurvey survey_faces(const ParsedObj& o, const std::string& path) {
+  const size_t nv = o.attrib.vertices.size() / 3;
+  const size_t nn = o.attrib.normals.size() / 3;
+  const size_t nt = o.attrib.texcoords.size() / 2;
+  FaceSurvey s;
   size_t face_no = 0;
-  for (const auto& sh : shapes) {
+  for (const auto& sh : o.shapes) {
     size_t k = 0;
     for (size_t f = 0; f < sh.mesh.num_face_vertices.size(); ++f, ++face_no) {
       const size_t m = sh.mesh.num_face_vertices[f];
@@ -367,59 +378,34 @@ Scene load_obj(const std::string& path, const LoadOptions& options) {
                           " references texture coordinate " +
                           std::to_string(ix.texcoord_index + 1) + " but the file has " +
                           std::to_string(nt) + " texture coordinates");
-        if (ix.normal_index < 0) all_normals = false;
-        if (ix.texcoord_index >= 0) any_uvs = true;
+        if (ix.normal_index < 0) s.all_normals = false;
+        if (ix.texcoord_index >= 0) s.any_uvs = true;
         if ((ix.normal_index >= 0 && ix.normal_index != ix.vertex_index) ||
             (ix.texcoord_index >= 0 && ix.texcoord_index != ix.vertex_index))
-          shared_index = false;
+          s.shared_index = false;
       }
       k += m;
-      num_tris += m - 2;
+      s.num_tris += m - 2;
     }
   }
-  // With a successful parse, err holds non-fatal problems (e.g. a missing .mtl file); they
-  // are printed only once the faces are known to be valid, so a fatal error stands alone.
-  std::string own;
-  for (const std::string& w : scan.warnings) own += w + "\n";
-  print_warnings(path, own + warn + err);
+  return s;
+}
 
-  // Normals are used only when every corner has one (the renderer falls back to the
-  // geometric normal otherwise); missing uvs read as (0, 0).
-  const bool use_normals = all_normals && nn > 0;
-  const bool use_uvs = any_uvs;
-
-  Mesh& mesh = scene.mesh;
-  mesh.triangles.reserve(num_tris);
-  // Either the file's vertex arrays as they are, or one vertex per distinct (v, vn, vt).
-  struct CornerHash {
-    size_t operator()(const std::array<int, 3>& c) const {
-      uint64_t h = uint64_t(uint32_t(c[0])) * 0x9E3779B97F4A7C15ull;
-      h ^= (uint64_t(uint32_t(c[1])) + 0x7F4A7C159E3779B9ull + (h << 6) + (h >> 2));
-      h ^= (uint64_t(uint32_t(c[2])) + 0x94D049BB133111EBull + (h << 6) + (h >> 2));
-      return size_t(h);
-    }
-  };
-  std::unordered_map<std::array<int, 3>, uint32_t, CornerHash> remap;
-  auto corner_key = [&](const tinyobj::index_t& ix) {
-    return std::array<int, 3>{ix.vertex_index, use_normals ? ix.normal_index : -1,
-                              use_uvs ? ix.texcoord_index : -1};
-  };
-  auto add_vertex = [&](const tinyobj::index_t& ix) -> uint32_t {
-    if (shared_index) return uint32_t(ix.vertex_index);
-    const auto [it, inserted] = remap.try_emplace(corner_key(ix), uint32_t(mesh.positions.size()));
-    if (inserted) {
-      mesh.positions.push_back(vec3(&attrib.vertices[3 * size_t(ix.vertex_index)]));
-      if (use_normals) mesh.normals.push_back(vec3(&attrib.normals[3 * size_t(ix.normal_index)]));
-      if (use_uvs)
-        mesh.uvs.push_back(
-            ix.texcoord_index >= 0
-                ? std::array<float, 2>{float(attrib.texcoords[2 * size_t(ix.texcoord_index)]),
-                                       float(attrib.texcoords[2 * size_t(ix.texcoord_index) + 1])}
-                : std::array<float, 2>{0.f, 0.f});
-    }
-    return it->second;
-  };
-  if (shared_index) {
+/// The mesh's vertices: either the file's vertex arrays as they are (shared indices), or one
+/// vertex per distinct (v, vn, vt), made as the faces meet them.
+class ObjVertices {
+ public:
+  ObjVertices(const tinyobj::attrib_t& attrib, bool shared_index, bool use_normals, bool use_uvs,
+              Mesh& mesh)
+      : attrib_(attrib),
+        shared_index_(shared_index),
+        use_normals_(use_normals),
+        use_uvs_(use_uvs),
+        mesh_(mesh) {
+    if (!shared_index) return;
+    const size_t nv = attrib.vertices.size() / 3;
+    const size_t nn = attrib.normals.size() / 3;
+    const size_t nt = attrib.texcoords.size() / 2;
     mesh.positions.reserve(nv);
     for (size_t i = 0; i < nv; ++i) mesh.positions.push_back(vec3(&attrib.vertices[3 * i]));
     if (use_normals) {
@@ -433,16 +419,60 @@ Scene load_obj(const std::string& path, const LoadOptions& options) {
     }
   }
 
-  const bool any_material = !mats.empty();
+  /// The mesh vertex of corner ix.
+  uint32_t operator()(const tinyobj::index_t& ix) {
+    if (shared_index_) return uint32_t(ix.vertex_index);
+    const std::array<int, 3> key{ix.vertex_index, use_normals_ ? ix.normal_index : -1,
+                                 use_uvs_ ? ix.texcoord_index : -1};
+    const auto [it, inserted] = remap_.try_emplace(key, uint32_t(mesh_.positions.size()));
+    if (inserted) {
+      mesh_.positions.push_back(vec3(&attrib_.vertices[3 * size_t(ix.vertex_index)]));
+      if (use_normals_)
+        mesh_.normals.push_back(vec3(&attrib_.normals[3 * size_t(ix.normal_index)]));
+      if (use_uvs_)
+        mesh_.uvs.push_back(
+            ix.texcoord_index >= 0
+                ? std::array<float, 2>{float(attrib_.texcoords[2 * size_t(ix.texcoord_index)]),
+                                       float(attrib_.texcoords[2 * size_t(ix.texcoord_index) + 1])}
+                : std::array<float, 2>{0.f, 0.f});
+    }
+    return it->second;
+  }
+
+ private:
+  struct CornerHash {
+    size_t operator()(const std::array<int, 3>& c) const {
+      uint64_t h = uint64_t(uint32_t(c[0])) * 0x9E3779B97F4A7C15ull;
+      h ^= (uint64_t(uint32_t(c[1])) + 0x7F4A7C159E3779B9ull + (h << 6) + (h >> 2));
+      h ^= (uint64_t(uint32_t(c[2])) + 0x94D049BB133111EBull + (h << 6) + (h >> 2));
+      return size_t(h);
+    }
+  };
+  const tinyobj::attrib_t& attrib_;
+  const bool shared_index_, use_normals_, use_uvs_;
+  Mesh& mesh_;
+  std::unordered_map<std::array<int, 3>, uint32_t, CornerHash> remap_;
+};
+
+/// The faces fan-triangulated into the mesh, with their materials (a face without one gets
+/// the default material, index mats.size()); returns whether any face did.
+bool add_faces(const ParsedObj& o, const FaceSurvey& s, Mesh& mesh) {
+  // Normals are used only when every corner has one (the renderer falls back to the
+  // geometric normal otherwise); missing uvs read as (0, 0).
+  const bool use_normals = s.all_normals && o.attrib.normals.size() / 3 > 0;
+  const bool use_uvs = s.any_uvs;
+  mesh.triangles.reserve(s.num_tris);
+  ObjVertices add_vertex(o.attrib, s.shared_index, use_normals, use_uvs, mesh);
+  const bool any_material = !o.mats.empty();
   bool uses_default = false;
-  if (any_material) mesh.material_ids.reserve(num_tris);
-  for (const auto& sh : shapes) {
+  if (any_material) mesh.material_ids.reserve(s.num_tris);
+  for (const auto& sh : o.shapes) {
     size_t k = 0;
     for (size_t f = 0; f < sh.mesh.num_face_vertices.size(); ++f) {
       const size_t m = sh.mesh.num_face_vertices[f];
       int mat = f < sh.mesh.material_ids.size() ? sh.mesh.material_ids[f] : -1;
-      if (mat < 0 || size_t(mat) >= mats.size()) {
-        mat = int(mats.size());  // the default material appended below
+      if (mat < 0 || size_t(mat) >= o.mats.size()) {
+        mat = int(o.mats.size());  // the default material appended below
         uses_default = true;
       }
       // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (docs/RAYSETS.md).
@@ -457,8 +487,13 @@ Scene load_obj(const std::string& path, const LoadOptions& options) {
       k += m;
     }
   }
+  return uses_default;
+}
 
-  // Materials, and the diffuse textures they name (loaded once each).
+/// The materials, and the diffuse textures they name (loaded once each), into the scene.
+void add_materials(const std::vector<tinyobj::material_t>& mats, const std::string& base_dir,
+                   const std::string& path, const LoadOptions& options, Scene& scene) {
+  namespace fs = std::filesystem;
   std::map<std::string, int> texture_of;
   for (const auto& m : mats) {
     Material out = convert_material(m);
@@ -486,7 +521,25 @@ Scene load_obj(const std::string& path, const LoadOptions& options) {
     }
     scene.materials.push_back(std::move(out));
   }
-  if (any_material && uses_default) {
+}
+
+}  // namespace
+
+Scene load_obj(const std::string& path, const LoadOptions& options) {
+  const std::string base_dir = std::filesystem::path(path).parent_path().string();
+  ParsedObj o;
+  parse_obj(path, base_dir, options, o);
+  Scene scene;
+  const FaceSurvey survey = survey_faces(o, path);
+  // With a successful parse, err holds non-fatal problems (e.g. a missing .mtl file); they
+  // are printed only once the faces are known to be valid, so a fatal error stands alone.
+  std::string own;
+  for (const std::string& w : o.scan.warnings) own += w + "\n";
+  print_warnings(path, own + o.warn + o.err);
+
+  const bool uses_default = add_faces(o, survey, scene.mesh);
+  add_materials(o.mats, base_dir, path, options, scene);
+  if (!o.mats.empty() && uses_default) {
     Material grey;
     grey.name = "default grey diffuse";
     scene.materials.push_back(grey);

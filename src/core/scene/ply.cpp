@@ -253,16 +253,39 @@ void skip_property(Reader& r, const Property& p) {
   for (int64_t i = 0; i < n; ++i) r.skip(p.type);
 }
 
-}  // namespace
+/// A PLY header: the data's format, its elements, where the data starts and on which line.
+struct Header {
+  Format fmt = Format::Ascii;
+  std::vector<Element> elements;
+  const char* data = nullptr;
+  size_t line_no = 0;  ///< the header's last line
+};
 
-Scene parse_ply(const char* data, size_t size, const std::string& name) {
-  // A UTF-8 byte-order mark (written by some Windows editors) before the 'ply' line.
-  if (size >= 3 && std::memcmp(data, "\xEF\xBB\xBF", 3) == 0) {
-    data += 3;
-    size -= 3;
+/// One 'property' line's words `w` (of `line`) as a property; `error` makes the exception.
+template <class Error>
+Property parse_property(const std::vector<std::string_view>& w, std::string_view line,
+                        const Error& error) {
+  Property prop;
+  if (w.size() >= 5 && w[1] == "list") {
+    if (!parse_type(w[2], prop.count_type) || !parse_type(w[3], prop.type))
+      throw error("unknown type in '" + printable(line, 80) + "'");
+    if (!is_integer(prop.count_type))
+      throw error("list count type must be an integer type in '" + printable(line, 80) + "'");
+    prop.is_list = true;
+    prop.name = std::string(w[4]);
+  } else if (w.size() >= 3 && w[1] != "list") {
+    if (!parse_type(w[1], prop.type))
+      throw error("unknown property type '" + printable(w[1]) + "'");
+    prop.name = std::string(w[2]);
+  } else {
+    throw error("malformed property line '" + printable(line, 80) + "'");
   }
+  return prop;
+}
+
+/// The header: text lines from 'ply' up to "end_header".
+Header parse_header(const char* data, size_t size, const std::string& name) {
   const char* const end = data + size;
-  // --- Header: text lines up to "end_header". ---
   const char* p = data;
   size_t line_no = 0;
   // Header lines end in LF (CRLF too: the CR is dropped) or, in files from old Mac tools, in
@@ -290,8 +313,7 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
                     ": not a PLY file (it does not start with the line 'ply'); check "
                     "the file or its extension");
   bool have_format = false, have_end = false;
-  Format fmt = Format::Ascii;
-  std::vector<Element> elements;
+  Header h;
   while (next_line(line)) {
     const auto w = split_words(line);
     if (w.empty() || w[0] == "comment" || w[0] == "obj_info") continue;
@@ -302,11 +324,11 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
     if (w[0] == "format") {
       if (w.size() < 2) throw header_error("'format' without a format name");
       if (w[1] == "ascii")
-        fmt = Format::Ascii;
+        h.fmt = Format::Ascii;
       else if (w[1] == "binary_little_endian")
-        fmt = Format::BinaryLE;
+        h.fmt = Format::BinaryLE;
       else if (w[1] == "binary_big_endian")
-        fmt = Format::BinaryBE;
+        h.fmt = Format::BinaryBE;
       else
         throw header_error("unknown format '" + printable(w[1]) +
                            "'; expected ascii, binary_little_endian or binary_big_endian");
@@ -319,26 +341,10 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
       if (ec != std::errc() || ptr != w[2].data() + w[2].size())
         throw header_error("element '" + printable(e.name) + "' has malformed count '" +
                            printable(w[2]) + "'");
-      elements.push_back(std::move(e));
+      h.elements.push_back(std::move(e));
     } else if (w[0] == "property") {
-      if (elements.empty()) throw header_error("'property' before any 'element'");
-      Property prop;
-      if (w.size() >= 5 && w[1] == "list") {
-        if (!parse_type(w[2], prop.count_type) || !parse_type(w[3], prop.type))
-          throw header_error("unknown type in '" + printable(line, 80) + "'");
-        if (!is_integer(prop.count_type))
-          throw header_error("list count type must be an integer type in '" + printable(line, 80) +
-                             "'");
-        prop.is_list = true;
-        prop.name = std::string(w[4]);
-      } else if (w.size() >= 3 && w[1] != "list") {
-        if (!parse_type(w[1], prop.type))
-          throw header_error("unknown property type '" + printable(w[1]) + "'");
-        prop.name = std::string(w[2]);
-      } else {
-        throw header_error("malformed property line '" + printable(line, 80) + "'");
-      }
-      elements.back().props.push_back(std::move(prop));
+      if (h.elements.empty()) throw header_error("'property' before any 'element'");
+      h.elements.back().props.push_back(parse_property(w, line, header_error));
     } else {
       // A number where a keyword belongs is the data: 'end_header' is missing.
       if (std::isdigit(static_cast<unsigned char>(w[0][0])) || w[0][0] == '-' || w[0][0] == '.')
@@ -352,24 +358,24 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
     throw LoadError(name +
                     ": the header has no 'end_header' line; the file is truncated or not PLY");
   if (!have_format) throw LoadError(name + ": the header has no 'format' line");
+  h.data = p;
+  h.line_no = line_no;
+  return h;
+}
 
-  // --- Locate the vertex and face elements and map their properties. ---
-  const Element* vert_elem = nullptr;
-  const Element* face_elem = nullptr;
-  for (const Element& e : elements) {
-    if (e.name == "vertex" && !vert_elem) vert_elem = &e;
-    if (e.name == "face" && !face_elem) face_elem = &e;
-  }
-  if (!vert_elem) throw LoadError(name + ": no 'vertex' element in the header");
-  if (vert_elem->count > std::numeric_limits<uint32_t>::max())
-    throw LoadError(name + ": the header declares " + std::to_string(vert_elem->count) +
-                    " vertices, more than kdgrid's 32-bit indices allow");
+/// Where the vertex element's properties go: per property its slot (0-2 position, 3-5
+/// normal, 6-7 uv; -1 = ignored), and whether normals and uvs are complete.
+struct VertexLayout {
+  std::vector<int> slot;
+  bool with_normals = false, with_uvs = false;
+};
 
-  // Slots: 0-2 position, 3-5 normal, 6-7 uv; -1 = ignored.
-  std::vector<int> vslot(vert_elem->props.size(), -1);
+VertexLayout vertex_layout(const Element& vert_elem, const std::string& name) {
+  VertexLayout layout;
+  layout.slot.assign(vert_elem.props.size(), -1);
   bool have[8] = {};
-  for (size_t i = 0; i < vert_elem->props.size(); ++i) {
-    const Property& pr = vert_elem->props[i];
+  for (size_t i = 0; i < vert_elem.props.size(); ++i) {
+    const Property& pr = vert_elem.props[i];
     if (pr.is_list) continue;
     static constexpr std::pair<std::string_view, int> kSlots[] = {
         {"x", 0},         {"y", 1},         {"z", 2},         {"nx", 3},       {"ny", 4},
@@ -377,91 +383,131 @@ Scene parse_ply(const char* data, size_t size, const std::string& name) {
         {"texture_u", 6}, {"texture_v", 7}, {"texture_s", 6}, {"texture_t", 7}};
     for (const auto& [n, slot] : kSlots)
       if (pr.name == n && !have[slot]) {
-        vslot[i] = slot;
+        layout.slot[i] = slot;
         have[slot] = true;
       }
   }
   if (!have[0] || !have[1] || !have[2])
     throw LoadError(name + ": the vertex element lacks one of the properties x, y, z");
-  const bool with_normals = have[3] && have[4] && have[5];
-  const bool with_uvs = have[6] && have[7];
+  layout.with_normals = have[3] && have[4] && have[5];
+  layout.with_uvs = have[6] && have[7];
+  return layout;
+}
 
+/// The face element's vertex index list property, or -1 (no face element, or no faces).
+int face_list_property(const Element* face_elem, const std::string& name) {
   int face_list = -1;
-  if (face_elem) {
-    for (size_t i = 0; i < face_elem->props.size(); ++i) {
-      const Property& pr = face_elem->props[i];
-      if (pr.is_list && (pr.name == "vertex_indices" || pr.name == "vertex_index")) {
-        face_list = int(i);
-        break;
+  if (!face_elem) return face_list;
+  for (size_t i = 0; i < face_elem->props.size(); ++i) {
+    const Property& pr = face_elem->props[i];
+    if (pr.is_list && (pr.name == "vertex_indices" || pr.name == "vertex_index")) {
+      face_list = int(i);
+      break;
+    }
+  }
+  if (face_list < 0 && face_elem->count > 0)
+    throw LoadError(name +
+                    ": the face element has no list property 'vertex_indices' or "
+                    "'vertex_index'");
+  if (face_list >= 0 && !is_integer(face_elem->props[size_t(face_list)].type))
+    throw LoadError(name + ": face indices must have an integer type");
+  return face_list;
+}
+
+/// The vertex element's entries (at most `cap` reserved) into the mesh.
+void read_vertices(Reader& r, const Element& e, const VertexLayout& layout, uint64_t cap,
+                   Mesh& mesh) {
+  const size_t n = size_t(std::min(e.count, cap));
+  mesh.positions.reserve(n);
+  if (layout.with_normals) mesh.normals.reserve(n);
+  if (layout.with_uvs) mesh.uvs.reserve(n);
+  for (uint64_t i = 0; i < e.count; ++i) {
+    r.set_place(e, i);
+    float v[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+    for (size_t k = 0; k < e.props.size(); ++k) {
+      const Property& pr = e.props[k];
+      if (pr.is_list)
+        skip_property(r, pr);
+      else if (layout.slot[k] >= 0)
+        v[layout.slot[k]] = float(r.read_float(pr.type));
+      else
+        r.skip(pr.type);
+    }
+    mesh.positions.emplace_back(v[0], v[1], v[2]);
+    if (layout.with_normals) mesh.normals.emplace_back(v[3], v[4], v[5]);
+    if (layout.with_uvs) mesh.uvs.push_back({v[6], v[7]});
+  }
+}
+
+/// The face element's entries as triangles (property `face_list` holds each face's indices
+/// into the nv vertices).
+void read_faces(Reader& r, const Element& e, int face_list, uint64_t nv, uint64_t cap, Mesh& mesh) {
+  // Most files hold triangles; reserve one triangle per face, capped by the file size.
+  mesh.triangles.reserve(size_t(std::min(e.count, cap)));
+  for (uint64_t i = 0; i < e.count; ++i) {
+    r.set_place(e, i);
+    for (size_t k = 0; k < e.props.size(); ++k) {
+      const Property& pr = e.props[k];
+      if (int(k) != face_list) {
+        skip_property(r, pr);
+        continue;
+      }
+      const int64_t m = r.read_int(pr.count_type);
+      if (m < 3) r.fail("has " + std::to_string(m) + " vertices; a face needs at least 3");
+      if (uint64_t(m) > r.remaining()) r.fail_eof();
+      // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (docs/RAYSETS.md).
+      uint32_t first = 0, prev = 0;
+      for (int64_t j = 0; j < m; ++j) {
+        const int64_t idx = r.read_int(pr.type);
+        if (idx < 0 || uint64_t(idx) >= nv)
+          r.fail("references vertex " + std::to_string(idx) + " but the file has " +
+                 std::to_string(nv) + " vertices");
+        const uint32_t u = uint32_t(idx);
+        if (j == 0)
+          first = u;
+        else if (j >= 2)
+          mesh.triangles.push_back({first, prev, u});
+        prev = u;
       }
     }
-    if (face_list < 0 && face_elem->count > 0)
-      throw LoadError(name +
-                      ": the face element has no list property 'vertex_indices' or "
-                      "'vertex_index'");
-    if (face_list >= 0 && !is_integer(face_elem->props[size_t(face_list)].type))
-      throw LoadError(name + ": face indices must have an integer type");
   }
+}
+
+}  // namespace
+
+Scene parse_ply(const char* data, size_t size, const std::string& name) {
+  // A UTF-8 byte-order mark (written by some Windows editors) before the 'ply' line.
+  if (size >= 3 && std::memcmp(data, "\xEF\xBB\xBF", 3) == 0) {
+    data += 3;
+    size -= 3;
+  }
+  const Header h = parse_header(data, size, name);
+
+  // --- Locate the vertex and face elements and map their properties. ---
+  const Element* vert_elem = nullptr;
+  const Element* face_elem = nullptr;
+  for (const Element& e : h.elements) {
+    if (e.name == "vertex" && !vert_elem) vert_elem = &e;
+    if (e.name == "face" && !face_elem) face_elem = &e;
+  }
+  if (!vert_elem) throw LoadError(name + ": no 'vertex' element in the header");
+  if (vert_elem->count > std::numeric_limits<uint32_t>::max())
+    throw LoadError(name + ": the header declares " + std::to_string(vert_elem->count) +
+                    " vertices, more than kdgrid's 32-bit indices allow");
+  const VertexLayout layout = vertex_layout(*vert_elem, name);
+  const int face_list = face_list_property(face_elem, name);
 
   // --- Data. ---
   Scene scene;
   Mesh& mesh = scene.mesh;
-  Reader r(p, end, fmt, name, line_no + 1);
-  const uint64_t nv = vert_elem->count;
-  for (const Element& e : elements) {
+  Reader r(h.data, data + size, h.fmt, name, h.line_no + 1);
+  for (const Element& e : h.elements) {
     if (e.props.empty()) continue;  // nothing stored per entry: nothing to read
-    const uint64_t cap = r.remaining() / min_entry_bytes(e, fmt) + 1;
+    const uint64_t cap = r.remaining() / min_entry_bytes(e, h.fmt) + 1;
     if (&e == vert_elem) {
-      const size_t n = size_t(std::min(e.count, cap));
-      mesh.positions.reserve(n);
-      if (with_normals) mesh.normals.reserve(n);
-      if (with_uvs) mesh.uvs.reserve(n);
-      for (uint64_t i = 0; i < e.count; ++i) {
-        r.set_place(e, i);
-        float v[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-        for (size_t k = 0; k < e.props.size(); ++k) {
-          const Property& pr = e.props[k];
-          if (pr.is_list)
-            skip_property(r, pr);
-          else if (vslot[k] >= 0)
-            v[vslot[k]] = float(r.read_float(pr.type));
-          else
-            r.skip(pr.type);
-        }
-        mesh.positions.emplace_back(v[0], v[1], v[2]);
-        if (with_normals) mesh.normals.emplace_back(v[3], v[4], v[5]);
-        if (with_uvs) mesh.uvs.push_back({v[6], v[7]});
-      }
+      read_vertices(r, e, layout, cap, mesh);
     } else if (&e == face_elem && face_list >= 0) {
-      // Most files hold triangles; reserve one triangle per face, capped by the file size.
-      mesh.triangles.reserve(size_t(std::min(e.count, cap)));
-      for (uint64_t i = 0; i < e.count; ++i) {
-        r.set_place(e, i);
-        for (size_t k = 0; k < e.props.size(); ++k) {
-          const Property& pr = e.props[k];
-          if (int(k) != face_list) {
-            skip_property(r, pr);
-            continue;
-          }
-          const int64_t m = r.read_int(pr.count_type);
-          if (m < 3) r.fail("has " + std::to_string(m) + " vertices; a face needs at least 3");
-          if (uint64_t(m) > r.remaining()) r.fail_eof();
-          // Fan triangulation in file order: (v0, v_{j-1}, v_j) for j = 2..m-1 (docs/RAYSETS.md).
-          uint32_t first = 0, prev = 0;
-          for (int64_t j = 0; j < m; ++j) {
-            const int64_t idx = r.read_int(pr.type);
-            if (idx < 0 || uint64_t(idx) >= nv)
-              r.fail("references vertex " + std::to_string(idx) + " but the file has " +
-                     std::to_string(nv) + " vertices");
-            const uint32_t u = uint32_t(idx);
-            if (j == 0)
-              first = u;
-            else if (j >= 2)
-              mesh.triangles.push_back({first, prev, u});
-            prev = u;
-          }
-        }
-      }
+      read_faces(r, e, face_list, vert_elem->count, cap, mesh);
     } else {
       for (uint64_t i = 0; i < e.count; ++i) {
         r.set_place(e, i);

@@ -127,9 +127,10 @@ double choose_cell_size(const Mesh& mesh, const BuildParams& params, const doubl
 
 // ---- build ------------------------------------------------------------------------------
 
-BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
-  const auto t_start = std::chrono::steady_clock::now();
-  // Validate parameters before touching any state.
+namespace {
+
+/// Refuses parameters and meshes the build cannot take, before any state is touched.
+void validate_build_input(const Mesh& mesh, const BuildParams& params) {
   if (std::isnan(params.cell_size) || std::isinf(params.cell_size))
     throw ParamError("hybrid: cell_size " + format_double("%g", params.cell_size) +
                      " is not a finite number: give a positive size in scene units, or 0 "
@@ -148,71 +149,33 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
       if (v >= mesh.positions.size() || !is_finite(mesh.positions[v]))
         throw ParamError("hybrid: triangle " + std::to_string(i) +
                          " has an out-of-range or non-finite vertex: validate the mesh first");
+}
 
-  // Memory guard before any allocation: what the build needs at least, whatever the scene —
-  // the root's reference list and its children's at the first split (28 bytes per
-  // reference), then at least one reference and the corners and id of every triangle. How many
-  // references a triangle ends in depends on the scene (a few on scans and landscapes,
-  // hundreds for long thin triangles), so the kd build
-  // keeps a running account (TreeBuilder::charge), the exact reference count is checked
-  // before the per-reference arrays are allocated, and the matrices are checked once the grid
-  // is known.
-  uint64_t estimate = 0;
-  {
-    const double nt = double(ntri);
-    estimate = check_memory_budget(
-        "hybrid", ntri,
-        {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
-         {"triangle groups and their lane list (at least one lane and one entry per triangle)",
-          nt * (sizeof(uint32_t) + hybrid::kGroupLaneBytesAtLeast)},
-         {"leaf subtrees' classification flags (a byte per triangle per thread)",
-          params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
-        params,
-        "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
-        "lower kd_max_depth");
-  }
-  mesh_ = &mesh;
-  triangle_test_ = params.triangle_test;
-  next_leaf_cache_ = params.hybrid_next_leaf_cache;
-  nodes_.clear();
-  leaves_.clear();
-  kd_boxes_.clear();
-  leaf_depth_.clear();
-  sub_nodes_.clear();
-  groups_.clear();
-  flat_subtree_floats_.clear();
-  group_count_ = group_lanes_ = group_corners_ = 0;
-  flat_subtrees_ = 0;
-  map_.reset(params.hybrid_dense_matrix);
-  step_errors_.store(0);
-  {
-    static std::atomic<uint64_t> builds{0};
-    uid_ = ++builds;
-  }
-  stats_ = {};
-  stats_.peak_expected = estimate;
-  stats_.peak_estimate = estimate;
+/// The memory guard before any allocation: what the build needs at least, whatever the scene —
+/// the root's reference list and its children's at the first split (28 bytes per reference),
+/// then at least one reference and the corners and id of every triangle. How many references a
+/// triangle ends in depends on the scene (a few on scans and landscapes, hundreds for long thin
+/// triangles), so the kd build keeps a running account (TreeBuilder::charge), the exact
+/// reference count is checked before the per-reference arrays are allocated, and the matrices
+/// are checked once the grid is known. Returns the estimate.
+uint64_t check_least_memory(size_t ntri, const BuildParams& params) {
+  const double nt = double(ntri);
+  return check_memory_budget(
+      "hybrid", ntri,
+      {{"reference lists of the first split (at least)", 2.0 * nt * sizeof(hybrid::Ref)},
+       {"triangle groups and their lane list (at least one lane and one entry per triangle)",
+        nt * (sizeof(uint32_t) + hybrid::kGroupLaneBytesAtLeast)},
+       {"leaf subtrees' classification flags (a byte per triangle per thread)",
+        params.hybrid_subtree_min > 0 ? nt * double(effective_threads(params.threads)) : 0.0}},
+      params,
+      "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
+      "lower kd_max_depth");
+}
 
-  const uint64_t budget = effective_memory_budget(params);
-  const int threads = effective_threads(params.threads);
-
-  double ext[3];
-  hybrid::scene_box(mesh, origin_, ext);
-
-  // ---- cell size ----
-  std::string rule;
-  const double cell = hybrid::choose_cell_size(mesh, params, ext, budget, rule);
-  if (params.cell_size > 0.0f) {
-    // An explicit size: refused before anything is allocated when its estimate does not fit.
-    const HybridEstimate est = GridKdHybrid::estimate(mesh, params);
-    if (!est.fits) throw ParamError(est.refusal());
-  }
-  cell_ = cell;
-  inv_cell_ = 1.0 / cell;
-
-  // ---- memory guard before any allocation ----
-  double d[3];
-  hybrid::dims_for(ext, cell, d);
+/// Refuses a grid of d cells of size `cell` whose matrix (dense) or per-cell binning arrays
+/// (bricked) would not fit the budget, or with more cells on an axis than supported.
+void check_grid_memory(double cell, const double d[3], size_t ntri, uint64_t budget, int threads,
+                       bool dense) {
   const double cells = d[0] * d[1] * d[2];
   const double max_axis = std::max({d[0], d[1], d[2]});
   auto dims_text = [&] {
@@ -220,7 +183,7 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
            format_double("%.0f", d[2]);
   };
   const double tri_bytes = double(ntri) * (hybrid::kGroupLaneBytesAtLeast + 4 * sizeof(uint32_t));
-  if (map_.dense()) {
+  if (dense) {
     const double need = cells * 4.0 + tri_bytes;
     if (need > double(budget) || max_axis > double(kHybridMaxAxisCells)) {
       const double fit =
@@ -247,6 +210,45 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
           "): use a cell size of at least " + format_double("%.3g", fit) + " or 'auto'");
     }
   }
+}
+
+}  // namespace
+
+/// What build_parts reports: each phase's seconds and what the empty-leaf widening did.
+struct GridKdHybrid::BuildPhases {
+  double tree = 0, matrix = 0, expand = 0;
+  uint64_t references = 0;
+  std::string expand_text;
+};
+
+BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
+  const auto t_start = std::chrono::steady_clock::now();
+  validate_build_input(mesh, params);
+  const size_t ntri = mesh.num_triangles();
+  const uint64_t estimate = check_least_memory(ntri, params);
+  reset_for_build(mesh, params, estimate);
+
+  const uint64_t budget = effective_memory_budget(params);
+  const int threads = effective_threads(params.threads);
+
+  double ext[3];
+  hybrid::scene_box(mesh, origin_, ext);
+
+  // ---- cell size ----
+  std::string rule;
+  const double cell = hybrid::choose_cell_size(mesh, params, ext, budget, rule);
+  if (params.cell_size > 0.0f) {
+    // An explicit size: refused before anything is allocated when its estimate does not fit.
+    const HybridEstimate est = GridKdHybrid::estimate(mesh, params);
+    if (!est.fits) throw ParamError(est.refusal());
+  }
+  cell_ = cell;
+  inv_cell_ = 1.0 / cell;
+
+  // ---- memory guard before any allocation ----
+  double d[3];
+  hybrid::dims_for(ext, cell, d);
+  check_grid_memory(cell, d, ntri, budget, threads, map_.dense());
   for (int a = 0; a < 3; ++a) dims_[a] = int32_t(d[a]);
   // The peak bound, now that the grid is known: what this grid and the depth limits can need
   // at most, within the budget. The tree's account, the checks after it and the matrix and
@@ -254,7 +256,44 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   stats_.peak_estimate = build_peak_bound(
       hybrid::worst_case_bytes(mesh, origin_, cell, d, params, threads) + sizeof(*this), estimate,
       params);
-  const uint64_t bound = stats_.peak_estimate;
+  set_grid_box();
+
+  BuildPhases phases;
+  tbb::task_arena arena(threads);
+  arena.execute([&] { build_parts(mesh, params, stats_.peak_estimate, phases); });
+  report_build(params, rule, phases);
+  stats_.peak_accounted = std::max(stats_.peak_accounted, stats_.bytes);
+  stats_.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  return stats_;
+}
+
+void GridKdHybrid::reset_for_build(const Mesh& mesh, const BuildParams& params, uint64_t estimate) {
+  mesh_ = &mesh;
+  triangle_test_ = params.triangle_test;
+  next_leaf_cache_ = params.hybrid_next_leaf_cache;
+  nodes_.clear();
+  leaves_.clear();
+  kd_boxes_.clear();
+  leaf_depth_.clear();
+  sub_nodes_.clear();
+  groups_.clear();
+  flat_subtree_floats_.clear();
+  group_count_ = group_lanes_ = group_corners_ = 0;
+  flat_subtrees_ = 0;
+  map_.reset(params.hybrid_dense_matrix);
+  step_errors_.store(0);
+  {
+    static std::atomic<uint64_t> builds{0};
+    uid_ = ++builds;
+  }
+  stats_ = {};
+  stats_.peak_expected = estimate;
+  stats_.peak_estimate = estimate;
+}
+
+void GridKdHybrid::set_grid_box() {
+  const double cell = cell_;
   {
     // The grid's world box for walk_begin's float clip, widened by 2^-18 of the largest
     // coordinate: it contains the exact (double) grid box after rounding to float. The
@@ -276,94 +315,125 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
   origin4_ = Double4{origin_[0], origin_[1], origin_[2], 0.0};
   last_cell4_ = Double4{double(dims_[0] - 1), double(dims_[1] - 1), double(dims_[2] - 1), 0.0};
   map_.set_grid(dims_);
+}
 
-  double t_tree = 0, t_matrix = 0, t_expand = 0;
-  uint64_t references = 0;
-  std::string expand_text;
-  tbb::task_arena arena(threads);
-  arena.execute([&] {
-    const auto t0 = std::chrono::steady_clock::now();
+void GridKdHybrid::build_parts(const Mesh& mesh, const BuildParams& params, uint64_t bound,
+                               BuildPhases& phases) {
+  const auto t0 = std::chrono::steady_clock::now();
+  {
     GroupPlan plan;
-    build_tree(mesh, params, plan, references);
+    build_tree(mesh, params, plan, phases.references);
     check_cancel(params.cancel);
-    groups_.assign(size_t((plan.floats + 15) / 16), hybrid::GroupLine{});
-    group_count_ = plan.fill.size();
-    group_lanes_ = hybrid::kSharedCorners ? plan.lanes.size() : group_count_ * kWideLanes;
-    group_corners_ = 0;
-    for (const uint32_t u : plan.corners) group_corners_ += u;
-    float* const base = groups_.empty() ? nullptr : groups_[0].f;
-    tbb::parallel_for(size_t(0), plan.fill.size(), [&](size_t g) {
-      float* const p = base + plan.offset[g];
-      const uint32_t* const lanes = plan.lanes.data() + plan.start[g];
-      if constexpr (hybrid::kSharedCorners) {
-        const uint32_t n = plan.fill[g], u = plan.corners[g];
-        const uint32_t header = n | u << 8;
-        std::memcpy(p, &header, sizeof header);
-        std::memcpy(p + 1 + 3 * u, lanes, n * sizeof(uint32_t));
-        uint8_t* const index = reinterpret_cast<uint8_t*>(p + 1 + 3 * u + n);
-        const uint8_t* const planned = plan.index.data() + 3 * size_t(plan.start[g]);
-        for (uint32_t i = 0; i < n; ++i) {
-          const auto c = mesh.corners(lanes[i]);
-          for (int k = 0; k < 3; ++k) {
-            const uint32_t j = planned[3 * i + uint32_t(k)];
-            index[uint32_t(k) * n + i] = uint8_t(j);
-            for (int a = 0; a < 3; ++a) p[1 + uint32_t(a) * u + j] = component(c[k], a);
-          }
-        }
-      } else {
-        constexpr uint32_t W = uint32_t(kWideLanes);
-        for (uint32_t i = 0; i < W; ++i) {
-          const auto c = mesh.corners(lanes[i]);
-          for (int k = 0; k < 3; ++k)
-            for (int a = 0; a < 3; ++a) p[uint32_t(3 * k + a) * W + i] = component(c[k], a);
-          std::memcpy(p + 9 * W + i, &lanes[i], sizeof(uint32_t));
-        }
-      }
-    });
-    plan = GroupPlan{};
-    uint64_t other = 0;
-    other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
-             leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine) +
-             sub_nodes_.size() * sizeof(KdNode) +
-             flat_subtree_floats_.size() * sizeof(hybrid::GroupLine) +
-             (next_leaf_cache_ ? leaves_.size() * sizeof(KdBox) : 0) + sizeof(*this);
-    const auto t1 = std::chrono::steady_clock::now();
-    const uint64_t left = bound > other ? bound - other : 0;
-    map_.build(dims_, nodes_, leaves_, left, params.cancel);
-    check_cancel(params.cancel);
-    const uint64_t matrix = map_.entries() * sizeof(uint32_t);
-    const auto t2 = std::chrono::steady_clock::now();
-    // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
-    // inside one names its leaf (the next-leaf cache's check, walk.h; not kept without the cache).
-    if (next_leaf_cache_) kd_boxes_.resize(leaves_.size());
-    for (size_t i = 0; i < kd_boxes_.size(); ++i) {
-      for (int a = 0; a < 3; ++a) {
-        kd_boxes_[i].lo[a] = int32_t(leaves_[i].lo[a]);
-        kd_boxes_[i].hi[a] = int32_t(leaves_[i].hi[a]);
-      }
-      kd_boxes_[i].lo[3] = std::numeric_limits<int32_t>::min();
-      kd_boxes_[i].hi[3] = std::numeric_limits<int32_t>::max();
+    fill_groups(mesh, plan);
+  }
+  uint64_t other = 0;
+  other += nodes_.size() * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(KdBox)) +
+           leaf_depth_.size() + groups_.size() * sizeof(hybrid::GroupLine) +
+           sub_nodes_.size() * sizeof(KdNode) +
+           flat_subtree_floats_.size() * sizeof(hybrid::GroupLine) +
+           (next_leaf_cache_ ? leaves_.size() * sizeof(KdBox) : 0) + sizeof(*this);
+  const auto t1 = std::chrono::steady_clock::now();
+  const uint64_t left = bound > other ? bound - other : 0;
+  map_.build(dims_, nodes_, leaves_, left, params.cancel);
+  check_cancel(params.cancel);
+  const uint64_t matrix = map_.entries() * sizeof(uint32_t);
+  const auto t2 = std::chrono::steady_clock::now();
+  // The kd leaf boxes, kept before empty leaves are widened: they tile the grid, so a cell
+  // inside one names its leaf (the next-leaf cache's check, walk.h; not kept without the cache).
+  if (next_leaf_cache_) kd_boxes_.resize(leaves_.size());
+  for (size_t i = 0; i < kd_boxes_.size(); ++i) {
+    for (int a = 0; a < 3; ++a) {
+      kd_boxes_[i].lo[a] = int32_t(leaves_[i].lo[a]);
+      kd_boxes_[i].hi[a] = int32_t(leaves_[i].hi[a]);
     }
-    expand_text = params.hybrid_expand_empty
-                      ? hybrid::widen_empty_leaves(leaves_, dims_,
-                                                   left > matrix ? left - matrix : 0, params.cancel)
-                      : std::string("off (the paper's kd leaf boxes)");
-    t_expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();
-    t_tree = std::chrono::duration<double>(t1 - t0).count();
-    t_matrix = std::chrono::duration<double>(t2 - t1).count();
-  });
+    kd_boxes_[i].lo[3] = std::numeric_limits<int32_t>::min();
+    kd_boxes_[i].hi[3] = std::numeric_limits<int32_t>::max();
+  }
+  phases.expand_text = params.hybrid_expand_empty
+                           ? hybrid::widen_empty_leaves(
+                                 leaves_, dims_, left > matrix ? left - matrix : 0, params.cancel)
+                           : std::string("off (the paper's kd leaf boxes)");
+  phases.expand = std::chrono::duration<double>(std::chrono::steady_clock::now() - t2).count();
+  phases.tree = std::chrono::duration<double>(t1 - t0).count();
+  phases.matrix = std::chrono::duration<double>(t2 - t1).count();
+}
 
-  // ---- stats ----
-  stats_.nodes = nodes_.size();
-  stats_.leaves = leaves_.size();
-  for (const Leaf& l : leaves_) stats_.empty_leaves += l.count == 0;
+void GridKdHybrid::fill_groups(const Mesh& mesh, const GroupPlan& plan) {
+  groups_.assign(size_t((plan.floats + 15) / 16), hybrid::GroupLine{});
+  group_count_ = plan.fill.size();
+  group_lanes_ = hybrid::kSharedCorners ? plan.lanes.size() : group_count_ * kWideLanes;
+  group_corners_ = 0;
+  for (const uint32_t u : plan.corners) group_corners_ += u;
+  float* const base = groups_.empty() ? nullptr : groups_[0].f;
+  tbb::parallel_for(size_t(0), plan.fill.size(), [&](size_t g) {
+    float* const p = base + plan.offset[g];
+    const uint32_t* const lanes = plan.lanes.data() + plan.start[g];
+    if constexpr (hybrid::kSharedCorners) {
+      const uint32_t n = plan.fill[g], u = plan.corners[g];
+      const uint32_t header = n | u << 8;
+      std::memcpy(p, &header, sizeof header);
+      std::memcpy(p + 1 + 3 * u, lanes, n * sizeof(uint32_t));
+      uint8_t* const index = reinterpret_cast<uint8_t*>(p + 1 + 3 * u + n);
+      const uint8_t* const planned = plan.index.data() + 3 * size_t(plan.start[g]);
+      for (uint32_t i = 0; i < n; ++i) {
+        const auto c = mesh.corners(lanes[i]);
+        for (int k = 0; k < 3; ++k) {
+          const uint32_t j = planned[3 * i + uint32_t(k)];
+          index[uint32_t(k) * n + i] = uint8_t(j);
+          for (int a = 0; a < 3; ++a) p[1 + uint32_t(a) * u + j] = component(c[k], a);
+        }
+      }
+    } else {
+      constexpr uint32_t W = uint32_t(kWideLanes);
+      for (uint32_t i = 0; i < W; ++i) {
+        const auto c = mesh.corners(lanes[i]);
+        for (int k = 0; k < 3; ++k)
+          for (int a = 0; a < 3; ++a) p[uint32_t(3 * k + a) * W + i] = component(c[k], a);
+        std::memcpy(p + 9 * W + i, &lanes[i], sizeof(uint32_t));
+      }
+    }
+  });
+}
+
+std::string GridKdHybrid::subtrees_text(const BuildParams& params) const {
+  if (params.hybrid_subtree_min == 0) return "off (plain leaves)";
   uint64_t subtree_leaves = 0;
   uint32_t largest_leaf = 0;
   for (const Leaf& l : leaves_) {
     subtree_leaves += (l.count & kSubtreeFlag) != 0;
     largest_leaf = std::max(largest_leaf, l.count & ~kSubtreeFlag);
   }
-  stats_.references = references;
+  return std::to_string(subtree_leaves) + " leaves with more than " +
+         std::to_string(params.hybrid_subtree_min) + " triangles (" +
+         (params.hybrid_flat_subtrees && hybrid::kFlatSubtrees
+              ? std::to_string(flat_subtrees_) +
+                    " stored flat: " + std::to_string(hybrid::kFlatMinLeaves) + " to " +
+                    std::to_string(hybrid::kFlatLeaves) + " leaves with triangles"
+              : std::string("none flat")) +
+         "), " + std::to_string(sub_nodes_.size()) + " kd nodes; largest leaf " +
+         std::to_string(largest_leaf) + " triangles";
+}
+
+std::string GridKdHybrid::groups_text(uint64_t references) const {
+  const double groups = double(std::max<uint64_t>(1, group_count_));
+  if (hybrid::kSharedCorners)
+    return std::to_string(group_count_) + " groups of up to " + std::to_string(kWideLanes) +
+           " lanes for " + std::to_string(references) + " references (" +
+           format_double("%.1f", double(references) / groups) + " lanes and " +
+           format_double("%.1f", double(group_corners_) / groups) + " distinct corners a group)";
+  return std::to_string(group_count_) + " groups of " + std::to_string(kWideLanes) + " lanes for " +
+         std::to_string(references) + " references (" +
+         format_double("%.1f", 100.0 * (1.0 - double(references) /
+                                                  double(std::max<uint64_t>(1, group_lanes_)))) +
+         "% padding lanes)";
+}
+
+void GridKdHybrid::report_build(const BuildParams& params, const std::string& rule,
+                                const BuildPhases& phases) {
+  stats_.nodes = nodes_.size();
+  stats_.leaves = leaves_.size();
+  for (const Leaf& l : leaves_) stats_.empty_leaves += l.count == 0;
+  stats_.references = phases.references;
   const uint64_t b_tree = nodes_.size() * sizeof(Node);
   const uint64_t b_sub = sub_nodes_.size() * sizeof(KdNode);
   const uint64_t b_flat = flat_subtree_floats_.size() * sizeof(hybrid::GroupLine);
@@ -387,42 +457,12 @@ BuildStats GridKdHybrid::build(const Mesh& mesh, const BuildParams& params) {
       {"grid",
        std::to_string(dims_[0]) + "x" + std::to_string(dims_[1]) + "x" + std::to_string(dims_[2])},
       {"matrix", map_.dense() ? "dense" : map_.bricked().describe()},
-      {"leaf subtrees",
-       params.hybrid_subtree_min == 0
-           ? std::string("off (plain leaves)")
-           : std::to_string(subtree_leaves) + " leaves with more than " +
-                 std::to_string(params.hybrid_subtree_min) + " triangles (" +
-                 (params.hybrid_flat_subtrees && hybrid::kFlatSubtrees
-                      ? std::to_string(flat_subtrees_) +
-                            " stored flat: " + std::to_string(hybrid::kFlatMinLeaves) + " to " +
-                            std::to_string(hybrid::kFlatLeaves) + " leaves with triangles"
-                      : std::string("none flat")) +
-                 "), " + std::to_string(sub_nodes_.size()) + " kd nodes; largest leaf " +
-                 std::to_string(largest_leaf) + " triangles"},
-      {"triangle groups",
-       hybrid::kSharedCorners
-           ? std::to_string(group_count_) + " groups of up to " + std::to_string(kWideLanes) +
-                 " lanes for " + std::to_string(references) + " references (" +
-                 format_double("%.1f",
-                               double(references) / double(std::max<uint64_t>(1, group_count_))) +
-                 " lanes and " +
-                 format_double(
-                     "%.1f", double(group_corners_) / double(std::max<uint64_t>(1, group_count_))) +
-                 " distinct corners a group)"
-           : std::to_string(group_count_) + " groups of " + std::to_string(kWideLanes) +
-                 " lanes for " + std::to_string(references) + " references (" +
-                 format_double("%.1f",
-                               100.0 * (1.0 - double(references) /
-                                                  double(std::max<uint64_t>(1, group_lanes_)))) +
-                 "% padding lanes)"},
-      {"empty-leaf boxes", expand_text},
-      {"build phases", "tree " + format_double("%.3f", t_tree) + " s, matrix " +
-                           format_double("%.3f", t_matrix) + " s, empty-leaf boxes " +
-                           format_double("%.3f", t_expand) + " s"}};
-  stats_.peak_accounted = std::max(stats_.peak_accounted, stats_.bytes);
-  stats_.seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
-  return stats_;
+      {"leaf subtrees", subtrees_text(params)},
+      {"triangle groups", groups_text(phases.references)},
+      {"empty-leaf boxes", phases.expand_text},
+      {"build phases", "tree " + format_double("%.3f", phases.tree) + " s, matrix " +
+                           format_double("%.3f", phases.matrix) + " s, empty-leaf boxes " +
+                           format_double("%.3f", phases.expand) + " s"}};
 }
 
 }  // namespace kdgrid

@@ -254,6 +254,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   template <bool kAny, int K>
   bool packet_walk(const hybrid::PacketRays* R, const uint32_t* lanes, const int* which, Hit* hits,
                    bool* out) const;
+  /// One packet walk's state and steps (packet.cpp).
+  template <bool kAny, int K>
+  struct PacketWalk;
 
   // ---- the build (build.cpp, tree.cpp) ----
   /// Where build_tree puts the groups (records.h, "Triangle groups"): group g's lanes (mesh
@@ -269,6 +272,20 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   /// references.
   void build_tree(const Mesh& mesh, const BuildParams& params, GroupPlan& plan,
                   uint64_t& references);
+  /// build's steps (build.cpp), in order: the state emptied, the grid's box and the walk's
+  /// constants set, the parts built (tree, groups, matrix, empty-leaf boxes; `bound`: the peak
+  /// bound), the figures reported.
+  struct BuildPhases;
+  void reset_for_build(const Mesh& mesh, const BuildParams& params, uint64_t estimate);
+  void set_grid_box();
+  void build_parts(const Mesh& mesh, const BuildParams& params, uint64_t bound,
+                   BuildPhases& phases);
+  void fill_groups(const Mesh& mesh, const GroupPlan& plan);
+  void report_build(const BuildParams& params, const std::string& rule, const BuildPhases& phases);
+  std::string subtrees_text(const BuildParams& params) const;
+  std::string groups_text(uint64_t references) const;
+  /// build_tree's flattening of the build tree (tree.cpp).
+  struct TreeFlattener;
 
   const Mesh* mesh_ = nullptr;
   double origin_[3] = {0, 0, 0};

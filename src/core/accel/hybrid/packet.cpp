@@ -470,39 +470,56 @@ void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const 
   }
 }
 
+/// One walk of packet_walk: its K packets, their hits and live lanes, and the walk's steps, each
+/// inlined into packet_walk (the steps read as one loop; out of line, each would pay a call and
+/// the packets' state in memory).
 template <bool kAny, int K>
-bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uint32_t* lanes_of,
-                               const int* which, Hit* hits, bool* out) const {
-  // The packets of the walk (at most 4), each its rays and hits; the t's of each by packet.
-  const PacketRays* packets[K];
-  PacketHits H[K];
-  uint32_t alive[K];  // lanes still walking: any-hit lanes leave at their first hit
-  for (int k = 0; k < K; ++k) {
-    packets[k] = &call_packets[which[k]];
-    H[k].best = packets[k]->tmax;
-    H[k].u = H[k].v = FloatLanes{};
-    H[k].prim = IntLanes{} + int32_t(kInvalidPrim);
-    alive[k] = lanes_of[which[k]];
-  }
+struct GridKdHybrid::PacketWalk {
+  /// Each packet's [t0, t1] in a node.
   struct Span {
     FloatLanes t0[K], t1[K];
   };
+  struct Entry {
+    uint32_t node;
+    Span s;
+  };
+  /// Deep enough for the leaves' subtrees (at most kKdMaxDepth levels); a deeper grid tree
+  /// gives its packets to the single walk.
+  static constexpr int kStack = kKdMaxDepth + 4;
 
-  // The groups of a leaf for packet k, culled against it, then each triangle left against the
-  // lanes m.
-  const auto groups = [&](int k, uint32_t first, uint32_t count, uint32_t m)
-      __attribute__((always_inline)) {
+  const GridKdHybrid& g;
+  const PacketRays* packets[K];  ///< the packets of the walk (at most 4), each its rays
+  PacketHits H[K];               ///< and its hits
+  uint32_t alive[K];             ///< lanes still walking: any-hit lanes leave at their first hit
+  const bool* neg;               ///< the packets' direction signs (shared)
+
+  [[gnu::always_inline]] PacketWalk(const GridKdHybrid& grid, const PacketRays* call_packets,
+                                    const uint32_t* lanes_of, const int* which)
+      : g(grid) {
+    for (int k = 0; k < K; ++k) {
+      packets[k] = &call_packets[which[k]];
+      H[k].best = packets[k]->tmax;
+      H[k].u = H[k].v = FloatLanes{};
+      H[k].prim = IntLanes{} + int32_t(kInvalidPrim);
+      alive[k] = lanes_of[which[k]];
+    }
+    neg = packets[0]->neg;
+  }
+
+  /// The groups of a leaf for packet k, culled against it, then each triangle left against the
+  /// lanes m.
+  [[gnu::always_inline]] void groups(int k, uint32_t first, uint32_t count, uint32_t m) {
     const PacketRays& r = *packets[k];
     PacketHits& h = H[k];
-    const float* p = groups_[0].f + first;
+    const float* p = g.groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
-      const hybrid::SharedCornerGroup g = hybrid::SharedCornerGroup::at(p, left);
-      p = g.end();
-      left -= g.n;
-      for (uint32_t keep = uncull(r, g); keep != 0; keep &= keep - 1) {
+      const hybrid::SharedCornerGroup gr = hybrid::SharedCornerGroup::at(p, left);
+      p = gr.end();
+      left -= gr.n;
+      for (uint32_t keep = uncull(r, gr); keep != 0; keep &= keep - 1) {
         const int i = __builtin_ctz(keep);
-        test_triangle<kAny>(r, h, g.corner(0, i), g.corner(1, i), g.corner(2, i),
-                            g.prim(uint32_t(i)), m);
+        test_triangle<kAny>(r, h, gr.corner(0, i), gr.corner(1, i), gr.corner(2, i),
+                            gr.prim(uint32_t(i)), m);
         if constexpr (kAny) {
           m &= ~h.found;
           alive[k] &= ~h.found;
@@ -510,34 +527,32 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
         }
       }
     }
-  };
-  // The lanes of packet k that still have something to find in [t0, t1].
-  const auto active = [&](int k, const FloatLanes& t0, const FloatLanes& t1)
-      __attribute__((always_inline)) {
+  }
+  /// The lanes of packet k that still have something to find in [t0, t1].
+  [[gnu::always_inline]] uint32_t active(int k, const FloatLanes& t0, const FloatLanes& t1) const {
     uint32_t m = le(t0, t1) & alive[k];
     if constexpr (!kAny) m &= le(t0, H[k].best);
     return m;
-  };
-  const auto any_active = [&](const Span& s) __attribute__((always_inline)) {
+  }
+  [[gnu::always_inline]] bool any_active(const Span& s) const {
     uint32_t m = 0;
     for (int k = 0; k < K; ++k) m |= active(k, s.t0[k], s.t1[k]);
     return m != 0;
-  };
-  // A leaf's triangles (groups from `first`, `count` triangles) for every packet with lanes in
-  // it: the groups' first lines requested at once (up to hybrid::kFlatPrefetchLines), as the
-  // packets would otherwise wait for the header, then the corners, of each in turn.
-  const auto leaf = [&](uint32_t first, uint32_t count, const Span& s)
-      __attribute__((always_inline)) {
-    const char* g = reinterpret_cast<const char*>(groups_[0].f + first);
+  }
+  /// A leaf's triangles (groups from `first`, `count` triangles) for every packet with lanes in
+  /// it: the groups' first lines requested at once (up to hybrid::kFlatPrefetchLines), as the
+  /// packets would otherwise wait for the header, then the corners, of each in turn.
+  [[gnu::always_inline]] void leaf(uint32_t first, uint32_t count, const Span& s) {
+    const char* p = reinterpret_cast<const char*>(g.groups_[0].f + first);
     const uint32_t lines = std::min<uint32_t>(hybrid::kFlatPrefetchLines, (count * 48 + 127) / 64);
-    for (uint32_t l = 0; l < lines; ++l) __builtin_prefetch(g + 64 * l);
+    for (uint32_t l = 0; l < lines; ++l) __builtin_prefetch(p + 64 * l);
     for (int k = 0; k < K; ++k) {
       const uint32_t m = active(k, s.t0[k], s.t1[k]);
       if (m != 0) groups(k, first, count, m);
     }
-  };
-  // Each packet's [t0, t1] clipped to a box (each slab widened by err, as kd_clip).
-  const auto clip = [&](const float* lo, const float* hi, Span& s) __attribute__((always_inline)) {
+  }
+  /// Each packet's [t0, t1] clipped to a box (each slab widened by err, as kd_clip).
+  [[gnu::always_inline]] void clip(const float* lo, const float* hi, Span& s) const {
     for (int k = 0; k < K; ++k)
       for (int a = 0; a < 3; ++a) {
         const FloatLanes tl = (splat(lo[a]) - packets[k]->o[a]) * packets[k]->inv[a];
@@ -546,12 +561,11 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
         s.t0[k] = vmax(s.t0[k], near - packets[k]->err[a]);
         s.t1[k] = vmin(s.t1[k], far + packets[k]->err[a]);
       }
-  };
-  const bool* neg = packets[0]->neg;
-  // A split on axis a at `plane`: whether the packets go to the near side, to the far side or
-  // both (then `far` gets the far side's t's and s keeps the near side's).
-  const auto split = [&](int a, float plane, Span& s, Span& far, bool& to_near, bool& to_far)
-      __attribute__((always_inline)) {
+  }
+  /// A split on axis a at `plane`: whether the packets go to the near side, to the far side or
+  /// both (then `far` gets the far side's t's and s keeps the near side's).
+  [[gnu::always_inline]] void split(int a, float plane, Span& s, Span& far, bool& to_near,
+                                    bool& to_far) const {
     uint32_t need_near = 0, need_far = 0;
     FloatLanes ts[K];
     for (int k = 0; k < K; ++k) {
@@ -572,19 +586,21 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
         far.t1[k] = s.t1[k];
         s.t1[k] = vmin(s.t1[k], ts[k] + packets[k]->err[a]);
       }
-  };
-  struct Entry {
-    uint32_t node;
-    Span s;
-  };
-  // Deep enough for the leaves' subtrees (at most kKdMaxDepth levels); a deeper grid tree
-  // gives its packets to the single walk.
-  constexpr int kStack = kKdMaxDepth + 4;
-  Entry stack[kStack];
+  }
+  /// Pops the next entry of `st` whose span has lanes left into node and s; false once none is.
+  [[gnu::always_inline]] bool pop(Entry* st, int& sp, uint32_t& node, Span& s) const {
+    do {
+      if (sp == 0) return false;
+      --sp;
+      node = st[sp].node;
+      s = st[sp].s;
+    } while (!any_active(s));
+    return true;
+  }
 
-  // A leaf's kd subtree, walked by the packets from its box on.
-  const auto subtree = [&](uint32_t root, Span s) __attribute__((always_inline)) {
-    const KdNode* nodes = sub_nodes_.data();
+  /// A leaf's kd subtree, walked by the packets from its box on (`stack`: kStack entries).
+  [[gnu::always_inline]] void subtree(uint32_t root, Span s, Entry* stack) {
+    const KdNode* nodes = g.sub_nodes_.data();
     const float* box = reinterpret_cast<const float*>(nodes + root);
     clip(box, box + 4, s);
     if (!any_active(s)) return;
@@ -604,18 +620,13 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
       } else if (nd.count() != 0) {
         leaf(nd.prim_offset, nd.count(), s);
       }
-      do {
-        if (sp == 0) return;
-        --sp;
-        node = stack[sp].node;
-        s = stack[sp].s;
-      } while (!any_active(s));
+      if (!pop(stack, sp, node, s)) return;
     }
-  };
+  }
 
-  // A flat subtree: its leaves in the kd walk's order for the packets' octant.
-  const auto flat = [&](uint32_t at, Span s) __attribute__((always_inline)) {
-    const float* fb = flat_subtree_floats_[0].f + at;
+  /// A flat subtree: its leaves in the kd walk's order for the packets' octant.
+  [[gnu::always_inline]] void flat(uint32_t at, Span s) {
+    const float* fb = g.flat_subtree_floats_[0].f + at;
     clip(fb, fb + 4, s);
     if (!any_active(s)) return;
     uint32_t count;
@@ -636,8 +647,8 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
       if (!any_active(met[n_met])) continue;
       uint32_t first;  // stored as floats' bits (records.h)
       std::memcpy(&first, q + 6 * count + i, sizeof first);
-      const char* g = reinterpret_cast<const char*>(groups_[0].f + first);
-      for (int l = 0; l < hybrid::kFlatPrefetchLines; ++l) __builtin_prefetch(g + 64 * l);
+      const char* p = reinterpret_cast<const char*>(g.groups_[0].f + first);
+      for (int l = 0; l < hybrid::kFlatPrefetchLines; ++l) __builtin_prefetch(p + 64 * l);
       met_leaf[n_met++] = i;
     }
     for (uint32_t j = 0; j < n_met; ++j) {
@@ -650,64 +661,73 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
         if (m != 0) groups(k, first, n, m);
       }
     }
-  };
+  }
 
-  // The grid's kd-tree from its root, the packets clipped to the grid's box first.
-  Span s;
-  for (int k = 0; k < K; ++k) {
-    s.t0[k] = packets[k]->tmin;
-    s.t1[k] = packets[k]->tmax;
-  }
-  {
-    const float lo[3] = {world_box_.lo.x, world_box_.lo.y, world_box_.lo.z};
-    const float hi[3] = {world_box_.hi.x, world_box_.hi.y, world_box_.hi.z};
-    clip(lo, hi, s);
-  }
-  Entry top[kStack];
-  int sp = 0;
-  uint32_t node = 0;
-  bool walking = any_active(s);
-  while (walking) {
-    const Node& nd = nodes_[node];
-    if (nd.axis != 3) {
-      const int a = int(nd.axis);
-      if (sp == kStack) return false;
-      bool to_near, to_far;
-      split(a, float(origin_[a] + double(nd.split) * cell_), s, top[sp].s, to_near, to_far);
-      const uint32_t below = node + 1, above = nd.right;
-      const uint32_t near = neg[a] ? above : below, far = neg[a] ? below : above;
-      if (to_near && to_far) top[sp++].node = far;
-      node = to_near ? near : far;
-      if (to_near || to_far) continue;
-    } else {
-      const Leaf& L = leaves_[uint32_t(nd.split)];
-      uint32_t flat_at;
-      std::memcpy(&flat_at, &L.pad, sizeof flat_at);
-      if (hybrid::kFlatSubtrees && flat_at != 0) {
-        flat(flat_at, s);
-      } else if (L.count & kSubtreeFlag) {
-        subtree(L.first, s);
-      } else if (L.count != 0) {
-        leaf(L.first, L.count, s);
-      }
+  /// The grid's kd-tree from its root, the packets clipped to the grid's box first; false when
+  /// its stack would overflow.
+  [[gnu::always_inline]] bool walk() {
+    Span s;
+    for (int k = 0; k < K; ++k) {
+      s.t0[k] = packets[k]->tmin;
+      s.t1[k] = packets[k]->tmax;
     }
-    do {
-      if (sp == 0) {
-        walking = false;
-        break;
+    {
+      const float lo[3] = {g.world_box_.lo.x, g.world_box_.lo.y, g.world_box_.lo.z};
+      const float hi[3] = {g.world_box_.hi.x, g.world_box_.hi.y, g.world_box_.hi.z};
+      clip(lo, hi, s);
+    }
+    Entry top[kStack], stack[kStack];  // the grid tree's and the leaf subtrees'
+    int sp = 0;
+    uint32_t node = 0;
+    bool walking = any_active(s);
+    while (walking) {
+      const Node& nd = g.nodes_[node];
+      if (nd.axis != 3) {
+        const int a = int(nd.axis);
+        if (sp == kStack) return false;
+        bool to_near, to_far;
+        split(a, float(g.origin_[a] + double(nd.split) * g.cell_), s, top[sp].s, to_near, to_far);
+        const uint32_t below = node + 1, above = nd.right;
+        const uint32_t near = neg[a] ? above : below, far = neg[a] ? below : above;
+        if (to_near && to_far) top[sp++].node = far;
+        node = to_near ? near : far;
+        if (to_near || to_far) continue;
+      } else {
+        const Leaf& L = g.leaves_[uint32_t(nd.split)];
+        uint32_t flat_at;
+        std::memcpy(&flat_at, &L.pad, sizeof flat_at);
+        if (hybrid::kFlatSubtrees && flat_at != 0) {
+          flat(flat_at, s);
+        } else if (L.count & kSubtreeFlag) {
+          subtree(L.first, s, stack);
+        } else if (L.count != 0) {
+          leaf(L.first, L.count, s);
+        }
       }
-      --sp;
-      node = top[sp].node;
-      s = top[sp].s;
-    } while (!any_active(s));
+      walking = pop(top, sp, node, s);
+    }
+    return true;
   }
-  for (int k = 0; k < K; ++k) {
-    const int base = 16 * which[k];
-    const uint32_t lanes = lanes_of[which[k]], found = H[k].found & lanes;
-    _mm_mask_storeu_epi8(out + base, __mmask16(lanes),
-                         _mm_maskz_mov_epi8(__mmask16(found), _mm_set1_epi8(1)));
-    if constexpr (!kAny) store_hits(H[k], found, hits + base);
+
+  /// Each packet's answers to its rays' places in hits and out.
+  [[gnu::always_inline]] void store(const uint32_t* lanes_of, const int* which, Hit* hits,
+                                    bool* out) const {
+    for (int k = 0; k < K; ++k) {
+      const int base = 16 * which[k];
+      const uint32_t lanes = lanes_of[which[k]], found = H[k].found & lanes;
+      _mm_mask_storeu_epi8(out + base, __mmask16(lanes),
+                           _mm_maskz_mov_epi8(__mmask16(found), _mm_set1_epi8(1)));
+      if constexpr (!kAny) store_hits(H[k], found, hits + base);
+    }
   }
+};
+
+template <bool kAny, int K>
+bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uint32_t* lanes_of,
+                               const int* which, Hit* hits, bool* out) const {
+  PacketWalk<kAny, K> w(*this, call_packets, lanes_of, which);
+  if (!w.walk()) return false;
+  w.store(lanes_of, which, hits, out);
   return true;
 }
 

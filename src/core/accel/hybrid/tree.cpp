@@ -424,41 +424,43 @@ double hybrid::worst_case_bytes(const Mesh& mesh, const double origin[3], double
   return 2.0 * (top + flat + matrix + expand);
 }
 
-void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, GroupPlan& plan,
-                              uint64_t& references) {
-  TreeBuilder tb(mesh, origin_, cell_, dims_, params, stats_.peak_estimate);
-  std::unique_ptr<BuildNode> root = tb.build_root();
-  stats_.sah_evaluations = tb.sah_evaluations();
+namespace {
+
+/// The kd build's account checked against its peak bound, then the flattening's exact needs
+/// (the references are counted now; leaf subtrees add a few): each reference becomes a lane of
+/// a triangle group, and each leaf pads its last group (at most kWideLanes - 1 lanes a leaf).
+/// Flattening lists the lanes while the build tree is alive, then the groups replace both.
+/// Updates stats' account; returns the build tree's node count.
+double check_flatten_memory(const TreeBuilder& tb, const Mesh& mesh, const BuildParams& params,
+                            BuildStats& stats) {
   const std::string fix =
       "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
       "lower kd_max_depth";
-  stats_.peak_accounted = uint64_t(std::max<int64_t>(0, tb.peak_bytes()));
+  stats.peak_accounted = uint64_t(std::max<int64_t>(0, tb.peak_bytes()));
   if (tb.over_budget())
     throw ParamError("hybrid: the kd build outgrew its peak bound of " +
-                     format_bytes_iec(double(stats_.peak_estimate)) + " (the memory budget of " +
+                     format_bytes_iec(double(stats.peak_estimate)) + " (the memory budget of " +
                      format_bytes_iec(double(effective_memory_budget(params))) +
                      ", or less: the most this grid and the depth limits can need; its account "
                      "reached " +
                      format_bytes_iec(double(tb.peak_bytes())) + " after " +
                      std::to_string(tb.nodes_made()) + " nodes over " +
                      std::to_string(mesh.num_triangles()) + " triangles; a typical scene needs " +
-                     format_bytes_iec(double(stats_.peak_expected)) +
+                     format_bytes_iec(double(stats.peak_expected)) +
                      "): triangles straddling many cells are referenced by every leaf they "
                      "cross; " +
                      fix +
                      ", or raise --memory-budget-mb (0 = half of physical "
                      "memory) if the machine has the memory");
-  // Exact now: the references are counted (leaf subtrees add a few); each becomes a lane of a
-  // triangle group, and each leaf pads its last group (at most kWideLanes - 1 lanes a leaf).
-  // Flattening lists the lanes while the build tree is alive, then the groups replace both.
   const double refs = double(tb.leaf_refs()), nodes = double(tb.nodes_made());
-  const double flat = nodes * sizeof(Node) + (nodes + 1) / 2 * (sizeof(Leaf) + 1);
+  const double flat =
+      nodes * sizeof(GridKdHybrid::Node) + (nodes + 1) / 2 * (sizeof(GridKdHybrid::Leaf) + 1);
   const double lane_count = refs + (nodes + 1) / 2 * double(kWideLanes - 1);
   // A lane's mesh index, and with shared corners its three corner indices (planned, then listed).
   const double lane_bytes = sizeof(uint32_t) + (hybrid::kSharedCorners ? 6 : 0);
   // Checked against the build's peak bound (at most the budget).
   BuildParams bounded = params;
-  bounded.memory_budget = stats_.peak_estimate;
+  bounded.memory_budget = stats.peak_estimate;
   const uint64_t listed = check_memory_budget("hybrid", mesh.num_triangles(),
                                               {{"build tree", double(tb.live_bytes())},
                                                {"references", lane_count * lane_bytes},
@@ -470,22 +472,52 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
        {"triangle groups", lane_count * hybrid::kGroupLaneFloatsAtMost * sizeof(float)},
        {"nodes and leaves", flat}},
       bounded, fix);
-  stats_.peak_accounted = std::max({stats_.peak_accounted, listed, grouped});
-  nodes_.reserve(size_t(nodes));
-  leaves_.reserve(size_t(nodes + 1) / 2);
-  leaf_depth_.reserve(size_t(nodes + 1) / 2);
-  plan = GroupPlan{};
-  plan.lanes.reserve(size_t(refs));
-  if constexpr (hybrid::kSharedCorners) plan.index.reserve(3 * size_t(refs));
-  references = 0;
-  // Shared corners: each leaf's (and subtree leaf's) groups are planned first, in parallel (the
-  // corner sets are most of the groups' build time), in the order flatten meets the leaves.
-  struct LeafGroups {
-    std::vector<uint8_t> fill, corners, index;  ///< per group; three corner indices a lane
-  };
-  std::vector<std::pair<const uint32_t*, uint32_t>> leaf_lists;
+  stats.peak_accounted = std::max({stats.peak_accounted, listed, grouped});
+  return nodes;
+}
+
+/// A leaf's planned groups (shared corners): per group its lanes and distinct corners, and
+/// three corner indices a lane.
+struct LeafGroups {
+  std::vector<uint8_t> fill, corners, index;
+};
+
+/// A flat subtree's leaf with triangles, with its kd box within the subtree's box.
+struct FlatLeaf {
+  const KdNode* node;
+  Box3 box;
+};
+
+}  // namespace
+
+/// Flattens the build tree into the structure's nodes, leaves, leaf subtrees, flat subtrees and
+/// group plan, depth-first: a left child follows its parent, leaves numbered in that order.
+struct GridKdHybrid::TreeFlattener {
+  GridKdHybrid& g;
+  const Mesh& mesh;
+  GroupPlan& plan;
+  uint64_t& references;
+  /// Shared corners: each leaf's (and subtree leaf's) groups, planned before flattening, in the
+  /// order flatten meets the leaves; next_list is the next one flatten takes.
   std::vector<LeafGroups> planned;
-  if constexpr (hybrid::kSharedCorners) {
+  size_t next_list = 0;
+  /// The flat subtrees' floats (records.h, "Flat subtrees"); offset 0 means "no flat list".
+  std::vector<float> flat_list = std::vector<float>(16, 0.0f);
+  bool want_flat;
+  uint32_t max_depth = 0;
+
+  TreeFlattener(GridKdHybrid& grid, const Mesh& m, const BuildParams& params, GroupPlan& p,
+                uint64_t& refs)
+      : g(grid),
+        mesh(m),
+        plan(p),
+        references(refs),
+        want_flat(hybrid::kFlatSubtrees && params.hybrid_flat_subtrees) {}
+
+  /// Shared corners: every leaf's groups planned, in parallel (the corner sets are most of the
+  /// groups' build time): up to kWideLanes lanes and kMaxGroupCorners distinct corners a group.
+  void plan_groups(BuildNode* root) {
+    std::vector<std::pair<const uint32_t*, uint32_t>> leaf_lists;
     auto collect = [&](auto&& self, BuildNode* n) -> void {
       if (n->axis >= 0) {
         self(self, n->kid[0].get());
@@ -499,14 +531,13 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
                 {n->sub_refs.data() + n->sub_nodes[k].prim_offset, n->sub_nodes[k].count()});
       }
     };
-    collect(collect, root.get());
+    collect(collect, root);
     planned.resize(leaf_lists.size());
     tbb::parallel_for(size_t(0), leaf_lists.size(), [&](size_t j) {
       const auto [prims, n] = leaf_lists[j];
       LeafGroups& lg = planned[j];
       lg.index.resize(3 * size_t(n));
       for (uint32_t i = 0; i < n;) {
-        // Up to kWideLanes lanes and kMaxGroupCorners distinct corners.
         hybrid::CornerSet set;
         uint32_t k = 0;
         while (i + k < n && k < uint32_t(kWideLanes) &&
@@ -518,10 +549,8 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
       }
     });
   }
-  size_t next_list = 0;
-  // A leaf's triangles as groups (records.h, "Triangle groups"), in the leaf's order; returns
-  // the first group's float offset.
-  auto add_group = [&](uint32_t fill, uint32_t corners) {
+
+  void add_group(uint32_t fill, uint32_t corners) {
     plan.offset.push_back(uint32_t(plan.floats));
     plan.fill.push_back(fill);
     plan.corners.push_back(corners);
@@ -531,16 +560,18 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
       throw ParamError(
           "hybrid: more than 2^32 floats of triangle groups in the leaves: use a larger cell "
           "size or --hybrid-subtree-min 0");
-  };
-  auto add_groups = [&](const uint32_t* prims, uint32_t n) {
+  }
+  /// A leaf's triangles as groups (records.h, "Triangle groups"), in the leaf's order; returns
+  /// the first group's float offset.
+  uint32_t add_groups(const uint32_t* prims, uint32_t n) {
     const uint64_t first = plan.floats;
     if constexpr (hybrid::kSharedCorners) {
       LeafGroups& lg = planned[next_list++];
       plan.lanes.insert(plan.lanes.end(), prims, prims + n);
       plan.index.insert(plan.index.end(), lg.index.begin(), lg.index.end());
-      for (size_t g = 0, i = 0; g < lg.fill.size(); i += lg.fill[g++]) {
+      for (size_t k = 0, i = 0; k < lg.fill.size(); i += lg.fill[k++]) {
         plan.start.push_back(uint32_t(plan.lanes.size() - n + i));
-        add_group(lg.fill[g], lg.corners[g]);
+        add_group(lg.fill[k], lg.corners[k]);
       }
       lg = LeafGroups{};
     } else {
@@ -554,41 +585,58 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
     }
     references += n;
     return uint32_t(first);
-  };
-  // A subtree's leaves with triangles as one flat list (records.h, "Flat subtrees"), when it
-  // has kFlatMinLeaves to kFlatLeaves of them; returns its float offset in flat_subtree_floats_ (0:
-  // none). `sub` is the relocated subtree in sub_nodes_ (its box, then its nodes).
-  flat_subtree_floats_.clear();
-  std::vector<float> flat_list(16, 0.0f);  // offset 0 means "no flat list"
-  const bool want_flat = hybrid::kFlatSubtrees && params.hybrid_flat_subtrees;
-  auto add_flat = [&](const KdNode* sub) -> uint32_t {
+  }
+
+  /// The leaves with triangles of the subtree from `nd` (box b), depth-first (below first),
+  /// each with its kd box within the subtree's box; a leaf whose box lies outside it holds no
+  /// part of a triangle. False once there are more than kFlatLeaves.
+  bool flat_leaves(const KdNode* nd, Box3 b, std::vector<FlatLeaf>& list) const {
+    if (nd->leaf()) {
+      if (nd->count() == 0) return true;
+      for (int a = 0; a < 3; ++a)
+        if (b.lo[a] > b.hi[a]) return true;
+      list.push_back({nd, b});
+      return list.size() <= hybrid::kFlatLeaves;
+    }
+    const int a = nd->axis();
+    Box3 below = b, above = b;
+    below.hi[a] = std::min(b.hi[a], nd->split);
+    above.lo[a] = std::max(b.lo[a], nd->split);
+    return flat_leaves(nd + 1, below, list) &&
+           flat_leaves(g.sub_nodes_.data() + nd->above(), above, list);
+  }
+  /// Each octant's front-to-back order of the n leaves of `list` under root_node: at a split,
+  /// first the side a ray moving along the octant's signs meets first.
+  void write_flat_orders(const KdNode* root_node, const std::vector<FlatLeaf>& list,
+                         uint8_t* order) const {
+    const uint32_t n = uint32_t(list.size());
+    for (uint32_t oct = 0, k = 0; oct < 8; ++oct) {
+      auto visit = [&](auto&& self, const KdNode* nd) -> void {
+        if (nd->leaf()) {
+          for (uint32_t i = 0; i < n; ++i)
+            if (list[i].node == nd) order[k++] = uint8_t(i);
+          return;
+        }
+        const KdNode* below = nd + 1;
+        const KdNode* above = g.sub_nodes_.data() + nd->above();
+        const bool down = (oct >> nd->axis()) & 1u;
+        self(self, down ? above : below);
+        self(self, down ? below : above);
+      };
+      visit(visit, root_node);
+    }
+  }
+  /// A subtree's leaves with triangles as one flat list (records.h, "Flat subtrees"), when it
+  /// has kFlatMinLeaves to kFlatLeaves of them; returns its float offset in flat_list (0: none).
+  /// `sub` is the relocated subtree in sub_nodes_ (its box, then its nodes).
+  uint32_t add_flat(const KdNode* sub) {
     if (!want_flat) return 0;
-    struct FlatLeaf {
-      const KdNode* node;
-      Box3 box;
-    };
     std::vector<FlatLeaf> list;
     float box8[8];
     std::memcpy(box8, sub, sizeof box8);
     const Box3 sub_box(Vec3(box8[0], box8[1], box8[2]), Vec3(box8[4], box8[5], box8[6]));
     const KdNode* const root_node = sub + kSubBoxNodes;
-    // The leaves with triangles, depth-first (below first), each with its kd box within the
-    // subtree's box; a leaf whose box lies outside it holds no part of a triangle.
-    auto collect = [&](auto&& self, const KdNode* nd, Box3 b) -> bool {
-      if (nd->leaf()) {
-        if (nd->count() == 0) return true;
-        for (int a = 0; a < 3; ++a)
-          if (b.lo[a] > b.hi[a]) return true;
-        list.push_back({nd, b});
-        return list.size() <= hybrid::kFlatLeaves;
-      }
-      const int a = nd->axis();
-      Box3 below = b, above = b;
-      below.hi[a] = std::min(b.hi[a], nd->split);
-      above.lo[a] = std::max(b.lo[a], nd->split);
-      return self(self, nd + 1, below) && self(self, sub_nodes_.data() + nd->above(), above);
-    };
-    if (!collect(collect, root_node, sub_box) || list.size() < hybrid::kFlatMinLeaves) return 0;
+    if (!flat_leaves(root_node, sub_box, list) || list.size() < hybrid::kFlatMinLeaves) return 0;
     const uint32_t n = uint32_t(list.size());
     // Offsets are 32-bit float indices (the leaf record's pad); past that, the kd walk.
     if (flat_list.size() + hybrid::flat_subtree_floats(n) + 16 >= (uint64_t(1) << 32)) return 0;
@@ -607,31 +655,43 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
       std::memcpy(q + 6 * n + i, &first, sizeof first);
       std::memcpy(q + 7 * n + i, &count, sizeof count);
     }
-    // Each octant's front-to-back order: at a split, first the side a ray moving along the
-    // octant's signs meets first.
-    uint8_t* const order = reinterpret_cast<uint8_t*>(q + 8 * n);
-    for (uint32_t oct = 0, k = 0; oct < 8; ++oct) {
-      auto visit = [&](auto&& self, const KdNode* nd) -> void {
-        if (nd->leaf()) {
-          for (uint32_t i = 0; i < n; ++i)
-            if (list[i].node == nd) order[k++] = uint8_t(i);
-          return;
-        }
-        const KdNode* below = nd + 1;
-        const KdNode* above = sub_nodes_.data() + nd->above();
-        const bool down = (oct >> nd->axis()) & 1u;
-        self(self, down ? above : below);
-        self(self, down ? below : above);
-      };
-      visit(visit, root_node);
-    }
+    write_flat_orders(root_node, list, reinterpret_cast<uint8_t*>(q + 8 * n));
     return off;
-  };
-  // Flatten depth-first: left child follows its parent, leaves numbered in that order.
-  uint32_t max_depth = 0;
-  auto flatten = [&](auto&& self, BuildNode* n) -> void {
-    const size_t idx = nodes_.size();
-    nodes_.push_back({});
+  }
+
+  /// Leaf n's subtree relocated into sub_nodes_ (child indices are local to the leaf, and each
+  /// of its leaves gets its own groups in place of its range of sub_refs), or stored flat.
+  void relocate_subtree(BuildNode* n, Leaf& l) {
+    const uint32_t base = uint32_t(g.sub_nodes_.size());
+    if (g.sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
+      throw ParamError(
+          "hybrid: more than 2^29 subtree nodes: use a larger cell size or "
+          "--hybrid-subtree-min 0");
+    for (size_t k = 0; k < n->sub_nodes.size(); ++k) {
+      KdNode kn = n->sub_nodes[k];
+      if (k < kSubBoxNodes) {
+      } else if (kn.leaf()) {
+        kn.prim_offset = add_groups(n->sub_refs.data() + kn.prim_offset, kn.count());
+      } else {
+        kn.bits = ((kn.above() + base + kSubBoxNodes) << 2) | uint32_t(kn.axis());
+      }
+      g.sub_nodes_.push_back(kn);
+    }
+    l.first = base;
+    l.count |= kSubtreeFlag;
+    // A flat subtree replaces the kd nodes, which the walk then never reads.
+    const uint32_t flat_at = add_flat(g.sub_nodes_.data() + base);
+    if (flat_at != 0) {
+      std::memcpy(&l.pad, &flat_at, sizeof flat_at);
+      g.sub_nodes_.resize(base);
+      l.first = 0;
+      ++g.flat_subtrees_;
+    }
+  }
+
+  void flatten(BuildNode* n) {
+    const size_t idx = g.nodes_.size();
+    g.nodes_.push_back({});
     max_depth = std::max(max_depth, uint32_t(n->depth));
     if (n->axis < 0) {
       Leaf l{};
@@ -640,51 +700,43 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
         l.hi[a] = n->hi[a];
       }
       l.count = uint32_t(n->prims.size());
-      if (!n->sub_nodes.empty()) {
-        // Relocate the subtree: child indices are local to the leaf, and each of its leaves
-        // gets its own groups in place of its range of sub_refs.
-        const uint32_t base = uint32_t(sub_nodes_.size());
-        if (sub_nodes_.size() + n->sub_nodes.size() >= (uint64_t(1) << 29))
-          throw ParamError(
-              "hybrid: more than 2^29 subtree nodes: use a larger cell size or "
-              "--hybrid-subtree-min 0");
-        for (size_t k = 0; k < n->sub_nodes.size(); ++k) {
-          KdNode kn = n->sub_nodes[k];
-          if (k < kSubBoxNodes) {
-          } else if (kn.leaf()) {
-            kn.prim_offset = add_groups(n->sub_refs.data() + kn.prim_offset, kn.count());
-          } else {
-            kn.bits = ((kn.above() + base + kSubBoxNodes) << 2) | uint32_t(kn.axis());
-          }
-          sub_nodes_.push_back(kn);
-        }
-        l.first = base;
-        l.count |= kSubtreeFlag;
-        // A flat subtree replaces the kd nodes, which the walk then never reads.
-        const uint32_t flat_at = add_flat(sub_nodes_.data() + base);
-        if (flat_at != 0) {
-          std::memcpy(&l.pad, &flat_at, sizeof flat_at);
-          sub_nodes_.resize(base);
-          l.first = 0;
-          ++flat_subtrees_;
-        }
-      } else {
+      if (!n->sub_nodes.empty())
+        relocate_subtree(n, l);
+      else
         l.first = add_groups(n->prims.data(), uint32_t(n->prims.size()));
-      }
-      nodes_[idx] = {int32_t(leaves_.size()), 0, 3};
-      leaves_.push_back(l);
-      leaf_depth_.push_back(uint8_t(std::min(n->depth, 255)));
+      g.nodes_[idx] = {int32_t(g.leaves_.size()), 0, 3};
+      g.leaves_.push_back(l);
+      g.leaf_depth_.push_back(uint8_t(std::min(n->depth, 255)));
       return;
     }
-    self(self, n->kid[0].get());
-    nodes_[idx] = {n->split, uint32_t(nodes_.size()), uint32_t(n->axis)};
-    self(self, n->kid[1].get());
-  };
-  flatten(flatten, root.get());
-  stats_.max_depth = max_depth;
-  if (flat_list.size() > 16) {  // offset 0 alone: no flat subtree
-    flat_subtree_floats_.assign(flat_list.size() / 16, hybrid::GroupLine{});
-    std::memcpy(flat_subtree_floats_[0].f, flat_list.data(), flat_list.size() * sizeof(float));
+    flatten(n->kid[0].get());
+    g.nodes_[idx] = {n->split, uint32_t(g.nodes_.size()), uint32_t(n->axis)};
+    flatten(n->kid[1].get());
+  }
+};
+
+void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, GroupPlan& plan,
+                              uint64_t& references) {
+  TreeBuilder tb(mesh, origin_, cell_, dims_, params, stats_.peak_estimate);
+  std::unique_ptr<BuildNode> root = tb.build_root();
+  stats_.sah_evaluations = tb.sah_evaluations();
+  const double nodes = check_flatten_memory(tb, mesh, params, stats_);
+  const double refs = double(tb.leaf_refs());
+  nodes_.reserve(size_t(nodes));
+  leaves_.reserve(size_t(nodes + 1) / 2);
+  leaf_depth_.reserve(size_t(nodes + 1) / 2);
+  plan = GroupPlan{};
+  plan.lanes.reserve(size_t(refs));
+  if constexpr (hybrid::kSharedCorners) plan.index.reserve(3 * size_t(refs));
+  references = 0;
+  TreeFlattener f(*this, mesh, params, plan, references);
+  if constexpr (hybrid::kSharedCorners) f.plan_groups(root.get());
+  flat_subtree_floats_.clear();
+  f.flatten(root.get());
+  stats_.max_depth = f.max_depth;
+  if (f.flat_list.size() > 16) {  // offset 0 alone: no flat subtree
+    flat_subtree_floats_.assign(f.flat_list.size() / 16, hybrid::GroupLine{});
+    std::memcpy(flat_subtree_floats_[0].f, f.flat_list.data(), f.flat_list.size() * sizeof(float));
   }
 }
 
