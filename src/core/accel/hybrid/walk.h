@@ -234,7 +234,7 @@ bool GridKdHybrid::walk_begin(WalkState<TriangleTest>& w, const Ray& ray) const 
   // grid's world box (world_box_, widened beyond the grid's rounding) with each slab widened as the
   // kd-tree widens its own, by err (KdRay): the rounding of (lo - o) grows with the origin's
   // coordinates, so a ray from far away that grazes the box at an edge or a corner would be
-  // lost without it (tests/test_hybrid.cpp holds far origins to it). So this clip never
+  // lost without it (tests/test_hybrid_walk.cpp holds far origins to it). So this clip never
   // rejects a ray that reaches the grid, and its entry t is never later than the ray's entry
   // into the grid: the walk starts there (below). Its reciprocals and err serve the leaf
   // subtrees' traversal. kd_begin computes the three axes at once, as the grid-space ray
