@@ -22,14 +22,9 @@ class BruteForce final : public AcceleratorBase<BruteForce> {
     if constexpr (Probe::kTrace) s.visit({StepKind::Leaf, 0, 0, bounds_, ray.tmin, ray.tmax});
     const auto& pos = mesh_->positions;
     for (uint32_t i = 0; i < static_cast<uint32_t>(mesh_->triangles.size()); ++i) {
-      const auto& tri = mesh_->triangles[i];
       s.tri_test(i);
-      float t, u, v;
-      if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, tmax, t, u,
-                                  v)) {
+      if (hit_triangle<TriangleTest, kAny>(rd, pos, mesh_->triangles[i], i, ray.tmin, tmax, hit)) {
         if constexpr (kAny) return true;
-        tmax = t;
-        *hit = {t, i, u, v};
         found = true;
       }
     }

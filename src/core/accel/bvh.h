@@ -141,14 +141,9 @@ bool Bvh::traverse(const Ray& ray, Hit* hit, Probe& s) const {
       s.leaf();
       for (uint32_t i = n.offset, e = n.offset + n.count; i < e; ++i) {
         const uint32_t p = prims_[i];
-        const auto& tri = tris[p];
         s.tri_test(p);
-        float t, u, v;
-        if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, tmax, t, u,
-                                    v)) {
+        if (hit_triangle<TriangleTest, kAny>(rd, pos, tris[p], p, ray.tmin, tmax, hit)) {
           if constexpr (kAny) return true;
-          tmax = t;
-          *hit = {t, p, u, v};
           found = true;
         }
       }

@@ -148,13 +148,8 @@ bool UniformGrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
         }
         slot = prim;
         s.tri_test(prim);
-        const auto& tri = tris[prim];
-        float t, u, v;
-        if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u,
-                                    v)) {
+        if (hit_triangle<TriangleTest, kAny>(rd, pos, tris[prim], prim, ray.tmin, best, hit)) {
           if constexpr (kAny) return true;
-          best = t;
-          *hit = {t, prim, u, v};
           found = true;
         }
       }

@@ -215,18 +215,10 @@ bool IrregularGrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
           continue;
         }
         slot = prim;
-        const auto& tri = tris[prim];
         s.tri_test(prim);
-        float t, u, w;
-        if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u,
-                                    w)) {
-          if constexpr (kAny) {
-            return true;
-          } else {
-            best = t;
-            *hit = {t, prim, u, w};
-            found = true;
-          }
+        if (hit_triangle<TriangleTest, kAny>(rd, pos, tris[prim], prim, ray.tmin, best, hit)) {
+          if constexpr (kAny) return true;
+          found = true;
         }
       }
     }

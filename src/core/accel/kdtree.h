@@ -120,13 +120,8 @@ bool KdTree::traverse(const Ray& ray, Hit* hit, Probe& s) const {
     for (uint32_t i = 0; i < count; ++i) {
       const uint32_t prim = list[i];
       s.tri_test(prim);
-      const auto& tri = tris[prim];
-      float t, u, v;
-      if (TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], ray.tmin, best, t, u,
-                                  v)) {
+      if (hit_triangle<TriangleTest, kAny>(rd, pos, tris[prim], prim, ray.tmin, best, hit)) {
         if constexpr (kAny) return true;
-        best = t;
-        *hit = {t, prim, u, v};
         found = true;
       }
     }

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cmath>
+#include <cstdint>
 #include <utility>
 
 #include "math/ray.h"
@@ -145,5 +146,22 @@ struct MollerTest {
 /// enough (53-bit) that disagreements with float structures are attributable to them.
 bool intersect_triangle_double(const Ray& ray, const Vec3& v0, const Vec3& v1, const Vec3& v2,
                                double tmin, double tmax, double& t, double& u, double& v);
+
+/// One triangle of a scalar leaf loop: triangle `prim`, corners `tri` of `pos`, against the
+/// prepared ray over [tmin, best). True on a hit; a closest-hit query (kAny false) then
+/// narrows `best` to it and writes it to `*hit` (an any-hit query writes nothing).
+template <class TriangleTest, bool kAny, class Positions, class Corners>
+[[gnu::always_inline]] inline bool hit_triangle(const typename TriangleTest::RayData& rd,
+                                                const Positions& pos, const Corners& tri,
+                                                uint32_t prim, float tmin, float& best, Hit* hit) {
+  float t, u, v;
+  if (!TriangleTest::intersect(rd, pos[tri[0]], pos[tri[1]], pos[tri[2]], tmin, best, t, u, v))
+    return false;
+  if constexpr (!kAny) {
+    best = t;
+    *hit = {t, prim, u, v};
+  }
+  return true;
+}
 
 }  // namespace kdgrid

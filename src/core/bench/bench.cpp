@@ -38,15 +38,6 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-std::string now_iso8601() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  localtime_r(&t, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S%z", &tm);
-  return buf;
-}
-
 bool is_any_hit(const std::string& set) {
   return set == "shadow";
 }

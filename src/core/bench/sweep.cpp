@@ -536,15 +536,6 @@ void sweep_spp(const SweepOptions& o, SweepTable& t) {
   }
 }
 
-std::string now_iso8601() {
-  const std::time_t tt = std::time(nullptr);
-  std::tm tm{};
-  localtime_r(&tt, &tm);
-  char buf[64];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S%z", &tm);
-  return buf;
-}
-
 }  // namespace
 
 // ---- public ------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <ctime>
 
 namespace kdgrid {
 
@@ -17,6 +18,15 @@ std::string format_bytes_iec(double b) {
   if (b >= double(1 << 20)) return format_double("%.3g MiB", b / double(1 << 20));
   if (b >= 1024.0) return format_double("%.3g KiB", b / 1024.0);
   return format_double("%.0f bytes", b);
+}
+
+std::string now_iso8601() {
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  localtime_r(&now, &tm);
+  char buf[64];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S%z", &tm);
+  return buf;
 }
 
 }  // namespace kdgrid

@@ -13,4 +13,7 @@ std::string format_double(const char* printf_format, double v);
 /// "12.3 MiB", "1.50 GiB", "512 bytes" (three significant digits, binary units).
 std::string format_bytes_iec(double bytes);
 
+/// The local time now in ISO 8601 with its UTC offset ("2026-12-06T21:50:53+0000"), for reports.
+std::string now_iso8601();
+
 }  // namespace kdgrid
