@@ -46,9 +46,9 @@ const std::vector<FlagCase>& flag_cases() {
        [](const AccelOptions&, const BuildParams& p) { return p.grid_lambda == 2.0f; }},
       {"--kd-intersection-cost", "--kd-cost-ratio", "3",
        [](const AccelOptions&, const BuildParams& p) { return p.kd_intersection_cost == 3.0f; }},
-      {"--hybrid-intersection-cost", "--hybrid-cost-ratio", "2.5",
+      {"--hybrid-intersection-cost", "--hybrid-cost-ratio", "3.5",
        [](const AccelOptions&, const BuildParams& p) {
-         return p.hybrid_intersection_cost == 2.5f;
+         return p.hybrid_intersection_cost == 3.5f;
        }},
       {"--hybrid-subtree-min", "--hybrid-subtree", "7",
        [](const AccelOptions&, const BuildParams& p) { return p.hybrid_subtree_min == 7u; }},

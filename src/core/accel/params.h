@@ -69,9 +69,13 @@ struct BuildParams {
   /// (docs/LIMITS.md, "The guards' constants"); 0 = no limit (the memory budget still
   /// applies). The auto size is never refused by it.
   double hybrid_max_build_seconds = 10.0;
-  /// Hybrid traversal/intersection costs for its SAH; defaults match the kd-tree's.
+  /// Hybrid traversal/intersection costs for its top-level SAH. A group test costs 2.5 steps
+  /// (the kd-tree's ratio is 1.5): a step of the grid is a lookup, and at the kd-tree's ratio the
+  /// SAH keeps the cell layer holding a large flat polygon (a ceiling, a wall) in one leaf with
+  /// the empty room beside it, which every ray crossing the room then tests (docs/HYBRID.md,
+  /// "Large flat polygons").
   float hybrid_traversal_cost = 1.0f;
-  float hybrid_intersection_cost = 1.5f;
+  float hybrid_intersection_cost = 2.5f;
   /// Leaves referencing more than this many triangles get a kd subtree built by the
   /// kd-tree's builder over the leaf's triangles (split planes anywhere inside the leaf, the
   /// kd_* costs, at most GridKdHybrid::kSubMaxDepth levels), walked by the kd-tree's traversal over
