@@ -306,8 +306,9 @@ TEST(WideLeaves, SharedCornerGroupsStoreEachCornerOnce) {
     const auto [lanes, corners] = lanes_and_corners(h.build(c.mesh, p));
     if (std::string(c.name) == "soup") {
       EXPECT_GT(lanes, 1.0) << c.name;
-      EXPECT_LE(lanes, 10.0) << c.name;                // 32 corners at most, three new ones a lane
-      EXPECT_NEAR(corners, 3 * lanes, 0.1) << c.name;  // the figures have one decimal
+      EXPECT_LE(lanes, 10.0) << c.name;  // 32 corners at most, three new ones a lane
+      // Both figures are rounded to one decimal: 3 x 0.05 + 0.05 apart at most.
+      EXPECT_NEAR(corners, 3 * lanes, 0.2 + 1e-9) << c.name;
     } else {
       EXPECT_GT(lanes, 4.0) << c.name;
       EXPECT_LT(corners, 1.6 * lanes) << c.name;  // shared: well under three a lane
