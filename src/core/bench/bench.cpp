@@ -186,7 +186,7 @@ std::string render_line(const RenderFigures& r, bool against_reference) {
                      " Mrays/s";
   if (against_reference)
     line += " (x" + format_double("%.2f", r.ratio_to_reference) + " reference), " +
-            std::to_string(r.pixels_differ) + " pixels differ visibly from its image";
+            std::to_string(r.pixels_differ) + " pixels of its PNG differ from the reference's";
   return line;
 }
 
@@ -428,7 +428,7 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
       say("  rays:" + sizes);
 
       std::vector<std::vector<Hit>> ref_hits;
-      std::vector<float> ref_image;
+      std::vector<uint8_t> ref_image;
       RenderJob job;
       job.scene = &scene;
       job.camera = cam;

@@ -129,9 +129,9 @@ struct RenderFigures {
   /// faster than the reference), each reference pass timed just before; 1 for the reference.
   double ratio_to_reference = 0;
   double reference_seconds = 0;  ///< the reference's median pass time behind the ratio
-  /// Pixels whose colour differs visibly from the reference render's (a channel by more than
-  /// 1/255, relative above 1: another triangle of a tie or an edge, not the last bits of a
-  /// barycentric); -1 when not compared.
+  /// Pixels whose 8-bit sRGB colour (as written to PNG) differs in any channel from the
+  /// reference render's (srgb8_difference, as `kdgrid sweep scale` compares): another triangle
+  /// of a tie or an edge, not the last bits of a barycentric; -1 when not compared.
   int64_t pixels_differ = -1;
   uint64_t rays() const { return primary + shadow + reflection + refraction; }
 };

@@ -1,30 +1,22 @@
 #include "bench/bench_render.h"
 
-#include <algorithm>
-#include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <memory>
 
 #include "bench/probes.h"
+#include "image/image_io.h"
 #include "render/renderer.h"
 
 namespace kdgrid {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-/// A channel differs visibly when it moves by more than one step of an 8-bit display (relative
-/// above 1): other structures report the same triangles with barycentrics rounded otherwise,
-/// which moves interpolated normals, and so colours, in their last bits.
-constexpr float kVisibleDifference = 1.0f / 255.0f;
-
-/// One pass of `r` from scratch; its wall time in seconds.
+/// One pass of `r` from scratch; its wall time in seconds (Renderer::seconds()).
 double timed_pass(Renderer& r) {
   r.reset();
-  const auto t0 = Clock::now();
   r.render_pass();
-  return std::chrono::duration<double>(Clock::now() - t0).count();
+  return r.seconds();
 }
 
 }  // namespace
@@ -60,21 +52,17 @@ RenderFigures measure_render(const Accelerator& acc, const RenderJob& job, const
   f.ratio_to_reference = theirs ? median(ratios) : 1.0;
   f.reference_seconds = theirs ? median(reference_reps) : f.seconds_median;
 
-  std::vector<float> image;
-  mine.resolve(image);
+  // The pictures as written to PNG, compared as `kdgrid sweep scale` compares its renders.
+  std::vector<float> rgb;
+  mine.resolve(rgb);
+  std::vector<uint8_t> image;
+  tonemap_srgb8(rgb, image);
   if (!theirs) {
     if (job.reference_image) *job.reference_image = std::move(image);
     f.pixels_differ = 0;
-  } else if (job.reference_image && job.reference_image->size() == image.size()) {
-    const std::vector<float>& ref = *job.reference_image;
-    f.pixels_differ = 0;
-    for (size_t p = 0; p + 2 < image.size(); p += 3) {
-      bool differ = false;
-      for (size_t ch = p; ch < p + 3; ++ch)
-        differ |= std::fabs(image[ch] - ref[ch]) >
-                  kVisibleDifference * std::max(1.0f, std::fabs(ref[ch]));
-      f.pixels_differ += differ;
-    }
+  } else if (job.reference_image) {
+    const double fraction = srgb8_difference(image, *job.reference_image).pixels_differing;
+    f.pixels_differ = std::llround(fraction * double(o.width) * double(o.height));
   }
   return f;
 }

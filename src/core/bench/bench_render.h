@@ -2,6 +2,7 @@
 // scene through one structure, paired pass by pass with the same render through the reference.
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include "accel/accelerator.h"
@@ -16,9 +17,9 @@ struct RenderJob {
   const Scene* scene = nullptr;
   Camera camera;
   const Accelerator* reference = nullptr;
-  /// The reference's image (linear RGB, Renderer::resolve): written while the reference is
+  /// The reference's picture as written to PNG (8-bit sRGB): written while the reference is
   /// measured, compared with every other structure's.
-  std::vector<float>* reference_image = nullptr;
+  std::vector<uint8_t>* reference_image = nullptr;
 };
 
 /// Renders `reps` passes of one sample per pixel (width x height of `o`, pixel centres and the
