@@ -222,6 +222,7 @@ void run_render(const RenderArgs& a) {
     threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
   if (!a.stats_json.empty())
     check_output_path(a.stats_json, "--stats-json", {".json"}, {scene_path, a.output});
+  require_image_module();
 
   const Scene scene = load_scene(scene_path, a.scale);
   // One pass: passes are progressive and Ctrl-C keeps the finished ones, but a single pass

@@ -5,8 +5,6 @@
 #include <cstring>
 #include <stdexcept>
 
-#include <OpenImageIO/imageio.h>
-
 #include "image/image_io.h"
 #include "viewer/overlay.h"
 

@@ -244,6 +244,8 @@ void check_options(ViewerOptions& o, const std::string& pick, int threads) {
         "--diff-exr writes the difference with the pinned heat map: give "
         "--pin-heatmap (and --rebuild-cell-size or another change)");
   if (!o.diff_exr.empty()) kdgrid::check_image_extension(o.diff_exr);
+  if (!o.screenshot.empty() || !o.export_heatmap.empty() || !o.diff_exr.empty())
+    kdgrid::require_image_module();
   if (o.max_samples < o.min_samples) o.max_samples = o.min_samples;
 }
 

@@ -1,22 +1,84 @@
 #include "image/image_io.h"
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
+#include <dlfcn.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
+#include <mutex>
 
+#include "image/image_module.h"
 #include "util/atomic_file.h"
 #include "util/error.h"
 #include "util/format.h"
 #include "util/input_file.h"
 #include "util/memory.h"
+#include "util/paths.h"
 
 namespace kdgrid {
 
 namespace {
+
+namespace fs = std::filesystem;
+
+#ifndef KDGRID_IMAGE_MODULE_FROM_BIN
+#define KDGRID_IMAGE_MODULE_FROM_BIN "../lib/kdgrid"
+#endif
+
+/// Where the image module may be, in order: beside the executable, where `cmake --install`
+/// puts it for PREFIX/bin (KDGRID_IMAGE_MODULE_FROM_BIN, relative), and for an executable in a
+/// build tree (build/PRESET/src/cli, build/PRESET/tests, ...) the build tree's top, the
+/// nearest of its ancestors that holds a CMakeCache.txt.
+std::vector<fs::path> image_module_candidates() {
+  const fs::path exe = executable_dir();
+  std::vector<fs::path> out;
+  if (exe.empty()) return out;
+  out.push_back(exe / image_module::kFileName);
+  out.push_back(exe / KDGRID_IMAGE_MODULE_FROM_BIN / image_module::kFileName);
+  std::error_code ec;
+  fs::path dir = exe;
+  for (int up = 0; up < 4 && dir != dir.parent_path(); ++up, dir = dir.parent_path())
+    if (fs::exists(dir / "CMakeCache.txt", ec)) {
+      out.push_back(dir / image_module::kFileName);
+      break;
+    }
+  return out;
+}
+
+/// The image module's Api, loaded on first use and kept for the life of the process. Throws
+/// Error naming where it looked when no candidate loads.
+const image_module::Api& image_api() {
+  static std::mutex mutex;
+  static const image_module::Api* api = nullptr;
+  const std::lock_guard lock(mutex);
+  if (api) return *api;
+  std::string tried;
+  for (const fs::path& candidate : image_module_candidates()) {
+    std::error_code ec;
+    if (!fs::exists(candidate, ec)) continue;
+    void* module = dlopen(candidate.c_str(), RTLD_NOW | RTLD_LOCAL);
+    if (!module) {
+      const char* why = dlerror();
+      tried +=
+          (tried.empty() ? ": " : "; ") + candidate.string() + ": " + (why ? why : "cannot load");
+      continue;
+    }
+    using Entry = const image_module::Api* (*)();
+    auto entry = reinterpret_cast<Entry>(dlsym(module, image_module::kEntryPoint));
+    if (entry && (api = entry())) return *api;
+    tried +=
+        (tried.empty() ? ": " : "; ") + candidate.string() + ": no " + image_module::kEntryPoint;
+  }
+  const std::string module =
+      std::string("kdgrid's image module ") + image_module::kFileName + " (OpenImageIO)";
+  if (tried.empty())
+    throw Error("cannot read or write images: " + module +
+                " is neither beside the executable, in " KDGRID_IMAGE_MODULE_FROM_BIN
+                " from it, nor at the top of its build tree; reinstall or rebuild kdgrid");
+  throw Error("cannot read or write images: " + module + " does not load" + tried);
+}
 
 float srgb_to_linear(float c) {
   return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
@@ -33,13 +95,12 @@ void verify_encoded_image(const std::string& path, const std::string& format_nam
   if (png && (bytes.size() < 12 || std::memcmp(bytes.data() + bytes.size() - 12, kIend, 12) != 0))
     throw Error(path + ": the PNG encoder produced an incomplete image (" +
                 std::to_string(bytes.size()) + " bytes, no IEND chunk); the file was not changed");
-  OIIO::Filesystem::IOMemReader reader(bytes.data(), bytes.size());
-  auto in = OIIO::ImageInput::open(format_name, nullptr, &reader);
-  if (!in || in->spec().width != width || in->spec().height != height)
+  std::string why;
+  const auto in = image_api().open_memory(format_name, bytes.data(), bytes.size(), why);
+  if (!in || in->header().width != width || in->header().height != height)
     throw Error(path + ": the encoded image does not read back as " + std::to_string(width) + "x" +
-                std::to_string(height) + (in ? "" : " (" + OIIO::geterror() + ")") +
+                std::to_string(height) + (in ? "" : " (" + why + ")") +
                 "; the file was not changed");
-  in->close();
 }
 
 }  // namespace
@@ -49,6 +110,10 @@ void check_image_extension(const std::string& path) {
   if (ext != ".png" && ext != ".exr")
     throw ParamError(path + ": unsupported image format '" + ext +
                      "'; kdgrid writes .png (8-bit sRGB) and .exr (linear float)");
+}
+
+void require_image_module() {
+  image_api();
 }
 
 void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, float exposure) {
@@ -63,30 +128,19 @@ void tonemap_srgb8(const std::vector<float>& rgb, std::vector<uint8_t>& out, flo
 
 namespace {
 
-/// Encodes `pixels` (3 channels of `type`, row 0 at the top) as `spec` in memory (OpenImageIO's
-/// PNG writer does not report a failed write to a file), checks the encoding by decoding its
-/// header back, then writes it through AtomicFile, whose writes and close are all checked: a
-/// full disk leaves the old image in place.
-void encode_and_write(const std::string& path, const OIIO::ImageSpec& spec, OIIO::TypeDesc type,
-                      const void* pixels) {
-  using namespace OIIO;
+/// Encodes `pixels` (3 channels, floats or 8-bit, row 0 at the top) with `attributes` in memory
+/// (OpenImageIO's PNG writer does not report a failed write to a file), checks the encoding by
+/// decoding its header back, then writes it through AtomicFile, whose writes and close are all
+/// checked: a full disk leaves the old image in place.
+void encode_and_write(const std::string& path, int width, int height, bool as_float,
+                      const void* pixels, const image_module::Attributes& attributes = {}) {
   const bool png = lower_extension(path) == ".png";
   const std::string format_name = png ? "x.png" : "x.exr";  // picks the encoder
-  auto out = ImageOutput::create(format_name);
-  if (!out) throw Error(path + ": cannot create an image writer: " + OIIO::geterror());
   std::vector<unsigned char> encoded;
-  Filesystem::IOVecOutput sink(encoded);
-  out->set_ioproxy(&sink);
-  if (!out->open(format_name, spec))
-    throw Error(path + ": cannot start encoding the image: " + out->geterror());
-  bool ok = out->write_image(type, pixels);
-  std::string err = ok ? "" : out->geterror();
-  if (!out->close() && ok) {
-    ok = false;
-    err = out->geterror();
-  }
-  if (!ok) throw Error(path + ": encoding the image failed: " + err + "; the file was not changed");
-  verify_encoded_image(path, format_name, encoded, spec.width, spec.height);
+  std::string why;
+  if (!image_api().encode(format_name, width, height, as_float, pixels, attributes, encoded, why))
+    throw Error(path + ": " + why + "; the file was not changed");
+  verify_encoded_image(path, format_name, encoded, width, height);
   write_file_atomically(
       path, std::string_view(reinterpret_cast<const char*>(encoded.data()), encoded.size()));
 }
@@ -95,61 +149,58 @@ void encode_and_write(const std::string& path, const OIIO::ImageSpec& spec, OIIO
 
 void write_image(const std::string& path, int width, int height, const std::vector<float>& rgb,
                  const std::map<std::string, std::string>& metadata) {
-  using namespace OIIO;
   check_image_extension(path);
   if (width < 1 || height < 1 || rgb.size() != size_t(width) * size_t(height) * 3)
     throw ParamError(path + ": image data does not match " + std::to_string(width) + "x" +
                      std::to_string(height) + " RGB");
   const bool png = lower_extension(path) == ".png";
-  ImageSpec spec(width, height, 3, png ? TypeDesc::UINT8 : TypeDesc::FLOAT);
-  for (const auto& [key, value] : metadata) spec.attribute(kMetaPrefix + key, value);
-  if (!png) spec.attribute("compression", "zip");
+  image_module::Attributes attributes;
+  for (const auto& [key, value] : metadata) attributes.emplace_back(kMetaPrefix + key, value);
   if (png) {
     std::vector<uint8_t> bytes;
     tonemap_srgb8(rgb, bytes);
-    encode_and_write(path, spec, TypeDesc::UINT8, bytes.data());
+    encode_and_write(path, width, height, false, bytes.data(), attributes);
   } else {
-    encode_and_write(path, spec, TypeDesc::FLOAT, rgb.data());
+    attributes.emplace_back("compression", "zip");
+    encode_and_write(path, width, height, true, rgb.data(), attributes);
   }
 }
 
 void write_png_rgb8(const std::string& path, int width, int height,
                     const std::vector<uint8_t>& rgb) {
-  using namespace OIIO;
   if (lower_extension(path) != ".png")
     throw ParamError(path + ": a screenshot is a PNG; name the file with the .png extension");
   if (width < 1 || height < 1 || rgb.size() != size_t(width) * size_t(height) * 3)
     throw ParamError(path + ": image data does not match " + std::to_string(width) + "x" +
                      std::to_string(height) + " RGB");
-  encode_and_write(path, ImageSpec(width, height, 3, TypeDesc::UINT8), TypeDesc::UINT8, rgb.data());
+  encode_and_write(path, width, height, false, rgb.data());
 }
 
 ImageRGB read_image(const std::string& path) {
-  using namespace OIIO;
-  auto in = ImageInput::open(path);
-  if (!in) throw LoadError(path + ": cannot read image: " + OIIO::geterror());
-  const ImageSpec& spec = in->spec();
-  const int nc = spec.nchannels;
+  std::string why;
+  const auto in = image_api().open_file(path, why);
+  if (!in) throw LoadError(path + ": cannot read image: " + why);
+  const image_module::Header& spec = in->header();
+  const int nc = spec.channels;
+  if (spec.width <= 0 || spec.height <= 0 || nc <= 0 || spec.depth > 1)
+    throw LoadError(path + ": cannot read image: unsupported image layout");
   std::vector<float> data(size_t(spec.width) * spec.height * nc);
-  if (!in->read_image(0, 0, 0, nc, TypeDesc::FLOAT, data.data()))
-    throw LoadError(path + ": cannot read image pixels: " + in->geterror());
+  if (!in->read(nc, true, data.data(), why))
+    throw LoadError(path + ": cannot read image pixels: " + why);
   ImageRGB img;
   img.width = spec.width;
   img.height = spec.height;
   img.rgb.resize(size_t(spec.width) * spec.height * 3);
   // Integer formats hold display (sRGB) values; float formats (EXR) hold linear ones.
-  const bool linearise = !spec.format.is_floating_point();
+  const bool linearise = !spec.floating;
   for (size_t i = 0; i < size_t(spec.width) * spec.height; ++i)
     for (int ch = 0; ch < 3; ++ch) {
       const float v = data[i * nc + std::min(ch, nc - 1)];
       img.rgb[i * 3 + ch] = linearise ? srgb_to_linear(v) : v;
     }
-  for (const ParamValue& p : spec.extra_attribs) {
-    const std::string name = p.name().string();
-    if (name.rfind(kMetaPrefix, 0) == 0 && p.type() == TypeDesc::STRING)
-      img.metadata[name.substr(std::string(kMetaPrefix).size())] = p.get_string();
-  }
-  in->close();
+  for (const auto& [name, value] : spec.strings)
+    if (name.rfind(kMetaPrefix, 0) == 0)
+      img.metadata[name.substr(std::string(kMetaPrefix).size())] = value;
   return img;
 }
 
@@ -225,10 +276,10 @@ bool texture_size_ok(int width, int height, int channels, std::string& why) {
 namespace {
 
 /// The texture of the image `in` has opened (its header read); see read_texture_file.
-std::optional<Texture> read_texture(OIIO::ImageInput& in, const std::string& name, std::string& why,
-                                    bool decode) {
-  const OIIO::ImageSpec spec = in.spec();
-  const int nch = spec.nchannels;
+std::optional<Texture> read_texture(image_module::Reader& in, const std::string& name,
+                                    std::string& why, bool decode) {
+  const image_module::Header& spec = in.header();
+  const int nch = spec.channels;
   if (spec.width <= 0 || spec.height <= 0 || nch <= 0 || spec.depth > 1) {
     why = "unsupported image layout";
     return std::nullopt;
@@ -241,16 +292,12 @@ std::optional<Texture> read_texture(OIIO::ImageInput& in, const std::string& nam
   t.height = spec.height;
   t.channels = 3;
   // Float images (EXR, HDR) hold linear values; 8-bit colour images are conventionally sRGB.
-  t.srgb = !spec.format.is_floating_point();
+  t.srgb = !spec.floating;
   t.name = name;
   if (!decode) return t;
   std::vector<uint8_t> px(size_t(spec.width) * size_t(spec.height) * size_t(used));
-  // libjpeg reports a truncated JPEG as a warning, fills the missing rows with grey and
-  // succeeds; OpenImageIO keeps the warning as an error message: either way the texture is
-  // refused, as a truncated PNG is.
-  const bool ok = in.read_image(0, 0, 0, used, OIIO::TypeDesc::UINT8, px.data());
-  if (!ok || in.has_error()) {
-    why = in.geterror();
+  // A truncated JPEG, which libjpeg only warns of, is refused as a truncated PNG is.
+  if (!in.read(used, false, px.data(), why)) {
     while (!why.empty() && (why.back() == '\n' || why.back() == ' ')) why.pop_back();
     std::replace(why.begin(), why.end(), '\n', ' ');
     why = "cannot decode the pixels (" + printable(why.empty() ? "unknown error" : why, 200) +
@@ -270,13 +317,16 @@ std::optional<Texture> read_texture_file(const std::string& path, std::string& w
     why = e.what();
     return std::nullopt;
   }
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) {
-    why = printable(OIIO::geterror(), 200);
-    if (why.empty()) why = "cannot open";
+  try {
+    const auto in = image_api().open_file(path, why);
+    if (in) return read_texture(*in, path, why, decode);
+  } catch (const Error& e) {
+    why = e.what();
     return std::nullopt;
   }
-  return read_texture(*in, path, why, decode);
+  why = printable(why, 200);
+  if (why.empty()) why = "cannot open";
+  return std::nullopt;
 }
 
 std::optional<Texture> decode_texture(const unsigned char* bytes, size_t size,
@@ -288,13 +338,15 @@ std::optional<Texture> decode_texture(const unsigned char* bytes, size_t size,
     return std::nullopt;
   }
   const std::string format = png ? "x.png" : "x.jpg";
-  OIIO::Filesystem::IOMemReader reader(bytes, size);
-  auto in = OIIO::ImageInput::open(format, nullptr, &reader);
-  if (!in) {
-    why = "cannot decode (" + printable(OIIO::geterror(), 200) + ")";
+  try {
+    const auto in = image_api().open_memory(format, bytes, size, why);
+    if (in) return read_texture(*in, name, why, decode);
+  } catch (const Error& e) {
+    why = e.what();
     return std::nullopt;
   }
-  return read_texture(*in, name, why, decode);
+  why = "cannot decode (" + printable(why, 200) + ")";
+  return std::nullopt;
 }
 
 }  // namespace kdgrid

@@ -43,6 +43,11 @@ void write_png_rgb8(const std::string& path, int width, int height,
 /// Throws ParamError unless `path` ends in an extension write_image supports (.png, .exr).
 void check_image_extension(const std::string& path);
 
+/// Loads the image module (image_module.h) that reads and writes images, as the first image
+/// read or write would; throws Error naming where it looked when it cannot. A command that will
+/// write an image calls it before its work.
+void require_image_module();
+
 /// Reads any image OpenImageIO understands into linear float RGB (8-bit sRGB files are
 /// linearised; grey is replicated, alpha dropped). Throws LoadError naming the path.
 ImageRGB read_image(const std::string& path);
