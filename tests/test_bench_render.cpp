@@ -8,7 +8,10 @@
 
 #include <nlohmann/json.hpp>
 
+#include "accel/accelerator.h"
 #include "bench/bench.h"
+#include "bench/bench_render.h"
+#include "scene/load.h"
 
 namespace kdgrid {
 namespace {
@@ -65,6 +68,40 @@ TEST(BenchRender, EveryStructureRendersTheSamePictureBesideTheReference) {
   EXPECT_NE(md.find("### The whole render"), std::string::npos) << md;
   EXPECT_NE(md.find("| cornell | hybrid | " + std::to_string(ref.rays()) + " |"), std::string::npos)
       << md;
+}
+
+TEST(BenchRender, PicturesThatDifferAreCountedPixelByPixel) {
+  // The column's comparison itself: the reference's picture (measured without a reference),
+  // then structures compared with it, as run_bench pairs them.
+  const Scene scene = load_scene(std::string(KDGRID_SOURCE_DIR) + "/assets/cornell.gltf");
+  const auto full = build_accelerator("bvh", scene.mesh, BuildParams{});
+  BenchOptions o;
+  o.width = o.height = 32;
+  o.reps = 1;
+  std::vector<uint8_t> ref_image;
+  RenderJob job;
+  job.scene = &scene;
+  job.camera = *scene.camera;
+  job.reference_image = &ref_image;
+  EXPECT_EQ(measure_render(*full, job, o).pixels_differ, 0);
+  ASSERT_EQ(ref_image.size(), size_t(32 * 32 * 3));
+  job.reference = full.get();
+  EXPECT_EQ(measure_render(*full, job, o).pixels_differ, 0);
+
+  // Three pixels of the reference's picture changed (one channel each): exactly three differ.
+  for (const size_t px : {0u, 517u, 1023u}) ref_image[px * 3 + px % 3] ^= 0x40;
+  EXPECT_EQ(measure_render(*full, job, o).pixels_differ, 3);
+  for (const size_t px : {0u, 517u, 1023u}) ref_image[px * 3 + px % 3] ^= 0x40;
+
+  // A structure over half the scene's triangles (a prefix, so its hits name the scene's own
+  // triangles) misses the rest: another picture.
+  Mesh half = scene.mesh;
+  half.triangles.resize(half.triangles.size() / 2);
+  if (!half.material_ids.empty()) half.material_ids.resize(half.triangles.size());
+  const auto part = build_accelerator("bvh", half, BuildParams{});
+  const int64_t differ = measure_render(*part, job, o).pixels_differ;
+  EXPECT_GT(differ, 32);
+  EXPECT_LE(differ, 32 * 32);
 }
 
 TEST(BenchRender, NoRenderColumnUnlessAskedFor) {

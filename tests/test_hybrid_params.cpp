@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <random>
 #include <string>
 #include <utility>
 #include <vector>
@@ -346,6 +347,34 @@ TEST(HybridEstimate, CellLargerThanTheSceneIsOneCellWalkedLikeTheKdTree) {
   EXPECT_LT(tests_one, 3.0 * tests_grid)
       << "one cell " << tests_one / double(rays.size()) << " tests per ray, auto grid "
       << tests_grid / double(rays.size());
+}
+
+TEST(HybridEstimate, AOneCellSizeReadBackAsAFloatIsStillOneCell) {
+  // The viewer's panel reads a built size back as a float (its cell-size field) and estimates
+  // it: after a one-cell build that is the scene's largest extent, rounded either way.
+  // Non-cubic boxes across the origin: an extent hi - lo needs more bits than a float has
+  // about half the time, and half of those round down.
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> neg(-100.0f, -0.01f), pos(0.01f, 100.0f);
+  int rounded_down = 0;
+  for (int k = 0; k < 64; ++k) {
+    const Vec3 lo(neg(rng), neg(rng), neg(rng)), hi(pos(rng), pos(rng), pos(rng));
+    Mesh m;
+    m.positions = {lo, Vec3(hi.x, lo.y, hi.z), hi, Vec3(lo.x, hi.y, lo.z)};
+    m.triangles = {{0, 1, 2}, {0, 3, 2}};
+    GridKdHybrid one;
+    one.build(m, params_with(1e9f, false));
+    ASSERT_EQ(one.dims()[0] * one.dims()[1] * one.dims()[2], 1) << k;
+    const float shown = float(one.cell_size());
+    rounded_down += double(shown) < one.cell_size();
+    const HybridEstimate e = GridKdHybrid::estimate(m, params_with(shown, false));
+    EXPECT_EQ(e.cells, 1.0) << k << ": " << e.describe();
+    EXPECT_EQ(e.describe().rfind("a 1x1x1 grid", 0), 0u) << e.describe();
+    GridKdHybrid again;
+    again.build(m, params_with(shown, false));
+    EXPECT_EQ(again.dims()[0] * again.dims()[1] * again.dims()[2], 1) << k;
+  }
+  EXPECT_GT(rounded_down, 0) << "no extent rounded down: the case is not exercised";
 }
 
 }  // namespace

@@ -83,19 +83,20 @@ AccuracyBatch judge_accuracy_batch(std::shared_ptr<const World> world,
 }
 
 void Viewer::update_accuracy() {
-  // The reference of another scene holds that scene (the mesh it reads): let both go once it
-  // is made (dropping a future still running would wait for it).
-  if (reference_.valid() && (!world_ || reference_scene_.lock() != world_->scene) &&
-      reference_.wait_for(std::chrono::seconds(0)) == std::future_status::ready)
-    reference_ = {};
+  // The reference is made once per scene. Another scene's (and the scene it reads) is let go
+  // once its job is done: dropping a running job would wait for it.
+  if (reference_job_.ready()) reference_ = reference_job_.get();
+  if (reference_scene_ && (!world_ || reference_scene_ != world_->scene) &&
+      !reference_job_.valid()) {
+    reference_.reset();
+    reference_scene_.reset();
+  }
   if (!show_accuracy_ || !world_ || posted_w_ <= 0 || posted_preview_) return;
   AccuracyMap& m = accuracy_;
   const bool stale = m.world != world_ || m.offset != offset_ || m.w != posted_w_ ||
                      m.h != posted_h_ || !same_camera(m.camera, posted_camera_);
   if (m.running.valid()) {
-    if (!m.returned->load() &&
-        m.running.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
-      return;
+    if (!m.running.ready()) return;
     AccuracyBatch b = m.running.get();
     if (!stale) {
       for (size_t k = 0; k < b.pixels.size(); ++k) m.verdict[b.pixels[k]] = b.verdicts[k];
@@ -111,14 +112,6 @@ void Viewer::update_accuracy() {
     }
   }
   if (stale) {
-    if (!reference_.valid() || reference_scene_.lock() != world_->scene) {
-      reference_ = std::async(std::launch::async, [world = world_]() {
-                     const WakeUiOnExit wake;
-                     return std::shared_ptr<const AccuracyReference>(
-                         std::make_shared<AccuracyReference>(world->scene->mesh));
-                   }).share();
-      reference_scene_ = world_->scene;
-    }
     m = AccuracyMap{};
     m.world = world_;
     m.offset = offset_;
@@ -132,24 +125,27 @@ void Viewer::update_accuracy() {
     recolor_ = true;
   }
   if (m.next >= m.order.size()) return;  // complete
+  if (!reference_scene_) {
+    reference_scene_ = world_->scene;
+    reference_job_ = run_in_background([scene = world_->scene] {
+      return std::shared_ptr<const AccuracyReference>(
+          std::make_shared<AccuracyReference>(scene->mesh));
+    });
+  }
+  // The batches start once the reference is made (its job wakes the UI thread then).
+  if (!reference_ || reference_scene_ != world_->scene) return;
   const size_t n = std::min(m.batch, m.order.size() - m.next);
   std::vector<uint32_t> pixels(m.order.begin() + long(m.next), m.order.begin() + long(m.next + n));
   m.next += n;
-  m.returned = std::make_shared<std::atomic<bool>>(false);
-  m.running =
-      std::async(std::launch::async, [world = world_, ref = reference_, cam = m.camera, w = m.w,
-                                      h = m.h, offset = m.offset, px = std::move(pixels),
-                                      returned = m.returned]() mutable {
-        // The UI thread takes the batch and starts the next one at once, not at its next frame
-        // (an idle viewer wakes only a few times a second).
-        const WakeUiOnExit wake;
-        const std::shared_ptr<const AccuracyReference> judge = ref.get();  // once per scene
-        const auto t0 = std::chrono::steady_clock::now();
-        AccuracyBatch b = judge_accuracy_batch(world, judge, cam, w, h, offset, std::move(px));
-        b.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-        returned->store(true);
-        return b;
-      });
+  // Each batch wakes the UI thread as it ends: the UI thread takes it and starts the next one
+  // at once, not at its next frame (an idle viewer wakes only a few times a second).
+  m.running = run_in_background([world = world_, judge = reference_, cam = m.camera, w = m.w,
+                                 h = m.h, offset = m.offset, px = std::move(pixels)]() mutable {
+    const auto t0 = std::chrono::steady_clock::now();
+    AccuracyBatch b = judge_accuracy_batch(world, judge, cam, w, h, offset, std::move(px));
+    b.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return b;
+  });
 }
 
 bool Viewer::accuracy_complete() const {

@@ -22,7 +22,7 @@
 
 namespace kdgrid::viewer {
 
-WakeUiOnExit::~WakeUiOnExit() {
+void wake_ui() {
   glfwPostEmptyEvent();
 }
 
@@ -104,9 +104,7 @@ void Viewer::start_load(const std::string& path) {
   const std::string remembered_in = own || name != "hybrid" || choice.kind == CellChoice::Kind::Auto
                                         ? ""
                                         : settings_file(config_dir_);
-  t.result = std::async(std::launch::async, [path, name, params, choice, remembered_in,
-                                             cancel = t.cancel] {
-    const WakeUiOnExit wake;
+  t.result = run_in_background([path, name, params, choice, remembered_in, cancel = t.cancel] {
     auto scene = std::make_shared<Scene>(load_scene(path));
     // The hybrid's auto size (the panel's "x auto") is found here, off the UI thread: it
     // sorts every triangle's extent.
@@ -152,8 +150,7 @@ void Viewer::start_build(const std::string& name, const BuildParams& params) {
   t.started = Clock::now();
   progress_log_.clear();
   t.cancel = std::make_shared<CancelToken>();
-  t.result = std::async(std::launch::async, [scene, name, params, cancel = t.cancel] {
-    const WakeUiOnExit wake;
+  t.result = run_in_background([scene, name, params, cancel = t.cancel] {
     return build_world(scene, name, params, *cancel);
   });
   task_ = std::move(t);
@@ -193,8 +190,7 @@ void Viewer::cancel_task() {
 }
 
 void Viewer::poll_tasks() {
-  if (!task_ || task_->result.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
-    return;
+  if (!task_ || !task_->result.ready()) return;
   const bool new_scene = task_->new_scene;
   const bool was_scripted_rebuild =
       scripted_rebuild_started_ && !scripted_rebuild_done_ && !new_scene;

@@ -2,7 +2,6 @@
 // render, statistics, overlays, pick), the heat map's legend and the key list (F1).
 #include "viewer/viewer.h"
 
-#include <GLFW/glfw3.h>
 #include <imgui.h>
 
 #include <algorithm>
@@ -83,24 +82,20 @@ void Viewer::draw_cell_size_controls(BuildParams&, bool&) {
   }
   // The estimate of the size on the slider, updated while it moves. It walks every triangle,
   // so it runs off the UI thread; one at a time, the newest size next.
-  if (estimate_job_.valid() &&
-      estimate_job_.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
+  if (estimate_job_.ready()) {
     cell_estimate_ = estimate_job_.get();
     cell_estimated_for_ = estimate_job_for_;
   }
   if (!estimate_job_.valid() && cell_estimated_for_ != cell_size_slider_ && cell_size_slider_ > 0 &&
       world_) {
     estimate_job_for_ = cell_size_slider_;
-    estimate_job_ = std::async(
-        std::launch::async, [w = world_, p = params_with_cell_size("hybrid", cell_size_slider_)] {
-          std::string text;
+    estimate_job_ =
+        run_in_background([w = world_, p = params_with_cell_size("hybrid", cell_size_slider_)] {
           try {
-            text = GridKdHybrid::estimate(w->scene->mesh, p).describe();
+            return GridKdHybrid::estimate(w->scene->mesh, p).describe();
           } catch (const ParamError& e) {
-            text = e.what();
+            return std::string(e.what());
           }
-          glfwPostEmptyEvent();  // the UI thread shows it at once
-          return text;
         });
   }
   ImGui::PushTextWrapPos(0.0f);

@@ -1,14 +1,11 @@
 // kdgrid-viewer's structure overlay (split planes, cells, boxes): built off the UI thread from
 // the shown structure and the overlay settings, then handed to the LineRenderer (overlay.h).
-#define GLFW_INCLUDE_NONE
-#include <GLFW/glfw3.h>
-
 #include <algorithm>
 #include <array>
-#include <future>
 #include <optional>
 
 #include "viewer/viewer.h"
+#include "viewer/viewer_internal.h"
 
 namespace kdgrid::viewer {
 
@@ -24,7 +21,7 @@ void Viewer::rebuild_structure_overlay() {
       splits_of_pick_ && pick_ ? std::optional<RaySegment>(pick_->segment) : std::nullopt;
   const std::array<int, 4> depths = {split_depth_[0], split_depth_[1], box_depth_[0],
                                      box_depth_[1]};
-  overlay_job_ = std::async(std::launch::async, [=] {
+  overlay_job_ = run_in_background([=] {
     OverlayResult r;
     if (w) {
       const Accelerator& a = *w->accel;
@@ -33,7 +30,6 @@ void Viewer::rebuild_structure_overlay() {
       if (cells) r.items += build_cell_overlay(a, r.batch, &r.wanted);
       if (boxes) r.items += build_box_overlay(a, depths[2], depths[3], r.batch, &r.wanted);
     }
-    glfwPostEmptyEvent();  // the UI thread uploads it at once
     return r;
   });
 }
@@ -45,9 +41,7 @@ void Viewer::poll_structure_overlay() {
     overlay_frames_.uploaded += sent;
     ++overlay_frames_.upload_frames;
   }
-  if (!overlay_job_.valid() ||
-      overlay_job_.wait_for(std::chrono::seconds(0)) != std::future_status::ready)
-    return;
+  if (!overlay_job_.ready()) return;
   OverlayResult r = overlay_job_.get();
   if (overlay_dirty_) return;  // settings changed meanwhile: the next build replaces it
   overlay_items_ = r.items;

@@ -7,7 +7,6 @@
 #pragma once
 
 #include <array>
-#include <atomic>
 #include <chrono>
 #include <deque>
 #include <future>
@@ -23,6 +22,7 @@
 #include "bench/check.h"
 #include "cli/common.h"
 #include "util/cancel.h"
+#include "viewer/background_job.h"
 #include "viewer/camera_control.h"
 #include "viewer/image_view.h"
 #include "viewer/overlay.h"
@@ -316,7 +316,7 @@ class Viewer {
   double cell_suggested_ = 0;      ///< the size the refusal suggests
   float cell_estimated_for_ = -1;  ///< the slider value cell_estimate_ describes
   /// The slider's estimate being made off the UI thread, and the size it is for.
-  std::future<std::string> estimate_job_;
+  BackgroundJob<std::string> estimate_job_;
   float estimate_job_for_ = -1;
   std::map<std::string, std::shared_ptr<const World>> built_;  // per structure, same scene
   CameraControl cam_;
@@ -344,7 +344,7 @@ class Viewer {
   // Background tasks: one build/load at a time; a newer build request cancels a running build
   // and waits in pending_* until it has stopped (a load runs to its end first).
   struct Task {
-    std::future<std::shared_ptr<World>> result;
+    BackgroundJob<std::shared_ptr<World>> result;
     std::string what;  // shown next to the spinner
     std::string path;  // the scene file a load reads
     std::string kind;  // "load", "rebuild" or "build", for the statistics
@@ -460,7 +460,7 @@ class Viewer {
     LineBatch batch;
     size_t items = 0, wanted = 0;
   };
-  std::future<OverlayResult> overlay_job_;  ///< the overlay being built off the UI thread
+  BackgroundJob<OverlayResult> overlay_job_;  ///< the overlay being built off the UI thread
   /// Uploads the overlay built off the UI thread once it is ready.
   void poll_structure_overlay();
   LineRenderer structure_lines_;
@@ -505,10 +505,7 @@ class Viewer {
     uint64_t counts[2][4] = {};
     double query_seconds = 0;
     uint64_t query_rays = 0;
-    std::future<AccuracyBatch> running;
-    /// Set by the running batch as it returns, before it wakes the UI thread: the UI thread
-    /// then takes the result at once (the future turns ready a moment after the wake-up).
-    std::shared_ptr<std::atomic<bool>> returned;
+    BackgroundJob<AccuracyBatch> running;
   };
   bool show_accuracy_ = false;
   /// Where secondary rays start (the accuracy panel, --offset): the render, the pick's ray
@@ -516,9 +513,12 @@ class Viewer {
   SecondaryOffset offset_ = SecondaryOffset::Robust;
   AccuracyMap accuracy_;
   /// The double-precision reference of the current scene, made off the UI thread (its build
-  /// walks every triangle); the batches wait for it. Its task holds the scene it reads.
-  std::shared_future<std::shared_ptr<const AccuracyReference>> reference_;
-  std::weak_ptr<const Scene> reference_scene_;  ///< the scene reference_ is made for
+  /// walks every triangle) by reference_job_; the batches start once it is made.
+  std::shared_ptr<const AccuracyReference> reference_;
+  BackgroundJob<std::shared_ptr<const AccuracyReference>> reference_job_;
+  /// The scene reference_ (or the running reference_job_) is made for: held with it, as the
+  /// reference reads its mesh.
+  std::shared_ptr<const Scene> reference_scene_;
 
   // Pick.
   struct Pick {

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <deque>
+#include <utility>
 
 #include <imgui.h>
 
@@ -13,14 +14,15 @@ namespace kdgrid::viewer {
 
 using Clock = std::chrono::steady_clock;
 
-/// Wakes the UI thread (asleep in glfwWaitEventsTimeout) when a background task ends, however
-/// it ends; it polls the task's future at once instead of at its next timeout.
-struct WakeUiOnExit {
-  WakeUiOnExit() = default;
-  WakeUiOnExit(const WakeUiOnExit&) = delete;
-  WakeUiOnExit& operator=(const WakeUiOnExit&) = delete;
-  ~WakeUiOnExit();
-};
+/// Wakes the UI thread (asleep in glfwWaitEventsTimeout); callable from any thread.
+void wake_ui();
+
+/// Runs `f` off the UI thread as a BackgroundJob that wakes the UI thread once its result is
+/// ready, however it ends: the UI thread takes the result at once, not at its next timeout.
+template <class F>
+auto run_in_background(F f) {
+  return start_background_job(std::move(f), wake_ui);
+}
 
 /// Colour of the brute-force refusal: orange, apart from the errors' red.
 inline const ImVec4 kRefusalColor(1.0f, 0.6f, 0.1f, 1.0f);
