@@ -118,6 +118,10 @@ struct BuildParams {
   /// "low", "medium" or "high" (RTC_BUILD_QUALITY_*) of `embree` and `embree-robust`. Medium
   /// is Embree's default; `embree-high` always builds at high (accel/embree.h).
   std::string embree_quality = "medium";
+  /// The ISA every Embree build's kernels are restricted to (rtcNewDevice's "isa=" config):
+  /// "sse4.2", "avx", "avx2" or "avx512"; "" = the widest Embree and the CPU support. A value
+  /// the CPU lacks, or another name, throws ParamError (accel/embree.h, embree_isa_names).
+  std::string embree_isa = "";
 
   // ---- memory guard ----------------------------------------------------------------------
   /// Every structure estimates the peak bytes of its build before allocating (accel/guards.h)
