@@ -5,78 +5,15 @@
 
 #include <cstdint>
 #include <cstring>
-#if defined(__AVX2__)
-#include <immintrin.h>
-#endif
 
 #include "accel/hybrid/walk.h"
 
 namespace kdgrid {
 
-namespace hybrid {
-
-/// The flat walk's vector of one box coordinate of every leaf (lane i: leaf i in the subtree's
-/// depth-first order), as the build target holds it: the loads and the permute into the
-/// leaves' order for the ray's octant. `all` has a bit per leaf of the subtree.
-#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
-struct FlatLanes {
-  using F = WideVectors<16>::F;
-  using I = WideVectors<16>::I;
-  using Wide = WatertightWide<16>;
-  static constexpr I kLaneBit = {1,   2,   4,    8,    16,   32,   64,    128,
-                                 256, 512, 1024, 2048, 4096, 8192, 16384, 32768};
-  /// n floats from p (the other lanes 0; no memory past them is read).
-  [[gnu::always_inline]] static F load(const float* p, uint32_t all) {
-    return (F)_mm512_maskz_loadu_ps(__mmask16(all), p);
-  }
-  /// The octant's order (n bytes) as lane indices.
-  [[gnu::always_inline]] static I order(const uint8_t* p, uint32_t all) {
-    return (I)_mm512_maskz_cvtepu8_epi32(__mmask16(all), _mm_maskz_loadu_epi8(__mmask16(all), p));
-  }
-  /// Bit k: the mask's lane perm[k] (k < n).
-  [[gnu::always_inline]] static uint32_t bits_in_order(I perm, I mask, uint32_t all) {
-    return Wide::bits(
-        (I)_mm512_maskz_permutexvar_epi32(__mmask16(all), (__m512i)perm, (__m512i)mask));
-  }
-  /// Lane k: lane perm[k] of v (k < n).
-  [[gnu::always_inline]] static F in_order(I perm, F v, uint32_t all) {
-    return (F)_mm512_maskz_permutexvar_ps(__mmask16(all), (__m512i)perm, (__m512)v);
-  }
-};
-#elif defined(__AVX2__)
-struct FlatLanes {
-  using F = WideVectors<8>::F;
-  using I = WideVectors<8>::I;
-  using Wide = WatertightWide<8>;
-  static constexpr I kLaneBit = {1, 2, 4, 8, 16, 32, 64, 128};
-  /// 8 floats from p, the lanes past n whatever follows (records.h, flat_walk_reads_fit).
-  [[gnu::always_inline]] static F load(const float* p, uint32_t) {
-    F v;
-    std::memcpy(&v, p, sizeof v);
-    return v;
-  }
-  /// The octant's order as lane indices (8 bytes read; the lanes past n are never used).
-  [[gnu::always_inline]] static I order(const uint8_t* p, uint32_t) {
-    return (I)_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
-  }
-  /// Bit k: the mask's lane perm[k] (k < n).
-  [[gnu::always_inline]] static uint32_t bits_in_order(I perm, I mask, uint32_t all) {
-    return Wide::bits((I)_mm256_permutevar8x32_epi32((__m256i)mask, (__m256i)perm)) & all;
-  }
-  /// Lane k: lane perm[k] of v (k < n).
-  [[gnu::always_inline]] static F in_order(I perm, F v, uint32_t) {
-    return (F)_mm256_permutevar8x32_ps((__m256)v, (__m256i)perm);
-  }
-};
-#endif
-
-}  // namespace hybrid
-
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
 bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t leaf_id,
                              uint32_t at, double t_exit, LocalHit& h) const {
-#if defined(__AVX2__)
-  using hybrid::FlatLanes;
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
   // The ray's segment in the leaf, clipped to the subtree's box as the kd walk clips it.
   const float* fb = flat_subtree_floats_[0].f + at;
   Float4 sub_lo, sub_hi;
@@ -87,9 +24,9 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t 
   uint32_t n;
   std::memcpy(&n, fb + 8, sizeof n);
   const float* q = fb + 16;
-  using F = FlatLanes::F;
-  using I = FlatLanes::I;
-  using Wide = FlatLanes::Wide;
+  using F = WideVectors<16>::F;
+  using I = WideVectors<16>::I;
+  using Wide = WatertightWide<16>;
   // The leaves in the kd walk's order for the ray's octant: at each split the side the ray
   // meets first (a ray with a zero component takes the positive side's order; it lies in one
   // slab of that axis, so the order of the others does not matter).
@@ -103,8 +40,8 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t 
   F t0 = F{} + ta, t1 = F{} + tb;
   uint32_t inside = all;
   for (int a = 0; a < 3; ++a) {
-    const F lo = FlatLanes::load(q + uint32_t(a) * n, all);
-    const F hi = FlatLanes::load(q + uint32_t(3 + a) * n, all);
+    const F lo = (F)_mm512_maskz_loadu_ps(__mmask16(all), q + uint32_t(a) * n);
+    const F hi = (F)_mm512_maskz_loadu_ps(__mmask16(all), q + uint32_t(3 + a) * n);
     const F o = F{} + w.krx4.org[a];
     if (w.krx4.fixed[a]) {
       inside &= Wide::bits((lo <= o) & (o <= hi));
@@ -117,10 +54,13 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t 
     t1 = far < t1 ? far : t1;
   }
   // The leaves the ray meets, and their entry t's, in that order (lane k: the k-th leaf).
-  const I perm = FlatLanes::order(order, all);
-  const I met = (t0 <= t1) & (((I{} + int(inside)) & FlatLanes::kLaneBit) != 0);
-  uint32_t left = FlatLanes::bits_in_order(perm, met, all);
-  const F entry = FlatLanes::in_order(perm, t0, all);
+  const I perm =
+      (I)_mm512_maskz_cvtepu8_epi32(__mmask16(all), _mm_maskz_loadu_epi8(__mmask16(all), order));
+  const I lane_bit = {1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768};
+  const I met = (t0 <= t1) & (((I{} + int(inside)) & lane_bit) != 0);
+  const __mmask16 lanes = __mmask16(all);
+  uint32_t left = Wide::bits((I)_mm512_maskz_permutexvar_epi32(lanes, (__m512i)perm, (__m512i)met));
+  const F entry = (F)_mm512_maskz_permutexvar_ps(lanes, (__m512i)perm, (__m512)t0);
   float best = w.best;
   bool found = w.found;
   [[maybe_unused]] float trace_in = float(w.t_cur);
