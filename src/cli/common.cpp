@@ -75,7 +75,7 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
   cmd->add_flag_callback(
          "--hybrid-no-flat-subtrees", [&flat_subtrees] { flat_subtrees = false; },
          "Hybrid: walk every leaf subtree by its kd nodes, instead of testing the leaves of a "
-         "subtree of 5 to 16 leaves against the ray all at once (AVX-512 builds)")
+         "subtree of 5 to 16 leaves against the ray all at once (AVX2 and AVX-512 builds)")
       ->group(g);
   bool& next_leaf_cache = params.hybrid_next_leaf_cache;
   cmd->add_flag_callback(
