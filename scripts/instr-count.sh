@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Instructions per ray of each structure's closest-hit query, counted by valgrind's callgrind on
-# a band of the canonical camera's primary rays: the measure to compare a change with its parent
+# a band of the canonical camera's primary rays (or of another ray set of the same image, SET): the measure to compare a change with its parent
 # before timing it. The count does not depend on the machine's load (the same commit gives the
 # same figure to a few instructions), where `kdgrid bench` moves by 2-3% between paired runs on
 # a shared machine. Instructions are not time: a change that saves instructions but adds a cache
@@ -14,7 +14,8 @@
 # most of it the build under valgrind).
 #
 # Builds build/callgrind (preset `callgrind`: x86-64-v3, as valgrind 3.19 decodes no AVX-512)
-# the first time.
+# the first time, unless KDGRID_BUILD names another build folder to count (one for x86-64-v3
+# or older: valgrind 3.19 stops at an AVX-512 instruction).
 #
 # Usage: scripts/instr-count.sh [SCENE] [ACCELS]
 #   SCENE   a scene file (default $KDGRID_SCENES/dragon/dragon_vrip.ply)
@@ -22,7 +23,10 @@
 #           counted pass calls its uncounted query, so the two cannot be told apart here
 # Environment: KDGRID_SCENES (default ../shared/scenes), RES (1024), ROWS (64), and
 #              KDGRID_ARGS (extra options for `kdgrid rays` and `kdgrid trace`, e.g. a camera:
-#              "--eye -14,3,0 --target 10,5,0 --fov 60" for the suite's Sponza view).
+#              "--eye -14,3,0 --target 10,5,0 --fov 60" for the suite's Sponza view), SET
+#              (the ray set of `kdgrid rays --set`: primary, the default, shadow or diffuse; one
+#              ray per pixel), TRACE_ARGS (extra options for `kdgrid trace` alone, e.g.
+#              --hybrid-no-flat-subtrees) and KDGRID_BUILD (above).
 me=instr-count
 # shellcheck source=scripts/measure-setup.sh
 source "$(dirname "$0")/measure-setup.sh"
@@ -30,29 +34,35 @@ ray_cost_arguments "$@"
 rows="${ROWS:-64}"
 [[ "$res" =~ ^[0-9]+$ && "$rows" =~ ^[0-9]+$ && "$rows" -ge 1 && "$rows" -le "$res" ]] ||
   die "RES ($res) and ROWS ($rows) must be whole numbers with 1 <= ROWS <= RES"
+set="${SET:-primary}"
+[[ "$set" =~ ^(primary|shadow|diffuse)$ ]] || die "SET ($set) must be primary, shadow or diffuse"
 source scripts/callgrind-build.sh
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-set_rays primary "$work/all.rays"
+set_rays "$set" "$work/all.rays"
 # The band: rows [res/2 - rows/2, +rows) of the square image (docs/RAYSETS.md's header: "RAYS",
-# u32 version, u64 count, then 32 bytes per ray in image order).
-/usr/bin/python3 - "$work/all.rays" "$work/band.rays" "$res" "$rows" <<'EOF'
+# u32 version, u64 count, then 32 bytes per ray in image order); for the shadow and diffuse sets,
+# which hold a ray per pixel that hits, as many rays (or all, if fewer) from the middle of the
+# file. Prints the band's rays.
+n=$(/usr/bin/python3 - "$work/all.rays" "$work/band.rays" "$res" "$rows" "$set" <<'EOF'
 import struct, sys
-src, dst, res, rows = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+src, dst, res, rows, kind = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
 with open(src, "rb") as f:
     head = f.read(16)
     magic, version, count = head[:4], *struct.unpack("<IQ", head[4:])
-    if magic != b"RAYS" or count != res * res:
+    if magic != b"RAYS" or (kind == "primary" and count != res * res):
         sys.exit(f"instr-count: {src}: expected {res * res} rays, the header says {count}")
-    first = (res - rows) // 2 * res
+    n = min(rows * res, count)
+    first = (res - rows) // 2 * res if kind == "primary" else (count - n) // 2
     f.seek(16 + 32 * first)
-    body = f.read(32 * rows * res)
+    body = f.read(32 * n)
 with open(dst, "wb") as f:
-    f.write(magic + struct.pack("<IQ", version, rows * res))
+    f.write(magic + struct.pack("<IQ", version, n))
     f.write(body)
+print(n)
 EOF
-n=$((rows * res))
-echo "Instructions per closest-hit ray (callgrind, AcceleratorBase::intersect inclusive), $(basename "$scene"), the middle $rows rows of ${res}x${res} primary rays ($n rays), at $(git rev-parse --short HEAD)$(git diff --quiet -- src || echo ' (modified)')"
+)
+echo "Instructions per closest-hit ray (callgrind, AcceleratorBase::intersect inclusive), $(basename "$scene"), $([[ "$set" == primary ]] && echo "the middle $rows rows of ${res}x${res} primary rays" || echo "the middle $n of the ${res}x${res} image's $set rays") ($n rays)${TRACE_ARGS:+, trace options $TRACE_ARGS}, at $(git rev-parse --short HEAD)$(git diff --quiet -- src || echo ' (modified)')"
 echo
 echo "| structure | instructions per ray | hit fraction |"
 echo "|---|---:|---:|"
@@ -61,7 +71,7 @@ for a in "${accel_list[@]}"; do
   # shellcheck disable=SC2086
   valgrind --tool=callgrind --toggle-collect='kdgrid::AcceleratorBase<*>::intersect(kdgrid::Ray const&, kdgrid::Hit&) const' \
     --callgrind-out-file="$work/cg.$a" "$kdgrid" trace "$scene" --rays "$work/band.rays" --accel "$a" --threads 1 \
-    --repeat 1 ${KDGRID_ARGS:-} > "$work/trace.$a" 2> "$work/valgrind.$a" ||
+    --repeat 1 ${KDGRID_ARGS:-} ${TRACE_ARGS:-} > "$work/trace.$a" 2> "$work/valgrind.$a" ||
     { cat "$work/trace.$a" "$work/valgrind.$a" >&2; exit 1; }
   ir=$(sed -n 's/^summary: *\([0-9]*\).*/\1/p; s/^totals: *\([0-9]*\).*/\1/p' "$work/cg.$a" | head -1)
   hits=$(sed -n 's/^hit fraction *//p' "$work/trace.$a")

@@ -508,6 +508,9 @@ TEST(Bench, RejectsBadOptions) {
   o = BenchOptions{};
   o.accels = {"nonexistent"};
   EXPECT_THROW(run_bench(s, o), ParamError);
+  o = BenchOptions{};
+  o.params.embree_isa = "avx3";
+  EXPECT_THROW(run_bench(s, o), ParamError);
   for (const int tile : {-1, kMaxPacketTile + 1}) {
     o = BenchOptions{};
     o.packet_tile = tile;
@@ -641,6 +644,46 @@ TEST(BenchCli, OnlyRunsTheNamedScenesAndRefusesUnknownNames) {
               log),
       0);
   EXPECT_NE(slurp(log).find("names no scene"), std::string::npos) << slurp(log);
+}
+
+// --embree-isa restricts Embree's kernels (rtcNewDevice "isa="): the report names the ISA it
+// ran and the restriction, and Embree's packets are that ISA's; a name Embree does not take is
+// refused with the names it does, exit 1.
+TEST(BenchCli, EmbreeIsaRestrictsEmbreeAndIsReported) {
+  TempDir dir("cliisa");
+  const fs::path log = dir / "log.txt";
+  EXPECT_EQ(run_cli("bench --accel embree --suite nosuch.json --embree-isa avx3", log), 1);
+  EXPECT_NE(slurp(log).find("'avx3' is not an ISA Embree can be restricted to: use sse4.2, avx, "
+                            "avx2, avx512 or native"),
+            std::string::npos)
+      << slurp(log);
+  if (!__builtin_cpu_supports("avx2")) GTEST_SKIP() << "this CPU runs no AVX2";
+  BenchOptions o = small_options("embree");
+  o.accels = {"embree"};
+  o.sets = {"primary"};
+  o.reps = 1;
+  o.params.embree_isa = "avx2";
+  const BenchReport rep = run_bench(small_suite(dir), o);
+  ASSERT_FALSE(rep.any_failed());
+  int packet_rows = 0;
+  for_each_set(rep, [&](const SceneFigures&, const StructureFigures&, const SetFigures& x) {
+    packet_rows += x.packet_rays > 0;
+    if (x.packet_rays > 0) {
+      EXPECT_EQ(x.packet_width, 8) << "rtcIntersect8, AVX2's packets";
+    }
+  });
+  EXPECT_GT(packet_rows, 0);
+  const json j = json::parse(bench_to_json(rep));
+  const json& e = j["meta"]["simd"]["embree"];
+  EXPECT_EQ(e["isa"], "AVX2");
+  EXPECT_EQ(e["restricted_to"], "avx2");
+  EXPECT_EQ(e["native_packet"], 8);
+  ASSERT_FALSE(j["builds"].empty());
+  for (const auto& b : j["builds"]) EXPECT_EQ(b["extra"]["isa"], "AVX2");
+  EXPECT_NE(
+      bench_to_markdown(rep).find("with its AVX2 kernels (restricted with --embree-isa avx2)"),
+      std::string::npos)
+      << bench_to_markdown(rep);
 }
 
 }  // namespace

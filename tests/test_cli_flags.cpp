@@ -70,6 +70,8 @@ const std::vector<FlagCase>& flag_cases() {
        [](const AccelOptions&, const BuildParams& p) { return p.irregular_sub_density == 1.5f; }},
       {"--embree-quality", "", "high",
        [](const AccelOptions&, const BuildParams& p) { return p.embree_quality == "high"; }},
+      {"--embree-isa", "", "sse4.2",
+       [](const AccelOptions&, const BuildParams& p) { return p.embree_isa == "sse4.2"; }},
       {"--memory-budget-mb", "", "64",
        [](const AccelOptions&, const BuildParams& p) {
          return p.memory_budget == (uint64_t(64) << 20);
@@ -192,6 +194,7 @@ TEST(CliFlags, PrintedBuildFlagsUseTheFieldNamesAndRebuildTheSameParams) {
   p.irregular_top_density = 0.3f;
   p.irregular_sub_density = 3.0f;
   p.embree_quality = "low";
+  p.embree_isa = "sse4.2";
   p.memory_budget = uint64_t(512) << 20;
   p.brute_work_limit = 1e7;
   const std::string flags = cli::accel_flags("hybrid", p);
@@ -221,6 +224,7 @@ TEST(CliFlags, PrintedBuildFlagsUseTheFieldNamesAndRebuildTheSameParams) {
   EXPECT_EQ(q.irregular_top_density, p.irregular_top_density);
   EXPECT_EQ(q.irregular_sub_density, p.irregular_sub_density);
   EXPECT_EQ(q.embree_quality, p.embree_quality);
+  EXPECT_EQ(q.embree_isa, p.embree_isa);
   EXPECT_EQ(q.memory_budget, p.memory_budget);
   EXPECT_EQ(q.brute_work_limit, p.brute_work_limit);
   // The defaults print the structure alone.
@@ -240,7 +244,8 @@ TEST(CliFlags, RefusalsNameTheFlagsByTheirFieldNames) {
   for (const auto& [args, named] : std::vector<std::pair<std::string, std::string>>{
            {"--kd-cost-ratio 0", "--kd-intersection-cost"},
            {"--bvh-leaf 0", "--bvh-max-leaf"},
-           {"--irr-top-density 0", "--irregular-top-density"}}) {
+           {"--irr-top-density 0", "--irregular-top-density"},
+           {"--embree-isa avx3", "--embree-isa"}}) {
     try {
       parse(args);
       ADD_FAILURE() << args << " was accepted";

@@ -141,8 +141,8 @@ TEST(Hybrid, WithoutNextLeafCacheTheSameWalk) {
 // traced walk (flat leaves one level below their grid leaf) ends at the same hit.
 TEST(Hybrid, FlatSubtreesAnswerAsTheKdWalk) {
   if (!hybrid::kFlatSubtrees)
-    GTEST_SKIP() << "flat subtrees are built for AVX-512 targets only; this build walks every "
-                    "subtree by its kd nodes";
+    GTEST_SKIP() << "flat subtrees are built for AVX2 and AVX-512 targets only; this build "
+                    "walks every subtree by its kd nodes";
   // Cells of a fifth to a third of the meshes' size: leaves of hundreds of triangles, whose
   // subtrees have 5 to 16 leaves with triangles (the auto grid's leaves here hold at most 32).
   struct Case {

@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "accel/accelerator.h"
+#include "accel/embree.h"
 #include "render/camera.h"
 #include "util/cancel.h"
 #include "util/error.h"
@@ -74,7 +75,7 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
   cmd->add_flag_callback(
          "--hybrid-no-flat-subtrees", [&flat_subtrees] { flat_subtrees = false; },
          "Hybrid: walk every leaf subtree by its kd nodes, instead of testing the leaves of a "
-         "subtree of 5 to 16 leaves against the ray all at once (AVX-512 builds)")
+         "subtree of 5 to 16 leaves against the ray all at once (AVX2 and AVX-512 builds)")
       ->group(g);
   bool& next_leaf_cache = params.hybrid_next_leaf_cache;
   cmd->add_flag_callback(
@@ -96,6 +97,11 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
       ->capture_default_str();
   cmd->add_option("--embree-quality", params.embree_quality,
                   "Embree build quality of embree and embree-robust: low, medium, high")
+      ->group(g)
+      ->capture_default_str();
+  cmd->add_option("--embree-isa", embree_isa_,
+                  "Restrict Embree's kernels to one ISA (rtcNewDevice \"isa=\"): sse4.2, avx, "
+                  "avx2, avx512, or native (the widest Embree and the CPU support)")
       ->group(g)
       ->capture_default_str();
   cmd->add_option("--memory-budget-mb", budget_mb_,
@@ -125,6 +131,8 @@ BuildParams AccelOptions::resolve() const {
   if (!(p.irregular_top_density > 0.0f) || !(p.irregular_sub_density > 0.0f))
     throw ParamError("--irregular-top-density and --irregular-sub-density must be positive");
   if (budget_mb_ < 0) throw ParamError("--memory-budget-mb must be >= 0");
+  p.embree_isa = embree_isa_ == "native" ? std::string() : embree_isa_;
+  check_embree_isa(p.embree_isa);
   if (!(p.hybrid_max_build_seconds >= 0.0))
     throw ParamError("--hybrid-max-build-seconds must be >= 0 (0 = no limit), e.g. 10");
   if (!(p.brute_work_limit >= 0.0))
@@ -164,6 +172,7 @@ std::string accel_flags(const std::string& accel, const BuildParams& p) {
   if (p.irregular_sub_density != d.irregular_sub_density)
     s += " --irregular-sub-density " + num(p.irregular_sub_density);
   if (p.embree_quality != d.embree_quality) s += " --embree-quality " + p.embree_quality;
+  if (!p.embree_isa.empty()) s += " --embree-isa " + p.embree_isa;
   // The flag is in MiB; a budget set through it is a whole number of them.
   if (p.memory_budget != d.memory_budget)
     s += " --memory-budget-mb " + std::to_string((p.memory_budget + (1u << 20) - 1) >> 20);

@@ -23,6 +23,7 @@ struct AccelOptions {
   std::string triangle_test = "watertight";
   BuildParams params;
   long budget_mb_ = 0;
+  std::string embree_isa_ = "native";  ///< --embree-isa ("native": BuildParams::embree_isa "")
 
   /// Adds the options to `cmd` (in an "Acceleration structure" group).
   void add_to(CLI::App* cmd, const std::string& default_accel = "bvh");

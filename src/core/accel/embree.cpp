@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
+#include <mutex>
 #include <string>
 #include <utility>
 
@@ -114,33 +116,91 @@ const EmbreeConfig* embree_config(const std::string& name) {
   return nullptr;
 }
 
-const EmbreeIsa& embree_isa() {
-  static const EmbreeIsa isa = [] {
-    EmbreeIsa out;
-    out.isa = "unknown";
-    RTCDevice d = rtcNewDevice(nullptr);
-    if (!d) return out;
-    const ssize_t v = rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_VERSION);  // 31305 = 3.13.5
-    out.version = std::to_string(v / 10000) + "." + std::to_string(v / 100 % 100) + "." +
-                  std::to_string(v % 100);
-    if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED)) {
-      out.isa = "AVX-512";
-      out.native_packet = 16;
-    } else if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED)) {
-      out.isa = "AVX or AVX2";
-      out.native_packet = 8;
-    } else if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY4_SUPPORTED)) {
-      out.isa = "SSE";
-      out.native_packet = 4;
-    }
-    rtcReleaseDevice(d);
-    return out;
-  }();
-  return isa;
+const char* embree_isa_names() {
+  return "sse4.2, avx, avx2, avx512";
+}
+
+namespace {
+
+/// A restriction's name in reports, and whether this CPU runs it (Embree's AVX-512 kernels
+/// need F, CD, DQ, BW and VL); nullptr for a name Embree's "isa=" does not take here.
+const char* restricted_isa_name(const std::string& isa, bool& cpu_has) {
+  __builtin_cpu_init();
+  if (isa == "sse4.2") return cpu_has = __builtin_cpu_supports("sse4.2"), "SSE4.2";
+  if (isa == "avx") return cpu_has = __builtin_cpu_supports("avx"), "AVX";
+  if (isa == "avx2") return cpu_has = __builtin_cpu_supports("avx2"), "AVX2";
+  if (isa == "avx512")
+    return cpu_has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512cd") &&
+                     __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512bw") &&
+                     __builtin_cpu_supports("avx512vl"),
+           "AVX-512";
+  return nullptr;
+}
+
+/// rtcNewDevice's configuration: the build threads (0 = Embree's default) and the ISA.
+std::string device_config(int threads, const std::string& isa) {
+  std::string c = threads > 0 ? "threads=" + std::to_string(threads) : std::string();
+  if (!isa.empty()) c += (c.empty() ? "isa=" : ",isa=") + isa;
+  return c;
+}
+
+/// What device d (nullptr: none could be created) runs, created with the restriction `isa`.
+EmbreeIsa device_isa(RTCDevice d, const std::string& isa) {
+  EmbreeIsa out;
+  out.isa = "unknown";
+  out.config = isa;
+  if (!d) return out;
+  const ssize_t v = rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_VERSION);  // 31305 = 3.13.5
+  out.version = std::to_string(v / 10000) + "." + std::to_string(v / 100 % 100) + "." +
+                std::to_string(v % 100);
+  if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY16_SUPPORTED)) {
+    out.isa = "AVX-512";
+    out.native_packet = 16;
+  } else if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY8_SUPPORTED)) {
+    out.isa = "AVX or AVX2";
+    out.native_packet = 8;
+  } else if (rtcGetDeviceProperty(d, RTC_DEVICE_PROPERTY_NATIVE_RAY4_SUPPORTED)) {
+    out.isa = "SSE";
+    out.native_packet = 4;
+  }
+  // A restriction names its ISA where the device's packets are that ISA's (AVX and AVX2 both
+  // run packets of 8).
+  const int packet = isa == "avx512" ? 16 : isa == "avx" || isa == "avx2" ? 8 : 4;
+  bool cpu_has = false;
+  if (!isa.empty() && out.native_packet == packet) out.isa = restricted_isa_name(isa, cpu_has);
+  return out;
+}
+
+}  // namespace
+
+void check_embree_isa(const std::string& isa) {
+  if (isa.empty()) return;
+  bool cpu_has = false;
+  const char* name = restricted_isa_name(isa, cpu_has);
+  if (!name)
+    throw ParamError("--embree-isa '" + isa + "' is not an ISA Embree can be restricted to: use " +
+                     embree_isa_names() + " or native");
+  if (!cpu_has)
+    throw ParamError("--embree-isa " + isa + ": this CPU does not run " + name +
+                     " instructions; use an older ISA or native");
+}
+
+const EmbreeIsa& embree_isa(const std::string& isa) {
+  check_embree_isa(isa);
+  static std::mutex mutex;
+  static std::map<std::string, EmbreeIsa> cache;
+  const std::lock_guard<std::mutex> lock(mutex);
+  const auto found = cache.find(isa);
+  if (found != cache.end()) return found->second;
+  const std::string config = device_config(0, isa);
+  RTCDevice d = rtcNewDevice(config.empty() ? nullptr : config.c_str());
+  EmbreeIsa& out = cache[isa] = device_isa(d, isa);
+  if (d) rtcReleaseDevice(d);
+  return out;
 }
 
 EmbreeAccel::EmbreeAccel(EmbreeConfig config)
-    : config_(std::move(config)), state_(std::make_unique<State>()) {}
+    : config_(std::move(config)), isa_(embree_isa()), state_(std::make_unique<State>()) {}
 EmbreeAccel::~EmbreeAccel() {
   release();
 }
@@ -178,13 +238,10 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   release();
   stats_ = {};
   quality_.clear();
-  // Asked before this build's device exists: the query's own device, created once, would
-  // otherwise reset Embree's thread limit (threads=N) while it lives.
-  const EmbreeIsa& isa = embree_isa();
+  check_embree_isa(params.embree_isa);
   mesh_ = &mesh;
 
-  const std::string config =
-      params.threads > 0 ? "threads=" + std::to_string(params.threads) : std::string();
+  const std::string config = device_config(params.threads, params.embree_isa);
   State& st = *state_;
   st.error.clear();
   st.device = rtcNewDevice(config.empty() ? nullptr : config.c_str());
@@ -192,6 +249,8 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
     throw Error("embree: cannot create a device (" +
                 std::to_string(int(rtcGetDeviceError(nullptr))) +
                 "); is libembree3 installed for this CPU?");
+  // The ISA is this device's: a restriction Embree did not apply would show here.
+  isa_ = device_isa(st.device, params.embree_isa);
   rtcSetDeviceErrorFunction(st.device, error_callback, &st.error);
   const uint64_t budget = effective_memory_budget(params);
   st.memory.limit = int64_t(std::max(1.0, double(budget) - copy_estimate));
@@ -258,7 +317,7 @@ BuildStats EmbreeAccel::build(const Mesh& mesh, const BuildParams& params) {
   stats_.extra = {
       {"quality", quality_name},
       {"flags", robust() ? "robust" : "default"},
-      {"isa", isa.isa},
+      {"isa", isa_.isa},
       {"embree build peak", format_bytes_iec(double(std::max<int64_t>(0, st.memory.peak.load())))}};
   // Embree's allocations are its own: no bound below the budget is known before building, and
   // the memory monitor stops the build at the budget.
@@ -361,7 +420,7 @@ bool EmbreeAccel::intersect(const Ray& ray, Hit& hit) const {
 }
 
 int EmbreeAccel::packet_width() const {
-  const int k = embree_isa().native_packet;
+  const int k = isa_.native_packet;
   return k == 16 || k == 8 || k == 4 ? k : 1;
 }
 

@@ -48,14 +48,23 @@ const EmbreeConfig* embree_config(const std::string& name);
 /// What Embree's library chose on this CPU, for reports. Embree 3 has no property naming its
 /// ISA: the widest native ray packet (rtcGetDeviceProperty RTC_DEVICE_PROPERTY_NATIVE_RAY16,
 /// RAY8, RAY4_SUPPORTED) tells which kernels its enabled ISA runs: 16 = AVX-512, 8 = AVX or
-/// AVX2, 4 = SSE. rtcIntersect1/rtcOccluded1 trace one ray at a time with those kernels.
+/// AVX2, 4 = SSE. A device restricted to one ISA (BuildParams::embree_isa, rtcNewDevice's
+/// "isa=") runs that ISA's kernels, named as such. rtcIntersect1/rtcOccluded1 trace one ray at
+/// a time with those kernels.
 struct EmbreeIsa {
-  std::string version;    ///< RTC_DEVICE_PROPERTY_VERSION as "3.13.5"
-  std::string isa;        ///< "AVX-512", "AVX or AVX2", "SSE" or "unknown"
+  std::string version;  ///< RTC_DEVICE_PROPERTY_VERSION as "3.13.5"
+  /// "AVX-512", "AVX or AVX2", "SSE" or "unknown"; restricted: "AVX-512", "AVX2", "AVX", "SSE4.2"
+  std::string isa;
+  std::string config;     ///< the restriction ("avx2", ...; "" = none: Embree's own choice)
   int native_packet = 0;  ///< widest native ray packet: 16, 8, 4 (0 = none)
 };
-/// Creates a device once and asks it (cached; "unknown" if no device can be created).
-const EmbreeIsa& embree_isa();
+/// The names BuildParams::embree_isa takes ("sse4.2", "avx", "avx2", "avx512"), for messages.
+const char* embree_isa_names();
+/// Throws ParamError unless `isa` is "" or one of embree_isa_names() that this CPU runs.
+void check_embree_isa(const std::string& isa);
+/// Creates a device with the restriction `isa` ("" = none) once and asks it (cached per
+/// restriction; "unknown" if no device can be created). Checks `isa` as check_embree_isa does.
+const EmbreeIsa& embree_isa(const std::string& isa = "");
 
 class EmbreeAccel final : public Accelerator {
  public:
@@ -99,6 +108,8 @@ class EmbreeAccel final : public Accelerator {
 
   EmbreeConfig config_;
   std::string quality_;
+  /// The ISA of the last build's device (before a build: Embree's own choice).
+  EmbreeIsa isa_;
   struct State;  // Embree handles, kept out of this header
   std::unique_ptr<State> state_;
   std::vector<float> vertices_;  ///< xyz per vertex plus one float of padding

@@ -85,7 +85,7 @@ struct BuildParams {
   uint32_t hybrid_subtree_min = 4;
   /// Flat subtrees: a leaf subtree with 5 to 16 leaves holding triangles is stored as the
   /// list of those leaves, tested against the ray all at once and visited in the kd walk's
-  /// order (builds for AVX-512 only; hybrid::kFlatSubtrees). The same leaves, in the same
+  /// order (AVX2 and AVX-512 builds only; hybrid::kFlatSubtrees). The same leaves, in the same
   /// order, so the same hits. false = every subtree walked by its kd nodes.
   bool hybrid_flat_subtrees = true;
   /// Empty-leaf boxes (an extension of the paper): the walk steps over each empty leaf's box
@@ -118,6 +118,10 @@ struct BuildParams {
   /// "low", "medium" or "high" (RTC_BUILD_QUALITY_*) of `embree` and `embree-robust`. Medium
   /// is Embree's default; `embree-high` always builds at high (accel/embree.h).
   std::string embree_quality = "medium";
+  /// The ISA every Embree build's kernels are restricted to (rtcNewDevice's "isa=" config):
+  /// "sse4.2", "avx", "avx2" or "avx512"; "" = the widest Embree and the CPU support. A value
+  /// the CPU lacks, or another name, throws ParamError (accel/embree.h, embree_isa_names).
+  std::string embree_isa = "";
 
   // ---- memory guard ----------------------------------------------------------------------
   /// Every structure estimates the peak bytes of its build before allocating (accel/guards.h)

@@ -370,7 +370,7 @@ BenchReport run_bench(const Suite& suite, const BenchOptions& o) {
   rep.kdgrid_isa = kBuildIsa;
   rep.kdgrid_lanes = kTraversalLanes;
   rep.kdgrid_leaf_lanes = kWideLanes;
-  rep.embree = embree_isa();
+  rep.embree = embree_isa(o.params.embree_isa);
   rep.hardware_threads = int(std::thread::hardware_concurrency());
   rep.threads = threads;
   rep.reps = o.reps;

@@ -175,7 +175,8 @@ struct BenchReport {
   std::string machine;  ///< CPU model name (lscpu / /proc/cpuinfo)
   /// SIMD of each side: kdgrid's from the build (math/simd.h: the ISA it targets, the lanes
   /// of its traversal vectors; accel/triangle_wide.h: the triangles a hybrid leaf tests at
-  /// once), Embree's as its library chose it on this CPU (embree_isa()).
+  /// once), Embree's as its library chose it on this CPU or as BenchOptions::params restricts it
+  /// (embree_isa()).
   std::string kdgrid_isa;
   int kdgrid_lanes = 0;
   int kdgrid_leaf_lanes = 0;

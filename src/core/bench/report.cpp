@@ -55,12 +55,14 @@ std::string bench_to_json(const BenchReport& r) {
         {"embree",
          {{"version", r.embree.version},
           {"isa", r.embree.isa},
+          {"restricted_to", r.embree.config.empty() ? "native" : r.embree.config},
           {"native_packet", r.embree.native_packet},
           {"how",
            "rtcGetDeviceProperty RTC_DEVICE_PROPERTY_NATIVE_RAY16/8/4_SUPPORTED: the "
            "widest ray packet Embree's enabled ISA runs natively (16 = AVX-512, 8 = AVX "
-           "or AVX2, 4 = SSE); rtcIntersect1/rtcOccluded1 trace one ray at a time with "
-           "those kernels"}}}}},
+           "or AVX2, 4 = SSE), or the ISA --embree-isa restricts it to (rtcNewDevice "
+           "\"isa=\"; restricted_to); rtcIntersect1/rtcOccluded1 trace one ray at a time "
+           "with those kernels"}}}}},
       {"hardware_threads", r.hardware_threads},
       {"threads", r.threads},
       {"reps", r.reps},
@@ -203,8 +205,10 @@ std::string simd_line(const BenchReport& r) {
          " (one ray at a time outside the packet tables, the hybrid's walk in " +
          std::to_string(r.kdgrid_lanes) + "-lane vectors, its leaves' triangles " +
          std::to_string(r.kdgrid_leaf_lanes) + " at a time); Embree " + r.embree.version +
-         " with its " + r.embree.isa + " kernels (native ray packets of " +
-         std::to_string(r.embree.native_packet) +
+         " with its " + r.embree.isa + " kernels" +
+         (r.embree.config.empty() ? ""
+                                  : " (restricted with --embree-isa " + r.embree.config + ")") +
+         " (native ray packets of " + std::to_string(r.embree.native_packet) +
          "; rtcIntersect1/rtcOccluded1 one ray at a time).";
 }
 

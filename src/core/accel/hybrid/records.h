@@ -175,21 +175,27 @@ using GroupView = LaneGroup;
 
 /// Flat subtrees. A leaf subtree with kFlatMinLeaves to kFlatLeaves leaves holding triangles is
 /// stored instead as the list of those leaves, which the walk tests against the ray all at
-/// once (one 16-lane vector per box coordinate) and visits in the kd walk's order for the ray's
-/// octant (walk.h, walk_flat); its kd nodes are not kept. At float offset F of
-/// GridKdHybrid::flat_subtree_floats_ (a multiple of 16; the Leaf record's `pad` holds F, 0 for
-/// none): the subtree's box (ClipBox4's layout, 8 floats), the leaf count n (as uint32), padding to
-/// 16 floats; then the leaves' boxes as six runs of n floats (lo x, y, z, hi x, y, z: each kd
-/// leaf's box within the subtree's box), their first groups (n uint32) and their triangle
+/// once (per box coordinate one 16-lane vector, or two 8-lane halves with AVX2) and visits in the
+/// kd walk's order for the ray's octant (walk.h, walk_flat); its kd nodes are not kept. At float
+/// offset F of GridKdHybrid::flat_subtree_floats_ (a multiple of 16; the Leaf record's `pad` holds
+/// F, 0 for none): the subtree's box (ClipBox4's layout, 8 floats), the leaf count n (as uint32),
+/// padding to 16 floats; then the leaves' boxes as six runs of n floats (lo x, y, z, hi x, y, z:
+/// each kd leaf's box within the subtree's box), their first groups (n uint32) and their triangle
 /// counts (n uint32), in the subtree's depth-first order (below first); then for each octant of
-/// ray directions (bit a set: negative along axis a) the leaves' order, n bytes. Builds for
-/// AVX-512 only; the others walk every subtree by its kd nodes.
+/// ray directions (bit a set: negative along axis a) the leaves' order, n bytes; padding to a
+/// multiple of 16 floats. Builds for AVX-512 (16 lanes, masked loads) and for AVX2 without it
+/// (two 8-lane halves, whole-vector loads: flat_walk_reads_fit) only; the others walk every
+/// subtree by its kd nodes.
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
 constexpr bool kFlatSubtrees = true;
+constexpr uint32_t kFlatLeaves = 16;
+#elif defined(__AVX2__)
+constexpr bool kFlatSubtrees = true;
+constexpr uint32_t kFlatLeaves = 16;
 #else
 constexpr bool kFlatSubtrees = false;
-#endif
 constexpr uint32_t kFlatLeaves = 16;
+#endif
 /// Below this many leaves with triangles the kd walk is faster: it descends a few predicted
 /// nodes, where the flat walk pays its box tests and their latency before the first leaf
 /// (docs/HYBRID.md, "Flat subtrees").
@@ -201,6 +207,19 @@ constexpr int kFlatPrefetchLines = 8;
 constexpr uint32_t flat_subtree_floats(uint32_t n) {
   return 16 + 8 * n + 2 * n;
 }
+/// Whether the AVX2 walk's whole-vector reads of every flat subtree (kFlatMinLeaves to
+/// kFlatLeaves leaves) stay inside its padded floats: 8 floats (16 past 8 leaves) from each of the
+/// six box runs (the last ends 5n + 8 or 5n + 16 floats past the header) and 8 order bytes (16)
+/// from the last octant's (ending at byte 4 (16 + 8n) + 7n + 8 or + 16).
+constexpr bool flat_walk_reads_fit() {
+  for (uint32_t n = kFlatMinLeaves; n <= kFlatLeaves; ++n) {
+    const uint32_t padded = (flat_subtree_floats(n) + 15) / 16 * 16, v = n > 8 ? 16 : 8;
+    if (16 + 5 * n + v > padded || 4 * (16 + 8 * n) + 7 * n + v > 4 * padded) return false;
+  }
+  return true;
+}
+static_assert(flat_walk_reads_fit(),
+              "the AVX2 flat walk reads whole vectors of every subtree it is given");
 
 /// 64 bytes of group storage (the array is 64-byte aligned).
 struct alignas(64) GroupLine {

@@ -5,15 +5,73 @@
 
 #include <cstdint>
 #include <cstring>
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
 
 #include "accel/hybrid/walk.h"
 
 namespace kdgrid {
 
+#if defined(__AVX2__) && !(defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__))
+namespace hybrid {
+
+/// The AVX2 flat walk's clip: the n leaves' boxes (n <= 16) clipped as kd_clip clips them, in
+/// two 8-lane halves (the second only for n > 8; whole-vector reads, records.h,
+/// flat_walk_reads_fit), each leaf's [t0, t1] stored to t0s, t1s (leaf i at i); returns the met
+/// leaves as bits in the octant's order (bit k: leaf order[k]), by a byte shuffle of the met
+/// bits.
+[[gnu::always_inline]] inline uint32_t flat_clip_x8(const KdRayX4& r, const float* q, uint32_t n,
+                                                    const uint8_t* order, float ta, float tb,
+                                                    float* t0s, float* t1s) {
+  using F = WideVectors<8>::F;
+  using I = WideVectors<8>::I;
+  using Wide = WatertightWide<8>;
+  const I lane_bit = {1, 2, 4, 8, 16, 32, 64, 128};
+  uint32_t met_bits = 0;
+  for (uint32_t h = 0; h < 16; h += 8) {
+    if (h != 0 && n <= 8) break;
+    F t0 = F{} + ta, t1 = F{} + tb;
+    uint32_t inside = 0xffu;
+    for (int a = 0; a < 3; ++a) {
+      F lo, hi;
+      std::memcpy(&lo, q + uint32_t(a) * n + h, sizeof lo);
+      std::memcpy(&hi, q + uint32_t(3 + a) * n + h, sizeof hi);
+      const F o = F{} + r.org[a];
+      if (r.fixed[a]) {
+        inside &= Wide::bits((lo <= o) & (o <= hi));
+        continue;
+      }
+      const F inv = F{} + r.inv[a], e = F{} + r.err[a];
+      const F tl = (lo - o) * inv, th = (hi - o) * inv;
+      const F near = (tl < th ? tl : th) - e, far = (tl > th ? tl : th) + e;
+      t0 = near > t0 ? near : t0;
+      t1 = far < t1 ? far : t1;
+    }
+    const I met = (t0 <= t1) & (((I{} + int(inside)) & lane_bit) != 0);
+    met_bits |= Wide::bits(met) << h;
+    std::memcpy(t0s + h, &t0, sizeof t0);
+    std::memcpy(t1s + h, &t1, sizeof t1);
+  }
+  const uint32_t all = (1u << n) - 1;
+  // Byte i: all ones where leaf i is met; then byte k: leaf order[k]'s.
+  const __m128i bit = _mm_setr_epi8(1, 2, 4, 8, 16, 32, 64, -128, 1, 2, 4, 8, 16, 32, 64, -128);
+  const __m128i spread =
+      _mm_shuffle_epi8(_mm_cvtsi32_si128(int(met_bits & all)),
+                       _mm_setr_epi8(0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1));
+  const __m128i met_bytes = _mm_cmpeq_epi8(_mm_and_si128(spread, bit), bit);
+  const __m128i ord = n > 8 ? _mm_loadu_si128(reinterpret_cast<const __m128i*>(order))
+                            : _mm_loadl_epi64(reinterpret_cast<const __m128i*>(order));
+  return uint32_t(_mm_movemask_epi8(_mm_shuffle_epi8(met_bytes, ord))) & all;
+}
+
+}  // namespace hybrid
+#endif
+
 template <class TriangleTest, class Probe, bool kAny, bool kExact>
 bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t leaf_id,
                              uint32_t at, double t_exit, LocalHit& h) const {
-#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+#if defined(__AVX2__)
   // The ray's segment in the leaf, clipped to the subtree's box as the kd walk clips it.
   const float* fb = flat_subtree_floats_[0].f + at;
   Float4 sub_lo, sub_hi;
@@ -24,6 +82,7 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t 
   uint32_t n;
   std::memcpy(&n, fb + 8, sizeof n);
   const float* q = fb + 16;
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
   using F = WideVectors<16>::F;
   using I = WideVectors<16>::I;
   using Wide = WatertightWide<16>;
@@ -61,6 +120,18 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t 
   const __mmask16 lanes = __mmask16(all);
   uint32_t left = Wide::bits((I)_mm512_maskz_permutexvar_epi32(lanes, (__m512i)perm, (__m512i)met));
   const F entry = (F)_mm512_maskz_permutexvar_ps(lanes, (__m512i)perm, (__m512)t0);
+  // Whether the closest hit lies before the k-th leaf's entry.
+  const auto before = [&](float best_t, uint32_t k) {
+    return ((Wide::bits(F{} + best_t < entry) >> k) & 1u) != 0;
+  };
+#else
+  const uint32_t oct = uint32_t(w.kr.dir.x < 0.0f) | uint32_t(w.kr.dir.y < 0.0f) << 1 |
+                       uint32_t(w.kr.dir.z < 0.0f) << 2;
+  const uint8_t* order = reinterpret_cast<const uint8_t*>(q + 8 * n) + oct * n;
+  alignas(32) float t0[16], t1[16];
+  uint32_t left = hybrid::flat_clip_x8(w.krx4, q, n, order, ta, tb, t0, t1);
+  const auto before = [&](float best_t, uint32_t k) { return best_t < t0[order[k]]; };
+#endif
   float best = w.best;
   bool found = w.found;
   [[maybe_unused]] float trace_in = float(w.t_cur);
@@ -76,7 +147,7 @@ bool GridKdHybrid::walk_flat(WalkState<TriangleTest>& w, Probe& probe, uint32_t 
   while (left) {
     const uint32_t k = uint32_t(__builtin_ctz(left));
     // Done once the closest hit lies before the next leaf's entry (the kd walk's rule).
-    if (found && ((Wide::bits(F{} + best < entry) >> k) & 1u)) break;
+    if (found && before(best, k)) break;
     left &= left - 1;
     const uint32_t i = order[k];
     probe.step();
