@@ -28,9 +28,7 @@ class SplitMix64 {
   /// Uniform in [0, 1): the top 24 bits of a draw.
   float uniform() { return float(next() >> 40) * (1.0f / 16777216.0f); }
   float uniform(float lo, float hi) { return lo + (hi - lo) * uniform(); }
-  int integer(int lo, int hi_exclusive) {
-    return lo + int(next() % uint64_t(hi_exclusive - lo));
-  }
+  int integer(int lo, int hi_exclusive) { return lo + int(next() % uint64_t(hi_exclusive - lo)); }
   Vec3 in_box(float lo, float hi) { return {uniform(lo, hi), uniform(lo, hi), uniform(lo, hi)}; }
   /// Uniform on the unit sphere.
   Vec3 unit_vector() {

@@ -296,35 +296,49 @@ template <bool kAny>
 [[gnu::always_inline]] inline void store_hits(const PacketHits& H, uint32_t found, Hit* hits) {
   static_assert(sizeof(Hit) == 16 && offsetof(Hit, prim) == 4 && offsetof(Hit, u) == 8 &&
                 offsetof(Hit, v) == 12);
-  const __m512 t = (__m512)H.best, p = (__m512)(FloatLanes)H.prim, u = (__m512)H.u, v = (__m512)H.v;
-  // Within each 128-bit block, t with p and u with v interleaved, then their 64-bit pairs:
-  // lane 4j + r's hit in block j of h[r].
-  const __m512 tp_lo = _mm512_unpacklo_ps(t, p), tp_hi = _mm512_unpackhi_ps(t, p);
-  const __m512 uv_lo = _mm512_unpacklo_ps(u, v), uv_hi = _mm512_unpackhi_ps(u, v);
-  const auto pairs_lo = [](__m512 x, __m512 y) __attribute__((always_inline)) {
-    return _mm512_castpd_ps(_mm512_unpacklo_pd(_mm512_castps_pd(x), _mm512_castps_pd(y)));
+  const FloatLanes t = H.best, p = (FloatLanes)H.prim, u = H.u, v = H.v;
+  // Lane 4j + r's hit in 128-bit block j of h[r] (the unpacks' orders).
+  const FloatLanes tp_lo =
+      __builtin_shufflevector(t, p, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
+  const FloatLanes tp_hi =
+      __builtin_shufflevector(t, p, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
+  const FloatLanes uv_lo =
+      __builtin_shufflevector(u, v, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
+  const FloatLanes uv_hi =
+      __builtin_shufflevector(u, v, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
+  const auto lo = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29);
   };
-  const auto pairs_hi = [](__m512 x, __m512 y) __attribute__((always_inline)) {
-    return _mm512_castpd_ps(_mm512_unpackhi_pd(_mm512_castps_pd(x), _mm512_castps_pd(y)));
+  const auto hi = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30,
+                                   31);
   };
-  const __m512 h0 = pairs_lo(tp_lo, uv_lo), h1 = pairs_hi(tp_lo, uv_lo),
-               h2 = pairs_lo(tp_hi, uv_hi), h3 = pairs_hi(tp_hi, uv_hi);
-  // Hits 4q to 4q + 3 are block q of h0, h1, h2, h3: gather the blocks (_MM_SHUFFLE picks
-  // blocks 0-1 or 2-3 of each pair, then the even or odd ones).
-  const __m512 a = _mm512_shuffle_f32x4(h0, h1, _MM_SHUFFLE(1, 0, 1, 0)),
-               b = _mm512_shuffle_f32x4(h2, h3, _MM_SHUFFLE(1, 0, 1, 0)),
-               c = _mm512_shuffle_f32x4(h0, h1, _MM_SHUFFLE(3, 2, 3, 2)),
-               d = _mm512_shuffle_f32x4(h2, h3, _MM_SHUFFLE(3, 2, 3, 2));
-  const __m512 q[4] = {_mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(2, 0, 2, 0)),
-                       _mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(3, 1, 3, 1)),
-                       _mm512_shuffle_f32x4(c, d, _MM_SHUFFLE(2, 0, 2, 0)),
-                       _mm512_shuffle_f32x4(c, d, _MM_SHUFFLE(3, 1, 3, 1))};
+  const FloatLanes h0 = lo(tp_lo, uv_lo), h1 = hi(tp_lo, uv_lo), h2 = lo(tp_hi, uv_hi),
+                   h3 = hi(tp_hi, uv_hi);
+  // Hits 4q to 4q + 3 are block q of h0, h1, h2, h3.
+  const auto blocks01 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
+  };
+  const auto blocks23 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30,
+                                   31);
+  };
+  const auto even = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27);
+  };
+  const auto odd = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
+    return __builtin_shufflevector(x, y, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30,
+                                   31);
+  };
+  const FloatLanes a = blocks01(h0, h1), b = blocks01(h2, h3), c = blocks23(h0, h1),
+                   d = blocks23(h2, h3);
+  const FloatLanes q[4] = {even(a, b), odd(a, b), even(c, d), odd(c, d)};
   float* out = reinterpret_cast<float*>(hits);
   for (int j = 0; j < 4; ++j) {
     const uint32_t four = found >> (4 * j) & 0xfu;
     if (four == 0) continue;
     const uint32_t mask = _pdep_u32(four, 0x1111u) * 0xfu;
-    _mm512_mask_storeu_ps(out + 16 * j, __mmask16(mask), q[j]);
+    _mm512_mask_storeu_ps(out + 16 * j, __mmask16(mask), (__m512)q[j]);
   }
 }
 
