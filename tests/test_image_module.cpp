@@ -39,7 +39,8 @@ std::string render_args(const std::string& out) {
 TEST(ImageModule, OpenImageIOIsLoadedOnlyByProcessesThatTouchAnImage) {
   TempDir tmp;
   const std::string ply = tmp.write("fan.ply", test::kAsciiPly);
-  const test::CliStreams info = test::run_cli_streams("info " + quoted(ply), tmp, "export LD_DEBUG=files;");
+  const test::CliStreams info =
+      test::run_cli_streams("info " + quoted(ply), tmp, "export LD_DEBUG=files;");
   ASSERT_EQ(info.exit_code, 0) << info.err;
   EXPECT_CONTAINS(info.err, "libembree3");  // LD_DEBUG works here
   EXPECT_FALSE(test::contains(info.err, "libOpenImageIO")) << "kdgrid info loaded OpenImageIO";
@@ -66,12 +67,12 @@ TEST(ImageModule, AProgramFindsItsInstalledModuleOrRefusesBeforeRendering) {
   const std::string command = quoted(kdgrid.string()) + " render ";
 
   const std::string lone_png = tmp.file("lone.png");
-  const test::CliResult lone =
-      test::run_shell_command(command + render_args(lone_png) + " 2>&1");
+  const test::CliResult lone = test::run_shell_command(command + render_args(lone_png) + " 2>&1");
   EXPECT_EQ(lone.code, 1) << lone.output;
   EXPECT_CONTAINS(lone.output, image_module::kFileName);
   EXPECT_CONTAINS(lone.output, "reinstall or rebuild");
-  EXPECT_FALSE(test::contains(lone.output, "spp")) << "it rendered before failing:\n" << lone.output;
+  EXPECT_FALSE(test::contains(lone.output, "spp")) << "it rendered before failing:\n"
+                                                   << lone.output;
   EXPECT_FALSE(fs::exists(lone_png));
 
   fs::copy_file(KDGRID_IMAGE_MODULE_PATH, lib / image_module::kFileName);

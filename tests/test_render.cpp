@@ -26,6 +26,7 @@
 #include "accel/triangle.h"
 #include "cli_util.h"
 #include "image/image_io.h"
+#include "math/rng.h"
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "scene/procedural.h"
@@ -445,32 +446,16 @@ TEST(Shading, Tonemap) {
 
 // ---- robust offsets ----------------------------------------------------------------------
 
-/// splitmix64-based uniform numbers (std distributions differ between standard libraries).
-struct TestRng {
-  uint64_t s;
-  float uniform() {
-    uint64_t z = (s += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return float((z ^ (z >> 31)) >> 40) * (1.0f / 16777216.0f);
-  }
-  float range(float lo, float hi) { return lo + (hi - lo) * uniform(); }
-  Vec3 unit() {
-    const float z = range(-1, 1), phi = range(0, 6.2831853f), s2 = std::sqrt(1 - z * z);
-    return {s2 * std::cos(phi), s2 * std::sin(phi), z};
-  }
-};
-
 TEST(Offset, SecondaryRaysNeverReHitTheirTriangle) {
-  TestRng rng{12345};
+  SplitMix64 rng{12345};
   int tested = 0;
   for (int i = 0; i < 100000; ++i) {
     // Scales 1e-4 .. 1e4; centres near the origin or far from it (up to 1e5 + scale).
-    const float scale = std::pow(10.0f, rng.range(-4.0f, 4.0f));
-    const float far = (i % 3 == 0) ? 0.0f : std::pow(10.0f, rng.range(0.0f, 5.0f));
-    const Vec3 centre = rng.unit() * far;
-    const Vec3 a = centre + rng.unit() * scale, b = centre + rng.unit() * scale,
-               c = centre + rng.unit() * scale;
+    const float scale = std::pow(10.0f, rng.uniform(-4.0f, 4.0f));
+    const float far = (i % 3 == 0) ? 0.0f : std::pow(10.0f, rng.uniform(0.0f, 5.0f));
+    const Vec3 centre = rng.unit_vector() * far;
+    const Vec3 a = centre + rng.unit_vector() * scale, b = centre + rng.unit_vector() * scale,
+               c = centre + rng.unit_vector() * scale;
     const Vec3 ng = cross(b - a, c - a);
     if (!(length(ng) > 1e-6f * scale * scale)) continue;  // degenerate sliver: skip
     float u = rng.uniform(), v = rng.uniform();
@@ -484,7 +469,7 @@ TEST(Offset, SecondaryRaysNeverReHitTheirTriangle) {
     const Vec3 n = normalize(ng);
     for (const float side : {1.0f, -1.0f}) {
       const Vec3 sn = n * side;
-      Vec3 dir = rng.unit();
+      Vec3 dir = rng.unit_vector();
       if (dot(dir, sn) < 0.0f) dir = -dir;
       if (i % 5 == 0) dir = normalize(dir - sn * (dot(dir, sn) * 0.999f));  // grazing
       if (!(dot(dir, sn) > 0.0f)) continue;

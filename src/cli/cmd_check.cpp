@@ -18,6 +18,14 @@
 #include "util/atomic_file.h"
 #include "util/error.h"
 
+namespace kdgrid {
+
+/// An acne study row in the JSON report: every field under its own name.
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE(AcneResult, scale, translation, rays, robust_self_hits,
+                                   epsilon_self_hits, epsilon, robust_seconds, epsilon_seconds)
+
+}  // namespace kdgrid
+
 namespace kdgrid::cli {
 
 namespace {
@@ -177,14 +185,7 @@ void add_check_command(CLI::App& app) {
                     (unsigned long long)r.rays, (unsigned long long)r.robust_self_hits,
                     (unsigned long long)r.epsilon_self_hits, mrays(r.rays, r.robust_seconds),
                     mrays(r.rays, r.epsilon_seconds));
-        acne.push_back({{"scale", r.scale},
-                        {"translation", r.translation},
-                        {"rays", r.rays},
-                        {"robust_self_hits", r.robust_self_hits},
-                        {"epsilon_self_hits", r.epsilon_self_hits},
-                        {"epsilon", r.epsilon},
-                        {"robust_seconds", r.robust_seconds},
-                        {"epsilon_seconds", r.epsilon_seconds}});
+        acne.push_back(r);
         if (r.robust_self_hits > 0) ++failures;
         rays += r.rays;
         robust_hits += r.robust_self_hits;

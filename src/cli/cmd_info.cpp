@@ -9,20 +9,6 @@
 
 namespace kdgrid::cli {
 
-namespace {
-const char* light_type_name(LightType t) {
-  switch (t) {
-    case LightType::Point:
-      return "point";
-    case LightType::Directional:
-      return "directional";
-    case LightType::Spot:
-      return "spot";
-  }
-  return "?";
-}
-}  // namespace
-
 void add_info_command(CLI::App& app) {
   auto* cmd = app.add_subcommand("info", "Print what a scene holds: triangles, bounds, materials");
   auto path = std::make_shared<std::string>();
@@ -54,7 +40,7 @@ void add_info_command(CLI::App& app) {
                                 {"emission", {m.emission.x, m.emission.y, m.emission.z}},
                                 {"texture", m.base_color_texture}});
     for (const auto& l : s.lights)
-      j["lights"].push_back({{"type", light_type_name(l.type)},
+      j["lights"].push_back({{"type", enum_name(l.type, kLightTypeNames)},
                              {"name", l.name},
                              {"position", {l.position.x, l.position.y, l.position.z}},
                              {"intensity", l.intensity}});
@@ -80,7 +66,7 @@ void add_info_command(CLI::App& app) {
                   m.roughness, m.transmission, m.base_color_texture >= 0 ? " textured" : "");
     std::printf("textures    %zu\nlights      %zu\n", s.textures.size(), s.lights.size());
     for (const auto& l : s.lights)
-      std::printf("  %-11s %s at (%g, %g, %g) intensity %g\n", light_type_name(l.type),
+      std::printf("  %-11s %s at (%g, %g, %g) intensity %g\n", enum_name(l.type, kLightTypeNames),
                   l.name.c_str(), l.position.x, l.position.y, l.position.z, l.intensity);
     std::printf("camera      %s: --eye %g,%g,%g --target %g,%g,%g --fov %g\n", c.name.c_str(),
                 c.eye.x, c.eye.y, c.eye.z, c.target.x, c.target.y, c.target.z, c.fov_deg);

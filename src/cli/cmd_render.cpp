@@ -21,6 +21,7 @@
 #include "render/renderer.h"
 #include "scene/load.h"
 #include "util/atomic_file.h"
+#include "util/enum_names.h"
 #include "util/error.h"
 #include "util/format.h"
 #include "util/paths.h"
@@ -92,14 +93,11 @@ RenderSettings render_settings(const RenderArgs& a) {
   settings.max_depth = a.max_depth;
   settings.seed = a.seed;
   settings.packets = !a.no_packets;
-  if (a.heatmap == "steps")
-    settings.mode = RenderMode::HeatSteps;
-  else if (a.heatmap == "tests")
-    settings.mode = RenderMode::HeatTests;
-  else if (a.heatmap == "time")
-    settings.mode = RenderMode::HeatTime;
-  else if (!a.heatmap.empty())
-    throw ParamError("--heatmap '" + a.heatmap + "': choose steps, tests or time");
+  static constexpr EnumName<RenderMode> kHeatmaps[] = {{RenderMode::HeatSteps, "steps"},
+                                                       {RenderMode::HeatTests, "tests"},
+                                                       {RenderMode::HeatTime, "time"}};
+  if (!a.heatmap.empty())
+    settings.mode = parse_enum(a.heatmap, kHeatmaps, "--heatmap", "choose steps, tests or time");
   settings.shading = parse_shading(a.shading, "--shading");
   return settings;
 }

@@ -17,6 +17,18 @@
 
 namespace kdgrid::cli {
 
+namespace {
+
+/// A switch `names` that turns `knob` off. It sets the knob to false through a callback, so
+/// --help lists its names without CLI11's "{false}" default-value syntax.
+CLI::Option* add_off_switch(CLI::App* cmd, const std::string& names, bool& knob,
+                            const std::string& help) {
+  return cmd->add_flag_callback(
+      names, [&knob] { knob = false; }, help);
+}
+
+}  // namespace
+
 void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
   accel = default_accel;
   const std::string g = "Acceleration structure";
@@ -63,26 +75,19 @@ void AccelOptions::add_to(CLI::App* cmd, const std::string& default_accel) {
                   "this (seconds), naming a size that fits; 0 = no limit")
       ->group(g)
       ->capture_default_str();
-  // Switches that turn a knob off set it to false through a callback, so --help lists their
-  // names without CLI11's "{false}" default-value syntax.
-  bool& expand_empty = params.hybrid_expand_empty;
-  cmd->add_flag_callback(
-         "--hybrid-no-expand-empty,--hybrid-no-expand", [&expand_empty] { expand_empty = false; },
-         "Hybrid: step over the kd leaf boxes of the paper, without widening empty leaves over "
-         "the empty cells around them")
+  add_off_switch(cmd, "--hybrid-no-expand-empty,--hybrid-no-expand", params.hybrid_expand_empty,
+                 "Hybrid: step over the kd leaf boxes of the paper, without widening empty leaves "
+                 "over the empty cells around them")
       ->group(g);
-  bool& flat_subtrees = params.hybrid_flat_subtrees;
-  cmd->add_flag_callback(
-         "--hybrid-no-flat-subtrees", [&flat_subtrees] { flat_subtrees = false; },
-         "Hybrid: walk every leaf subtree by its kd nodes, instead of testing the leaves of a "
-         "subtree of 5 to 16 leaves against the ray all at once (AVX2 and AVX-512 builds)")
+  add_off_switch(cmd, "--hybrid-no-flat-subtrees", params.hybrid_flat_subtrees,
+                 "Hybrid: walk every leaf subtree by its kd nodes, instead of testing the leaves "
+                 "of a subtree of 5 to 16 leaves against the ray all at once (AVX2 and AVX-512 "
+                 "builds)")
       ->group(g);
-  bool& next_leaf_cache = params.hybrid_next_leaf_cache;
-  cmd->add_flag_callback(
-         "--hybrid-no-next-leaf-cache,--hybrid-no-guess",
-         [&next_leaf_cache] { next_leaf_cache = false; },
-         "Hybrid: look every next leaf up in the matrix, as the paper does, instead of first "
-         "checking the leaf this thread last reached across the same face")
+  add_off_switch(cmd, "--hybrid-no-next-leaf-cache,--hybrid-no-guess",
+                 params.hybrid_next_leaf_cache,
+                 "Hybrid: look every next leaf up in the matrix, as the paper does, instead of "
+                 "first checking the leaf this thread last reached across the same face")
       ->group(g);
   cmd->add_option("--bvh-max-leaf,--bvh-leaf", params.bvh_max_leaf, "BVH: max triangles per leaf")
       ->group(g)

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "image/image_io.h"
+#include "util/enum_names.h"
 #include "viewer/viewer.h"
 #include "viewer/viewer_internal.h"
 
@@ -48,17 +49,11 @@ std::string build_label(const World& w) {
 }
 
 const char* to_string(DiffView v) {
-  switch (v) {
-    case DiffView::Current:
-      return "current";
-    case DiffView::Pinned:
-      return "pinned";
-    case DiffView::Difference:
-      return "difference";
-    case DiffView::Split:
-      return "split";
-  }
-  return "?";
+  static constexpr EnumName<DiffView> kNames[] = {{DiffView::Current, "current"},
+                                                  {DiffView::Pinned, "pinned"},
+                                                  {DiffView::Difference, "difference"},
+                                                  {DiffView::Split, "split"}};
+  return enum_name(v, kNames);
 }
 
 void Viewer::pin_heatmap() {

@@ -8,20 +8,15 @@
 #include <cmath>
 #include <cstdio>
 
+#include "util/enum_names.h"
 #include "viewer/viewer.h"
 
 namespace kdgrid::viewer {
 
 const char* kind_name(StepKind k) {
-  switch (k) {
-    case StepKind::Inner:
-      return "inner";
-    case StepKind::Leaf:
-      return "leaf";
-    case StepKind::Cell:
-      return "cell";
-  }
-  return "?";
+  static constexpr EnumName<StepKind> kNames[] = {
+      {StepKind::Inner, "inner"}, {StepKind::Leaf, "leaf"}, {StepKind::Cell, "cell"}};
+  return enum_name(k, kNames);
 }
 
 RaySegment pick_segment(const Ray& ray, const Trace& t, const Box3& bounds) {

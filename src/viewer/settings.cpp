@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "util/atomic_file.h"
+#include "util/enum_names.h"
 #include "util/error.h"
 #include "util/input_file.h"
 
@@ -18,22 +19,16 @@ namespace kdgrid::viewer {
 
 namespace fs = std::filesystem;
 
+constexpr EnumName<HeatScale> kHeatScaleNames[] = {
+    {HeatScale::Auto, "auto"}, {HeatScale::Fixed, "fixed"}, {HeatScale::Log, "log"}};
+
 const char* to_string(HeatScale s) {
-  switch (s) {
-    case HeatScale::Auto:
-      return "auto";
-    case HeatScale::Fixed:
-      return "fixed";
-    case HeatScale::Log:
-      return "log";
-  }
-  return "auto";
+  return enum_name(s, kHeatScaleNames, "auto");
 }
 
+/// The scale `s` names; auto for any other text.
 static HeatScale parse_heat_scale(const std::string& s) {
-  if (s == "fixed") return HeatScale::Fixed;
-  if (s == "log") return HeatScale::Log;
-  return HeatScale::Auto;
+  return enum_value(s, kHeatScaleNames).value_or(HeatScale::Auto);
 }
 
 std::string config_dir() {

@@ -41,6 +41,7 @@
 #include "accel/brute.h"
 #include "accel/embree.h"
 #include "bench/rayfile.h"
+#include "bench/raysets.h"
 #include "comparator_meshes.h"
 #include "scene/mesh.h"
 
@@ -143,14 +144,7 @@ inline std::vector<Hit> brute_reference(const Mesh& mesh, const std::vector<Ray>
   BuildParams p;
   p.triangle_test = test;
   brute.build(mesh, p);
-  std::vector<Hit> hits(rays.size());
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 64),
-                    [&](const tbb::blocked_range<size_t>& r) {
-                      for (size_t i = r.begin(); i < r.end(); ++i) {
-                        Hit h;
-                        if (brute.intersect(rays[i], h)) hits[i] = h;
-                      }
-                    });
+  std::vector<Hit> hits = trace_hits(brute, rays, 64);
   if (!file.empty()) {
     std::error_code ec;
     fs::create_directories(file.parent_path(), ec);

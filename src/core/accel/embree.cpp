@@ -395,6 +395,20 @@ void set_lane(RaysK& k, int i, const RTCRay& r) {
   k.flags[i] = r.flags;
 }
 
+/// The K lanes of a packet's rays set from rays[0, m), 0 < m <= K: lanes past m repeat the last
+/// ray. valid[i] turns off those lanes and rays Embree must not see (ray_is_valid); shift[i]
+/// is what to_rtc moved lane i's ray by.
+template <int K, class RaysK>
+void set_lanes(RaysK& k, const Ray* rays, int m, int (&valid)[K], float (&shift)[K]) {
+  for (int i = 0; i < K; ++i) {
+    RTCRay one;
+    const Ray& r = rays[std::min(i, m - 1)];
+    shift[i] = to_rtc(r, one);
+    valid[i] = i < m && ray_is_valid(r) ? -1 : 0;
+    set_lane(k, i, one);
+  }
+}
+
 /// The coherent context: Embree's packet kernels may then trace the lanes together.
 RTCIntersectContext coherent_context() {
   RTCIntersectContext ctx;
@@ -433,12 +447,8 @@ void EmbreeAccel::intersect_k(const Ray* rays, int n, Hit* hits, bool* found) co
     alignas(64) int valid[K];
     alignas(64) typename P::RayHit rh;
     float shift[K];
+    set_lanes(rh.ray, rays + base, m, valid, shift);
     for (int i = 0; i < K; ++i) {
-      RTCRay one;
-      const Ray& r = rays[base + std::min(i, m - 1)];
-      shift[i] = to_rtc(r, one);
-      valid[i] = i < m && ray_is_valid(r) ? -1 : 0;
-      set_lane(rh.ray, i, one);
       rh.hit.geomID[i] = RTC_INVALID_GEOMETRY_ID;
       rh.hit.primID[i] = RTC_INVALID_GEOMETRY_ID;
       rh.hit.instID[0][i] = RTC_INVALID_GEOMETRY_ID;
@@ -462,13 +472,8 @@ void EmbreeAccel::occluded_k(const Ray* rays, int n, bool* occluded_out) const {
     const int m = std::min(K, n - base);
     alignas(64) int valid[K];
     alignas(64) typename P::Rays rk;
-    for (int i = 0; i < K; ++i) {
-      RTCRay one;
-      const Ray& r = rays[base + std::min(i, m - 1)];
-      to_rtc(r, one);
-      valid[i] = i < m && ray_is_valid(r) ? -1 : 0;
-      set_lane(rk, i, one);
-    }
+    float shift[K];  // unused: an occlusion answer has no t to shift back
+    set_lanes(rk, rays + base, m, valid, shift);
     P::occluded(valid, state_->scene, &ctx, &rk);
     for (int i = 0; i < m; ++i) occluded_out[base + i] = valid[i] && rk.tfar[i] == -kInf;
   }

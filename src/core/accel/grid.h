@@ -139,19 +139,10 @@ bool UniformGrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
     const uint32_t begin = offsets_[idx], end = offsets_[idx + 1];
     if (begin != end) {
       s.leaf();
-      for (uint32_t r = begin; r < end; ++r) {
-        const uint32_t prim = refs_[r];
-        uint32_t& slot = mailbox[prim & 15u];
-        if (slot == prim) {
-          s.mailbox_skip();
-          continue;
-        }
-        slot = prim;
-        s.tri_test(prim);
-        if (hit_triangle<TriangleTest, kAny>(rd, pos, tris[prim], prim, ray.tmin, best, hit)) {
-          if constexpr (kAny) return true;
-          found = true;
-        }
+      if (hit_triangles_mailboxed<TriangleTest, kAny>(rd, pos, tris, refs_.data(), begin, end,
+                                                      mailbox, ray.tmin, best, hit, s)) {
+        if constexpr (kAny) return true;
+        found = true;
       }
     }
     if (found && best <= t_exit) break;

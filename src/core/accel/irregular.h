@@ -207,19 +207,10 @@ bool IrregularGrid::traverse(const Ray& ray, Hit* hit, Probe& s) const {
       s.visit(TraceStep{StepKind::Cell, 0, ci, world_box(c.lo, c.hi), float(t_in), float(t_exit)});
     if (c.end > c.begin) {
       s.leaf();
-      for (uint32_t i = c.begin; i < c.end; ++i) {
-        const uint32_t prim = refs_[i];
-        uint32_t& slot = mailbox[prim & (kMailboxSlots - 1)];
-        if (slot == prim) {
-          s.mailbox_skip();
-          continue;
-        }
-        slot = prim;
-        s.tri_test(prim);
-        if (hit_triangle<TriangleTest, kAny>(rd, pos, tris[prim], prim, ray.tmin, best, hit)) {
-          if constexpr (kAny) return true;
-          found = true;
-        }
+      if (hit_triangles_mailboxed<TriangleTest, kAny>(rd, pos, tris, refs_.data(), c.begin, c.end,
+                                                      mailbox, ray.tmin, best, hit, s)) {
+        if constexpr (kAny) return true;
+        found = true;
       }
     }
     // Every triangle the ray can meet inside the exit box has been tested, so a hit before

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <thread>
 
+#include "util/enum_names.h"
 #include "util/error.h"
 #include "util/memory.h"
 
@@ -40,15 +41,11 @@ TriangleTestKind parse_triangle_test(const std::string& s) {
 }
 
 const char* to_string(TriangleTestKind k) {
-  switch (k) {
-    case TriangleTestKind::Watertight:
-      return "watertight";
-    case TriangleTestKind::Moller:
-      return "moller";
-    case TriangleTestKind::None:
-      return "none";
-  }
-  return "?";
+  static constexpr EnumName<TriangleTestKind> kNames[] = {
+      {TriangleTestKind::Watertight, "watertight"},
+      {TriangleTestKind::Moller, "moller"},
+      {TriangleTestKind::None, "none"}};
+  return enum_name(k, kNames);
 }
 
 }  // namespace kdgrid

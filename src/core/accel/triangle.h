@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <utility>
 
@@ -162,6 +163,35 @@ template <class TriangleTest, bool kAny, class Positions, class Corners>
     *hit = {t, prim, u, v};
   }
   return true;
+}
+
+/// The leaf loop of the mailboxed grids: the triangles refs[begin, end) against the prepared ray
+/// over [tmin, best), each one skipped while the ray's direct-mapped `mailbox` (N slots, a
+/// power of two) still holds it, since testing it again cannot change the answer. True on a
+/// hit, as hit_triangle: a closest-hit query tests them all, narrowing `best`; an any-hit query
+/// stops at the first.
+template <class TriangleTest, bool kAny, class Probe, class Positions, class Triangles, size_t N>
+[[gnu::always_inline]] inline bool hit_triangles_mailboxed(
+    const typename TriangleTest::RayData& rd, const Positions& pos, const Triangles& tris,
+    const uint32_t* refs, uint32_t begin, uint32_t end, uint32_t (&mailbox)[N], float tmin,
+    float& best, Hit* hit, Probe& s) {
+  static_assert((N & (N - 1)) == 0, "the mailbox is indexed by the triangle's low bits");
+  bool found = false;
+  for (uint32_t r = begin; r < end; ++r) {
+    const uint32_t prim = refs[r];
+    uint32_t& slot = mailbox[prim & (N - 1)];
+    if (slot == prim) {
+      s.mailbox_skip();
+      continue;
+    }
+    slot = prim;
+    s.tri_test(prim);
+    if (hit_triangle<TriangleTest, kAny>(rd, pos, tris[prim], prim, tmin, best, hit)) {
+      if constexpr (kAny) return true;
+      found = true;
+    }
+  }
+  return found;
 }
 
 }  // namespace kdgrid

@@ -15,6 +15,7 @@
 #include "math/segment.h"
 #include "render/renderer.h"
 #include "scene/procedural.h"
+#include "util/enum_names.h"
 
 namespace kdgrid {
 
@@ -263,12 +264,18 @@ Mesh transformed(Mesh m, double scale, const Vec3& shift) {
   return m;
 }
 
-Mesh degenerate_mesh(uint64_t seed) {
+/// The procedural scene `name`'s mesh (count, seed), without material ids.
+Mesh named_mesh(const std::string& name, int count, uint64_t seed) {
   ProceduralParams pp;
-  pp.count = 1500;
+  pp.count = count;
   pp.seed = seed;
-  Mesh m = generate_scene("soup", pp).mesh;
+  Mesh m = generate_scene(name, pp).mesh;
   m.material_ids.clear();
+  return m;
+}
+
+Mesh degenerate_mesh(uint64_t seed) {
+  Mesh m = named_mesh("soup", 1500, seed);
   Rng rng(seed + 17);
   const size_t base_tris = m.num_triangles();
   for (int i = 0; i < 150; ++i) {  // zero-area: three equal vertices
@@ -294,33 +301,16 @@ Mesh degenerate_mesh(uint64_t seed) {
 }
 
 Mesh dense_cell_mesh(uint64_t seed) {
-  ProceduralParams pp;
-  pp.count = 3000;
-  pp.seed = seed;
-  Mesh m = transformed(generate_scene("soup", pp).mesh, 1e-3, Vec3(0.25f, 0.1f, -0.3f));
-  m.material_ids.clear();
+  Mesh m = transformed(named_mesh("soup", 3000, seed), 1e-3, Vec3(0.25f, 0.1f, -0.3f));
   m.append(make_box(Vec3(0.0f), Vec3(10.0f), 0.0f, true));
   m.material_ids.clear();
   return m;
 }
 
 Mesh coplanar_mesh(uint64_t seed) {
-  ProceduralParams pp;
-  pp.count = 2000;
-  pp.seed = seed;
-  Mesh m = generate_scene("soup", pp).mesh;
+  Mesh m = named_mesh("soup", 2000, seed);
   for (auto& p : m.positions) p.z = 0.0f;  // every triangle in the plane z = 0
-  m.material_ids.clear();
   m.normals.clear();
-  return m;
-}
-
-Mesh named_mesh(const std::string& name, int count, uint64_t seed) {
-  ProceduralParams pp;
-  pp.count = count;
-  pp.seed = seed;
-  Mesh m = generate_scene(name, pp).mesh;
-  m.material_ids.clear();
   return m;
 }
 
@@ -601,17 +591,11 @@ CheckResult judge_accelerator(const Accelerator& accel, const CheckCase& base) {
 }
 
 const char* to_string(AccuracyVerdict v) {
-  switch (v) {
-    case AccuracyVerdict::Agree:
-      return "agree";
-    case AccuracyVerdict::Ambiguous:
-      return "ambiguous";
-    case AccuracyVerdict::Disagree:
-      return "disagree";
-    case AccuracyVerdict::Leak:
-      return "leak";
-  }
-  return "?";
+  static constexpr EnumName<AccuracyVerdict> kNames[] = {{AccuracyVerdict::Agree, "agree"},
+                                                         {AccuracyVerdict::Ambiguous, "ambiguous"},
+                                                         {AccuracyVerdict::Disagree, "disagree"},
+                                                         {AccuracyVerdict::Leak, "leak"}};
+  return enum_name(v, kNames);
 }
 
 namespace {

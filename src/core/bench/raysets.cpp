@@ -5,8 +5,10 @@
 #include <algorithm>
 #include <cmath>
 
+#include "math/rng.h"
 #include "render/camera.h"
 #include "render/renderer.h"
+#include "util/enum_names.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -15,23 +17,11 @@ namespace {
 
 constexpr float kPi = 3.14159265358979f;
 
-/// Counter-based generator: ray i of a set draws from its own stream (seed, i), so a set is
-/// the same whatever the thread count or generation order.
-class Rng {
- public:
-  Rng(uint64_t seed, uint64_t index) : state_(mix(seed * 0x9E3779B97F4A7C15ull + mix(index))) {}
-  /// Uniform in [0, 1).
-  float uniform() { return float(next() >> 40) * (1.0f / 16777216.0f); }
-  uint64_t next() { return mix(state_ += 0x9E3779B97F4A7C15ull); }
-
- private:
-  static uint64_t mix(uint64_t z) {  // splitmix64 finalizer
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  }
-  uint64_t state_;
-};
+/// Counter-based streams: ray i of a set draws from its own stream (seed, i), so a set is the
+/// same whatever the thread count or generation order.
+SplitMix64 ray_stream(uint64_t seed, uint64_t index) {
+  return SplitMix64(splitmix64_mix(seed * SplitMix64::kIncrement + splitmix64_mix(index)));
+}
 
 Vec3 hit_point(const Mesh& mesh, const Hit& h) {
   // Barycentric interpolation is more accurate than org + t*dir far from the origin.
@@ -46,7 +36,7 @@ Vec3 facing_normal(const Mesh& mesh, const Hit& h, const Vec3& ray_dir) {
   return n;
 }
 
-Vec3 uniform_direction(Rng& rng) {
+Vec3 uniform_direction(SplitMix64& rng) {
   const float z = 1.0f - 2.0f * rng.uniform();
   const float r = std::sqrt(std::max(0.0f, 1.0f - z * z));
   const float phi = 2.0f * kPi * rng.uniform();
@@ -67,26 +57,17 @@ void step_origins(const Accelerator* accel, const Mesh& mesh, const std::vector<
 
 }  // namespace
 
+constexpr EnumName<RaySetKind> kRaySetNames[] = {{RaySetKind::Primary, "primary"},
+                                                 {RaySetKind::Shadow, "shadow"},
+                                                 {RaySetKind::Diffuse, "diffuse"},
+                                                 {RaySetKind::Random, "random"}};
+
 RaySetKind parse_ray_set(const std::string& s) {
-  if (s == "primary") return RaySetKind::Primary;
-  if (s == "shadow") return RaySetKind::Shadow;
-  if (s == "diffuse") return RaySetKind::Diffuse;
-  if (s == "random") return RaySetKind::Random;
-  throw ParamError("unknown ray set '" + s + "': use primary, shadow, diffuse or random");
+  return parse_enum(s, kRaySetNames, "unknown ray set", "use primary, shadow, diffuse or random");
 }
 
 const char* to_string(RaySetKind k) {
-  switch (k) {
-    case RaySetKind::Primary:
-      return "primary";
-    case RaySetKind::Shadow:
-      return "shadow";
-    case RaySetKind::Diffuse:
-      return "diffuse";
-    case RaySetKind::Random:
-      return "random";
-  }
-  return "?";
+  return enum_name(k, kRaySetNames);
 }
 
 std::vector<Ray> primary_rays(const Camera& cam, int width, int height) {
@@ -116,9 +97,9 @@ std::vector<uint32_t> tile_order(int width, int height, int tile) {
   return order;
 }
 
-std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& rays) {
+std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& rays, size_t grain) {
   std::vector<Hit> hits(rays.size());
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 1024),
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), grain),
                     [&](const tbb::blocked_range<size_t>& r) {
                       for (size_t i = r.begin(); i < r.end(); ++i) {
                         Hit h;
@@ -159,7 +140,7 @@ std::vector<Ray> diffuse_rays(const Mesh& mesh, const std::vector<Ray>& primary,
     const float a = -1.0f / (sign + n.z), b = n.x * n.y * a;
     const Vec3 t1(1.0f + sign * n.x * n.x * a, sign * b, -sign * n.x);
     const Vec3 t2(b, sign + n.y * n.y * a, -n.y);
-    Rng rng(seed, i);
+    SplitMix64 rng = ray_stream(seed, i);
     const float u1 = rng.uniform(), u2 = rng.uniform();
     const float r = std::sqrt(u1), phi = 2.0f * kPi * u2;
     const Vec3 d = t1 * (r * std::cos(phi)) + t2 * (r * std::sin(phi)) +
@@ -180,7 +161,7 @@ std::vector<Ray> random_rays(const Box3& bounds, size_t count, uint64_t seed) {
     if (!(ext[a] > 0.0f)) ext[a] = big;
   const Vec3 lo = bounds.empty() ? Vec3(-0.5f) : bounds.lo;
   tbb::parallel_for(size_t(0), count, [&](size_t i) {
-    Rng rng(seed, i);
+    SplitMix64 rng = ray_stream(seed, i);
     auto in_box = [&](float margin) {
       return Vec3(lo.x - margin * ext.x + (1 + 2 * margin) * ext.x * rng.uniform(),
                   lo.y - margin * ext.y + (1 + 2 * margin) * ext.y * rng.uniform(),

@@ -46,8 +46,10 @@ std::vector<Ray> primary_rays(const Camera& cam, int width, int height);
 /// the image). Consecutive runs of tile^2 indices are the packets of a packet query.
 std::vector<uint32_t> tile_order(int width, int height, int tile);
 
-/// Closest hits of `rays`, in parallel over rays (TBB).
-std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& rays);
+/// Closest hits of `rays`, in parallel over rays (TBB), `grain` rays per task at the least: a
+/// smaller grain spreads slow queries (brute force over a large mesh) over more threads.
+std::vector<Hit> trace_hits(const Accelerator& accel, const std::vector<Ray>& rays,
+                            size_t grain = 1024);
 
 /// Shadow rays from the hits of `primary` towards `light` (misses produce no ray). With
 /// `accel` (built over `mesh`), each origin is stepped past the coincident surfaces it would

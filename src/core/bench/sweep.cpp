@@ -20,6 +20,7 @@
 #include "bench/check.h"
 #include "bench/raysets.h"
 #include "image/image_io.h"
+#include "math/rng.h"
 #include "math/simd.h"
 #include "render/renderer.h"
 #include "scene/load.h"
@@ -273,18 +274,6 @@ void sweep_param(const SweepOptions& o, SweepTable& t, const std::string& accel,
 /// (1e-3 of the 2x-scene-diagonal approach) to absorb rounding of the hit's t, far short of
 /// any other surface of the test meshes.
 constexpr float kLeakRayTmax = 1.001f;
-
-/// splitmix64 stream for the leak rays' directions.
-struct Rng {
-  uint64_t s;
-  uint64_t next() {
-    uint64_t z = (s += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  }
-  float uniform() { return float(next() >> 40) * (1.0f / 16777216.0f); }
-};
 
 Mesh transformed(const Mesh& m, float scale, const Vec3& offset) {
   Mesh out = m;
@@ -725,7 +714,7 @@ std::vector<Ray> edge_vertex_rays(const Mesh& mesh, int per_target, uint64_t see
   }
   const Box3 bounds = mesh.bounds();
   const float dist = 2.0f * length(bounds.extent()) + 1e-30f;
-  Rng rng{seed};
+  SplitMix64 rng{seed};  // the leak rays' directions
   std::vector<Ray> rays;
   // A direction d whose origin target + d * dist lies on the outer side of every adjacent
   // face (dot(d, n) > 0.2 for each), so the ray crosses into the closed volume at the target.

@@ -10,6 +10,8 @@
 #include <chrono>
 #include <cmath>
 
+#include "math/rng.h"
+#include "util/enum_names.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -35,29 +37,12 @@ constexpr float kMinWeight = 1e-4f;
 // Highlight exponent bounds: below 1 the lobe is flat; above 1e4 it is smaller than a pixel.
 constexpr float kMinExponent = 1.0f, kMaxExponent = 1e4f;
 
-/// splitmix64 finaliser: a well-mixed 64-bit hash, the basis of the per-pixel generators.
-uint64_t mix64(uint64_t z) {
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-  return z ^ (z >> 31);
-}
-
-/// Per-pixel sample generator seeded from (seed, pixel, sample), so a pixel's samples do not
+/// Per-pixel sample stream seeded from (seed, pixel, sample), so a pixel's samples do not
 /// depend on which thread renders it or in what order.
-class SampleRng {
- public:
-  SampleRng(uint64_t seed, uint64_t pixel, uint64_t sample)
-      : state_(mix64(mix64(seed ^ 0x9e3779b97f4a7c15ull) ^ pixel) +
-               mix64(sample + 0x632be59bd9b4e019ull)) {}
-  /// Uniform in [0, 1).
-  float next() {
-    state_ += 0x9e3779b97f4a7c15ull;
-    return float(mix64(state_) >> 40) * (1.0f / 16777216.0f);
-  }
-
- private:
-  uint64_t state_;
-};
+SplitMix64 sample_stream(uint64_t seed, uint64_t pixel, uint64_t sample) {
+  return SplitMix64(splitmix64_mix(splitmix64_mix(seed ^ SplitMix64::kIncrement) ^ pixel) +
+                    splitmix64_mix(sample + 0x632be59bd9b4e019ull));
+}
 
 float saturate(float x) {
   return std::min(1.0f, std::max(0.0f, x));
@@ -161,11 +146,11 @@ void Renderer::render_tile(int x0, int y0, int x1, int y1, uint64_t sample, floa
                            RenderCounters& c) const {
   const int w = settings_.width;
   auto camera_ray = [&](int x, int y) {
-    SampleRng rng(settings_.seed, uint64_t(y) * w + x, sample);
+    SplitMix64 rng = sample_stream(settings_.seed, uint64_t(y) * w + x, sample);
     float jx = 0.5f, jy = 0.5f;
     if (settings_.jitter) {
-      jx = rng.next();
-      jy = rng.next();
+      jx = rng.uniform();
+      jy = rng.uniform();
     }
     return frame_.ray(float(x) + jx, float(y) + jy);
   };
@@ -433,46 +418,31 @@ Vec3 Renderer::shade_unlit_mode(const Ray& ray, bool found, const Hit& hit, bool
   return s.m->emission + s.albedo * (kEyeLightFloor + (1.0f - kEyeLightFloor) * cos_v);
 }
 
+constexpr EnumName<Shading> kShadingNames[] = {
+    {Shading::Lights, "lights"}, {Shading::EyeLight, "eye"}, {Shading::Normals, "normals"}};
+constexpr EnumName<SecondaryOffset> kSecondaryOffsetNames[] = {
+    {SecondaryOffset::Robust, "robust"},
+    {SecondaryOffset::Epsilon, "epsilon"},
+    {SecondaryOffset::None, "none"}};
+
 Shading parse_shading(const std::string& s, const std::string& what) {
-  if (s == "lights") return Shading::Lights;
-  if (s == "eye") return Shading::EyeLight;
-  if (s == "normals") return Shading::Normals;
-  throw ParamError(what + " '" + s +
-                   "': choose lights (the scene's lights), eye (a light at "
-                   "the eye) or normals (the surface normal as a colour)");
+  return parse_enum(s, kShadingNames, what,
+                    "choose lights (the scene's lights), eye (a light at the eye) or normals (the "
+                    "surface normal as a colour)");
 }
 
 SecondaryOffset parse_secondary_offset(const std::string& s, const std::string& what) {
-  if (s == "robust") return SecondaryOffset::Robust;
-  if (s == "epsilon") return SecondaryOffset::Epsilon;
-  if (s == "none") return SecondaryOffset::None;
-  throw ParamError(what + " '" + s +
-                   "': choose robust (the hit point moved off the surface), epsilon (skip hits "
-                   "nearer than 1e-4) or none (start at the hit point)");
-}
-
-const char* to_string(SecondaryOffset o) {
-  switch (o) {
-    case SecondaryOffset::Robust:
-      return "robust";
-    case SecondaryOffset::Epsilon:
-      return "epsilon";
-    case SecondaryOffset::None:
-      return "none";
-  }
-  return "robust";
+  return parse_enum(s, kSecondaryOffsetNames, what,
+                    "choose robust (the hit point moved off the surface), epsilon (skip hits "
+                    "nearer than 1e-4) or none (start at the hit point)");
 }
 
 const char* to_string(Shading s) {
-  switch (s) {
-    case Shading::Lights:
-      return "lights";
-    case Shading::EyeLight:
-      return "eye";
-    case Shading::Normals:
-      return "normals";
-  }
-  return "lights";
+  return enum_name(s, kShadingNames, "lights");
+}
+
+const char* to_string(SecondaryOffset o) {
+  return enum_name(o, kSecondaryOffsetNames, "robust");
 }
 
 Renderer::Surface Renderer::surface_at(const Ray& ray, const Hit& hit) const {
@@ -637,17 +607,11 @@ Vec3 Renderer::finish_hit(const Surface& s, Vec3 result, int depth, const Vec3& 
 }
 
 const char* to_string(RayKind k) {
-  switch (k) {
-    case RayKind::Primary:
-      return "primary";
-    case RayKind::Shadow:
-      return "shadow";
-    case RayKind::Reflection:
-      return "reflection";
-    case RayKind::Refraction:
-      return "refraction";
-  }
-  return "?";
+  static constexpr EnumName<RayKind> kNames[] = {{RayKind::Primary, "primary"},
+                                                 {RayKind::Shadow, "shadow"},
+                                                 {RayKind::Reflection, "reflection"},
+                                                 {RayKind::Refraction, "refraction"}};
+  return enum_name(k, kNames);
 }
 
 }  // namespace kdgrid

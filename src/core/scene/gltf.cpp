@@ -500,15 +500,10 @@ class GltfBuilder {
       return;
     }
     const tinygltf::Light& gl = model_.lights[size_t(li)];
+    const std::optional<LightType> type = enum_value(gl.type, kLightTypeNames);
+    if (!type) return;
     Light l;
-    if (gl.type == "directional")
-      l.type = LightType::Directional;
-    else if (gl.type == "spot")
-      l.type = LightType::Spot;
-    else if (gl.type == "point")
-      l.type = LightType::Point;
-    else
-      return;
+    l.type = *type;
     l.position = world.point(Vec3(0.0f));
     l.direction = normalize(world.vector(Vec3(0, 0, -1)));
     l.color = factor3(gl.color, Vec3(1.0f));
@@ -542,6 +537,18 @@ class GltfBuilder {
     return uint32_t(default_material_);
   }
 
+  /// The accessor of the primitive's vertex attribute `name`, checked to hold `type` elements,
+  /// one per vertex (`nv`, POSITION's count); nullptr where the primitive has no such attribute.
+  const tinygltf::Accessor* vertex_attribute(const tinygltf::Primitive& prim, const char* name,
+                                             int type, size_t nv, const std::string& where) const {
+    const auto it = prim.attributes.find(name);
+    if (it == prim.attributes.end()) return nullptr;
+    const tinygltf::Accessor& a = acc_.check(it->second, where + " " + name, type);
+    if (a.count != nv)
+      throw LoadError(path_ + ": " + where + ": " + name + " count differs from POSITION count");
+    return &a;
+  }
+
   void add_mesh(int mesh_index, const Mat4& world) {
     const tinygltf::Mesh& gm = model_.meshes[size_t(mesh_index)];
     const Mat4 nmat = world.normal_matrix();
@@ -572,29 +579,19 @@ class GltfBuilder {
       for (size_t i = 0; i < nv; ++i)
         part.positions[i] = world.point(Vec3(float(acc_.get(pos, i, 0)), float(acc_.get(pos, i, 1)),
                                              float(acc_.get(pos, i, 2))));
-      const auto nrm_it = prim.attributes.find("NORMAL");
-      if (nrm_it != prim.attributes.end()) {
-        const tinygltf::Accessor& nrm =
-            acc_.check(nrm_it->second, where + " NORMAL", TINYGLTF_TYPE_VEC3);
-        if (nrm.count != nv)
-          throw LoadError(path_ + ": " + where + ": NORMAL count differs from POSITION count");
+      if (const auto* nrm = vertex_attribute(prim, "NORMAL", TINYGLTF_TYPE_VEC3, nv, where)) {
         part.normals.resize(nv);
         for (size_t i = 0; i < nv; ++i) {
-          const Vec3 n = nmat.vector(Vec3(float(acc_.get(nrm, i, 0)), float(acc_.get(nrm, i, 1)),
-                                          float(acc_.get(nrm, i, 2))));
+          const Vec3 n = nmat.vector(Vec3(float(acc_.get(*nrm, i, 0)), float(acc_.get(*nrm, i, 1)),
+                                          float(acc_.get(*nrm, i, 2))));
           const float len = length(n);
           part.normals[i] = len > 0 ? n / len : n;
         }
       }
-      const auto uv_it = prim.attributes.find("TEXCOORD_0");
-      if (uv_it != prim.attributes.end()) {
-        const tinygltf::Accessor& uv =
-            acc_.check(uv_it->second, where + " TEXCOORD_0", TINYGLTF_TYPE_VEC2);
-        if (uv.count != nv)
-          throw LoadError(path_ + ": " + where + ": TEXCOORD_0 count differs from POSITION count");
+      if (const auto* uv = vertex_attribute(prim, "TEXCOORD_0", TINYGLTF_TYPE_VEC2, nv, where)) {
         part.uvs.resize(nv);
         for (size_t i = 0; i < nv; ++i)
-          part.uvs[i] = {float(acc_.get(uv, i, 0)), float(acc_.get(uv, i, 1))};
+          part.uvs[i] = {float(acc_.get(*uv, i, 0)), float(acc_.get(*uv, i, 1))};
       }
 
       // Vertex order of the primitive: the index accessor, or 0..n-1.

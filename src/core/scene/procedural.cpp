@@ -6,6 +6,7 @@
 #include <map>
 #include <utility>
 
+#include "math/rng.h"
 #include "util/error.h"
 
 namespace kdgrid {
@@ -13,33 +14,6 @@ namespace kdgrid {
 namespace {
 
 constexpr float kPi = 3.14159265358979f;
-
-/// splitmix64: small, fast and identical on every platform (std distributions are not).
-class Rng {
- public:
-  explicit Rng(uint64_t seed) : state_(seed) {}
-  uint64_t next_u64() {
-    uint64_t z = (state_ += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return z ^ (z >> 31);
-  }
-  /// Uniform in [0, 1).
-  float uniform() { return float(next_u64() >> 40) * (1.0f / 16777216.0f); }
-  float uniform(float lo, float hi) { return lo + (hi - lo) * uniform(); }
-  int integer(int lo, int hi_exclusive) {
-    return lo + int(next_u64() % uint64_t(hi_exclusive - lo));
-  }
-  Vec3 in_box(float lo, float hi) { return {uniform(lo, hi), uniform(lo, hi), uniform(lo, hi)}; }
-  Vec3 unit_vector() {
-    const float z = uniform(-1.0f, 1.0f), phi = uniform(0.0f, 2.0f * kPi);
-    const float s = std::sqrt(std::max(0.0f, 1.0f - z * z));
-    return {s * std::cos(phi), s * std::sin(phi), z};
-  }
-
- private:
-  uint64_t state_;
-};
 
 Material make_material(const std::string& name, const Vec3& color) {
   Material m;
@@ -94,7 +68,6 @@ std::pair<int, int> torus_segments(int triangles) {
 Scene cornell(const ProceduralParams& p) {
   const int level = pick_level("cornell", p, 3);
   Scene s;
-  s.source = "procedural:cornell";
   enum : uint32_t { kWhite, kRed, kGreen, kLight, kMirror, kGlass };
   s.materials.push_back(make_material("white", {0.73f, 0.73f, 0.73f}));
   s.materials.push_back(make_material("red", {0.65f, 0.05f, 0.05f}));
@@ -132,20 +105,13 @@ Scene cornell(const ProceduralParams& p) {
   add_part(make_icosphere(level, {-0.42f, 0.45f, -0.4f}, 0.45f), kMirror);
   add_part(make_icosphere(level, {0.45f, 0.36f, 0.3f}, 0.36f), kGlass);
 
-  Light l;
-  l.type = LightType::Point;
-  l.position = {0.0f, 1.9f, 0.0f};
-  l.color = Vec3(1.0f, 0.93f, 0.8f);
-  l.intensity = 6.0f;
-  l.name = "ceiling light";
-  s.lights.push_back(l);
-
-  Camera cam;
-  cam.eye = {0.0f, 1.0f, 3.9f};
-  cam.target = {0.0f, 1.0f, 0.0f};
-  cam.fov_deg = 40.0f;
-  cam.name = "cornell";
-  s.camera = cam;
+  s.lights.push_back({.type = LightType::Point,
+                      .position = {0.0f, 1.9f, 0.0f},
+                      .color = Vec3(1.0f, 0.93f, 0.8f),
+                      .intensity = 6.0f,
+                      .name = "ceiling light"});
+  s.camera = Camera{
+      .eye = {0.0f, 1.0f, 3.9f}, .target = {0.0f, 1.0f, 0.0f}, .fov_deg = 40.0f, .name = "cornell"};
   return s;
 }
 
@@ -153,31 +119,21 @@ Scene teapot_in_stadium(const ProceduralParams& p) {
   const int count = pick_count("teapot-in-stadium", p, 20000);
   const auto [major, minor] = torus_segments(count);
   Scene s;
-  s.source = "procedural:teapot-in-stadium";
   s.materials.push_back(make_material("stadium", {0.6f, 0.6f, 0.6f}));
   s.materials.push_back(make_material("teapot", {0.8f, 0.55f, 0.2f}));
   Mesh stadium = make_box(Vec3(0.0f, 1490.0f, 0.0f), Vec3(1500.0f), 0.0f, /*inward=*/true);
   s.mesh.append(stadium, 0);
   s.mesh.append(make_torus(major, minor, 1.0f, 0.35f, {0.0f, 0.0f, 0.0f}), 1);
-  Light l;
-  l.position = {2.0f, 5.0f, 4.0f};
-  l.intensity = 40.0f;
-  l.name = "key light";
-  s.lights.push_back(l);
-  Camera cam;
-  cam.eye = {0.0f, 2.2f, 4.0f};
-  cam.target = {0.0f, 0.0f, 0.0f};
-  cam.fov_deg = 45.0f;
-  cam.name = "teapot";
-  s.camera = cam;
+  s.lights.push_back({.position = {2.0f, 5.0f, 4.0f}, .intensity = 40.0f, .name = "key light"});
+  s.camera = Camera{
+      .eye = {0.0f, 2.2f, 4.0f}, .target = {0.0f, 0.0f, 0.0f}, .fov_deg = 45.0f, .name = "teapot"};
   return s;
 }
 
 Scene thin_triangles(const ProceduralParams& p) {
   const int count = pick_count("thin-triangles", p, 10000);
-  Rng rng(p.seed);
+  SplitMix64 rng(p.seed);
   Scene s;
-  s.source = "procedural:thin-triangles";
   for (int i = 0; i < count; ++i) {
     const Vec3 c = rng.in_box(-1.0f, 1.0f);
     const Vec3 u = rng.unit_vector();
@@ -195,9 +151,8 @@ Scene thin_triangles(const ProceduralParams& p) {
 
 Scene coplanar_quads(const ProceduralParams& p) {
   const int count = pick_count("coplanar-quads", p, 2000);
-  Rng rng(p.seed);
+  SplitMix64 rng(p.seed);
   Scene s;
-  s.source = "procedural:coplanar-quads";
   // (axis of the plane normal, exact plane coordinate): all representable exactly.
   const std::pair<int, float> planes[] = {{2, 0.0f}, {2, 3.0f}, {0, 0.0f}, {1, 1.5f}};
   for (int i = 0; i < count; ++i) {
@@ -235,9 +190,8 @@ Scene coplanar_quads(const ProceduralParams& p) {
 
 Scene duplicates(const ProceduralParams& p) {
   const int count = pick_count("duplicates", p, 2000);
-  Rng rng(p.seed);
+  SplitMix64 rng(p.seed);
   Scene s;
-  s.source = "procedural:duplicates";
   Mesh& m = s.mesh;
   for (int i = 0; i < count; ++i) {
     const Vec3 c = rng.in_box(-1.0f, 1.0f);
@@ -265,9 +219,8 @@ Scene duplicates(const ProceduralParams& p) {
 
 Scene soup(const ProceduralParams& p) {
   const int count = pick_count("soup", p, 10000);
-  Rng rng(p.seed);
+  SplitMix64 rng(p.seed);
   Scene s;
-  s.source = "procedural:soup";
   for (int i = 0; i < count; ++i) {
     const Vec3 c = rng.in_box(-1.0f, 1.0f);
     const uint32_t b = uint32_t(s.mesh.positions.size());
@@ -279,7 +232,6 @@ Scene soup(const ProceduralParams& p) {
 
 Scene sphere(const ProceduralParams& p) {
   Scene s;
-  s.source = "procedural:sphere";
   s.mesh = make_icosphere(pick_level("sphere", p, 4));
   return s;
 }
@@ -287,7 +239,6 @@ Scene sphere(const ProceduralParams& p) {
 Scene torus(const ProceduralParams& p) {
   const auto [major, minor] = torus_segments(pick_count("torus", p, 5000));
   Scene s;
-  s.source = "procedural:torus";
   s.mesh = make_torus(major, minor);
   return s;
 }
@@ -310,7 +261,8 @@ class ValueNoise {
  private:
   static float smooth(float t) { return t * t * (3.0f - 2.0f * t); }
   float lattice(int64_t x, int64_t z) const {
-    Rng r(seed_ ^ (uint64_t(x) * 0x9E3779B185EBCA87ull) ^ (uint64_t(z) * 0xC2B2AE3D27D4EB4Full));
+    SplitMix64 r(seed_ ^ (uint64_t(x) * 0x9E3779B185EBCA87ull) ^
+                 (uint64_t(z) * 0xC2B2AE3D27D4EB4Full));
     return r.uniform() * 2.0f - 1.0f;
   }
   uint64_t seed_;
@@ -342,11 +294,10 @@ float landscape_height(const ValueNoise& noise, float x, float z) {
 Scene landscape(const ProceduralParams& p) {
   const int count = pick_count("landscape", p, 1'000'000);
   const uint64_t total = uint64_t(count);
-  Rng rng(p.seed);
+  SplitMix64 rng(p.seed);
   const ValueNoise noise(p.seed * 0x2545F4914F6CDD1Dull + 17);
   constexpr float kHalf = 1000.0f;  // terrain spans [-1000, 1000] in x and z
   Scene s;
-  s.source = "procedural:landscape";
   enum : uint32_t { kGround, kStone, kFoliage, kMetal, kFence };
   s.materials.push_back(make_material("ground", {0.45f, 0.42f, 0.33f}));
   s.materials.push_back(make_material("stone", {0.55f, 0.55f, 0.58f}));
@@ -457,26 +408,21 @@ Scene landscape(const ProceduralParams& p) {
   }
   for (const auto& [obj, mat] : objects) m.append(obj, mat);
 
-  Light sun;
-  sun.type = LightType::Directional;
-  sun.direction = normalize(Vec3(0.45f, -1.0f, 0.6f));
-  sun.intensity = 2.5f;
-  sun.name = "sun";
-  s.lights.push_back(sun);
+  s.lights.push_back({.type = LightType::Directional,
+                      .direction = normalize(Vec3(0.45f, -1.0f, 0.6f)),
+                      .intensity = 2.5f,
+                      .name = "sun"});
   s.background = Vec3(0.45f, 0.6f, 0.85f);
-  Camera cam;
-  cam.eye = {-300.0f, 420.0f, -1250.0f};
-  cam.target = {0.0f, 40.0f, 0.0f};
-  cam.fov_deg = 55.0f;
-  cam.name = "overview";
-  s.camera = cam;
+  s.camera = Camera{.eye = {-300.0f, 420.0f, -1250.0f},
+                    .target = {0.0f, 40.0f, 0.0f},
+                    .fov_deg = 55.0f,
+                    .name = "overview"};
   return s;
 }
 
 Scene interior(const ProceduralParams& p) {
   const int count = pick_count("interior", p, 560, 4'000'000);
   Scene s;
-  s.source = "procedural:interior";
   enum : uint32_t { kTiles, kSlab, kRug, kWall, kPlaster, kCeiling, kColumn, kWood };
   for (const auto& [name, c] :
        std::initializer_list<std::pair<const char*, Vec3>>{{"tiles", {0.7f, 0.68f, 0.62f}},
@@ -556,23 +502,20 @@ Scene interior(const ProceduralParams& p) {
   box(kWood, 8.0f, kFloor, 6.0f, 11.0f, 0.9f, 8.0f);
   box(kWood, 7.8f, 0.9f, 5.8f, 11.2f, 0.95f, 8.2f);
 
-  Light sun;
-  sun.position = place(W * 0.5f, 12.0f, -15.0f);
-  sun.intensity = 400.0f;
-  sun.name = "sun through the windows";
-  s.lights.push_back(sun);
-  Camera cam;
-  cam.eye = place(2.0f, 1.7f, 12.5f);
-  cam.target = place(14.0f, 1.0f, 3.0f);
-  cam.fov_deg = 60.0f;
-  cam.name = "inside";
-  s.camera = cam;
+  s.lights.push_back({.position = place(W * 0.5f, 12.0f, -15.0f),
+                      .intensity = 400.0f,
+                      .name = "sun through the windows"});
+  s.camera = Camera{.eye = place(2.0f, 1.7f, 12.5f),
+                    .target = place(14.0f, 1.0f, 3.0f),
+                    .fov_deg = 60.0f,
+                    .name = "inside"};
   return s;
 }
 
 struct Generator {
   const char* name;
   const char* description;
+  /// Builds the scene; generate_scene names its source and validates its mesh.
   Scene (*fn)(const ProceduralParams&);
 };
 
@@ -611,6 +554,7 @@ Scene generate_scene(const std::string& name, const ProceduralParams& params) {
   for (const Generator& g : kGenerators)
     if (name == g.name) {
       Scene s = g.fn(params);
+      s.source = "procedural:" + name;
       s.mesh.validate(s.source);
       return s;
     }

@@ -10,6 +10,7 @@
 
 #include "math/vec.h"
 #include "scene/mesh.h"
+#include "util/enum_names.h"
 
 namespace kdgrid {
 
@@ -45,6 +46,10 @@ struct Material {
 };
 
 enum class LightType { Point, Directional, Spot };
+/// The light types by name, as glTF's KHR_lights_punctual and `kdgrid info` name them.
+inline constexpr EnumName<LightType> kLightTypeNames[] = {{LightType::Point, "point"},
+                                                          {LightType::Directional, "directional"},
+                                                          {LightType::Spot, "spot"}};
 
 struct Light {
   LightType type = LightType::Point;
