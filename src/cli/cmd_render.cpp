@@ -220,6 +220,7 @@ void run_render(const RenderArgs& a) {
     threads.emplace(tbb::global_control::max_allowed_parallelism, size_t(a.threads));
   if (!a.stats_json.empty())
     check_output_path(a.stats_json, "--stats-json", {".json"}, {scene_path, a.output});
+  require_image_module();
 
   const Scene scene = load_scene(scene_path, a.scale);
   // One pass: passes are progressive and Ctrl-C keeps the finished ones, but a single pass
@@ -236,7 +237,6 @@ void run_render(const RenderArgs& a) {
 
   Renderer renderer(scene, *accel, settings);
   renderer.set_camera(a.camera.apply(*scene.camera));
-  require_image_module();  // loaded once the arguments are all checked, before the passes
   const bool interrupted = render_passes(renderer, a.spp);
   if (renderer.samples() == 0) {
     std::fprintf(stderr, "kdgrid: interrupted before the first pass finished; no image written\n");

@@ -45,7 +45,9 @@ void check_image_extension(const std::string& path);
 
 /// Loads the image module (image_module.h) that reads and writes images, as the first image
 /// read or write would; throws Error naming where it looked when it cannot. A command that will
-/// write an image calls it before its work.
+/// write an image calls it before its work: a missing module is then said at once, and the
+/// module's libraries, whose static set-up does not survive a failed allocation, are never
+/// loaded by a process that its build has left short of memory.
 void require_image_module();
 
 /// Reads any image OpenImageIO understands into linear float RGB (8-bit sRGB files are
