@@ -17,15 +17,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
+using test::quoted;
 using test::TempDir;
-
-/// `path` in double quotes, for a shell command.
-std::string quoted(const std::string& path) {
-  std::string out = "\"";
-  out += path;
-  out += '"';
-  return out;
-}
 
 /// A small render of the Cornell box to `out`: the command line's arguments after `render`.
 std::string render_args(const std::string& out) {

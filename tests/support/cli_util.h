@@ -35,6 +35,11 @@ inline CliResult run_shell_command(const std::string& cmd) {
   return r;
 }
 
+/// `s` in single quotes, for a shell command line.
+inline std::string quoted(const std::string& s) {
+  return "'" + s + "'";
+}
+
 /// Runs the built `kdgrid` with `args` (shell syntax) and collects its output.
 inline CliResult run_cli(const std::string& args) {
   return run_shell_command(std::string(KDGRID_CLI_PATH) + " " + args + " 2>&1");

@@ -20,6 +20,7 @@
 #include <nlohmann/json.hpp>
 
 #include "accel/accelerator.h"
+#include "cli_util.h"
 #include "image/image_io.h"
 #include "temp_dir.h"
 #include "test_util.h"
@@ -66,11 +67,6 @@ enum ViewerNeed : unsigned {
 /// The input tests': a driven run of the default scene (small; it has its own camera, away from
 /// the canonical one, so Home visibly changes the view).
 constexpr unsigned kNeedDrivenDefault = kNeedXvfb | kNeedXdotool | kNeedDefaultScene;
-
-/// `s` in single quotes, for a shell command line.
-inline std::string quoted(const std::string& s) {
-  return "'" + s + "'";
-}
 
 /// The viewer's default scene, which the viewer finds by itself when given no scene.
 inline std::string default_scene() {
