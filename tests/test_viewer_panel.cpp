@@ -188,6 +188,15 @@ TEST_F(Viewer, PanelCoversAQuarterOfA1280x720WindowWithNoLabelCut) {
   }
   EXPECT_LE(frames["ui_ms_summary"]["max"].get<double>(),
             frames["work_ms_summary"]["max"].get<double>());
+  // Each phase of the loop names its largest time and the frame it was taken in.
+  for (const char* phase : {"events", "tasks", "input", "render_job", "image", "overlay",
+                            "accuracy", "script", "draw", "swap"}) {
+    const auto& p = frames["phases"][phase];
+    ASSERT_TRUE(p.is_object()) << phase << ": " << frames["phases"].dump();
+    EXPECT_GE(p["max_ms"].get<double>(), 0.0) << phase;
+    EXPECT_LE(p["frame"].get<int>(), frames["count"].get<int>()) << phase;
+  }
+  EXPECT_GT(frames["phases"]["draw"]["max_ms"].get<double>(), 0.0) << "no frame was drawn";
 }
 
 TEST_F(Viewer, StatusAreaKeepsTheWidgetsBelowItInPlace) {

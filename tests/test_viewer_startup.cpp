@@ -10,6 +10,7 @@
 #include <string>
 #include <utility>
 
+#include "image/image_module.h"
 #include "viewer_checks.h"
 #include "viewer_run.h"
 
@@ -68,6 +69,30 @@ TEST_F(Viewer, OutputsAreCheckedBeforeTheWindowOpens) {
     EXPECT_EQ(r.code, 2) << args << ": " << r.output;
     EXPECT_NE(r.output.find(says), std::string::npos) << args << ": " << r.output;
   }
+}
+
+TEST_F(Viewer, APersonsRunLoadsTheImageModuleAtStartAndAScriptedOneOnlyToWriteAnImage) {
+  KDGRID_REQUIRE_VIEWER(kNeedXvfb | kNeedDefaultScene);
+  // --hold is a run a person (or xdotool) drives: its screenshot key must not be the first
+  // image write. A scripted run writing no image never loads the module.
+  const std::string args = "--accel bvh --width 64 --height 64 --max-samples 1 ";
+  RunResult r = run(args + "--hold 0.5", "export LD_DEBUG=files;");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_NE(r.output.find(image_module::kFileName), std::string::npos) << "not loaded";
+  r = run(args + "--frames 2", "export LD_DEBUG=files;");
+  ASSERT_EQ(r.code, 0) << r.output;
+  EXPECT_EQ(r.output.find(image_module::kFileName), std::string::npos) << "loaded for nothing";
+
+  // A copy of the viewer with no module near it refuses a run that writes an image, as it
+  // refuses bad options: before the window opens (no display here), with exit code 2.
+  fs::create_directories(path("bin"));
+  const std::string lone = path("bin/kdgrid-viewer");
+  fs::copy_file(KDGRID_VIEWER_PATH, lone);
+  r = run_command("cd '" + dir + "' && env -u DISPLAY '" + lone + "' '" + kDefaultScene +
+                  "' --frames 1 --screenshot shot.png 2>&1");
+  EXPECT_EQ(r.code, 2) << r.output;
+  EXPECT_NE(r.output.find(image_module::kFileName), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(path("shot.png")));
 }
 
 TEST_F(Viewer, FullDiskKeepsTheOldScreenshotAndStatsAndFails) {

@@ -23,12 +23,11 @@ HeatRange heat_range(const RenderedImage& img, HeatScale scale, float fixed_lo, 
 float heat_position(float count, HeatRange r, HeatScale scale);
 
 /// Linear radiance to the sRGB byte tonemap_srgb8 (exposure 1) gives, bit for bit, without a
-/// pow per channel: the UI thread colours every new pass, and at 1280x720 the pow alone took
-/// about 45 ms. A table indexed by the top bits of the float (2^14 consecutive floats per
-/// entry, so entries are finest near 0 where sRGB is steepest) holds the byte of the entry's
-/// smallest value; one comparison with the next byte's threshold (the smallest value that
-/// tonemap_srgb8 maps to it, found by bisection through tonemap_srgb8 itself) finishes. The
-/// constructor checks that no entry spans more than two bytes.
+/// pow per channel: the UI thread colours every new pass. A table indexed by the top bits of the
+/// float (2^14 consecutive floats per entry, so entries are finest near 0 where sRGB is steepest)
+/// holds the byte of the entry's smallest value; one comparison with the next byte's threshold (the
+/// smallest value that tonemap_srgb8 maps to it, found by bisection through tonemap_srgb8 itself)
+/// finishes. The constructor checks that no entry spans more than two bytes.
 class SrgbEncoder {
  public:
   SrgbEncoder();

@@ -244,6 +244,12 @@ bool Viewer::write_stats(const std::string& path, int exit_code) const {
                  {"ui_ms", ui_ms},
                  {"work_ms_summary", summarize_ms(frame_work_ms_)},
                  {"ui_ms_summary", summarize_ms(ui_ms)}};
+  // The largest time of each phase of the loop, and the frame it was taken in.
+  json phases = json::object();
+  for (size_t p = 0; p < FramePhases::kCount; ++p)
+    phases[FramePhases::kNames[p]] = {{"max_ms", phases_.max_ms(p)},
+                                      {"frame", phases_.max_frame(p)}};
+  j["frames"]["phases"] = phases;
   json passes = json::array();
   for (const PassRecord& p : passes_) {
     const uint64_t rays = p.rays.total();

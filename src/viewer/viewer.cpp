@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "image/image_io.h"
 #include "util/error.h"
 #include "viewer/gl_util.h"
 #include "viewer/viewer_internal.h"
@@ -79,6 +80,25 @@ Viewer::Viewer(ViewerOptions opts) : opts_(std::move(opts)) {
   offset_ = parse_secondary_offset(opts_.offset, "--offset");
   for (DiffView v : {DiffView::Current, DiffView::Pinned, DiffView::Difference, DiffView::Split})
     if (opts_.diff_view == to_string(v)) diff_view_ = v;
+  preload_image_module();
+}
+
+void Viewer::preload_image_module() {
+  // Runs that write an image loaded the module before they started (main.cpp). A person can
+  // press the screenshot key at any time: their runs load it now, beside the window's set-up,
+  // not at the first screenshot, when a build may have left the process short of memory (the
+  // module's libraries do not survive a failed allocation in their static set-up). Scripted
+  // runs that write no image never load it.
+  const bool writes_image =
+      !opts_.screenshot.empty() || !opts_.export_heatmap.empty() || !opts_.diff_exr.empty();
+  if (writes_image || (opts_.scripted() && opts_.hold <= 0)) return;
+  image_module_preload_ = std::thread([] {
+    try {
+      require_image_module();
+    } catch (const Error& e) {
+      std::fprintf(stderr, "kdgrid-viewer: screenshots are unavailable: %s\n", e.what());
+    }
+  });
 }
 
 Viewer::~Viewer() {
@@ -163,6 +183,8 @@ void Viewer::init_gl() {
   apply_ui_scale(std::max(content_scale_[0], content_scale_[1]));
   ImGui_ImplGlfw_InitForOpenGL(window_, true);
   ImGui_ImplOpenGL3_Init("#version 330 core");
+  // ImGui's shaders and font texture now, at start-up, rather than inside the first frame.
+  ImGui_ImplOpenGL3_CreateDeviceObjects();
 }
 
 void Viewer::apply_ui_scale(float scale) {
@@ -182,6 +204,7 @@ void Viewer::apply_ui_scale(float scale) {
 }
 
 void Viewer::shutdown() {
+  if (image_module_preload_.joinable()) image_module_preload_.join();
   // The worker goes first: it may hold the last reference to a world.
   worker_.reset();
   if (overlay_job_.valid()) overlay_job_.wait();
@@ -412,9 +435,11 @@ int Viewer::run() {
     } else if (min_frame_s > since) {
       glfwWaitEventsTimeout(min_frame_s - since);
     }
+    phases_.start(Clock::now(), frame_count_);  // the wait above is idle time, not work
     if (settle_frames_ > 0) --settle_frames_;
     glfwPollEvents();
     hold_short_presses();
+    phases_.end(FramePhases::kEvents);
     const auto now = Clock::now();
     const float dt = std::chrono::duration<float>(now - last).count();
     last = now;
@@ -436,6 +461,7 @@ int Viewer::run() {
     if (closing) cancel_task();  // whatever closed the window: a running build stops
 
     poll_tasks();
+    phases_.end(FramePhases::kTasks);
     // No scene loaded (the start-up scene failed, poll_tasks said why on stderr): the window
     // stays, its panel shows the error and another file can be dropped. The run's exit code
     // says the load failed.
@@ -446,18 +472,26 @@ int Viewer::run() {
       break;
     }
     handle_continuous_input(dt);
+    phases_.end(FramePhases::kInput);
     sync_render_job();
+    phases_.end(FramePhases::kRenderJob);
     receive_image();
+    phases_.end(FramePhases::kImage);
     poll_structure_overlay();
     if (overlay_dirty_) rebuild_structure_overlay();
+    phases_.end(FramePhases::kOverlay);
     update_accuracy();
+    phases_.end(FramePhases::kAccuracy);
 
     run_script_requests(pick_done);
+    phases_.end(FramePhases::kScript);
     draw_frame();
+    phases_.end(FramePhases::kDraw);
     if (opts_.scripted() && script_finished(closing, no_scene, pick_done, started, exit_code))
       break;
     const auto swap_start = Clock::now();
     glfwSwapBuffers(window_);
+    phases_.end(FramePhases::kSwap);
     // With a software GL (llvmpipe) the drawing happens here, when the frame is flushed.
     frame_swap_ms_.push_back(
         std::chrono::duration<float, std::milli>(Clock::now() - swap_start).count());

@@ -15,6 +15,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <nlohmann/json_fwd.hpp>
@@ -24,6 +25,7 @@
 #include "util/cancel.h"
 #include "viewer/background_job.h"
 #include "viewer/camera_control.h"
+#include "viewer/frame_phases.h"
 #include "viewer/image_view.h"
 #include "viewer/overlay.h"
 #include "viewer/pick_view.h"
@@ -142,6 +144,8 @@ class Viewer {
   bool create_window();
   void init_gl();
   void apply_ui_scale(float scale);
+  /// A person's run loads the image module in the background at start (screenshots).
+  void preload_image_module();
   void shutdown();
   float scene_radius() const;
   /// The scripted requests due this frame (--pick, --pin-heatmap, --rebuild-cell-size,
@@ -444,6 +448,8 @@ class Viewer {
     double cancel_seconds = 0;  // cancel request to the build's end
   };
   std::vector<float> frame_interval_ms_, frame_work_ms_, frame_swap_ms_, colorize_ms_, upload_ms_;
+  FramePhases phases_;                // the UI thread's largest time per phase of its loop
+  std::thread image_module_preload_;  // see preload_image_module()
   std::vector<PassRecord> passes_;
   std::vector<BuildRecord> builds_;
 
