@@ -66,6 +66,33 @@ class Page(unittest.TestCase):
         self.assertNotIn("-triangle scene (`", page)
         self.assertTrue(page.endswith("(VmHWM/VmRSS) and `getrusage`.\n"))
 
+    def test_ui_frames_table_names_the_largest_frame_and_its_phases(self):
+        import copy
+        import json
+        with tempfile.TemporaryDirectory() as tmp:
+            res = os.path.join(tmp, "results")
+            shutil.copytree(RESULTS, res)
+            with open(os.path.join(res, "viewer.json")) as f:
+                v = json.load(f)
+            run = copy.deepcopy(next(r for r in v["runs"] if "stats" in r))
+            run["name"] = "dragon-ui-boxes"
+            phases = {k: {"max_ms": 1.0, "frame": 3} for k in (
+                "events", "tasks", "input", "render_job", "image", "overlay", "accuracy",
+                "script", "draw", "swap")}
+            phases["draw"] = {"max_ms": 61.5, "frame": 0}
+            phases["image"] = {"max_ms": 12.25, "frame": 40}
+            phases["swap"] = {"max_ms": 90.0, "frame": 0}  # not UI work: left out
+            run["stats"]["frames"].update(count=77, phases=phases, ui_ms_summary={
+                "frames": 77, "max": 62.5, "p50": 0.75, "p95": 9.5})
+            v["runs"].append(run)
+            with open(os.path.join(res, "viewer.json"), "w") as f:
+                json.dump(v, f)
+            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+        self.assertIn("**UI frames on the full dragon.**", page)
+        self.assertIn("| boxes | 77 | 0.75 | 9.5 | **62.5** | draw 61.5 (frame 0), image 12.2 "
+                      "(frame 40) |", page)
+        self.assertNotIn("| dragon-ui-boxes |", page)  # not a row of the progressive table
+
     @staticmethod
     def page_with_bench(edit):
         """The page from a copy of the committed results whose bench.json `edit` changed."""
