@@ -68,12 +68,8 @@ class Page(unittest.TestCase):
 
     def test_ui_frames_table_names_the_largest_frame_and_its_phases(self):
         import copy
-        import json
-        with tempfile.TemporaryDirectory() as tmp:
-            res = os.path.join(tmp, "results")
-            shutil.copytree(RESULTS, res)
-            with open(os.path.join(res, "viewer.json")) as f:
-                v = json.load(f)
+
+        def add_run(v):
             run = copy.deepcopy(next(r for r in v["runs"] if "stats" in r))
             run["name"] = "dragon-ui-boxes"
             phases = {k: {"max_ms": 1.0, "frame": 3} for k in (
@@ -85,27 +81,31 @@ class Page(unittest.TestCase):
             run["stats"]["frames"].update(count=77, phases=phases, ui_ms_summary={
                 "frames": 77, "max": 62.5, "p50": 0.75, "p95": 9.5})
             v["runs"].append(run)
-            with open(os.path.join(res, "viewer.json"), "w") as f:
-                json.dump(v, f)
-            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+
+        page = self.page_with_result("viewer.json", add_run)
         self.assertIn("**UI frames on the full dragon.**", page)
         self.assertIn("| boxes | 77 | 0.75 | 9.5 | **62.5** | draw 61.5 (frame 0), image 12.2 "
                       "(frame 40) |", page)
         self.assertNotIn("| dragon-ui-boxes |", page)  # not a row of the progressive table
 
     @staticmethod
-    def page_with_bench(edit):
-        """The page from a copy of the committed results whose bench.json `edit` changed."""
+    def page_with_result(name, edit):
+        """The page from a copy of the committed results whose file `name` `edit` changed."""
         import json
         with tempfile.TemporaryDirectory() as tmp:
             res = os.path.join(tmp, "results")
             shutil.copytree(RESULTS, res)
-            with open(os.path.join(res, "bench.json")) as f:
+            with open(os.path.join(res, name)) as f:
                 b = json.load(f)
             edit(b)
-            with open(os.path.join(res, "bench.json"), "w") as f:
+            with open(os.path.join(res, name), "w") as f:
                 json.dump(b, f)
             return build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+
+    @staticmethod
+    def page_with_bench(edit):
+        """The page from a copy of the committed results whose bench.json `edit` changed."""
+        return Page.page_with_result("bench.json", edit)
 
     def test_packet_column_gives_a_packets_section(self):
         # A bench.json with kdgrid bench's packet column gets a Packets section; one without it
