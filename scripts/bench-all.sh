@@ -77,7 +77,7 @@ run() {
 export KDGRID_SCENES="$scenes"
 if part suite; then
   run "$kdgrid" bench --suite "$scenes/suite.json" --res "$res" --reps "$reps" --threads "$threads" \
-    --json "$results/bench.json" --md "$results/bench.md"
+    --render --json "$results/bench.json" --md "$results/bench.md"
 fi
 
 if part sweeps && [[ "${SKIP_SWEEPS:-0}" != 1 ]]; then

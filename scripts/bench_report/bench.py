@@ -71,6 +71,29 @@ def packets_section(b, res, scenes, accels, name, ref, setup):
                  setup=setup, tables="".join(tables))
 
 
+def renders_section(b, scenes, accels, name, ref, setup):
+    """kdgrid bench's render column (renders[]), or nothing for a bench.json without one."""
+    rnd = {(x["scene"], x["accel"]): x for x in b.get("renders", [])}
+    if not rnd:
+        return ""
+
+    def cell(x):
+        if not x:
+            return "-"
+        differ = x.get("pixels_differ")
+        return "%s (%s s; %s)" % (g(x["ratio_to_reference"]), g(x["seconds"]),
+                                  "-" if differ is None else "%d px differ" % differ)
+    rows = [[name[a] + (" (reference)" if a == ref else "")] +
+            [cell(rnd.get((s, a))) for s in scenes] for a in accels
+            if any((s, a) in rnd for s in scenes)]
+    rays = ["%s: %s" % (s, " / ".join(str(rnd[(s, ref)]["rays"][k]) for k in (
+        "primary", "shadow", "reflection", "refraction"))) for s in scenes if (s, ref) in rnd]
+    meta = b["meta"]
+    return prose("bench", "renders", ref=ref, width="%d" % meta.get("width", 0),
+                 height="%d" % meta.get("height", 0), reps="%d" % meta["reps"], setup=setup,
+                 rays="; ".join(rays), table=table(["structure"] + scenes, rows))
+
+
 def bench_section(b, run, md_dir, img_dir):
     meta = b["meta"]
     results = b["results"]
@@ -134,6 +157,7 @@ def bench_section(b, run, md_dir, img_dir):
         observations="\n" + "\n".join(obs) + "\n" if obs else ""))
 
     out.append(packets_section(b, res, scenes, accels, name, ref, setup))
+    out.append(renders_section(b, scenes, accels, name, ref, setup))
 
     tables = []
     for st in sets:

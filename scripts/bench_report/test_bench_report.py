@@ -107,6 +107,22 @@ class Page(unittest.TestCase):
         """The page from a copy of the committed results whose bench.json `edit` changed."""
         return Page.page_with_result("bench.json", edit)
 
+    def test_render_column_gives_a_whole_render_section(self):
+        def add_renders(b):
+            b["renders"] = [
+                {"scene": s, "accel": a, "reference": "embree", "seconds": sec,
+                 "seconds_reps": [sec], "mrays": 1.0, "ratio_to_reference": ratio,
+                 "reference_seconds": 0.5, "pixels_differ": differ,
+                 "rays": {"primary": 100, "shadow": 40, "reflection": 3, "refraction": 2,
+                          "total": 145}}
+                for s in ("bunny", "sponza")
+                for a, sec, ratio, differ in (("embree", 0.5, 1.0, 0), ("hybrid", 0.4, 1.25, 3))]
+        page = self.page_with_result("bench.json", add_renders)
+        self.assertIn("## The whole render\n", page)
+        self.assertIn("bunny: 100 / 40 / 3 / 2; sponza: 100 / 40 / 3 / 2.", page)
+        self.assertIn("| hybrid | 1.25 (0.4 s; 3 px differ) |", page)
+        self.assertNotIn("## The whole render", self.page_with_result("bench.json", lambda b: None))
+
     def test_packet_column_gives_a_packets_section(self):
         # A bench.json with kdgrid bench's packet column gets a Packets section; one without it
         # (measured before the column existed, or with --packet-tile 0) gets none.
