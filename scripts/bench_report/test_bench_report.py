@@ -123,6 +123,25 @@ class Page(unittest.TestCase):
         self.assertIn("| hybrid | 1.25 (0.4 s; 3 px differ) |", page)
         self.assertNotIn("## The whole render", self.page_with_result("bench.json", lambda b: None))
 
+    def test_an_avx2_run_gets_a_section_of_its_own(self):
+        import json
+        with tempfile.TemporaryDirectory() as tmp:
+            res = os.path.join(tmp, "results")
+            shutil.copytree(RESULTS, res)
+            with open(os.path.join(res, "bench.json")) as f:
+                b = json.load(f)
+            b["meta"]["simd"]["kdgrid"]["isa"] = "AVX2"
+            b["meta"]["simd"]["embree"]["isa"] = "AVX2"
+            with open(os.path.join(res, "bench-avx2.json"), "w") as f:
+                json.dump(b, f)
+            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+        self.assertEqual(page.count("\n## Builds for AVX2 CPUs\n"), 1)
+        avx2 = page[page.index("## Builds for AVX2 CPUs"):]
+        self.assertIn("kdgrid's code is AVX2, Embree's AVX2.", avx2)
+        self.assertIn("**primary rays** (ratio", avx2)
+        self.assertIn("\n### Packets\n", avx2)  # the committed run has a packet column
+        self.assertIn("- primary rays: the hybrid is ", avx2)
+
     def test_packet_column_gives_a_packets_section(self):
         # A bench.json with kdgrid bench's packet column gets a Packets section; one without it
         # (measured before the column existed, or with --packet-tile 0) gets none.
