@@ -49,22 +49,20 @@ using namespace hybrid::packet_lanes;
 namespace hybrid {
 
 /// The packet's rays by lane: world-space origin, reciprocal direction and err (KdRay's), the
-/// watertight test's ray data (its axes shared by the packet), and the packet's extreme origins
-/// (or crossings) and shears on the test's axes, which bound every lane's sheared corners (the
-/// cull).
+/// watertight test's ray data (its axes shared by the packet), and the points from which the
+/// cull bounds every lane's sheared corners (CullBox): the origins on the test's axes, or where
+/// the rays cross one plane of its z axis.
 struct PacketRays {
   FloatLanes o[3], inv[3], err[3];
   FloatLanes ox, oy, oz, sx, sy, sz;
   FloatLanes tmin, tmax;  ///< the rays' (+inf and -inf in the lanes not in the packet)
+  FloatLanes cx, cy, cz;  ///< the cull's points: (ox, oy, oz), or the crossings (crossing_bounds)
   int kx, ky, kz;
   bool neg[3];  ///< the packet's directions point down axis a
-  /// The lowest (_lo) and highest (_hi) of the lanes' origins (ox, oy, oz), or of where they
-  /// cross the plane z = oz_lo = oz_hi (crossing_bounds), and of their shears (sx, sy).
-  float ox_lo, ox_hi, oy_lo, oy_hi, oz_lo, oz_hi, sx_lo, sx_hi, sy_lo, sy_hi;
-  /// How far inside a side the cull's bounds must put a corner: 0 for the origins' box, and for
-  /// the crossings' (crossing_bounds) a bound on the rounding their exact identity leaves out.
+  /// How far inside a side the cull's bounds must put a corner: 0 for the origins, and for the
+  /// crossings (crossing_bounds) a bound on the rounding their exact identity leaves out.
   float margin;
-  bool crossings;   ///< the bounds are the crossings' (crossing_bounds), not the origins' box
+  bool crossings;   ///< the cull's points are the crossings (crossing_bounds), not the origins
   uint32_t missed;  ///< lanes whose ray misses the grid's box as the single walk clips it
   /// Lane i's WatertightTest::RayData (what prepare() gives: the same divisions).
   WatertightTest::RayData ray_data(int i) const {
@@ -85,6 +83,25 @@ namespace {
 
 using hybrid::PacketHits;
 using hybrid::PacketRays;
+
+/// The lowest (_lo) and highest (_hi) of some lanes' cull points (x, y, z: PacketRays' cx, cy,
+/// cz) and shears (sx, sy), and the packet's margin: the cull's bounds for those lanes.
+struct CullBox {
+  float x_lo, x_hi, y_lo, y_hi, z_lo, z_hi, sx_lo, sx_hi, sy_lo, sy_hi, margin;
+};
+
+/// The cull's bounds for the lanes m of a packet (those that reach a leaf).
+[[gnu::always_inline]] inline CullBox cull_box(const PacketRays& packet, uint32_t m) {
+  float lo[4], hi[4], zlo[4], zhi[4];
+  lane_ranges(packet.cx, packet.cy, packet.sx, packet.sy, m, lo, hi);
+  if (packet.crossings) {
+    zlo[0] = zhi[0] = packet.cz[0];
+  } else {
+    lane_mins(packet.cz, -packet.cz, FloatLanes{}, FloatLanes{}, m, zlo);
+    zhi[0] = -zlo[1];
+  }
+  return {lo[0], hi[0], lo[1], hi[1], zlo[0], zhi[0], lo[2], hi[2], lo[3], hi[3], packet.margin};
+}
 
 /// One triangle against the lanes `m` of the packet: WatertightTest::intersect's operations on
 /// each lane (WatertightWide's, with the lanes as rays instead of triangles).
@@ -147,14 +164,14 @@ template <bool kAny>
 /// Codes of 16 of a shared-corner group's corners (their coordinates on the test's axes from tx,
 /// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
 /// corner at x > 0, x < 0, y > 0, y < 0 in its shear space (bounds from the packet's extreme
-/// origins or crossings and shears, beyond its margin; see the file's comment).
-[[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& packet, const float* tx,
+/// origins or crossings and shears in `box`, beyond its margin; see the file's comment).
+[[gnu::always_inline]] inline __m512i corner_codes(const CullBox& box, const float* tx,
                                                    const float* ty, const float* tz,
                                                    __mmask16 corners) {
   const FloatLanes vx = (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
                    vy = (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
                    vz = (FloatLanes)_mm512_maskz_loadu_ps(corners, tz);
-  const FloatLanes dzl = vz - packet.oz_hi, dzh = vz - packet.oz_lo;
+  const FloatLanes dzl = vz - box.z_hi, dzh = vz - box.z_lo;
   const auto range = [&](float sl, float sh, FloatLanes& lo, FloatLanes& hi)
       __attribute__((always_inline)) {
     const FloatLanes p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
@@ -162,11 +179,11 @@ template <bool kAny>
     hi = vmax(vmax(p1, p2), vmax(p3, p4));
   };
   FloatLanes pxl, pxh, pyl, pyh;
-  range(packet.sx_lo, packet.sx_hi, pxl, pxh);
-  range(packet.sy_lo, packet.sy_hi, pyl, pyh);
-  const FloatLanes xl = (vx - packet.ox_hi) - pxh, xh = (vx - packet.ox_lo) - pxl;
-  const FloatLanes yl = (vy - packet.oy_hi) - pyh, yh = (vy - packet.oy_lo) - pyl;
-  const FloatLanes m = splat(packet.margin), neg_m = -m;
+  range(box.sx_lo, box.sx_hi, pxl, pxh);
+  range(box.sy_lo, box.sy_hi, pyl, pyh);
+  const FloatLanes xl = (vx - box.x_hi) - pxh, xh = (vx - box.x_lo) - pxl;
+  const FloatLanes yl = (vy - box.y_hi) - pyh, yh = (vy - box.y_lo) - pyl;
+  const FloatLanes m = splat(box.margin), neg_m = -m;
   const __m512i one = _mm512_set1_epi32(1);
   __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(m, xl)), one);
   c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(xh, neg_m)), _mm512_set1_epi32(2)));
@@ -175,17 +192,17 @@ template <bool kAny>
   return c;
 }
 
-/// The lanes of a shared-corner group that some ray of the packet may hit: those whose three
-/// corners do not all share a side that every ray sees them on.
-[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet,
+/// The lanes of a shared-corner group that some ray of `box`'s lanes may hit: those whose three
+/// corners do not all share a side that every such ray sees them on.
+[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet, const CullBox& box,
                                               const hybrid::SharedCornerGroup& g) {
   const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
   const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
   const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
   const uint32_t corners = g.u >= 32 ? ~0u : (1u << g.u) - 1;
-  const __m512i lo = corner_codes(packet, tx, ty, tz, __mmask16(corners));
+  const __m512i lo = corner_codes(box, tx, ty, tz, __mmask16(corners));
   const __m512i hi = g.u > 16
-                         ? corner_codes(packet, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
+                         ? corner_codes(box, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
                          : _mm512_setzero_si512();
   const uint32_t lanes = (1u << g.n) - 1;
   const uint8_t* idx = g.index();
@@ -276,9 +293,9 @@ bool crossing_bounds(PacketRays& packet, uint32_t lanes, const float (&lo)[4], c
   const float far = packet.neg[kz] ? lo[3] : hi[3];
   const float z0 = std::fabs(far) <= kMaxRayCoordinate ? far : 0.5f * (lo[kz] + hi[kz]);
   const FloatLanes dz = splat(z0) - packet.oz;
-  float cl[4], ch[4];  // the crossings' x and y, then the shears
-  lane_ranges(packet.ox + packet.sx * dz, packet.oy + packet.sy * dz, packet.sx, packet.sy, lanes,
-              cl, ch);
+  const FloatLanes cx = packet.ox + packet.sx * dz, cy = packet.oy + packet.sy * dz;
+  float cl[4], ch[4];  // the crossings' x and y
+  lane_ranges(cx, cy, FloatLanes{}, FloatLanes{}, lanes, cl, ch);
   float m = std::max(max_abs, std::fabs(z0));
   for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(lo[a]), std::fabs(hi[a])});
   const float margin = m * 0x1p-18f + FLT_MIN;
@@ -286,9 +303,7 @@ bool crossing_bounds(PacketRays& packet, uint32_t lanes, const float (&lo)[4], c
   if (!(width < spread && width <= max_spread)) return false;
   packet.crossings = true;
   packet.margin = margin;
-  packet.ox_lo = cl[0], packet.ox_hi = ch[0], packet.oy_lo = cl[1], packet.oy_hi = ch[1];
-  packet.oz_lo = packet.oz_hi = z0;
-  packet.sx_lo = cl[2], packet.sx_hi = ch[2], packet.sy_lo = cl[3], packet.sy_hi = ch[3];
+  packet.cx = cx, packet.cy = cy, packet.cz = splat(z0);
   return true;
 }
 
@@ -368,12 +383,7 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   if (!(spread <= max_spread)) return 0;
   packet.crossings = false;
   packet.margin = 0.0f;
-  packet.ox_lo = lo[packet.kx], packet.ox_hi = hi[packet.kx];
-  packet.oy_lo = lo[packet.ky], packet.oy_hi = hi[packet.ky];
-  packet.oz_lo = lo[packet.kz], packet.oz_hi = hi[packet.kz];
-  float sl[4], sh[4];
-  lane_ranges(packet.sx, packet.sy, zero, zero, lanes, sl, sh);
-  packet.sx_lo = sl[0], packet.sx_hi = sh[0], packet.sy_lo = sl[1], packet.sy_hi = sh[1];
+  packet.cx = packet.ox, packet.cy = packet.oy, packet.cz = packet.oz;
   return lanes;
 }
 
@@ -459,12 +469,13 @@ struct GridKdHybrid::PacketWalk {
   [[gnu::always_inline]] void groups(int k, uint32_t first, uint32_t count, uint32_t m) {
     const PacketRays& r = *packets[k];
     PacketHits& h = H[k];
+    const CullBox box = cull_box(r, m);
     const float* p = g.groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
       const hybrid::SharedCornerGroup gr = hybrid::SharedCornerGroup::at(p, left);
       p = gr.end();
       left -= gr.n;
-      for (uint32_t keep = uncull(r, gr); keep != 0; keep &= keep - 1) {
+      for (uint32_t keep = uncull(r, box, gr); keep != 0; keep &= keep - 1) {
         const int i = __builtin_ctz(keep);
         test_triangle<kAny>(r, h, gr.corner(0, i), gr.corner(1, i), gr.corner(2, i),
                             gr.prim(uint32_t(i)), m);
