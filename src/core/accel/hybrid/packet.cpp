@@ -274,6 +274,10 @@ template <bool kAny>
 /// towards one point light cross where they end.
 constexpr double kPacketSpreadCells = 1.0;
 
+/// A leaf reached by at most this many lanes of a packet tests them lane by lane, each against
+/// its groups by the single walk's group test (PacketWalk::groups).
+constexpr int kLaneGroupLanes = 2;
+
 /// The cull's bounds of the `lanes` of a packet from spread origins by where their rays cross the
 /// plane z = z0 of the test's axes: lane i's crossing is x_i = ox_i + sx_i (z0 - oz_i) (y_i
 /// likewise), and in exact arithmetic its sheared corner x is (vx - x_i) - sx_i (vz - z0), which
@@ -464,18 +468,60 @@ struct GridKdHybrid::PacketWalk {
     neg = packets[0]->neg;
   }
 
-  /// The groups of a leaf for packet k, culled against it, then each triangle left against the
-  /// lanes m.
+  /// The triangles `tris` of group gr against each lane of m of packet k by the single walk's
+  /// group test (WatertightWide: the group's triangles against one ray); returns m less the
+  /// lanes an any-hit query retires.
+  [[gnu::always_inline]] uint32_t lane_group(int k, const hybrid::SharedCornerGroup& gr,
+                                             uint32_t tris, uint32_t m) {
+    const PacketRays& r = *packets[k];
+    PacketHits& h = H[k];
+    for (uint32_t left = m; left != 0; left &= left - 1) {
+      const int i = __builtin_ctz(left);
+      float t, u, v;
+      const int j =
+          WatertightWide<16>::intersect(r.ray_data(i), gr, tris, r.tmin[i], h.best[i], t, u, v);
+      if (j < 0) continue;
+      h.found |= 1u << i;
+      if constexpr (kAny) {
+        alive[k] &= ~(1u << i);
+        m &= ~(1u << i);
+      } else {
+        h.best[i] = t;
+        h.u[i] = u;
+        h.v[i] = v;
+        h.prim[i] = int32_t(gr.prim(uint32_t(j)));
+      }
+    }
+    return m;
+  }
+
+  /// The groups of a leaf for the lanes m of packet k (those that reach the leaf). Each group is
+  /// culled against those lanes' bounds, then its triangles left are tested one at a time
+  /// against the lanes, or, where they outnumber the lanes, each lane is tested against them by
+  /// the group test; with kLaneGroupLanes lanes or fewer every group goes to the group test
+  /// uncut, as the cull would cost about what it saves.
   [[gnu::always_inline]] void groups(int k, uint32_t first, uint32_t count, uint32_t m) {
     const PacketRays& r = *packets[k];
     PacketHits& h = H[k];
-    const CullBox box = cull_box(r, m);
+    const bool by_lane = __builtin_popcount(m) <= kLaneGroupLanes;
+    const CullBox box = by_lane ? CullBox{} : cull_box(r, m);
     const float* p = g.groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
       const hybrid::SharedCornerGroup gr = hybrid::SharedCornerGroup::at(p, left);
       p = gr.end();
       left -= gr.n;
-      for (uint32_t keep = uncull(r, box, gr); keep != 0; keep &= keep - 1) {
+      if (by_lane) {
+        m = lane_group(k, gr, (1u << gr.n) - 1, m);
+        if (m == 0) return;
+        continue;
+      }
+      uint32_t keep = uncull(r, box, gr);
+      if (__builtin_popcount(keep) > __builtin_popcount(m)) {
+        m = lane_group(k, gr, keep, m);
+        if (m == 0) return;
+        continue;
+      }
+      for (; keep != 0; keep &= keep - 1) {
         const int i = __builtin_ctz(keep);
         test_triangle<kAny>(r, h, gr.corner(0, i), gr.corner(1, i), gr.corner(2, i),
                             gr.prim(uint32_t(i)), m);

@@ -82,7 +82,6 @@ template <int kPredicate>
   for (float& h : hi) h = -h;
 }
 
-
 /// Rays i < n of `rays` by lane: f[k] holds float k of each (Ray: origin, tmin, direction,
 /// tmax), 0 in lanes n and up; rays past n are not read. Rays j and j + 8 are loaded into vector
 /// j, then three rounds of two-source permutes each swap a bit of the vector's index (the ray's
