@@ -220,8 +220,8 @@ double share_culled_by(const GridKdHybrid& h, const std::vector<Ray>& rays,
 // Shadow rays of 8x8 tiles' hit points towards one point light start far apart (more than a
 // cell) but end together: the walk bounds them by where they cross at the light. Their answers
 // are the single walk's, also for segments that end exactly at an occluder or one float past it,
-// and for rays through the mesh's corners and edges towards the light (triangles on the cull's
-// very boundary).
+// for rays through the mesh's corners and edges towards the light (triangles on the cull's very
+// boundary), and for a directional light's parallel rays.
 TEST(Packets, HybridShadowPacketsTowardsOneLightAnswerAsSingleWalk) {
   Vec3 light;
   const Mesh mesh = shadow_scene(light);
@@ -257,7 +257,11 @@ TEST(Packets, HybridShadowPacketsTowardsOneLightAnswerAsSingleWalk) {
       const Vec3 o = q + (q - light) * 0.25f;
       grazing.push_back(Ray{o, 0.0f, light - o, 1.0f - 1e-4f});
     }
+  // A directional light's rays: parallel, unbounded.
+  std::vector<Ray> parallel = shadow;
+  for (Ray& r : parallel) r = Ray{r.org, 0.0f, Vec3(0.3f, 1.0f, 0.2f), kInf};
   EXPECT_EQ(packet_mismatches(h, shadow), 0);
+  EXPECT_EQ(packet_mismatches(h, parallel), 0);
   EXPECT_EQ(packet_mismatches(h, at_occluder), 0);
   EXPECT_EQ(packet_mismatches(h, past_occluder), 0);
   EXPECT_EQ(packet_mismatches(h, grazing), 0);
