@@ -7,19 +7,21 @@
 // by the kd-tree's rounding bound err (KdRay) as the single-ray kd walk widens its own, and the
 // packet visits a child when any of its lanes does, front to back (the rays share their
 // directions' signs), until every lane's closest hit lies before the next node. In a leaf, each
-// triangle group is first culled against the whole packet: a triangle whose three corners,
-// in the watertight test's shear space (WatertightTest), lie on one side of the origin for
-// every ray of the packet is missed by all of them; the rest are tested one triangle against
-// all the lanes at once, each lane by WatertightTest's own float operations in its order (and
-// its double-precision cases by the scalar test), so each ray's t, u, v of a triangle are bit
-// for bit its single walk's. Each ray thus finds the closest of the same intersections as its
+// triangle group is first culled against the packet's lanes that reach the leaf: a triangle
+// whose three corners, in the watertight test's shear space (WatertightTest), lie on one side
+// of the origin for every such ray is missed by all of them; the rest are tested one triangle
+// against all the lanes at once, each lane by WatertightTest's own float operations in its
+// order (and its double-precision cases by the scalar test), so each ray's t, u, v of a
+// triangle are bit for bit its single walk's; or, where they outnumber the lanes (and in a
+// leaf that only one or two lanes reach), each lane against the group by the single walk's own
+// group test (WatertightWide). Each ray thus finds the closest of the same intersections as its
 // single walk; only of two triangles hit at exactly the same t could the packet keep the other,
 // where its intervals reach a leaf holding one of them before the single walk would (none seen
 // on the benchmark's rays; docs/HYBRID.md, "Packets").
 //
 // Why the cull is exact: a corner's sheared x for ray i is fl(fl(vx - ox_i) - fl(sx_i fl(vz -
 // oz_i))) (kx, ky, kz shared by the packet). Every float operation is monotone, so the same
-// operations on the packet's extreme origin and shear values bound every lane's value, and when
+// operations on the lanes' extreme origin and shear values bound every lane's value, and when
 // those bounds put all three corners at x > 0 (or x < 0, y > 0, y < 0), every lane's corners lie
 // there as its test computes them. The test's edge functions have the exact signs of the
 // sheared corners' (their float products are monotone, and an exactly zero difference is redone
