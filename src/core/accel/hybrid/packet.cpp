@@ -13,7 +13,7 @@
 // against all the lanes at once, each lane by WatertightTest's own float operations in its
 // order (and its double-precision cases by the scalar test), so each ray's t, u, v of a
 // triangle are bit for bit its single walk's; or, where they outnumber the lanes (and in a
-// leaf that only one or two lanes reach), each lane against the group by the single walk's own
+// leaf that at most four lanes reach), each lane against the group by the single walk's own
 // group test (WatertightWide). Each ray thus finds the closest of the same intersections as its
 // single walk; only of two triangles hit at exactly the same t could the packet keep the other,
 // where its intervals reach a leaf holding one of them before the single walk would (none seen
@@ -278,7 +278,7 @@ constexpr double kPacketSpreadCells = 1.0;
 
 /// A leaf reached by at most this many lanes of a packet tests them lane by lane, each against
 /// its groups by the single walk's group test (PacketWalk::groups).
-constexpr int kLaneGroupLanes = 2;
+constexpr int kLaneGroupLanes = 4;
 
 /// The cull's bounds of the `lanes` of a packet from spread origins by where their rays cross the
 /// plane z = z0 of the test's axes: lane i's crossing is x_i = ox_i + sx_i (z0 - oz_i) (y_i
