@@ -7,24 +7,32 @@
 // by the kd-tree's rounding bound err (KdRay) as the single-ray kd walk widens its own, and the
 // packet visits a child when any of its lanes does, front to back (the rays share their
 // directions' signs), until every lane's closest hit lies before the next node. In a leaf, each
-// triangle group is first culled against the whole packet: a triangle whose three corners,
-// in the watertight test's shear space (WatertightTest), lie on one side of the origin for
-// every ray of the packet is missed by all of them; the rest are tested one triangle against
-// all the lanes at once, each lane by WatertightTest's own float operations in its order (and
-// its double-precision cases by the scalar test), so each ray's t, u, v of a triangle are bit
-// for bit its single walk's. Each ray thus finds the closest of the same intersections as its
+// triangle group is first culled against the packet's lanes that reach the leaf: a triangle
+// whose three corners, in the watertight test's shear space (WatertightTest), lie on one side
+// of the origin for every such ray is missed by all of them; the rest are tested one triangle
+// against all the lanes at once, each lane by WatertightTest's own float operations in its
+// order (and its double-precision cases by the scalar test), so each ray's t, u, v of a
+// triangle are bit for bit its single walk's; or, where they outnumber the lanes (and in a
+// leaf that at most four lanes reach), each lane against the group by the single walk's own
+// group test (WatertightWide). Each ray thus finds the closest of the same intersections as its
 // single walk; only of two triangles hit at exactly the same t could the packet keep the other,
 // where its intervals reach a leaf holding one of them before the single walk would (none seen
 // on the benchmark's rays; docs/HYBRID.md, "Packets").
 //
 // Why the cull is exact: a corner's sheared x for ray i is fl(fl(vx - ox_i) - fl(sx_i fl(vz -
 // oz_i))) (kx, ky, kz shared by the packet). Every float operation is monotone, so the same
-// operations on the packet's extreme origin and shear values bound every lane's value, and when
+// operations on the lanes' extreme origin and shear values bound every lane's value, and when
 // those bounds put all three corners at x > 0 (or x < 0, y > 0, y < 0), every lane's corners lie
 // there as its test computes them. The test's edge functions have the exact signs of the
 // sheared corners' (their float products are monotone, and an exactly zero difference is redone
 // in double, where the products are exact), so the origin lies outside the triangle for every
 // lane and the test finds their signs mixed: no lane can hit it.
+//
+// Rays from spread origins towards one point (shadow rays towards a point light) are bounded
+// instead by where they cross one plane of the test's z axis, there their common end: each
+// lane's sheared corner is, in exact arithmetic, the same expression with its crossing for its
+// origin, so the packet is a pinhole's with its apex there. That bound is not made of the
+// test's own operations, so it keeps a margin that covers their rounding (crossing_bounds).
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
@@ -32,94 +40,31 @@
 #include <cstring>
 
 #include "accel/hybrid/hybrid.h"
+#include "accel/hybrid/packet_lanes.h"
 
 namespace kdgrid {
 
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
 
-namespace {
-
-using FloatLanes = WideVectors<16>::F;
-using IntLanes = WideVectors<16>::I;
-
-[[gnu::always_inline]] inline FloatLanes splat(float x) {
-  return FloatLanes{} + x;
-}
-[[gnu::always_inline]] inline FloatLanes vmin(FloatLanes a, FloatLanes b) {
-  return a < b ? a : b;
-}
-[[gnu::always_inline]] inline FloatLanes vmax(FloatLanes a, FloatLanes b) {
-  return a > b ? a : b;
-}
-/// Comparisons straight to lane masks (a vector compare's result would go through a vector of
-/// all-ones lanes and back): ordered, so false where either side is NaN, except ne.
-template <int kPredicate>
-[[gnu::always_inline]] inline uint32_t cmp(FloatLanes a, FloatLanes b) {
-  return _mm512_cmp_ps_mask((__m512)a, (__m512)b, kPredicate);
-}
-[[gnu::always_inline]] inline uint32_t lt(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_LT_OQ>(a, b);
-}
-[[gnu::always_inline]] inline uint32_t le(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_LE_OQ>(a, b);
-}
-[[gnu::always_inline]] inline uint32_t eq(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_EQ_OQ>(a, b);
-}
-[[gnu::always_inline]] inline uint32_t ne(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_NEQ_UQ>(a, b);
-}
-[[gnu::always_inline]] inline FloatLanes blend(FloatLanes a, uint32_t m, FloatLanes b) {
-  return (FloatLanes)_mm512_mask_mov_ps((__m512)a, __mmask16(m), (__m512)b);
-}
-[[gnu::always_inline]] inline IntLanes blend(IntLanes a, uint32_t m, IntLanes b) {
-  return (IntLanes)_mm512_mask_mov_epi32((__m512i)a, __mmask16(m), (__m512i)b);
-}
-/// The least of each of four vectors' lanes `m`, at once: halves folded together, two vectors'
-/// eight to a vector, then quarters, then pairs.
-[[gnu::always_inline]] inline void lane_mins(FloatLanes a, FloatLanes b, FloatLanes c, FloatLanes d,
-                                             uint32_t m, float (&out)[4]) {
-  const FloatLanes inf = splat(kInf);
-  a = blend(inf, m, a), b = blend(inf, m, b), c = blend(inf, m, c), d = blend(inf, m, d);
-  // Lanes 0-7: a's (or c's) sixteen folded to eight; lanes 8-15: b's (or d's).
-  const FloatLanes ab = vmin(
-      __builtin_shufflevector(a, b, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
-      __builtin_shufflevector(a, b, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
-  const FloatLanes cd = vmin(
-      __builtin_shufflevector(c, d, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
-      __builtin_shufflevector(c, d, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
-  // Lanes 4q to 4q + 3: four candidates of vector q (a, b, c, d).
-  FloatLanes x = vmin(
-      __builtin_shufflevector(ab, cd, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27),
-      __builtin_shufflevector(ab, cd, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30, 31));
-  x = vmin(x, __builtin_shufflevector(x, x, 2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13));
-  x = vmin(x, __builtin_shufflevector(x, x, 1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14));
-  out[0] = x[0], out[1] = x[4], out[2] = x[8], out[3] = x[12];
-}
-/// The least and the greatest of each of four vectors' lanes `m`.
-[[gnu::always_inline]] inline void lane_ranges(FloatLanes a, FloatLanes b, FloatLanes c,
-                                               FloatLanes d, uint32_t m, float (&lo)[4],
-                                               float (&hi)[4]) {
-  lane_mins(a, b, c, d, m, lo);
-  lane_mins(-a, -b, -c, -d, m, hi);
-  for (float& h : hi) h = -h;
-}
-
-}  // namespace
+using namespace hybrid::packet_lanes;
 
 namespace hybrid {
 
 /// The packet's rays by lane: world-space origin, reciprocal direction and err (KdRay's), the
-/// watertight test's ray data (its axes shared by the packet), and the packet's extreme origins
-/// and shears on the test's axes, which bound every lane's sheared corners (the cull).
+/// watertight test's ray data (its axes shared by the packet), and the points from which the
+/// cull bounds every lane's sheared corners (CullBox): the origins on the test's axes, or where
+/// the rays cross one plane of its z axis.
 struct PacketRays {
   FloatLanes o[3], inv[3], err[3];
   FloatLanes ox, oy, oz, sx, sy, sz;
   FloatLanes tmin, tmax;  ///< the rays' (+inf and -inf in the lanes not in the packet)
+  FloatLanes cx, cy, cz;  ///< the cull's points: (ox, oy, oz), or the crossings (crossing_bounds)
   int kx, ky, kz;
   bool neg[3];  ///< the packet's directions point down axis a
-  /// The lowest (_lo) and highest (_hi) of the lanes' origins (ox, oy, oz) and shears (sx, sy).
-  float ox_lo, ox_hi, oy_lo, oy_hi, oz_lo, oz_hi, sx_lo, sx_hi, sy_lo, sy_hi;
+  /// How far inside a side the cull's bounds must put a corner: 0 for the origins, and for the
+  /// crossings (crossing_bounds) a bound on the rounding their exact identity leaves out.
+  float margin;
+  bool crossings;   ///< the cull's points are the crossings (crossing_bounds), not the origins
   uint32_t missed;  ///< lanes whose ray misses the grid's box as the single walk clips it
   /// Lane i's WatertightTest::RayData (what prepare() gives: the same divisions).
   WatertightTest::RayData ray_data(int i) const {
@@ -140,6 +85,25 @@ namespace {
 
 using hybrid::PacketHits;
 using hybrid::PacketRays;
+
+/// The lowest (_lo) and highest (_hi) of some lanes' cull points (x, y, z: PacketRays' cx, cy,
+/// cz) and shears (sx, sy), and the packet's margin: the cull's bounds for those lanes.
+struct CullBox {
+  float x_lo, x_hi, y_lo, y_hi, z_lo, z_hi, sx_lo, sx_hi, sy_lo, sy_hi, margin;
+};
+
+/// The cull's bounds for the lanes m of a packet (those that reach a leaf).
+[[gnu::always_inline]] inline CullBox cull_box(const PacketRays& packet, uint32_t m) {
+  float lo[4], hi[4], zlo[4], zhi[4];
+  lane_ranges(packet.cx, packet.cy, packet.sx, packet.sy, m, lo, hi);
+  if (packet.crossings) {
+    zlo[0] = zhi[0] = packet.cz[0];
+  } else {
+    lane_mins(packet.cz, -packet.cz, FloatLanes{}, FloatLanes{}, m, zlo);
+    zhi[0] = -zlo[1];
+  }
+  return {lo[0], hi[0], lo[1], hi[1], zlo[0], zhi[0], lo[2], hi[2], lo[3], hi[3], packet.margin};
+}
 
 /// One triangle against the lanes `m` of the packet: WatertightTest::intersect's operations on
 /// each lane (WatertightWide's, with the lanes as rays instead of triangles).
@@ -202,14 +166,14 @@ template <bool kAny>
 /// Codes of 16 of a shared-corner group's corners (their coordinates on the test's axes from tx,
 /// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
 /// corner at x > 0, x < 0, y > 0, y < 0 in its shear space (bounds from the packet's extreme
-/// origins and shears; see the file's comment).
-[[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& packet, const float* tx,
+/// origins or crossings and shears in `box`, beyond its margin; see the file's comment).
+[[gnu::always_inline]] inline __m512i corner_codes(const CullBox& box, const float* tx,
                                                    const float* ty, const float* tz,
                                                    __mmask16 corners) {
   const FloatLanes vx = (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
                    vy = (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
                    vz = (FloatLanes)_mm512_maskz_loadu_ps(corners, tz);
-  const FloatLanes dzl = vz - packet.oz_hi, dzh = vz - packet.oz_lo;
+  const FloatLanes dzl = vz - box.z_hi, dzh = vz - box.z_lo;
   const auto range = [&](float sl, float sh, FloatLanes& lo, FloatLanes& hi)
       __attribute__((always_inline)) {
     const FloatLanes p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
@@ -217,30 +181,30 @@ template <bool kAny>
     hi = vmax(vmax(p1, p2), vmax(p3, p4));
   };
   FloatLanes pxl, pxh, pyl, pyh;
-  range(packet.sx_lo, packet.sx_hi, pxl, pxh);
-  range(packet.sy_lo, packet.sy_hi, pyl, pyh);
-  const FloatLanes xl = (vx - packet.ox_hi) - pxh, xh = (vx - packet.ox_lo) - pxl;
-  const FloatLanes yl = (vy - packet.oy_hi) - pyh, yh = (vy - packet.oy_lo) - pyl;
-  const FloatLanes zero = {};
+  range(box.sx_lo, box.sx_hi, pxl, pxh);
+  range(box.sy_lo, box.sy_hi, pyl, pyh);
+  const FloatLanes xl = (vx - box.x_hi) - pxh, xh = (vx - box.x_lo) - pxl;
+  const FloatLanes yl = (vy - box.y_hi) - pyh, yh = (vy - box.y_lo) - pyl;
+  const FloatLanes m = splat(box.margin), neg_m = -m;
   const __m512i one = _mm512_set1_epi32(1);
-  __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(zero, xl)), one);
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(xh, zero)), _mm512_set1_epi32(2)));
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(zero, yl)), _mm512_set1_epi32(4)));
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(yh, zero)), _mm512_set1_epi32(8)));
+  __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(m, xl)), one);
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(xh, neg_m)), _mm512_set1_epi32(2)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(m, yl)), _mm512_set1_epi32(4)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(yh, neg_m)), _mm512_set1_epi32(8)));
   return c;
 }
 
-/// The lanes of a shared-corner group that some ray of the packet may hit: those whose three
-/// corners do not all share a side that every ray sees them on.
-[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet,
+/// The lanes of a shared-corner group that some ray of `box`'s lanes may hit: those whose three
+/// corners do not all share a side that every such ray sees them on.
+[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet, const CullBox& box,
                                               const hybrid::SharedCornerGroup& g) {
   const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
   const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
   const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
   const uint32_t corners = g.u >= 32 ? ~0u : (1u << g.u) - 1;
-  const __m512i lo = corner_codes(packet, tx, ty, tz, __mmask16(corners));
+  const __m512i lo = corner_codes(box, tx, ty, tz, __mmask16(corners));
   const __m512i hi = g.u > 16
-                         ? corner_codes(packet, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
+                         ? corner_codes(box, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
                          : _mm512_setzero_si512();
   const uint32_t lanes = (1u << g.n) - 1;
   const uint8_t* idx = g.index();
@@ -251,43 +215,6 @@ template <bool kAny>
     all = _mm512_and_si512(all, _mm512_permutex2var_epi32(lo, ik, hi));
   }
   return uint32_t(_mm512_testn_epi32_mask(all, all)) & lanes;
-}
-
-/// Rays i < n of `rays` by lane: f[k] holds float k of each (Ray: origin, tmin, direction,
-/// tmax), 0 in lanes n and up; rays past n are not read. Rays j and j + 8 are loaded into vector
-/// j, then three rounds of two-source permutes each swap a bit of the vector's index (the ray's
-/// bits 0, 1, 2) with a bit of the lane's (the float's bits 0, 1, 2): the transpose of the 16 x 8
-/// floats, with no gather.
-[[gnu::always_inline]] inline void load_rays(const Ray* rays, int n, FloatLanes (&f)[8]) {
-  static_assert(sizeof(Ray) == 32 && offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 &&
-                offsetof(Ray, tmax) == 28);
-  const float* p = reinterpret_cast<const float*>(rays);
-  __m512 v[8];
-  for (int j = 0; j < 8; ++j) {
-    const __m256 lo = _mm256_maskz_loadu_ps(__mmask8(j < n ? 0xff : 0), p + 8 * j);
-    const __m256 hi = _mm256_maskz_loadu_ps(__mmask8(j + 8 < n ? 0xff : 0), p + 8 * (j + 8));
-    v[j] = _mm512_insertf32x8(_mm512_castps256_ps512(lo), hi, 1);
-  }
-  // Round k's lane indices for the vector whose ray bit k is 0 and for its partner: lane l takes
-  // lane l with bit k cleared (set) from the first source where lane l's bit k is 0, else from
-  // the second.
-  alignas(64) static constexpr int32_t kIndex[3][2][16] = {
-      {{0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30},
-       {1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31}},
-      {{0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29},
-       {2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31}},
-      {{0, 1, 2, 3, 16, 17, 18, 19, 8, 9, 10, 11, 24, 25, 26, 27},
-       {4, 5, 6, 7, 20, 21, 22, 23, 12, 13, 14, 15, 28, 29, 30, 31}}};
-  for (int k = 0; k < 3; ++k) {
-    const __m512i il = _mm512_load_si512(kIndex[k][0]), ih = _mm512_load_si512(kIndex[k][1]);
-    for (int j = 0; j < 8; ++j) {
-      if (j >> k & 1) continue;
-      const __m512 a = v[j], b = v[j | 1 << k];
-      v[j] = _mm512_permutex2var_ps(a, il, b);
-      v[j | 1 << k] = _mm512_permutex2var_ps(a, ih, b);
-    }
-  }
-  for (int j = 0; j < 8; ++j) f[j] = (FloatLanes)v[j];
 }
 
 /// hits[i] = {best, prim, u, v} of lane i for the lanes `found` (Hit's 16 bytes), the others
@@ -342,18 +269,57 @@ template <bool kAny>
   }
 }
 
-/// The packet walk takes rays whose origins lie at most this many cells apart along each axis.
-/// The cull bounds every ray's view of a corner by the origins' box, so rays from spread
-/// origins keep most triangles and the packet walk is slower than the single walk for them
-/// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin.
+/// The packet walk takes rays whose origins, or crossings (crossing_bounds), lie at most this
+/// many cells apart along each axis. The cull bounds every ray's view of a corner by their box,
+/// so a wider box keeps most triangles and the packet walk is slower than the single walk
+/// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin; shadow rays
+/// towards one point light cross where they end.
 constexpr double kPacketSpreadCells = 1.0;
+
+/// A leaf reached by at most this many lanes of a packet tests them lane by lane, each against
+/// its groups by the single walk's group test (PacketWalk::groups).
+constexpr int kLaneGroupLanes = 4;
+
+/// The cull's bounds of the `lanes` of a packet from spread origins by where their rays cross the
+/// plane z = z0 of the test's axes: lane i's crossing is x_i = ox_i + sx_i (z0 - oz_i) (y_i
+/// likewise), and in exact arithmetic its sheared corner x is (vx - x_i) - sx_i (vz - z0), which
+/// the cull bounds as it bounds the origins' box, z0 in place of the origins' z. z0 is the far
+/// end of the lanes' segments (`lo`, `hi`: the origins' box on axes 0 to 2, the ends' range on
+/// the test's z axis in 3): for rays towards one point, their common end, where their
+/// crossings meet. Parallel rays cross any plane as far apart as their origins' projections;
+/// where an end is not finite, z0 is the middle of the origins. The margin bounds what the
+/// identity leaves out: the rounding of the crossings, of the test's sheared corners and of
+/// the cull's own operations, under 28 units of 2^-24 of the largest coordinate M (the
+/// corners', origins' and z0's, the shears at most 1 in magnitude), and the margin is M 2^-18
+/// (64 such units), plus FLT_MIN for underflow. Takes these bounds when the crossings' box,
+/// widened by the margin, is narrower than `spread` (the origins') and within max_spread.
+bool crossing_bounds(PacketRays& packet, uint32_t lanes, const float (&lo)[4], const float (&hi)[4],
+                     float max_abs, float spread, float max_spread) {
+  const int kz = packet.kz;
+  const float far = packet.neg[kz] ? lo[3] : hi[3];
+  const float z0 = std::fabs(far) <= kMaxRayCoordinate ? far : 0.5f * (lo[kz] + hi[kz]);
+  const FloatLanes dz = splat(z0) - packet.oz;
+  const FloatLanes cx = packet.ox + packet.sx * dz, cy = packet.oy + packet.sy * dz;
+  float cl[4], ch[4];  // the crossings' x and y
+  lane_ranges(cx, cy, FloatLanes{}, FloatLanes{}, lanes, cl, ch);
+  float m = std::max(max_abs, std::fabs(z0));
+  for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(lo[a]), std::fabs(hi[a])});
+  const float margin = m * 0x1p-18f + FLT_MIN;
+  const float width = std::max(ch[0] - cl[0], ch[1] - cl[1]) + 2.0f * margin;
+  if (!(width < spread && width <= max_spread)) return false;
+  packet.crossings = true;
+  packet.margin = margin;
+  packet.cx = cx, packet.cy = cy, packet.cz = splat(z0);
+  return true;
+}
 
 /// Sets up `packet` for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
 /// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
 /// number (finite reciprocals and err), sharing the first one's direction signs and the
-/// watertight test's axes; none when their origins lie more than max_spread apart along an
-/// axis. The others take the single walk, except those that miss the grid's `box` as the
-/// single walk clips them (packet.missed), which miss.
+/// watertight test's axes; none when neither their origins' box nor their crossings'
+/// (crossing_bounds) lies within max_spread along each axis. The others take the single walk,
+/// except those that miss the grid's `box` as the single walk clips them (packet.missed),
+/// which miss.
 uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& box,
                         float max_spread, PacketRays& packet) {
   FloatLanes f[8];
@@ -400,32 +366,30 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
     packet.neg[a] = neg >> first & 1u;
     lanes &= packet.neg[a] ? neg : ~neg;
   }
-  // The origins' box (of these lanes: bounds for any of them), which the cull reads; a packet
-  // whose origins lie further apart than max_spread along an axis is left to the single walk.
-  float lo[4], hi[4];
-  lane_ranges(o[0], o[1], o[2], zero, lanes, lo, hi);
-  for (int a = 0; a < 3; ++a)
-    if (!(hi[a] - lo[a] <= max_spread)) return 0;
   packet.kx = packet.kz == 2 ? 0 : packet.kz + 1;
   packet.ky = packet.kx == 2 ? 0 : packet.kx + 1;
   if (packet.neg[packet.kz]) std::swap(packet.kx, packet.ky);  // WatertightTest::prepare's
-  uint32_t finite = ~0u;
   for (int a = 0; a < 3; ++a) {
     packet.o[a] = o[a];
-    finite &= le(packet.err[a], splat(FLT_MAX));
+    lanes &= le(packet.err[a], splat(FLT_MAX));
   }
-  lanes &= finite;
   packet.ox = o[packet.kx], packet.oy = o[packet.ky], packet.oz = o[packet.kz];
   packet.sx = d[packet.kx] / d[packet.kz], packet.sy = d[packet.ky] / d[packet.kz],
   packet.sz = packet.inv[packet.kz];  // prepare()'s 1 / d
   packet.tmin = blend(splat(kInf), lanes, tmin);
   packet.tmax = blend(splat(-kInf), lanes, tmax);
-  packet.ox_lo = lo[packet.kx], packet.ox_hi = hi[packet.kx];
-  packet.oy_lo = lo[packet.ky], packet.oy_hi = hi[packet.ky];
-  packet.oz_lo = lo[packet.kz], packet.oz_hi = hi[packet.kz];
-  float sl[4], sh[4];
-  lane_ranges(packet.sx, packet.sy, zero, zero, lanes, sl, sh);
-  packet.sx_lo = sl[0], packet.sx_hi = sh[0], packet.sy_lo = sl[1], packet.sy_hi = sh[1];
+  // The origins' box and the ends' range on the test's z axis (of these lanes: bounds for any
+  // of them). Spread origins are bounded by their crossings where those lie closer together;
+  // a packet bounded by neither within max_spread is left to the single walk.
+  float lo[4], hi[4];
+  lane_ranges(o[0], o[1], o[2], packet.oz + tmax * d[packet.kz], lanes, lo, hi);
+  const float spread = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  if (spread > 0.0f && crossing_bounds(packet, lanes, lo, hi, max_abs, spread, max_spread))
+    return lanes;
+  if (!(spread <= max_spread)) return 0;
+  packet.crossings = false;
+  packet.margin = 0.0f;
+  packet.cx = packet.ox, packet.cy = packet.oy, packet.cz = packet.oz;
   return lanes;
 }
 
@@ -506,17 +470,60 @@ struct GridKdHybrid::PacketWalk {
     neg = packets[0]->neg;
   }
 
-  /// The groups of a leaf for packet k, culled against it, then each triangle left against the
-  /// lanes m.
+  /// The triangles `tris` of group gr against each lane of m of packet k by the single walk's
+  /// group test (WatertightWide: the group's triangles against one ray); returns m less the
+  /// lanes an any-hit query retires.
+  [[gnu::always_inline]] uint32_t lane_group(int k, const hybrid::SharedCornerGroup& gr,
+                                             uint32_t tris, uint32_t m) {
+    const PacketRays& r = *packets[k];
+    PacketHits& h = H[k];
+    for (uint32_t left = m; left != 0; left &= left - 1) {
+      const int i = __builtin_ctz(left);
+      float t, u, v;
+      const int j =
+          WatertightWide<16>::intersect(r.ray_data(i), gr, tris, r.tmin[i], h.best[i], t, u, v);
+      if (j < 0) continue;
+      h.found |= 1u << i;
+      if constexpr (kAny) {
+        alive[k] &= ~(1u << i);
+        m &= ~(1u << i);
+      } else {
+        h.best[i] = t;
+        h.u[i] = u;
+        h.v[i] = v;
+        h.prim[i] = int32_t(gr.prim(uint32_t(j)));
+      }
+    }
+    return m;
+  }
+
+  /// The groups of a leaf for the lanes m of packet k (those that reach the leaf). Each group is
+  /// culled against those lanes' bounds, then its triangles left are tested one at a time
+  /// against the lanes, or, where they outnumber the lanes, each lane is tested against them by
+  /// the group test; with kLaneGroupLanes lanes or fewer every group goes to the group test
+  /// uncut, as the cull would cost about what it saves.
   [[gnu::always_inline]] void groups(int k, uint32_t first, uint32_t count, uint32_t m) {
     const PacketRays& r = *packets[k];
     PacketHits& h = H[k];
+    const bool by_lane = __builtin_popcount(m) <= kLaneGroupLanes;
+    const CullBox box = by_lane ? CullBox{} : cull_box(r, m);
     const float* p = g.groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
       const hybrid::SharedCornerGroup gr = hybrid::SharedCornerGroup::at(p, left);
       p = gr.end();
       left -= gr.n;
-      for (uint32_t keep = uncull(r, gr); keep != 0; keep &= keep - 1) {
+      if (by_lane) {
+        m = lane_group(k, gr, (1u << gr.n) - 1, m);
+        if (m == 0) return;
+        continue;
+      }
+      uint32_t keep = uncull(r, box, gr);
+      if (__builtin_popcount(keep) > __builtin_popcount(m)) {
+        m = lane_group(k, gr, keep, m);
+        if (m == 0) return;
+        continue;
+      }
+      for (; keep != 0; keep &= keep - 1) {
         const int i = __builtin_ctz(keep);
         test_triangle<kAny>(r, h, gr.corner(0, i), gr.corner(1, i), gr.corner(2, i),
                             gr.prim(uint32_t(i)), m);
@@ -731,6 +738,15 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
   return true;
 }
 
+GridKdHybrid::PacketCull GridKdHybrid::packet_cull(const Ray* rays, int n) const {
+  if (!packets_ready() || n < 1) return PacketCull::Single;
+  PacketRays packet;
+  const uint32_t lanes = prepare_packet(rays, std::min(16, n), max_abs_, world_clip_,
+                                        float(kPacketSpreadCells * cell_), packet);
+  if ((lanes & (lanes - 1)) == 0) return PacketCull::Single;
+  return packet.crossings ? PacketCull::Crossings : PacketCull::Origins;
+}
+
 void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
   if (!packets_ready()) return Accelerator::intersect_packet(rays, n, hits, found);
   for (int b = 0; b < n; b += 64)
@@ -744,6 +760,10 @@ void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) c
 }
 
 #else
+
+GridKdHybrid::PacketCull GridKdHybrid::packet_cull(const Ray*, int) const {
+  return PacketCull::Single;
+}
 
 void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
   Accelerator::intersect_packet(rays, n, hits, found);
