@@ -1,6 +1,7 @@
 // The hybrid's packet queries (GridKdHybrid::intersect_packet, occluded_packet): up to 64 rays
-// walked together as four packets of 16, one ray a float lane of 512-bit vectors (builds for
-// AVX-512 with shared-corner groups; the others loop over the single-ray walk).
+// walked together as four packets of 16, one ray a float lane of 512-bit vectors, in builds for
+// AVX-512; up to 32 as four packets of 8 lanes of 256-bit vectors in builds for AVX2 and FMA
+// (the lane operations: packet_lanes.h); the others loop over the single-ray walk.
 //
 // The packets go down the kd-tree whose splits lie on the grid's cell boundaries, and down the
 // leaves' subtrees, together: each lane keeps its own [t0, t1] within a node, widened
@@ -32,78 +33,15 @@
 #include <cstring>
 
 #include "accel/hybrid/hybrid.h"
+#include "accel/hybrid/packet_lanes.h"
 
 namespace kdgrid {
 
-#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+#if KDGRID_PACKET_LANES != 0
 
 namespace {
 
-using FloatLanes = WideVectors<16>::F;
-using IntLanes = WideVectors<16>::I;
-
-[[gnu::always_inline]] inline FloatLanes splat(float x) {
-  return FloatLanes{} + x;
-}
-[[gnu::always_inline]] inline FloatLanes vmin(FloatLanes a, FloatLanes b) {
-  return a < b ? a : b;
-}
-[[gnu::always_inline]] inline FloatLanes vmax(FloatLanes a, FloatLanes b) {
-  return a > b ? a : b;
-}
-/// Comparisons straight to lane masks (a vector compare's result would go through a vector of
-/// all-ones lanes and back): ordered, so false where either side is NaN, except ne.
-template <int kPredicate>
-[[gnu::always_inline]] inline uint32_t cmp(FloatLanes a, FloatLanes b) {
-  return _mm512_cmp_ps_mask((__m512)a, (__m512)b, kPredicate);
-}
-[[gnu::always_inline]] inline uint32_t lt(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_LT_OQ>(a, b);
-}
-[[gnu::always_inline]] inline uint32_t le(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_LE_OQ>(a, b);
-}
-[[gnu::always_inline]] inline uint32_t eq(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_EQ_OQ>(a, b);
-}
-[[gnu::always_inline]] inline uint32_t ne(FloatLanes a, FloatLanes b) {
-  return cmp<_CMP_NEQ_UQ>(a, b);
-}
-[[gnu::always_inline]] inline FloatLanes blend(FloatLanes a, uint32_t m, FloatLanes b) {
-  return (FloatLanes)_mm512_mask_mov_ps((__m512)a, __mmask16(m), (__m512)b);
-}
-[[gnu::always_inline]] inline IntLanes blend(IntLanes a, uint32_t m, IntLanes b) {
-  return (IntLanes)_mm512_mask_mov_epi32((__m512i)a, __mmask16(m), (__m512i)b);
-}
-/// The least of each of four vectors' lanes `m`, at once: halves folded together, two vectors'
-/// eight to a vector, then quarters, then pairs.
-[[gnu::always_inline]] inline void lane_mins(FloatLanes a, FloatLanes b, FloatLanes c, FloatLanes d,
-                                             uint32_t m, float (&out)[4]) {
-  const FloatLanes inf = splat(kInf);
-  a = blend(inf, m, a), b = blend(inf, m, b), c = blend(inf, m, c), d = blend(inf, m, d);
-  // Lanes 0-7: a's (or c's) sixteen folded to eight; lanes 8-15: b's (or d's).
-  const FloatLanes ab = vmin(
-      __builtin_shufflevector(a, b, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
-      __builtin_shufflevector(a, b, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
-  const FloatLanes cd = vmin(
-      __builtin_shufflevector(c, d, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
-      __builtin_shufflevector(c, d, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31));
-  // Lanes 4q to 4q + 3: four candidates of vector q (a, b, c, d).
-  FloatLanes x = vmin(
-      __builtin_shufflevector(ab, cd, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27),
-      __builtin_shufflevector(ab, cd, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30, 31));
-  x = vmin(x, __builtin_shufflevector(x, x, 2, 3, 0, 1, 6, 7, 4, 5, 10, 11, 8, 9, 14, 15, 12, 13));
-  x = vmin(x, __builtin_shufflevector(x, x, 1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10, 13, 12, 15, 14));
-  out[0] = x[0], out[1] = x[4], out[2] = x[8], out[3] = x[12];
-}
-/// The least and the greatest of each of four vectors' lanes `m`.
-[[gnu::always_inline]] inline void lane_ranges(FloatLanes a, FloatLanes b, FloatLanes c,
-                                               FloatLanes d, uint32_t m, float (&lo)[4],
-                                               float (&hi)[4]) {
-  lane_mins(a, b, c, d, m, lo);
-  lane_mins(-a, -b, -c, -d, m, hi);
-  for (float& h : hi) h = -h;
-}
+using namespace hybrid::lanes;  // the walk's lane operations (packet_lanes.h)
 
 }  // namespace
 
@@ -199,28 +137,38 @@ template <bool kAny>
   }
 }
 
+/// Bounds of every packet lane's sheared x and y of W corners (coordinates vx, vy, vz on the
+/// test's axes): the same operations on the packet's extreme origins and shears (see the file's
+/// comment).
+template <class F>
+[[gnu::always_inline]] inline void corner_bounds(const PacketRays& packet, F vx, F vy, F vz, F& xl,
+                                                 F& xh, F& yl, F& yh) {
+  const F dzl = vz - packet.oz_hi, dzh = vz - packet.oz_lo;
+  const auto range = [&](float sl, float sh, F& lo, F& hi) __attribute__((always_inline)) {
+    const F p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
+    const F l12 = p1 < p2 ? p1 : p2, l34 = p3 < p4 ? p3 : p4;
+    const F h12 = p1 > p2 ? p1 : p2, h34 = p3 > p4 ? p3 : p4;
+    lo = l12 < l34 ? l12 : l34;
+    hi = h12 > h34 ? h12 : h34;
+  };
+  F pxl, pxh, pyl, pyh;
+  range(packet.sx_lo, packet.sx_hi, pxl, pxh);
+  range(packet.sy_lo, packet.sy_hi, pyl, pyh);
+  xl = (vx - packet.ox_hi) - pxh, xh = (vx - packet.ox_lo) - pxl;
+  yl = (vy - packet.oy_hi) - pyh, yh = (vy - packet.oy_lo) - pyl;
+}
+
+#if KDGRID_PACKET_LANES == 16
 /// Codes of 16 of a shared-corner group's corners (their coordinates on the test's axes from tx,
 /// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
-/// corner at x > 0, x < 0, y > 0, y < 0 in its shear space (bounds from the packet's extreme
-/// origins and shears; see the file's comment).
+/// corner at x > 0, x < 0, y > 0, y < 0 in its shear space.
 [[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& packet, const float* tx,
                                                    const float* ty, const float* tz,
                                                    __mmask16 corners) {
-  const FloatLanes vx = (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
-                   vy = (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
-                   vz = (FloatLanes)_mm512_maskz_loadu_ps(corners, tz);
-  const FloatLanes dzl = vz - packet.oz_hi, dzh = vz - packet.oz_lo;
-  const auto range = [&](float sl, float sh, FloatLanes& lo, FloatLanes& hi)
-      __attribute__((always_inline)) {
-    const FloatLanes p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
-    lo = vmin(vmin(p1, p2), vmin(p3, p4));
-    hi = vmax(vmax(p1, p2), vmax(p3, p4));
-  };
-  FloatLanes pxl, pxh, pyl, pyh;
-  range(packet.sx_lo, packet.sx_hi, pxl, pxh);
-  range(packet.sy_lo, packet.sy_hi, pyl, pyh);
-  const FloatLanes xl = (vx - packet.ox_hi) - pxh, xh = (vx - packet.ox_lo) - pxl;
-  const FloatLanes yl = (vy - packet.oy_hi) - pyh, yh = (vy - packet.oy_lo) - pyl;
+  FloatLanes xl, xh, yl, yh;
+  corner_bounds(packet, (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
+                (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
+                (FloatLanes)_mm512_maskz_loadu_ps(corners, tz), xl, xh, yl, yh);
   const FloatLanes zero = {};
   const __m512i one = _mm512_set1_epi32(1);
   __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(zero, xl)), one);
@@ -252,94 +200,27 @@ template <bool kAny>
   }
   return uint32_t(_mm512_testn_epi32_mask(all, all)) & lanes;
 }
+#endif
 
-/// Rays i < n of `rays` by lane: f[k] holds float k of each (Ray: origin, tmin, direction,
-/// tmax), 0 in lanes n and up; rays past n are not read. Rays j and j + 8 are loaded into vector
-/// j, then three rounds of two-source permutes each swap a bit of the vector's index (the ray's
-/// bits 0, 1, 2) with a bit of the lane's (the float's bits 0, 1, 2): the transpose of the 16 x 8
-/// floats, with no gather.
-[[gnu::always_inline]] inline void load_rays(const Ray* rays, int n, FloatLanes (&f)[8]) {
-  static_assert(sizeof(Ray) == 32 && offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 &&
-                offsetof(Ray, tmax) == 28);
-  const float* p = reinterpret_cast<const float*>(rays);
-  __m512 v[8];
-  for (int j = 0; j < 8; ++j) {
-    const __m256 lo = _mm256_maskz_loadu_ps(__mmask8(j < n ? 0xff : 0), p + 8 * j);
-    const __m256 hi = _mm256_maskz_loadu_ps(__mmask8(j + 8 < n ? 0xff : 0), p + 8 * (j + 8));
-    v[j] = _mm512_insertf32x8(_mm512_castps256_ps512(lo), hi, 1);
-  }
-  // Round k's lane indices for the vector whose ray bit k is 0 and for its partner: lane l takes
-  // lane l with bit k cleared (set) from the first source where lane l's bit k is 0, else from
-  // the second.
-  alignas(64) static constexpr int32_t kIndex[3][2][16] = {
-      {{0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30},
-       {1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31}},
-      {{0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29},
-       {2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31}},
-      {{0, 1, 2, 3, 16, 17, 18, 19, 8, 9, 10, 11, 24, 25, 26, 27},
-       {4, 5, 6, 7, 20, 21, 22, 23, 12, 13, 14, 15, 28, 29, 30, 31}}};
+/// The lanes of a group stored by lane that some ray of the packet may hit: each of its three
+/// corners coded as corner_codes codes a shared corner (in W-lane vectors of integer flags), and
+/// the lanes whose three codes share no bit.
+[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet,
+                                              const hybrid::LaneGroup& g) {
+  constexpr int W = kWideLanes >= 4 ? kWideLanes : 4;  // packets_ready(): kWideLanes >= 4
+  using F = typename WideVectors<W>::F;
+  using I = typename WideVectors<W>::I;
+  I all = ~I{};
   for (int k = 0; k < 3; ++k) {
-    const __m512i il = _mm512_load_si512(kIndex[k][0]), ih = _mm512_load_si512(kIndex[k][1]);
-    for (int j = 0; j < 8; ++j) {
-      if (j >> k & 1) continue;
-      const __m512 a = v[j], b = v[j | 1 << k];
-      v[j] = _mm512_permutex2var_ps(a, il, b);
-      v[j | 1 << k] = _mm512_permutex2var_ps(a, ih, b);
-    }
+    F vx, vy, vz, xl, xh, yl, yh;
+    std::memcpy(&vx, g.p + (3 * k + packet.kx) * W, sizeof vx);
+    std::memcpy(&vy, g.p + (3 * k + packet.ky) * W, sizeof vy);
+    std::memcpy(&vz, g.p + (3 * k + packet.kz) * W, sizeof vz);
+    corner_bounds(packet, vx, vy, vz, xl, xh, yl, yh);
+    const F zero = {};
+    all &= ((zero < xl) & 1) | ((xh < zero) & 2) | ((zero < yl) & 4) | ((yh < zero) & 8);
   }
-  for (int j = 0; j < 8; ++j) f[j] = (FloatLanes)v[j];
-}
-
-/// hits[i] = {best, prim, u, v} of lane i for the lanes `found` (Hit's 16 bytes), the others
-/// untouched: the four vectors transposed into four vectors of four hits each, then stored with
-/// a mask.
-[[gnu::always_inline]] inline void store_hits(const PacketHits& H, uint32_t found, Hit* hits) {
-  static_assert(sizeof(Hit) == 16 && offsetof(Hit, prim) == 4 && offsetof(Hit, u) == 8 &&
-                offsetof(Hit, v) == 12);
-  const FloatLanes t = H.best, p = (FloatLanes)H.prim, u = H.u, v = H.v;
-  // Lane 4j + r's hit in 128-bit block j of h[r] (the unpacks' orders).
-  const FloatLanes tp_lo =
-      __builtin_shufflevector(t, p, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
-  const FloatLanes tp_hi =
-      __builtin_shufflevector(t, p, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
-  const FloatLanes uv_lo =
-      __builtin_shufflevector(u, v, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
-  const FloatLanes uv_hi =
-      __builtin_shufflevector(u, v, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
-  const auto lo = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29);
-  };
-  const auto hi = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30,
-                                   31);
-  };
-  const FloatLanes h0 = lo(tp_lo, uv_lo), h1 = hi(tp_lo, uv_lo), h2 = lo(tp_hi, uv_hi),
-                   h3 = hi(tp_hi, uv_hi);
-  // Hits 4q to 4q + 3 are block q of h0, h1, h2, h3.
-  const auto blocks01 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
-  };
-  const auto blocks23 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30,
-                                   31);
-  };
-  const auto even = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27);
-  };
-  const auto odd = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30,
-                                   31);
-  };
-  const FloatLanes a = blocks01(h0, h1), b = blocks01(h2, h3), c = blocks23(h0, h1),
-                   d = blocks23(h2, h3);
-  const FloatLanes q[4] = {even(a, b), odd(a, b), even(c, d), odd(c, d)};
-  float* out = reinterpret_cast<float*>(hits);
-  for (int j = 0; j < 4; ++j) {
-    const uint32_t four = found >> (4 * j) & 0xfu;
-    if (four == 0) continue;
-    const uint32_t mask = _pdep_u32(four, 0x1111u) * 0xfu;
-    _mm512_mask_storeu_ps(out + 16 * j, __mmask16(mask), (__m512)q[j]);
-  }
+  return WatertightWide<W>::bits(all == 0) & ((1u << g.n) - 1);
 }
 
 /// The packet walk takes rays whose origins lie at most this many cells apart along each axis.
@@ -348,9 +229,9 @@ template <bool kAny>
 /// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin.
 constexpr double kPacketSpreadCells = 1.0;
 
-/// Sets up `packet` for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
-/// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
-/// number (finite reciprocals and err), sharing the first one's direction signs and the
+/// Sets up `packet` for rays i < n of `rays` (n <= kPacketLanes) and returns the lanes that join
+/// the packet: rays valid as ray_is_valid says, with tmin >= 0 and every direction component a
+/// normal number (finite reciprocals and err), sharing the first one's direction signs and the
 /// watertight test's axes; none when their origins lie more than max_spread apart along an
 /// axis. The others take the single walk, except those that miss the grid's `box` as the
 /// single walk clips them (packet.missed), which miss.
@@ -364,8 +245,8 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   FloatLanes ao[3], ad[3];
   uint32_t ok = le(zero, tmin) & le(tmin, tmax) & lt(tmin, splat(kInf));
   for (int a = 0; a < 3; ++a) {
-    ao[a] = (FloatLanes)_mm512_abs_ps((__m512)o[a]);
-    ad[a] = (FloatLanes)_mm512_abs_ps((__m512)d[a]);
+    ao[a] = vabs(o[a]);
+    ad[a] = vabs(d[a]);
     ok &= le(ao[a], big) & le(ad[a], big) & le(tiny, ad[a]);
   }
   uint32_t lanes = ok & ((1u << n) - 1);
@@ -379,7 +260,7 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   FloatLanes t0 = tmin, t1 = tmax;
   for (int a = 0; a < 3; ++a) {
     packet.inv[a] = one / d[a];
-    packet.err[a] = err_scale * (FloatLanes)_mm512_abs_ps((__m512)packet.inv[a]);
+    packet.err[a] = err_scale * vabs(packet.inv[a]);
     const FloatLanes tl = (splat(box.lo[a]) - o[a]) * packet.inv[a],
                      th = (splat(box.hi[a]) - o[a]) * packet.inv[a];
     t0 = vmax(t0, vmin(tl, th) - packet.err[a]);
@@ -432,17 +313,18 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
 }  // namespace
 
 template <bool kAny>
-void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const {
-  // Up to four packets of 16 set up; those of two rays or more that share the first one's
+void GridKdHybrid::packet_call(const Ray* rays, int n, Hit* hits, bool* out) const {
+  // Up to four packets of L set up; those of two rays or more that share the first one's
   // direction signs walk together, then those that share the next one's, and so on.
+  constexpr int L = hybrid::kPacketLanes;
   PacketRays packets[4];
   uint32_t lanes[4] = {0, 0, 0, 0};
-  const int parts = (n + 15) / 16;
+  const int parts = (n + L - 1) / L;
   // The rays of the later packets requested at once (two rays a line), so that their loads do
   // not wait for the first packet's set-up.
-  for (int i = 16; i < n; i += 2) __builtin_prefetch(rays + i);
+  for (int i = L; i < n; i += 2) __builtin_prefetch(rays + i);
   for (int k = 0; k < parts; ++k) {
-    lanes[k] = prepare_packet(rays + 16 * k, std::min(16, n - 16 * k), max_abs_, world_clip_,
+    lanes[k] = prepare_packet(rays + L * k, std::min(L, n - L * k), max_abs_, world_clip_,
                               float(kPacketSpreadCells * cell_), packets[k]);
     if ((lanes[k] & (lanes[k] - 1)) == 0) lanes[k] = 0;
   }
@@ -462,10 +344,10 @@ void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const 
     for (int j = 0; j < count; ++j) walked[which[j]] = lanes[which[j]];
   }
   for (int i = 0; i < n; ++i) {
-    const uint32_t bit = 1u << (i % 16);
-    if (packets[i / 16].missed & bit)
+    const uint32_t bit = 1u << (i % L);
+    if (packets[i / L].missed & bit)
       out[i] = false;
-    else if (!(walked[i / 16] & bit))
+    else if (!(walked[i / L] & bit))
       out[i] = kAny ? occluded(rays[i]) : intersect(rays[i], hits[i]);
   }
 }
@@ -513,7 +395,7 @@ struct GridKdHybrid::PacketWalk {
     PacketHits& h = H[k];
     const float* p = g.groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
-      const hybrid::SharedCornerGroup gr = hybrid::SharedCornerGroup::at(p, left);
+      const hybrid::GroupView gr = hybrid::GroupView::at(p, left);
       p = gr.end();
       left -= gr.n;
       for (uint32_t keep = uncull(r, gr); keep != 0; keep &= keep - 1) {
@@ -713,11 +595,10 @@ struct GridKdHybrid::PacketWalk {
   [[gnu::always_inline]] void store(const uint32_t* lanes_of, const int* which, Hit* hits,
                                     bool* out) const {
     for (int k = 0; k < K; ++k) {
-      const int base = 16 * which[k];
+      const int base = hybrid::kPacketLanes * which[k];
       const uint32_t lanes = lanes_of[which[k]], found = H[k].found & lanes;
-      _mm_mask_storeu_epi8(out + base, __mmask16(lanes),
-                           _mm_maskz_mov_epi8(__mmask16(found), _mm_set1_epi8(1)));
-      if constexpr (!kAny) store_hits(H[k], found, hits + base);
+      store_found(lanes, found, out + base);
+      if constexpr (!kAny) store_hits(H[k].best, H[k].prim, H[k].u, H[k].v, found, hits + base);
     }
   }
 };
@@ -733,14 +614,16 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
 
 void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
   if (!packets_ready()) return Accelerator::intersect_packet(rays, n, hits, found);
-  for (int b = 0; b < n; b += 64)
-    packet64<false>(rays + b, std::min(64, n - b), hits + b, found + b);
+  constexpr int kCall = 4 * hybrid::kPacketLanes;
+  for (int b = 0; b < n; b += kCall)
+    packet_call<false>(rays + b, std::min(kCall, n - b), hits + b, found + b);
 }
 
 void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) const {
   if (!packets_ready()) return Accelerator::occluded_packet(rays, n, occluded_out);
-  for (int b = 0; b < n; b += 64)
-    packet64<true>(rays + b, std::min(64, n - b), nullptr, occluded_out + b);
+  constexpr int kCall = 4 * hybrid::kPacketLanes;
+  for (int b = 0; b < n; b += kCall)
+    packet_call<true>(rays + b, std::min(kCall, n - b), nullptr, occluded_out + b);
 }
 
 #else
@@ -756,7 +639,7 @@ void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) c
 #endif
 
 int GridKdHybrid::packet_width() const {
-  return packets_ready() ? 64 : 1;
+  return packets_ready() ? 4 * hybrid::kPacketLanes : 1;
 }
 
 }  // namespace kdgrid
