@@ -179,9 +179,10 @@ template <class F>
 }
 
 /// The lanes of a shared-corner group that some ray of the packet may hit: those whose three
-/// corners do not all share a side that every ray sees them on.
-[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet,
-                                              const hybrid::SharedCornerGroup& g) {
+/// corners do not all share a side that every ray sees them on. (One of the two uncull()s is
+/// unused: the one for the layout the build does not store.)
+[[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
+                                                            const hybrid::SharedCornerGroup& g) {
   const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
   const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
   const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
@@ -205,8 +206,8 @@ template <class F>
 /// The lanes of a group stored by lane that some ray of the packet may hit: each of its three
 /// corners coded as corner_codes codes a shared corner (in W-lane vectors of integer flags), and
 /// the lanes whose three codes share no bit.
-[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet,
-                                              const hybrid::LaneGroup& g) {
+[[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
+                                                            const hybrid::LaneGroup& g) {
   constexpr int W = kWideLanes >= 4 ? kWideLanes : 4;  // packets_ready(): kWideLanes >= 4
   using F = typename WideVectors<W>::F;
   using I = typename WideVectors<W>::I;
