@@ -227,8 +227,10 @@ template <class F>
 /// The packet walk takes rays whose origins lie at most this many cells apart along each axis.
 /// The cull bounds every ray's view of a corner by the origins' box, so rays from spread
 /// origins keep most triangles and the packet walk is slower than the single walk for them
-/// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin.
-constexpr double kPacketSpreadCells = 1.0;
+/// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin. Packets of 8
+/// lanes (AVX2) spread their walk's cost over half the rays, so they take origins a quarter of a
+/// cell apart at most (docs/EXPERIMENTS.md, "Packets in AVX2 builds").
+constexpr double kPacketSpreadCells = hybrid::kPacketLanes == 16 ? 1.0 : 0.25;
 
 /// Sets up `packet` for rays i < n of `rays` (n <= kPacketLanes) and returns the lanes that join
 /// the packet: rays valid as ray_is_valid says, with tmin >= 0 and every direction component a
