@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Measures everything docs/RESULTS.md shows and regenerates that page from the results:
-# the benchmark suite (kdgrid bench), the sweeps (kdgrid sweep), the extreme-ray suite with the
+# the benchmark suite (kdgrid bench, with the whole-render column), the suite again built for
+# AVX2 CPUs against Embree restricted to AVX2 (build/avx2), the sweeps (kdgrid sweep), the extreme-ray suite with the
 # acne study (kdgrid check --acne, the accuracy side of the secondary-ray offset), the plots
 # (scripts/plot) and the page (scripts/bench-report). Numbers are never copied by hand. The
 # page's "Viewer", "10M-triangle" and "hybrid's variants" sections come from viewer.json,
@@ -17,7 +18,7 @@
 #   SWEEP_SCENE     scene of the cellsize/lambda/kdcost/triangle sweeps (default dragon-200k)
 #   SKIP_BUILD=1    use the existing build/release
 #   SKIP_SWEEPS=1   no sweeps (plots and page are still regenerated)
-#   ONLY=PARTS      only these comma-separated parts: suite, sweeps, check (default: all). The
+#   ONLY=PARTS      only these comma-separated parts: suite, avx2, sweeps, check (default: all). The
 #                   results of the parts not run are kept, and so are their lines in
 #                   commands.tsv; each command's line records the commit it ran at.
 me=bench-all
@@ -34,12 +35,12 @@ sweep_scene="${SWEEP_SCENE:-$scenes/dragon/dragon_vrip_res2.ply}"
 
 build_release OFF
 need_scenes "$scenes/suite.json"
-only="${ONLY:-suite,sweeps,check}"
+only="${ONLY:-suite,avx2,sweeps,check}"
 part() { [[ ",$only," == *",$1,"* ]]; }
 for p in ${only//,/ }; do
   case "$p" in
-    suite | sweeps | check) ;;
-    *) echo "bench-all: ONLY=$only: unknown part '$p' (use suite, sweeps, check)" >&2; exit 2 ;;
+    suite | avx2 | sweeps | check) ;;
+    *) echo "bench-all: ONLY=$only: unknown part '$p' (use suite, avx2, sweeps, check)" >&2; exit 2 ;;
   esac
 done
 # The commit measured, and whether the tree differs from it, before this script writes a file.
@@ -77,7 +78,21 @@ run() {
 export KDGRID_SCENES="$scenes"
 if part suite; then
   run "$kdgrid" bench --suite "$scenes/suite.json" --res "$res" --reps "$reps" --threads "$threads" \
-    --json "$results/bench.json" --md "$results/bench.md"
+    --render --json "$results/bench.json" --md "$results/bench.md"
+fi
+
+# The suite again as it runs on a CPU without AVX-512: kdgrid built for x86-64-v3 (preset avx2,
+# build/avx2) against Embree restricted to AVX2. Skipped, saying so, on a CPU without AVX2.
+if part avx2; then
+  if grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo; then
+    cmake --preset avx2 >/dev/null
+    cmake --build build/avx2 -j "${KDGRID_JOBS:-$(nproc)}" --target kdgrid
+    run "$root/build/avx2/src/cli/kdgrid" bench --suite "$scenes/suite.json" --res "$res" \
+      --reps "$reps" --threads "$threads" --embree-isa avx2 --render \
+      --json "$results/bench-avx2.json" --md "$results/bench-avx2.md"
+  else
+    echo "bench-all: this CPU has no AVX2 and FMA: the AVX2 suite is not run" >&2
+  fi
 fi
 
 if part sweeps && [[ "${SKIP_SWEEPS:-0}" != 1 ]]; then

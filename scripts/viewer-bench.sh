@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Measures the interactive viewer for docs/RESULTS.md ("Viewer"): pass (progressive frame)
 # time, UI frame time and Mrays/s at 1280x720 on the bunny and Sponza with the viewer's
-# default structure, 2 threads, one sample per pixel per pass with shadows; and the live
-# rebuild of the full dragon with the hybrid at its automatic cell size.
+# default structure, 2 threads, one sample per pixel per pass with shadows; the live
+# rebuild of the full dragon with the hybrid at its automatic cell size; and the UI thread's
+# frames on the full dragon under each overlay.
 #
 # kdgrid-viewer runs in its scripted mode under xvfb-run, so the OpenGL side is Mesa's
 # llvmpipe (software): uploads and drawing run on the CPU. Each run writes --stats-json; this
@@ -91,6 +92,19 @@ for i in $(seq "${VIEWER_REBUILDS:-3}"); do
     --rebuild-cell-size auto --frames 1 --min-samples 1 --max-samples 1
 done
 
+# UI frames: the full dragon with the hybrid, a pick at the window's centre and each overlay
+# in turn (none, split planes, cells, boxes, the steps heat map): how long the UI thread's
+# frames take (frames.ui_ms) and which phase of its loop the longest ones spent it in
+# (frames.phases).
+for overlay in none splits cells boxes heatmap; do
+  case "$overlay" in
+    none) extra=() ;;
+    heatmap) extra=(--heatmap steps) ;;
+    *) extra=(--overlay "$overlay") ;;
+  esac
+  run "dragon-ui-$overlay" "$scenes/dragon/dragon_vrip.ply" --accel hybrid --pick 640,360 \
+    --frames 60 --min-samples 2 --max-samples 2 "${extra[@]}"
+done
 "$python" - "$results/viewer.json" "$runs" "$work" "$threads" "$passes" <<'EOF'
 import datetime, json, os, platform, subprocess, sys
 out, runs, work, threads, passes = sys.argv[1:6]

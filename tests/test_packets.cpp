@@ -12,6 +12,7 @@
 
 #include "accel/accelerator.h"
 #include "accel/embree.h"
+#include "accel/hybrid/hybrid.h"
 #include "bench/raysets.h"
 #include "comparator_meshes.h"
 #include "scene/load.h"
@@ -173,6 +174,107 @@ INSTANTIATE_TEST_SUITE_P(AllStructures, Packets, ::testing::ValuesIn(accelerator
                          [](const ::testing::TestParamInfo<std::string>& p) {
                            return test::test_name(p.param);
                          });
+
+/// A UV sphere (shared corners, its vertices ring by ring) in a cloud of small triangles that
+/// cast shadows on it, and a point light above them.
+Mesh shadow_scene(Vec3& light) {
+  Mesh m = test::sphere(40, 80);
+  const Mesh cloud = test::random_soup(1500, 3, 0.05f, Vec3(-1.6f), Vec3(1.6f));
+  for (size_t i = 0; i < cloud.num_triangles(); ++i) {
+    const auto c = cloud.corners(i);
+    test::add_tri(m, c[0], c[1], c[2]);
+  }
+  light = canonical_light_position(m.bounds());
+  return m;
+}
+
+/// Occlusion and closest-hit packets of 64 against the single walk, bit for bit; returns the
+/// rays that differ.
+int packet_mismatches(const GridKdHybrid& h, const std::vector<Ray>& rays) {
+  int bad = 0;
+  for (size_t base = 0; base < rays.size(); base += 64) {
+    const int n = int(std::min<size_t>(64, rays.size() - base));
+    bool o[64], f[64];
+    Hit hits[64];
+    h.occluded_packet(&rays[base], n, o);
+    h.intersect_packet(&rays[base], n, hits, f);
+    for (int i = 0; i < n; ++i) {
+      Hit single;
+      const bool found = h.intersect(rays[base + i], single);
+      bad += o[i] != h.occluded(rays[base + i]) || f[i] != found ||
+             (found && !same_bits(hits[i], single));
+    }
+  }
+  return bad;
+}
+
+/// The share of a ray list's packets of 16 that the hybrid's walk bounds by `cull`.
+double share_culled_by(const GridKdHybrid& h, const std::vector<Ray>& rays,
+                       GridKdHybrid::PacketCull cull) {
+  int n = 0, of = 0;
+  for (size_t base = 0; base + 16 <= rays.size(); base += 16, ++of)
+    n += h.packet_cull(&rays[base], 16) == cull;
+  return of == 0 ? 0.0 : double(n) / double(of);
+}
+
+// Shadow rays of 8x8 tiles' hit points towards one point light start far apart (more than a
+// cell) but end together: the walk bounds them by where they cross at the light. Their answers
+// are the single walk's, also for segments that end exactly at an occluder or one float past it,
+// for rays through the mesh's corners and edges towards the light (triangles on the cull's very
+// boundary), and for a directional light's parallel rays.
+TEST(Packets, HybridShadowPacketsTowardsOneLightAnswerAsSingleWalk) {
+  Vec3 light;
+  const Mesh mesh = shadow_scene(light);
+  GridKdHybrid h;
+  BuildParams p;
+  p.threads = 1;
+  h.build(mesh, p);
+  if (h.packet_width() == 1) GTEST_SKIP() << "no packet walk in this build (AVX-512 or AVX2 only)";
+  const int w = 64, ht = 48;
+  Camera cam;  // the sphere fills most of the image
+  cam.eye = Vec3(0.6f, 0.4f, 3.2f);
+  const std::vector<Ray> image = primary_rays(cam, w, ht);
+  std::vector<Ray> primary;
+  for (const uint32_t i : tile_order(w, ht, 8)) primary.push_back(image[i]);
+  const std::vector<Ray> shadow = shadow_rays(mesh, primary, trace_hits(h, primary), light, &h);
+  ASSERT_GT(shadow.size(), 1000u);
+  // The occluded rays' segments cut to end at their first occluder (the half-open segment
+  // misses it) and one float past it (hits it).
+  std::vector<Ray> at_occluder = shadow, past_occluder = shadow;
+  int occluded = 0;
+  for (size_t i = 0; i < shadow.size(); ++i) {
+    Hit hit;
+    if (!h.intersect(shadow[i], hit)) continue;
+    ++occluded;
+    at_occluder[i].tmax = hit.t;
+    past_occluder[i].tmax = std::nextafter(hit.t, kInf);
+  }
+  ASSERT_GT(occluded, 100);
+  // Rays from beyond the sphere's corners and its edges' midpoints through them to the light.
+  std::vector<Ray> grazing;
+  for (uint32_t v = 0; v + 1 < 41 * 80; ++v)
+    for (const Vec3& q : {mesh.positions[v], (mesh.positions[v] + mesh.positions[v + 1]) * 0.5f}) {
+      const Vec3 o = q + (q - light) * 0.25f;
+      grazing.push_back(Ray{o, 0.0f, light - o, 1.0f - 1e-4f});
+    }
+  // A directional light's rays: parallel, unbounded.
+  std::vector<Ray> parallel = shadow;
+  for (Ray& r : parallel) r = Ray{r.org, 0.0f, Vec3(0.3f, 1.0f, 0.2f), kInf};
+  EXPECT_EQ(packet_mismatches(h, shadow), 0);
+  EXPECT_EQ(packet_mismatches(h, parallel), 0);
+  EXPECT_EQ(packet_mismatches(h, at_occluder), 0);
+  EXPECT_EQ(packet_mismatches(h, past_occluder), 0);
+  EXPECT_EQ(packet_mismatches(h, grazing), 0);
+  // The walk took them by their crossings (not left to the single walk): the shadow packets
+  // (those of one tile, mostly) and the grazing rays, but not the primary rays, which share
+  // their origin.
+  using Cull = GridKdHybrid::PacketCull;
+  EXPECT_GT(share_culled_by(h, shadow, Cull::Crossings), 0.8);
+  EXPECT_GT(share_culled_by(h, past_occluder, Cull::Crossings), 0.5);
+  EXPECT_GT(share_culled_by(h, grazing, Cull::Crossings), 0.9);
+  EXPECT_GT(share_culled_by(h, primary, Cull::Origins), 0.5);
+  EXPECT_EQ(share_culled_by(h, primary, Cull::Crossings), 0.0);
+}
 
 TEST(Packets, TileOrderCoversTheImageOnce) {
   const std::vector<uint32_t> order = tile_order(10, 7, 4);

@@ -47,8 +47,9 @@ def geomean_of(vals):
     return gm ** (1.0 / len(vals))
 
 
-def packets_section(b, res, scenes, accels, name, ref, setup):
-    """kdgrid bench's packet column (results[].packet), or nothing for a bench.json without one."""
+def packets_section(b, res, scenes, accels, name, ref, setup, level="##"):
+    """kdgrid bench's packet column (results[].packet), or nothing for a bench.json without one;
+    `level` is its heading's level."""
     meta = b["meta"]
     sets = [st for st in meta["sets"]
             if any("packet" in res.get((s, a, st), {}) for s in scenes for a in accels)]
@@ -66,26 +67,113 @@ def packets_section(b, res, scenes, accels, name, ref, setup):
                             table=table(["structure"] + scenes, rows)))
     tile = meta.get("packet_tile", 0)
     simd = meta.get("simd") or {}
-    return prose("bench", "packets", ref=ref, tile="%d" % tile, rays="%d" % (tile * tile),
+    return prose("bench", "packets", heading=level + " Packets", ref=ref, tile="%d" % tile,
+                 rays="%d" % (tile * tile),
                  embree_packet="%d" % simd.get("embree", {}).get("native_packet", 0),
                  setup=setup, tables="".join(tables))
 
 
-def bench_section(b, run, md_dir, img_dir):
+def renders_section(b, scenes, accels, name, ref, setup, level="##"):
+    """kdgrid bench's render column (renders[]), or nothing for a bench.json without one;
+    `level` is its heading's level."""
+    rnd = {(x["scene"], x["accel"]): x for x in b.get("renders", [])}
+    if not rnd:
+        return ""
+
+    def cell(x):
+        if not x:
+            return "-"
+        differ = x.get("pixels_differ")
+        return "%s (%s s; %s)" % (g(x["ratio_to_reference"]), g(x["seconds"]),
+                                  "-" if differ is None else "%d px differ" % differ)
+    rows = [[name[a] + (" (reference)" if a == ref else "")] +
+            [cell(rnd.get((s, a))) for s in scenes] for a in accels
+            if any((s, a) in rnd for s in scenes)]
+    rays = ["%s: %s" % (s, " / ".join(str(rnd[(s, ref)]["rays"][k]) for k in (
+        "primary", "shadow", "reflection", "refraction"))) for s in scenes if (s, ref) in rnd]
     meta = b["meta"]
-    results = b["results"]
-    builds = b["builds"]
-    scenes = ordered_unique(s["scene"] for s in b["scenes"])
-    ok_scenes = [s["scene"] for s in b["scenes"] if s.get("ok", True)]
-    accels = ordered_unique(x["accel"] for x in builds)
-    sets = meta["sets"]
-    res = {(r["scene"], r["accel"], r["set"]): r for r in results}
-    bld = {(x["scene"], x["accel"]): x for x in builds}
-    ref = ordered_unique(r["reference"] for r in results)
-    ref = ref[0] if ref else "embree"
-    name = labels(builds)
-    setup = prose("bench", "setup", cpu=run.get("cpu", meta["machine"]),
-                  threads="%d" % meta["threads"], simd=simd_text(meta))
+    return prose("bench", "renders", heading=level + " The whole render", ref=ref,
+                 width="%d" % meta.get("width", 0),
+                 height="%d" % meta.get("height", 0), reps="%d" % meta["reps"], setup=setup,
+                 rays="; ".join(rays), table=table(["structure"] + scenes, rows))
+
+
+class Suite:
+    """What the sections read from one bench.json: its scenes, structures, sets, results by
+    (scene, structure, set), the reference, the rows' labels and the set-up line."""
+
+    def __init__(self, b, run):
+        self.b = b
+        self.meta = b["meta"]
+        self.scenes = ordered_unique(s["scene"] for s in b["scenes"])
+        self.ok_scenes = [s["scene"] for s in b["scenes"] if s.get("ok", True)]
+        self.accels = ordered_unique(x["accel"] for x in b["builds"])
+        self.sets = self.meta["sets"]
+        self.res = {(r["scene"], r["accel"], r["set"]): r for r in b["results"]}
+        ref = ordered_unique(r["reference"] for r in b["results"])
+        self.ref = ref[0] if ref else "embree"
+        self.name = labels(b["builds"])
+        self.setup = prose("bench", "setup", cpu=run.get("cpu", self.meta["machine"]),
+                           threads="%d" % self.meta["threads"], simd=simd_text(self.meta))
+
+    def throughput_tables(self):
+        """One table a set: each structure's ratio to the reference and its Mrays/s."""
+        tables = []
+        for st in self.sets:
+            rows = structure_rows(self.accels, self.scenes, st, self.res, self.name, self.ref,
+                                  lambda r: "%s (%s)" % (g(r["ratio_to_reference"]), g(r["mrays"]))
+                                  if r else "-")
+            tables.append(prose("bench", "throughput-set", set=st,
+                                table=table(["structure"] + self.scenes, rows)))
+        return "".join(tables)
+
+    def observations(self):
+        """Generated observations: the best non-reference structure per set, and the hybrid,
+        averaged over the scenes."""
+        obs = []
+        ref, res, name, ok_scenes = self.ref, self.res, self.name, self.ok_scenes
+        for st in self.sets:
+            best = hybrid = None
+            for a in self.accels:
+                if a == ref:
+                    continue
+                vals = [res[(s, a, st)]["ratio_to_reference"] for s in ok_scenes
+                        if (s, a, st) in res]
+                if len(vals) != len(ok_scenes) or not vals:
+                    continue
+                gm = geomean_of(vals)
+                if best is None or gm > best[1]:
+                    best = (a, gm, min(vals), max(vals))
+                if a == "hybrid":
+                    hybrid = (gm, min(vals), max(vals))
+            if best:
+                obs.append(prose("bench", "observation", set=st, ref=ref, best=name[best[0]],
+                                 mean=g(best[1]), lo=g(best[2]), hi=g(best[3])))
+            if hybrid:
+                obs.append(prose("bench", "hybrid-observation", set=st, ref=name[ref],
+                                 mean=g(hybrid[0]), lo=g(hybrid[1]), hi=g(hybrid[2])))
+        return "\n" + "\n".join(obs) + "\n" if obs else ""
+
+
+def isa_section(b, run):
+    """The suite run again by a build for another CPU class (bench-avx2.json: kdgrid built for
+    x86-64-v3, Embree restricted to AVX2): its throughput, packet and render tables."""
+    f = Suite(b, run)
+    simd = f.meta.get("simd") or {}
+    return prose("bench", "isa", isa=simd.get("kdgrid", {}).get("isa", "?"),
+                 embree_isa=simd.get("embree", {}).get("isa", "?"), ref=f.ref,
+                 reps="%d" % f.meta["reps"], setup=f.setup, tables=f.throughput_tables(),
+                 observations=f.observations(),
+                 packets=packets_section(b, f.res, f.scenes, f.accels, f.name, f.ref, f.setup,
+                                         "###"),
+                 renders=renders_section(b, f.scenes, f.accels, f.name, f.ref, f.setup, "###"))
+
+
+def bench_section(b, run, md_dir, img_dir):
+    f = Suite(b, run)
+    meta, scenes, accels, sets, res = f.meta, f.scenes, f.accels, f.sets, f.res
+    ref, name, setup = f.ref, f.name, f.setup
+    bld = {(x["scene"], x["accel"]): x for x in b["builds"]}
     out = []
 
     rows = []
@@ -98,42 +186,15 @@ def bench_section(b, run, md_dir, img_dir):
         ["scene", "file", "triangles", "camera", "rays (%s)" % " / ".join(sets), "status"], rows,
         ["---", "---", "---:", "---", "---:", "---"])))
 
-    tables = []
-    for st in sets:
-        rows = structure_rows(accels, scenes, st, res, name, ref, lambda r: "%s (%s)" % (
-            g(r["ratio_to_reference"]), g(r["mrays"])) if r else "-")
-        tables.append(prose("bench", "throughput-set", set=st,
-                            table=table(["structure"] + scenes, rows)))
-
-    # Generated observations: best non-reference structure per set, averaged over scenes.
-    obs = []
-    for st in sets:
-        best = hybrid = None
-        for a in accels:
-            if a == ref:
-                continue
-            vals = [res[(s, a, st)]["ratio_to_reference"] for s in ok_scenes if (s, a, st) in res]
-            if len(vals) != len(ok_scenes) or not vals:
-                continue
-            gm = geomean_of(vals)
-            if best is None or gm > best[1]:
-                best = (a, gm, min(vals), max(vals))
-            if a == "hybrid":
-                hybrid = (gm, min(vals), max(vals))
-        if best:
-            obs.append(prose("bench", "observation", set=st, ref=ref, best=name[best[0]],
-                             mean=g(best[1]), lo=g(best[2]), hi=g(best[3])))
-        if hybrid:
-            obs.append(prose("bench", "hybrid-observation", set=st, ref=name[ref],
-                             mean=g(hybrid[0]), lo=g(hybrid[1]), hi=g(hybrid[2])))
     out.append(prose(
         "bench", "throughput", ref=ref, reps="%d" % meta["reps"], threads="%d" % meta["threads"],
-        setup=setup, tables="".join(tables),
+        setup=setup, tables=f.throughput_tables(),
         ratio_plot=img(md_dir, img_dir, "bench_ratio.png", "throughput ratio to " + ref),
         mrays_plot=img(md_dir, img_dir, "bench_mrays.png", "throughput in Mrays/s"),
-        observations="\n" + "\n".join(obs) + "\n" if obs else ""))
+        observations=f.observations()))
 
     out.append(packets_section(b, res, scenes, accels, name, ref, setup))
+    out.append(renders_section(b, scenes, accels, name, ref, setup))
 
     tables = []
     for st in sets:

@@ -2,7 +2,7 @@
 import os
 
 from .common import load, prose, table
-from .bench import bench_section, leaf_lanes_text
+from .bench import bench_section, isa_section, leaf_lanes_text
 from .big_scene import big_scene_section
 from .hybrid_variants import hybrid_variants_section
 from .speed_accuracy import speed_accuracy_section
@@ -54,6 +54,9 @@ def build_page(results_dir, md_dir, img_dir, root):
         out.append(bench_section(b, run, md_dir, img_dir))
     else:
         out.append(prose("page", "no-bench", results_dir=results_dir))
+    avx2 = load(os.path.join(results_dir, "bench-avx2.json"))
+    if avx2:
+        out.append(isa_section(avx2, run))
     out.append(speed_accuracy_section(results_dir))
     out.append(sweep_section(results_dir, md_dir, img_dir))
     out.append(hybrid_variants_section(results_dir))

@@ -66,19 +66,81 @@ class Page(unittest.TestCase):
         self.assertNotIn("-triangle scene (`", page)
         self.assertTrue(page.endswith("(VmHWM/VmRSS) and `getrusage`.\n"))
 
+    def test_ui_frames_table_names_the_largest_frame_and_its_phases(self):
+        import copy
+
+        def add_run(v):
+            run = copy.deepcopy(next(r for r in v["runs"] if "stats" in r))
+            run["name"] = "dragon-ui-boxes"
+            phases = {k: {"max_ms": 1.0, "frame": 3} for k in (
+                "events", "tasks", "input", "render_job", "image", "overlay", "accuracy",
+                "script", "draw", "swap")}
+            phases["draw"] = {"max_ms": 61.5, "frame": 0}
+            phases["image"] = {"max_ms": 12.25, "frame": 40}
+            phases["swap"] = {"max_ms": 90.0, "frame": 0}  # not UI work: left out
+            run["stats"]["frames"].update(count=77, phases=phases, ui_ms_summary={
+                "frames": 77, "max": 62.5, "p50": 0.75, "p95": 9.5})
+            v["runs"].append(run)
+
+        page = self.page_with_result("viewer.json", add_run)
+        self.assertIn("**UI frames on the full dragon.**", page)
+        self.assertIn("| boxes | 77 | 0.75 | 9.5 | **62.5** | draw 61.5 (frame 0), image 12.2 "
+                      "(frame 40) |", page)
+        self.assertNotIn("| dragon-ui-boxes |", page)  # not a row of the progressive table
+
+    @staticmethod
+    def page_with_result(name, edit):
+        """The page from a copy of the committed results whose file `name` `edit` changed."""
+        import json
+        with tempfile.TemporaryDirectory() as tmp:
+            res = os.path.join(tmp, "results")
+            shutil.copytree(RESULTS, res)
+            with open(os.path.join(res, name)) as f:
+                b = json.load(f)
+            edit(b)
+            with open(os.path.join(res, name), "w") as f:
+                json.dump(b, f)
+            return build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+
     @staticmethod
     def page_with_bench(edit):
         """The page from a copy of the committed results whose bench.json `edit` changed."""
+        return Page.page_with_result("bench.json", edit)
+
+    def test_render_column_gives_a_whole_render_section(self):
+        def add_renders(b):
+            b["renders"] = [
+                {"scene": s, "accel": a, "reference": "embree", "seconds": sec,
+                 "seconds_reps": [sec], "mrays": 1.0, "ratio_to_reference": ratio,
+                 "reference_seconds": 0.5, "pixels_differ": differ,
+                 "rays": {"primary": 100, "shadow": 40, "reflection": 3, "refraction": 2,
+                          "total": 145}}
+                for s in ("bunny", "sponza")
+                for a, sec, ratio, differ in (("embree", 0.5, 1.0, 0), ("hybrid", 0.4, 1.25, 3))]
+        page = self.page_with_result("bench.json", add_renders)
+        self.assertIn("## The whole render\n", page)
+        self.assertIn("bunny: 100 / 40 / 3 / 2; sponza: 100 / 40 / 3 / 2.", page)
+        self.assertIn("| hybrid | 1.25 (0.4 s; 3 px differ) |", page)
+        self.assertNotIn("## The whole render", self.page_with_result("bench.json", lambda b: None))
+
+    def test_an_avx2_run_gets_a_section_of_its_own(self):
         import json
         with tempfile.TemporaryDirectory() as tmp:
             res = os.path.join(tmp, "results")
             shutil.copytree(RESULTS, res)
             with open(os.path.join(res, "bench.json")) as f:
                 b = json.load(f)
-            edit(b)
-            with open(os.path.join(res, "bench.json"), "w") as f:
+            b["meta"]["simd"]["kdgrid"]["isa"] = "AVX2"
+            b["meta"]["simd"]["embree"]["isa"] = "AVX2"
+            with open(os.path.join(res, "bench-avx2.json"), "w") as f:
                 json.dump(b, f)
-            return build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+        self.assertEqual(page.count("\n## Builds for AVX2 CPUs\n"), 1)
+        avx2 = page[page.index("## Builds for AVX2 CPUs"):]
+        self.assertIn("kdgrid's code is AVX2, Embree's AVX2.", avx2)
+        self.assertIn("**primary rays** (ratio", avx2)
+        self.assertIn("\n### Packets\n", avx2)  # the committed run has a packet column
+        self.assertIn("- primary rays: the hybrid is ", avx2)
 
     def test_packet_column_gives_a_packets_section(self):
         # A bench.json with kdgrid bench's packet column gets a Packets section; one without it

@@ -17,6 +17,30 @@ def load_text(run):
     return "%s / %s" % (g(la[0], 2), g(la[1], 2)) if la else "-"
 
 
+def ui_frames(runs):
+    """The UI thread's frames on the full dragon, one row per overlay (dragon-ui-* runs)."""
+    rows = []
+    for r in runs:
+        st = r.get("stats")
+        if not st or not r["name"].startswith("dragon-ui-"):
+            continue
+        fr = st["frames"]
+        ui = fr.get("ui_ms_summary", {})
+        phases = fr.get("phases", {})
+        # The swap is not in UI ms (llvmpipe rasterises there); the phases of the work are.
+        work = [kv for kv in phases.items() if kv[0] != "swap"]
+        top = sorted(work, key=lambda kv: -kv[1]["max_ms"])[:2]
+        rows.append([r["name"][len("dragon-ui-"):], fr["count"], g(ui.get("p50")), g(ui.get("p95")),
+                     "**%s**" % g(ui.get("max")),
+                     ", ".join("%s %s (frame %d)" % (k, g(v["max_ms"]), v["frame"]) for k, v in top),
+                     load_text(r)])
+    if not rows:
+        return ""
+    return prose("viewer", "frames", table=table(
+        ["overlay", "frames", "UI ms median", "95th percentile", "largest", "largest phases",
+         "load"], rows, ["---", "---:", "---:", "---:", "---:", "---", "---:"]))
+
+
 def viewer_section(results_dir):
     """The interactive viewer's figures, from viewer.json (scripts/viewer-bench.sh)."""
     v = load(os.path.join(results_dir, "viewer.json"))
@@ -32,14 +56,14 @@ def viewer_section(results_dir):
         for r in runs if "stats" in r)
     fields = dict(date=m.get("date", "?"), cpu=m.get("cpu", "?"), cores=m.get("cores", "?"),
                   commit=m.get("commit", "?"), renderers=", ".join("`%s`" % x for x in gl),
-                  display="; ".join(disp).capitalize(), progressive="", rebuild="")
+                  display="; ".join(disp).capitalize(), progressive="", rebuild="", frames="")
 
     rows = []
     for r in runs:
         st = r.get("stats")
         if not st or not st.get("passes"):
             continue
-        if "rebuild" in r["name"]:
+        if "rebuild" in r["name"] or r["name"].startswith("dragon-ui-"):
             continue
         s = st["state"]
         job = st["passes"][-1]["job"]
@@ -98,6 +122,7 @@ def viewer_section(results_dir):
                          "---:"]),
             median=prose("viewer", "median", runs=len(secs), median=g(median(secs)),
                          lo=g(min(secs)), hi=g(max(secs))) if len(secs) > 1 else "")
+    fields["frames"] = ui_frames(runs)
     failed = [r for r in runs if r.get("exit") or "stats" not in r]
     fields["failed"] = "".join(
         prose("viewer", "failed", command=r["command"], code=r.get("exit"),

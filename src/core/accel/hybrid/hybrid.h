@@ -139,6 +139,11 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   void intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const override;
   void occluded_packet(const Ray* rays, int n, bool* occluded_out) const override;
   int packet_width() const override;
+  /// How the packet walk bounds rays [0, min(n, hybrid::kPacketLanes)) as one packet in its cull
+  /// (packet.cpp): by their origins' box, by where they cross one plane (rays towards one point
+  /// cross at their common end), or not at all, left to the single walk (tests).
+  enum class PacketCull { Single, Origins, Crossings };
+  PacketCull packet_cull(const Ray* rays, int n) const;
 
   void for_each_split(const std::function<void(const SplitPlane&)>& fn) const override;
   void for_each_box(const std::function<void(const StructureBox&)>& fn) const override;

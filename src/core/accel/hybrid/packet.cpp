@@ -8,24 +8,32 @@
 // by the kd-tree's rounding bound err (KdRay) as the single-ray kd walk widens its own, and the
 // packet visits a child when any of its lanes does, front to back (the rays share their
 // directions' signs), until every lane's closest hit lies before the next node. In a leaf, each
-// triangle group is first culled against the whole packet: a triangle whose three corners,
-// in the watertight test's shear space (WatertightTest), lie on one side of the origin for
-// every ray of the packet is missed by all of them; the rest are tested one triangle against
-// all the lanes at once, each lane by WatertightTest's own float operations in its order (and
-// its double-precision cases by the scalar test), so each ray's t, u, v of a triangle are bit
-// for bit its single walk's. Each ray thus finds the closest of the same intersections as its
+// triangle group is first culled against the packet's lanes that reach the leaf: a triangle
+// whose three corners, in the watertight test's shear space (WatertightTest), lie on one side
+// of the origin for every such ray is missed by all of them; the rest are tested one triangle
+// against all the lanes at once, each lane by WatertightTest's own float operations in its
+// order (and its double-precision cases by the scalar test), so each ray's t, u, v of a
+// triangle are bit for bit its single walk's; or, where they outnumber the lanes (and in a
+// leaf that at most four lanes reach), each lane against the group by the single walk's own
+// group test (WatertightWide). Each ray thus finds the closest of the same intersections as its
 // single walk; only of two triangles hit at exactly the same t could the packet keep the other,
 // where its intervals reach a leaf holding one of them before the single walk would (none seen
 // on the benchmark's rays; docs/HYBRID.md, "Packets").
 //
 // Why the cull is exact: a corner's sheared x for ray i is fl(fl(vx - ox_i) - fl(sx_i fl(vz -
 // oz_i))) (kx, ky, kz shared by the packet). Every float operation is monotone, so the same
-// operations on the packet's extreme origin and shear values bound every lane's value, and when
+// operations on the lanes' extreme origin and shear values bound every lane's value, and when
 // those bounds put all three corners at x > 0 (or x < 0, y > 0, y < 0), every lane's corners lie
 // there as its test computes them. The test's edge functions have the exact signs of the
 // sheared corners' (their float products are monotone, and an exactly zero difference is redone
 // in double, where the products are exact), so the origin lies outside the triangle for every
 // lane and the test finds their signs mixed: no lane can hit it.
+//
+// Rays from spread origins towards one point (shadow rays towards a point light) are bounded
+// instead by where they cross one plane of the test's z axis, there their common end: each
+// lane's sheared corner is, in exact arithmetic, the same expression with its crossing for its
+// origin, so the packet is a pinhole's with its apex there. That bound is not made of the
+// test's own operations, so it keeps a margin that covers their rounding (crossing_bounds).
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
@@ -39,25 +47,25 @@ namespace kdgrid {
 
 #if KDGRID_PACKET_LANES != 0
 
-namespace {
-
-using namespace hybrid::lanes;  // the walk's lane operations (packet_lanes.h)
-
-}  // namespace
+using namespace hybrid::packet_lanes;
 
 namespace hybrid {
 
 /// The packet's rays by lane: world-space origin, reciprocal direction and err (KdRay's), the
-/// watertight test's ray data (its axes shared by the packet), and the packet's extreme origins
-/// and shears on the test's axes, which bound every lane's sheared corners (the cull).
+/// watertight test's ray data (its axes shared by the packet), and the points from which the
+/// cull bounds every lane's sheared corners (CullBox): the origins on the test's axes, or where
+/// the rays cross one plane of its z axis.
 struct PacketRays {
   FloatLanes o[3], inv[3], err[3];
   FloatLanes ox, oy, oz, sx, sy, sz;
   FloatLanes tmin, tmax;  ///< the rays' (+inf and -inf in the lanes not in the packet)
+  FloatLanes cx, cy, cz;  ///< the cull's points: (ox, oy, oz), or the crossings (crossing_bounds)
   int kx, ky, kz;
   bool neg[3];  ///< the packet's directions point down axis a
-  /// The lowest (_lo) and highest (_hi) of the lanes' origins (ox, oy, oz) and shears (sx, sy).
-  float ox_lo, ox_hi, oy_lo, oy_hi, oz_lo, oz_hi, sx_lo, sx_hi, sy_lo, sy_hi;
+  /// How far inside a side the cull's bounds must put a corner: 0 for the origins, and for the
+  /// crossings (crossing_bounds) a bound on the rounding their exact identity leaves out.
+  float margin;
+  bool crossings;   ///< the cull's points are the crossings (crossing_bounds), not the origins
   uint32_t missed;  ///< lanes whose ray misses the grid's box as the single walk clips it
   /// Lane i's WatertightTest::RayData (what prepare() gives: the same divisions).
   WatertightTest::RayData ray_data(int i) const {
@@ -78,6 +86,25 @@ namespace {
 
 using hybrid::PacketHits;
 using hybrid::PacketRays;
+
+/// The lowest (_lo) and highest (_hi) of some lanes' cull points (x, y, z: PacketRays' cx, cy,
+/// cz) and shears (sx, sy), and the packet's margin: the cull's bounds for those lanes.
+struct CullBox {
+  float x_lo, x_hi, y_lo, y_hi, z_lo, z_hi, sx_lo, sx_hi, sy_lo, sy_hi, margin;
+};
+
+/// The cull's bounds for the lanes m of a packet (those that reach a leaf).
+[[gnu::always_inline]] inline CullBox cull_box(const PacketRays& packet, uint32_t m) {
+  float lo[4], hi[4], zlo[4], zhi[4];
+  lane_ranges(packet.cx, packet.cy, packet.sx, packet.sy, m, lo, hi);
+  if (packet.crossings) {
+    zlo[0] = zhi[0] = packet.cz[0];
+  } else {
+    lane_mins(packet.cz, -packet.cz, FloatLanes{}, FloatLanes{}, m, zlo);
+    zhi[0] = -zlo[1];
+  }
+  return {lo[0], hi[0], lo[1], hi[1], zlo[0], zhi[0], lo[2], hi[2], lo[3], hi[3], packet.margin};
+}
 
 /// One triangle against the lanes `m` of the packet: WatertightTest::intersect's operations on
 /// each lane (WatertightWide's, with the lanes as rays instead of triangles).
@@ -137,13 +164,13 @@ template <bool kAny>
   }
 }
 
-/// Bounds of every packet lane's sheared x and y of W corners (coordinates vx, vy, vz on the
-/// test's axes): the same operations on the packet's extreme origins and shears (see the file's
-/// comment).
+/// Bounds of every lane's sheared x and y of W corners (coordinates vx, vy, vz on the test's
+/// axes) among `box`'s lanes: the same operations on their extreme origins or crossings and
+/// shears (see the file's comment).
 template <class F>
-[[gnu::always_inline]] inline void corner_bounds(const PacketRays& packet, F vx, F vy, F vz, F& xl,
-                                                 F& xh, F& yl, F& yh) {
-  const F dzl = vz - packet.oz_hi, dzh = vz - packet.oz_lo;
+[[gnu::always_inline]] inline void corner_bounds(const CullBox& box, F vx, F vy, F vz, F& xl, F& xh,
+                                                 F& yl, F& yh) {
+  const F dzl = vz - box.z_hi, dzh = vz - box.z_lo;
   const auto range = [&](float sl, float sh, F& lo, F& hi) __attribute__((always_inline)) {
     const F p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
     const F l12 = p1 < p2 ? p1 : p2, l34 = p3 < p4 ? p3 : p4;
@@ -152,44 +179,46 @@ template <class F>
     hi = h12 > h34 ? h12 : h34;
   };
   F pxl, pxh, pyl, pyh;
-  range(packet.sx_lo, packet.sx_hi, pxl, pxh);
-  range(packet.sy_lo, packet.sy_hi, pyl, pyh);
-  xl = (vx - packet.ox_hi) - pxh, xh = (vx - packet.ox_lo) - pxl;
-  yl = (vy - packet.oy_hi) - pyh, yh = (vy - packet.oy_lo) - pyl;
+  range(box.sx_lo, box.sx_hi, pxl, pxh);
+  range(box.sy_lo, box.sy_hi, pyl, pyh);
+  xl = (vx - box.x_hi) - pxh, xh = (vx - box.x_lo) - pxl;
+  yl = (vy - box.y_hi) - pyh, yh = (vy - box.y_lo) - pyl;
 }
 
 #if KDGRID_PACKET_LANES == 16
 /// Codes of 16 of a shared-corner group's corners (their coordinates on the test's axes from tx,
 /// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
-/// corner at x > 0, x < 0, y > 0, y < 0 in its shear space.
-[[gnu::always_inline]] inline __m512i corner_codes(const PacketRays& packet, const float* tx,
+/// corner at x > 0, x < 0, y > 0, y < 0 in its shear space (bounds from the packet's extreme
+/// origins or crossings and shears in `box`, beyond its margin; see the file's comment).
+[[gnu::always_inline]] inline __m512i corner_codes(const CullBox& box, const float* tx,
                                                    const float* ty, const float* tz,
                                                    __mmask16 corners) {
   FloatLanes xl, xh, yl, yh;
-  corner_bounds(packet, (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
+  corner_bounds(box, (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
                 (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
                 (FloatLanes)_mm512_maskz_loadu_ps(corners, tz), xl, xh, yl, yh);
-  const FloatLanes zero = {};
+  const FloatLanes m = splat(box.margin), neg_m = -m;
   const __m512i one = _mm512_set1_epi32(1);
-  __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(zero, xl)), one);
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(xh, zero)), _mm512_set1_epi32(2)));
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(zero, yl)), _mm512_set1_epi32(4)));
-  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(yh, zero)), _mm512_set1_epi32(8)));
+  __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(m, xl)), one);
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(xh, neg_m)), _mm512_set1_epi32(2)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(m, yl)), _mm512_set1_epi32(4)));
+  c = _mm512_or_si512(c, _mm512_maskz_mov_epi32(__mmask16(lt(yh, neg_m)), _mm512_set1_epi32(8)));
   return c;
 }
 
-/// The lanes of a shared-corner group that some ray of the packet may hit: those whose three
-/// corners do not all share a side that every ray sees them on. (One of the two uncull()s is
-/// unused: the one for the layout the build does not store.)
+/// The lanes of a shared-corner group that some ray of `box`'s lanes may hit: those whose three
+/// corners do not all share a side that every such ray sees them on. (One of the two uncull()s
+/// is unused: the one for the layout the build does not store.)
 [[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
+                                                            const CullBox& box,
                                                             const hybrid::SharedCornerGroup& g) {
   const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
   const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
   const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
   const uint32_t corners = g.u >= 32 ? ~0u : (1u << g.u) - 1;
-  const __m512i lo = corner_codes(packet, tx, ty, tz, __mmask16(corners));
+  const __m512i lo = corner_codes(box, tx, ty, tz, __mmask16(corners));
   const __m512i hi = g.u > 16
-                         ? corner_codes(packet, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
+                         ? corner_codes(box, tx + 16, ty + 16, tz + 16, __mmask16(corners >> 16))
                          : _mm512_setzero_si512();
   const uint32_t lanes = (1u << g.n) - 1;
   const uint8_t* idx = g.index();
@@ -203,41 +232,79 @@ template <class F>
 }
 #endif
 
-/// The lanes of a group stored by lane that some ray of the packet may hit: each of its three
+/// The lanes of a group stored by lane that some ray of `box`'s lanes may hit: each of its three
 /// corners coded as corner_codes codes a shared corner (in W-lane vectors of integer flags), and
 /// the lanes whose three codes share no bit.
 [[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
+                                                            const CullBox& box,
                                                             const hybrid::LaneGroup& g) {
   constexpr int W = kWideLanes >= 4 ? kWideLanes : 4;  // packets_ready(): kWideLanes >= 4
   using F = typename WideVectors<W>::F;
   using I = typename WideVectors<W>::I;
+  const F m = F{} + box.margin, neg_m = -m;
   I all = ~I{};
   for (int k = 0; k < 3; ++k) {
     F vx, vy, vz, xl, xh, yl, yh;
     std::memcpy(&vx, g.p + (3 * k + packet.kx) * W, sizeof vx);
     std::memcpy(&vy, g.p + (3 * k + packet.ky) * W, sizeof vy);
     std::memcpy(&vz, g.p + (3 * k + packet.kz) * W, sizeof vz);
-    corner_bounds(packet, vx, vy, vz, xl, xh, yl, yh);
-    const F zero = {};
-    all &= ((zero < xl) & 1) | ((xh < zero) & 2) | ((zero < yl) & 4) | ((yh < zero) & 8);
+    corner_bounds(box, vx, vy, vz, xl, xh, yl, yh);
+    all &= ((m < xl) & 1) | ((xh < neg_m) & 2) | ((m < yl) & 4) | ((yh < neg_m) & 8);
   }
   return WatertightWide<W>::bits(all == 0) & ((1u << g.n) - 1);
 }
 
-/// The packet walk takes rays whose origins lie at most this many cells apart along each axis.
-/// The cull bounds every ray's view of a corner by the origins' box, so rays from spread
-/// origins keep most triangles and the packet walk is slower than the single walk for them
-/// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin. Packets of 8
-/// lanes (AVX2) spread their walk's cost over half the rays, so they take origins a quarter of a
-/// cell apart at most (docs/EXPERIMENTS.md, "Packets in AVX2 builds").
-constexpr double kPacketSpreadCells = hybrid::kPacketLanes == 16 ? 1.0 : 0.25;
+/// The packet walk takes rays whose origins, or crossings (crossing_bounds), lie at most this
+/// many cells apart along each axis. The cull bounds every ray's view of a corner by their box,
+/// so a wider box keeps most triangles and the packet walk is slower than the single walk
+/// (docs/EXPERIMENTS.md, "Packets"). A pinhole camera's rays share their origin; shadow rays
+/// towards one point light cross where they end.
+constexpr double kPacketSpreadCells = 1.0;
+
+/// A leaf reached by at most this many lanes of a packet tests them lane by lane, each against
+/// its groups by the single walk's group test (PacketWalk::groups).
+constexpr int kLaneGroupLanes = 4;
+
+/// The cull's bounds of the `lanes` of a packet from spread origins by where their rays cross the
+/// plane z = z0 of the test's axes: lane i's crossing is x_i = ox_i + sx_i (z0 - oz_i) (y_i
+/// likewise), and in exact arithmetic its sheared corner x is (vx - x_i) - sx_i (vz - z0), which
+/// the cull bounds as it bounds the origins' box, z0 in place of the origins' z. z0 is the far
+/// end of the lanes' segments (`lo`, `hi`: the origins' box on axes 0 to 2, the ends' range on
+/// the test's z axis in 3): for rays towards one point, their common end, where their
+/// crossings meet. Parallel rays cross any plane as far apart as their origins' projections;
+/// where an end is not finite, z0 is the middle of the origins. The margin bounds what the
+/// identity leaves out: the rounding of the crossings, of the test's sheared corners and of
+/// the cull's own operations, under 28 units of 2^-24 of the largest coordinate M (the
+/// corners', origins' and z0's, the shears at most 1 in magnitude), and the margin is M 2^-18
+/// (64 such units), plus FLT_MIN for underflow. Takes these bounds when the crossings' box,
+/// widened by the margin, is narrower than `spread` (the origins') and within max_spread.
+bool crossing_bounds(PacketRays& packet, uint32_t lanes, const float (&lo)[4], const float (&hi)[4],
+                     float max_abs, float spread, float max_spread) {
+  const int kz = packet.kz;
+  const float far = packet.neg[kz] ? lo[3] : hi[3];
+  const float z0 = std::fabs(far) <= kMaxRayCoordinate ? far : 0.5f * (lo[kz] + hi[kz]);
+  const FloatLanes dz = splat(z0) - packet.oz;
+  const FloatLanes cx = packet.ox + packet.sx * dz, cy = packet.oy + packet.sy * dz;
+  float cl[4], ch[4];  // the crossings' x and y
+  lane_ranges(cx, cy, FloatLanes{}, FloatLanes{}, lanes, cl, ch);
+  float m = std::max(max_abs, std::fabs(z0));
+  for (int a = 0; a < 3; ++a) m = std::max({m, std::fabs(lo[a]), std::fabs(hi[a])});
+  const float margin = m * 0x1p-18f + FLT_MIN;
+  const float width = std::max(ch[0] - cl[0], ch[1] - cl[1]) + 2.0f * margin;
+  if (!(width < spread && width <= max_spread)) return false;
+  packet.crossings = true;
+  packet.margin = margin;
+  packet.cx = cx, packet.cy = cy, packet.cz = splat(z0);
+  return true;
+}
 
 /// Sets up `packet` for rays i < n of `rays` (n <= kPacketLanes) and returns the lanes that join
 /// the packet: rays valid as ray_is_valid says, with tmin >= 0 and every direction component a
 /// normal number (finite reciprocals and err), sharing the first one's direction signs and the
-/// watertight test's axes; none when their origins lie more than max_spread apart along an
-/// axis. The others take the single walk, except those that miss the grid's `box` as the
-/// single walk clips them (packet.missed), which miss.
+/// watertight test's axes; none when neither their origins' box nor their crossings'
+/// (crossing_bounds) lies within max_spread along each axis. The others take the single walk,
+/// except those that miss the grid's `box` as the single walk clips them (packet.missed),
+/// which miss.
 uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& box,
                         float max_spread, PacketRays& packet) {
   FloatLanes f[8];
@@ -284,32 +351,30 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
     packet.neg[a] = neg >> first & 1u;
     lanes &= packet.neg[a] ? neg : ~neg;
   }
-  // The origins' box (of these lanes: bounds for any of them), which the cull reads; a packet
-  // whose origins lie further apart than max_spread along an axis is left to the single walk.
-  float lo[4], hi[4];
-  lane_ranges(o[0], o[1], o[2], zero, lanes, lo, hi);
-  for (int a = 0; a < 3; ++a)
-    if (!(hi[a] - lo[a] <= max_spread)) return 0;
   packet.kx = packet.kz == 2 ? 0 : packet.kz + 1;
   packet.ky = packet.kx == 2 ? 0 : packet.kx + 1;
   if (packet.neg[packet.kz]) std::swap(packet.kx, packet.ky);  // WatertightTest::prepare's
-  uint32_t finite = ~0u;
   for (int a = 0; a < 3; ++a) {
     packet.o[a] = o[a];
-    finite &= le(packet.err[a], splat(FLT_MAX));
+    lanes &= le(packet.err[a], splat(FLT_MAX));
   }
-  lanes &= finite;
   packet.ox = o[packet.kx], packet.oy = o[packet.ky], packet.oz = o[packet.kz];
   packet.sx = d[packet.kx] / d[packet.kz], packet.sy = d[packet.ky] / d[packet.kz],
   packet.sz = packet.inv[packet.kz];  // prepare()'s 1 / d
   packet.tmin = blend(splat(kInf), lanes, tmin);
   packet.tmax = blend(splat(-kInf), lanes, tmax);
-  packet.ox_lo = lo[packet.kx], packet.ox_hi = hi[packet.kx];
-  packet.oy_lo = lo[packet.ky], packet.oy_hi = hi[packet.ky];
-  packet.oz_lo = lo[packet.kz], packet.oz_hi = hi[packet.kz];
-  float sl[4], sh[4];
-  lane_ranges(packet.sx, packet.sy, zero, zero, lanes, sl, sh);
-  packet.sx_lo = sl[0], packet.sx_hi = sh[0], packet.sy_lo = sl[1], packet.sy_hi = sh[1];
+  // The origins' box and the ends' range on the test's z axis (of these lanes: bounds for any
+  // of them). Spread origins are bounded by their crossings where those lie closer together;
+  // a packet bounded by neither within max_spread is left to the single walk.
+  float lo[4], hi[4];
+  lane_ranges(o[0], o[1], o[2], packet.oz + tmax * d[packet.kz], lanes, lo, hi);
+  const float spread = std::max({hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]});
+  if (spread > 0.0f && crossing_bounds(packet, lanes, lo, hi, max_abs, spread, max_spread))
+    return lanes;
+  if (!(spread <= max_spread)) return 0;
+  packet.crossings = false;
+  packet.margin = 0.0f;
+  packet.cx = packet.ox, packet.cy = packet.oy, packet.cz = packet.oz;
   return lanes;
 }
 
@@ -391,17 +456,60 @@ struct GridKdHybrid::PacketWalk {
     neg = packets[0]->neg;
   }
 
-  /// The groups of a leaf for packet k, culled against it, then each triangle left against the
-  /// lanes m.
+  /// The triangles `tris` of group gr against each lane of m of packet k by the single walk's
+  /// group test (WatertightWide: the group's triangles against one ray); returns m less the
+  /// lanes an any-hit query retires.
+  [[gnu::always_inline]] uint32_t lane_group(int k, const hybrid::GroupView& gr, uint32_t tris,
+                                             uint32_t m) {
+    const PacketRays& r = *packets[k];
+    PacketHits& h = H[k];
+    for (uint32_t left = m; left != 0; left &= left - 1) {
+      const int i = __builtin_ctz(left);
+      float t, u, v;
+      const int j = WatertightWide<kWideLanes>::intersect(r.ray_data(i), gr, tris, r.tmin[i],
+                                                          h.best[i], t, u, v);
+      if (j < 0) continue;
+      h.found |= 1u << i;
+      if constexpr (kAny) {
+        alive[k] &= ~(1u << i);
+        m &= ~(1u << i);
+      } else {
+        h.best[i] = t;
+        h.u[i] = u;
+        h.v[i] = v;
+        h.prim[i] = int32_t(gr.prim(uint32_t(j)));
+      }
+    }
+    return m;
+  }
+
+  /// The groups of a leaf for the lanes m of packet k (those that reach the leaf). Each group is
+  /// culled against those lanes' bounds, then its triangles left are tested one at a time
+  /// against the lanes, or, where they outnumber the lanes, each lane is tested against them by
+  /// the group test; with kLaneGroupLanes lanes or fewer every group goes to the group test
+  /// uncut, as the cull would cost about what it saves.
   [[gnu::always_inline]] void groups(int k, uint32_t first, uint32_t count, uint32_t m) {
     const PacketRays& r = *packets[k];
     PacketHits& h = H[k];
+    const bool by_lane = __builtin_popcount(m) <= kLaneGroupLanes;
+    const CullBox box = by_lane ? CullBox{} : cull_box(r, m);
     const float* p = g.groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
       const hybrid::GroupView gr = hybrid::GroupView::at(p, left);
       p = gr.end();
       left -= gr.n;
-      for (uint32_t keep = uncull(r, gr); keep != 0; keep &= keep - 1) {
+      if (by_lane) {
+        m = lane_group(k, gr, (1u << gr.n) - 1, m);
+        if (m == 0) return;
+        continue;
+      }
+      uint32_t keep = uncull(r, box, gr);
+      if (__builtin_popcount(keep) > __builtin_popcount(m)) {
+        m = lane_group(k, gr, keep, m);
+        if (m == 0) return;
+        continue;
+      }
+      for (; keep != 0; keep &= keep - 1) {
         const int i = __builtin_ctz(keep);
         test_triangle<kAny>(r, h, gr.corner(0, i), gr.corner(1, i), gr.corner(2, i),
                             gr.prim(uint32_t(i)), m);
@@ -615,6 +723,15 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
   return true;
 }
 
+GridKdHybrid::PacketCull GridKdHybrid::packet_cull(const Ray* rays, int n) const {
+  if (!packets_ready() || n < 1) return PacketCull::Single;
+  PacketRays packet;
+  const uint32_t lanes = prepare_packet(rays, std::min(hybrid::kPacketLanes, n), max_abs_,
+                                        world_clip_, float(kPacketSpreadCells * cell_), packet);
+  if ((lanes & (lanes - 1)) == 0) return PacketCull::Single;
+  return packet.crossings ? PacketCull::Crossings : PacketCull::Origins;
+}
+
 void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
   if (!packets_ready()) return Accelerator::intersect_packet(rays, n, hits, found);
   constexpr int kCall = 4 * hybrid::kPacketLanes;
@@ -630,6 +747,10 @@ void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) c
 }
 
 #else
+
+GridKdHybrid::PacketCull GridKdHybrid::packet_cull(const Ray*, int) const {
+  return PacketCull::Single;
+}
 
 void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
   Accelerator::intersect_packet(rays, n, hits, found);

@@ -12,7 +12,7 @@
 #include "accel/triangle_wide.h"
 #include "math/ray.h"
 
-namespace kdgrid::hybrid::lanes {
+namespace kdgrid::hybrid::packet_lanes {
 
 #if KDGRID_PACKET_LANES != 0
 
@@ -280,4 +280,4 @@ template <int kPredicate>
 
 #endif  // KDGRID_PACKET_LANES != 0
 
-}  // namespace kdgrid::hybrid::lanes
+}  // namespace kdgrid::hybrid::packet_lanes
