@@ -233,7 +233,7 @@ TEST(Packets, HybridShadowPacketsTowardsOneLightAnswerAsSingleWalk) {
   BuildParams p;
   p.threads = 1;
   h.build(mesh, p);
-  if (h.packet_width() == 1) GTEST_SKIP() << "no packet walk in this build (AVX-512 only)";
+  if (h.packet_width() == 1) GTEST_SKIP() << "no packet walk in this build (AVX-512 or AVX2 only)";
   const int w = 64, ht = 48;
   Camera cam;  // the sphere fills most of the image
   cam.eye = Vec3(0.6f, 0.4f, 3.2f);

@@ -12,7 +12,8 @@
 //   next_leaf_cache.h the per-thread next-leaf cache (NextLeafCache)
 //   mailbox.h         the lane-by-lane walk's mailbox and the exact walk's record
 //   packet.cpp        the packet walk: up to 64 rays down the tree together, triangle groups
-//                     culled against them, then tested a triangle against 16 rays
+//                     culled against them, then tested a triangle against 16 (or 8) rays
+//   packet_lanes.h    the packet walk's lane operations, for AVX-512 and for AVX2
 //   build.cpp         GridKdHybrid::build; choose_cell_size (explicit size or the auto rule)
 //   tree.cpp          the kd-tree on cell boundaries, its leaf subtrees, flattened
 //   widen.cpp         widened empty leaves
@@ -130,17 +131,17 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   template <class TriangleTest, class Probe, bool kAny, bool kExact = false>
   bool traverse(const Ray& ray, Hit* hit, Probe& probe) const;
 
-  /// Packets of up to 16 rays walked together (packet.cpp: one ray a float lane, the kd-tree
-  /// and the leaves' subtrees walked by the packet, each triangle group culled against it). Each
-  /// ray's answer is its single walk's, except that of two triangles hit at exactly the same t
-  /// the packet may report the other. Builds without AVX-512's shared-corner groups, and
-  /// triangle tests other than the watertight one, loop over the single walk.
+  /// Packets of up to 16 rays (8 in builds for AVX2) walked together (packet.cpp: one ray a
+  /// float lane, the kd-tree and the leaves' subtrees walked by the packet, each triangle group
+  /// culled against it). Each ray's answer is its single walk's, except that of two triangles hit
+  /// at exactly the same t the packet may report the other. Builds without AVX2, and triangle
+  /// tests other than the watertight one, loop over the single walk.
   void intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const override;
   void occluded_packet(const Ray* rays, int n, bool* occluded_out) const override;
   int packet_width() const override;
-  /// How the packet walk bounds rays [0, min(n, 16)) as one packet in its cull (packet.cpp): by
-  /// their origins' box, by where they cross one plane (rays towards one point cross at their
-  /// common end), or not at all, left to the single walk (tests).
+  /// How the packet walk bounds rays [0, min(n, hybrid::kPacketLanes)) as one packet in its cull
+  /// (packet.cpp): by their origins' box, by where they cross one plane (rays towards one point
+  /// cross at their common end), or not at all, left to the single walk (tests).
   enum class PacketCull { Single, Origins, Crossings };
   PacketCull packet_cull(const Ray* rays, int n) const;
 
@@ -241,21 +242,22 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
                                                  float& best, bool& found, LocalHit& h) const;
 
   // ---- packets (packet.cpp) ----
-  /// Whether the packet walk answers packets: shared-corner groups (AVX-512), the watertight
-  /// test, a built structure.
+  /// Whether the packet walk answers packets: a build with packet lanes (AVX-512, or AVX2 and
+  /// FMA; hybrid::kPacketLanes), the watertight test, a built structure.
   bool packets_ready() const {
-    return hybrid::kSharedCorners && triangle_test_ == TriangleTestKind::Watertight &&
+    return hybrid::kPacketLanes != 0 && triangle_test_ == TriangleTestKind::Watertight &&
            !leaves_.empty() && !nodes_.empty();
   }
-  /// Up to 64 rays as up to four packets of 16 lanes: those that can share a walk (valid, their
-  /// direction components normal numbers, one sign per axis and, within a packet of 16, the
-  /// test's shear axes of its first) by packet_walk, the others (and a packet of one) by the
-  /// single walk.
+  /// Up to 4 hybrid::kPacketLanes rays (64, or 32 with AVX2) as up to four packets of
+  /// kPacketLanes lanes: those that can share a walk (valid, their direction components normal
+  /// numbers, one sign per axis and, within a packet, the test's shear axes of its first) by
+  /// packet_walk, the others (and a packet of one) by the single walk.
   template <bool kAny>
-  void packet64(const Ray* rays, int n, Hit* hits, bool* out) const;
-  /// The walk of the K (1 to 4) packets which[0..K) of R (rays 16 which[k] + i for the lanes i of
-  /// lanes[which[k]], all with one direction sign per axis), down the grid's kd-tree together;
-  /// false (and nothing written) when its stack would overflow, for the single walk to answer.
+  void packet_call(const Ray* rays, int n, Hit* hits, bool* out) const;
+  /// The walk of the K (1 to 4) packets which[0..K) of R (rays kPacketLanes which[k] + i for the
+  /// lanes i of lanes[which[k]], all with one direction sign per axis), down the grid's kd-tree
+  /// together; false (and nothing written) when its stack would overflow, for the single walk to
+  /// answer.
   template <bool kAny, int K>
   bool packet_walk(const hybrid::PacketRays* R, const uint32_t* lanes, const int* which, Hit* hits,
                    bool* out) const;

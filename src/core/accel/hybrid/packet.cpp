@@ -1,6 +1,7 @@
 // The hybrid's packet queries (GridKdHybrid::intersect_packet, occluded_packet): up to 64 rays
-// walked together as four packets of 16, one ray a float lane of 512-bit vectors (builds for
-// AVX-512 with shared-corner groups; the others loop over the single-ray walk).
+// walked together as four packets of 16, one ray a float lane of 512-bit vectors, in builds for
+// AVX-512; up to 32 as four packets of 8 lanes of 256-bit vectors in builds for AVX2 and FMA
+// (the lane operations: packet_lanes.h); the others loop over the single-ray walk.
 //
 // The packets go down the kd-tree whose splits lie on the grid's cell boundaries, and down the
 // leaves' subtrees, together: each lane keeps its own [t0, t1] within a node, widened
@@ -44,7 +45,7 @@
 
 namespace kdgrid {
 
-#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+#if KDGRID_PACKET_LANES != 0
 
 using namespace hybrid::packet_lanes;
 
@@ -163,6 +164,28 @@ template <bool kAny>
   }
 }
 
+/// Bounds of every lane's sheared x and y of W corners (coordinates vx, vy, vz on the test's
+/// axes) among `box`'s lanes: the same operations on their extreme origins or crossings and
+/// shears (see the file's comment).
+template <class F>
+[[gnu::always_inline]] inline void corner_bounds(const CullBox& box, F vx, F vy, F vz, F& xl, F& xh,
+                                                 F& yl, F& yh) {
+  const F dzl = vz - box.z_hi, dzh = vz - box.z_lo;
+  const auto range = [&](float sl, float sh, F& lo, F& hi) __attribute__((always_inline)) {
+    const F p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
+    const F l12 = p1 < p2 ? p1 : p2, l34 = p3 < p4 ? p3 : p4;
+    const F h12 = p1 > p2 ? p1 : p2, h34 = p3 > p4 ? p3 : p4;
+    lo = l12 < l34 ? l12 : l34;
+    hi = h12 > h34 ? h12 : h34;
+  };
+  F pxl, pxh, pyl, pyh;
+  range(box.sx_lo, box.sx_hi, pxl, pxh);
+  range(box.sy_lo, box.sy_hi, pyl, pyh);
+  xl = (vx - box.x_hi) - pxh, xh = (vx - box.x_lo) - pxl;
+  yl = (vy - box.y_hi) - pyh, yh = (vy - box.y_lo) - pyl;
+}
+
+#if KDGRID_PACKET_LANES == 16
 /// Codes of 16 of a shared-corner group's corners (their coordinates on the test's axes from tx,
 /// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
 /// corner at x > 0, x < 0, y > 0, y < 0 in its shear space (bounds from the packet's extreme
@@ -170,21 +193,10 @@ template <bool kAny>
 [[gnu::always_inline]] inline __m512i corner_codes(const CullBox& box, const float* tx,
                                                    const float* ty, const float* tz,
                                                    __mmask16 corners) {
-  const FloatLanes vx = (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
-                   vy = (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
-                   vz = (FloatLanes)_mm512_maskz_loadu_ps(corners, tz);
-  const FloatLanes dzl = vz - box.z_hi, dzh = vz - box.z_lo;
-  const auto range = [&](float sl, float sh, FloatLanes& lo, FloatLanes& hi)
-      __attribute__((always_inline)) {
-    const FloatLanes p1 = sl * dzl, p2 = sl * dzh, p3 = sh * dzl, p4 = sh * dzh;
-    lo = vmin(vmin(p1, p2), vmin(p3, p4));
-    hi = vmax(vmax(p1, p2), vmax(p3, p4));
-  };
-  FloatLanes pxl, pxh, pyl, pyh;
-  range(box.sx_lo, box.sx_hi, pxl, pxh);
-  range(box.sy_lo, box.sy_hi, pyl, pyh);
-  const FloatLanes xl = (vx - box.x_hi) - pxh, xh = (vx - box.x_lo) - pxl;
-  const FloatLanes yl = (vy - box.y_hi) - pyh, yh = (vy - box.y_lo) - pyl;
+  FloatLanes xl, xh, yl, yh;
+  corner_bounds(box, (FloatLanes)_mm512_maskz_loadu_ps(corners, tx),
+                (FloatLanes)_mm512_maskz_loadu_ps(corners, ty),
+                (FloatLanes)_mm512_maskz_loadu_ps(corners, tz), xl, xh, yl, yh);
   const FloatLanes m = splat(box.margin), neg_m = -m;
   const __m512i one = _mm512_set1_epi32(1);
   __m512i c = _mm512_maskz_mov_epi32(__mmask16(lt(m, xl)), one);
@@ -195,9 +207,11 @@ template <bool kAny>
 }
 
 /// The lanes of a shared-corner group that some ray of `box`'s lanes may hit: those whose three
-/// corners do not all share a side that every such ray sees them on.
-[[gnu::always_inline]] inline uint32_t uncull(const PacketRays& packet, const CullBox& box,
-                                              const hybrid::SharedCornerGroup& g) {
+/// corners do not all share a side that every such ray sees them on. (One of the two uncull()s
+/// is unused: the one for the layout the build does not store.)
+[[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
+                                                            const CullBox& box,
+                                                            const hybrid::SharedCornerGroup& g) {
   const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
   const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
   const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
@@ -216,57 +230,28 @@ template <bool kAny>
   }
   return uint32_t(_mm512_testn_epi32_mask(all, all)) & lanes;
 }
+#endif
 
-/// hits[i] = {best, prim, u, v} of lane i for the lanes `found` (Hit's 16 bytes), the others
-/// untouched: the four vectors transposed into four vectors of four hits each, then stored with
-/// a mask.
-[[gnu::always_inline]] inline void store_hits(const PacketHits& H, uint32_t found, Hit* hits) {
-  static_assert(sizeof(Hit) == 16 && offsetof(Hit, prim) == 4 && offsetof(Hit, u) == 8 &&
-                offsetof(Hit, v) == 12);
-  const FloatLanes t = H.best, p = (FloatLanes)H.prim, u = H.u, v = H.v;
-  // Lane 4j + r's hit in 128-bit block j of h[r] (the unpacks' orders).
-  const FloatLanes tp_lo =
-      __builtin_shufflevector(t, p, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
-  const FloatLanes tp_hi =
-      __builtin_shufflevector(t, p, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
-  const FloatLanes uv_lo =
-      __builtin_shufflevector(u, v, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29);
-  const FloatLanes uv_hi =
-      __builtin_shufflevector(u, v, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31);
-  const auto lo = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29);
-  };
-  const auto hi = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30,
-                                   31);
-  };
-  const FloatLanes h0 = lo(tp_lo, uv_lo), h1 = hi(tp_lo, uv_lo), h2 = lo(tp_hi, uv_hi),
-                   h3 = hi(tp_hi, uv_hi);
-  // Hits 4q to 4q + 3 are block q of h0, h1, h2, h3.
-  const auto blocks01 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
-  };
-  const auto blocks23 = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30,
-                                   31);
-  };
-  const auto even = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27);
-  };
-  const auto odd = [](FloatLanes x, FloatLanes y) __attribute__((always_inline)) {
-    return __builtin_shufflevector(x, y, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30,
-                                   31);
-  };
-  const FloatLanes a = blocks01(h0, h1), b = blocks01(h2, h3), c = blocks23(h0, h1),
-                   d = blocks23(h2, h3);
-  const FloatLanes q[4] = {even(a, b), odd(a, b), even(c, d), odd(c, d)};
-  float* out = reinterpret_cast<float*>(hits);
-  for (int j = 0; j < 4; ++j) {
-    const uint32_t four = found >> (4 * j) & 0xfu;
-    if (four == 0) continue;
-    const uint32_t mask = _pdep_u32(four, 0x1111u) * 0xfu;
-    _mm512_mask_storeu_ps(out + 16 * j, __mmask16(mask), (__m512)q[j]);
+/// The lanes of a group stored by lane that some ray of `box`'s lanes may hit: each of its three
+/// corners coded as corner_codes codes a shared corner (in W-lane vectors of integer flags), and
+/// the lanes whose three codes share no bit.
+[[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
+                                                            const CullBox& box,
+                                                            const hybrid::LaneGroup& g) {
+  constexpr int W = kWideLanes >= 4 ? kWideLanes : 4;  // packets_ready(): kWideLanes >= 4
+  using F = typename WideVectors<W>::F;
+  using I = typename WideVectors<W>::I;
+  const F m = F{} + box.margin, neg_m = -m;
+  I all = ~I{};
+  for (int k = 0; k < 3; ++k) {
+    F vx, vy, vz, xl, xh, yl, yh;
+    std::memcpy(&vx, g.p + (3 * k + packet.kx) * W, sizeof vx);
+    std::memcpy(&vy, g.p + (3 * k + packet.ky) * W, sizeof vy);
+    std::memcpy(&vz, g.p + (3 * k + packet.kz) * W, sizeof vz);
+    corner_bounds(box, vx, vy, vz, xl, xh, yl, yh);
+    all &= ((m < xl) & 1) | ((xh < neg_m) & 2) | ((m < yl) & 4) | ((yh < neg_m) & 8);
   }
+  return WatertightWide<W>::bits(all == 0) & ((1u << g.n) - 1);
 }
 
 /// The packet walk takes rays whose origins, or crossings (crossing_bounds), lie at most this
@@ -313,9 +298,9 @@ bool crossing_bounds(PacketRays& packet, uint32_t lanes, const float (&lo)[4], c
   return true;
 }
 
-/// Sets up `packet` for rays i < n of `rays` (n <= 16) and returns the lanes that join the packet:
-/// rays valid as ray_is_valid says, with tmin >= 0 and every direction component a normal
-/// number (finite reciprocals and err), sharing the first one's direction signs and the
+/// Sets up `packet` for rays i < n of `rays` (n <= kPacketLanes) and returns the lanes that join
+/// the packet: rays valid as ray_is_valid says, with tmin >= 0 and every direction component a
+/// normal number (finite reciprocals and err), sharing the first one's direction signs and the
 /// watertight test's axes; none when neither their origins' box nor their crossings'
 /// (crossing_bounds) lies within max_spread along each axis. The others take the single walk,
 /// except those that miss the grid's `box` as the single walk clips them (packet.missed),
@@ -330,8 +315,8 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   FloatLanes ao[3], ad[3];
   uint32_t ok = le(zero, tmin) & le(tmin, tmax) & lt(tmin, splat(kInf));
   for (int a = 0; a < 3; ++a) {
-    ao[a] = (FloatLanes)_mm512_abs_ps((__m512)o[a]);
-    ad[a] = (FloatLanes)_mm512_abs_ps((__m512)d[a]);
+    ao[a] = vabs(o[a]);
+    ad[a] = vabs(d[a]);
     ok &= le(ao[a], big) & le(ad[a], big) & le(tiny, ad[a]);
   }
   uint32_t lanes = ok & ((1u << n) - 1);
@@ -345,7 +330,7 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
   FloatLanes t0 = tmin, t1 = tmax;
   for (int a = 0; a < 3; ++a) {
     packet.inv[a] = one / d[a];
-    packet.err[a] = err_scale * (FloatLanes)_mm512_abs_ps((__m512)packet.inv[a]);
+    packet.err[a] = err_scale * vabs(packet.inv[a]);
     const FloatLanes tl = (splat(box.lo[a]) - o[a]) * packet.inv[a],
                      th = (splat(box.hi[a]) - o[a]) * packet.inv[a];
     t0 = vmax(t0, vmin(tl, th) - packet.err[a]);
@@ -396,17 +381,18 @@ uint32_t prepare_packet(const Ray* rays, int n, float max_abs, const ClipBox4& b
 }  // namespace
 
 template <bool kAny>
-void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const {
-  // Up to four packets of 16 set up; those of two rays or more that share the first one's
+void GridKdHybrid::packet_call(const Ray* rays, int n, Hit* hits, bool* out) const {
+  // Up to four packets of L set up; those of two rays or more that share the first one's
   // direction signs walk together, then those that share the next one's, and so on.
+  constexpr int L = hybrid::kPacketLanes;
   PacketRays packets[4];
   uint32_t lanes[4] = {0, 0, 0, 0};
-  const int parts = (n + 15) / 16;
+  const int parts = (n + L - 1) / L;
   // The rays of the later packets requested at once (two rays a line), so that their loads do
   // not wait for the first packet's set-up.
-  for (int i = 16; i < n; i += 2) __builtin_prefetch(rays + i);
+  for (int i = L; i < n; i += 2) __builtin_prefetch(rays + i);
   for (int k = 0; k < parts; ++k) {
-    lanes[k] = prepare_packet(rays + 16 * k, std::min(16, n - 16 * k), max_abs_, world_clip_,
+    lanes[k] = prepare_packet(rays + L * k, std::min(L, n - L * k), max_abs_, world_clip_,
                               float(kPacketSpreadCells * cell_), packets[k]);
     if ((lanes[k] & (lanes[k] - 1)) == 0) lanes[k] = 0;
   }
@@ -426,10 +412,10 @@ void GridKdHybrid::packet64(const Ray* rays, int n, Hit* hits, bool* out) const 
     for (int j = 0; j < count; ++j) walked[which[j]] = lanes[which[j]];
   }
   for (int i = 0; i < n; ++i) {
-    const uint32_t bit = 1u << (i % 16);
-    if (packets[i / 16].missed & bit)
+    const uint32_t bit = 1u << (i % L);
+    if (packets[i / L].missed & bit)
       out[i] = false;
-    else if (!(walked[i / 16] & bit))
+    else if (!(walked[i / L] & bit))
       out[i] = kAny ? occluded(rays[i]) : intersect(rays[i], hits[i]);
   }
 }
@@ -473,15 +459,15 @@ struct GridKdHybrid::PacketWalk {
   /// The triangles `tris` of group gr against each lane of m of packet k by the single walk's
   /// group test (WatertightWide: the group's triangles against one ray); returns m less the
   /// lanes an any-hit query retires.
-  [[gnu::always_inline]] uint32_t lane_group(int k, const hybrid::SharedCornerGroup& gr,
-                                             uint32_t tris, uint32_t m) {
+  [[gnu::always_inline]] uint32_t lane_group(int k, const hybrid::GroupView& gr, uint32_t tris,
+                                             uint32_t m) {
     const PacketRays& r = *packets[k];
     PacketHits& h = H[k];
     for (uint32_t left = m; left != 0; left &= left - 1) {
       const int i = __builtin_ctz(left);
       float t, u, v;
-      const int j =
-          WatertightWide<16>::intersect(r.ray_data(i), gr, tris, r.tmin[i], h.best[i], t, u, v);
+      const int j = WatertightWide<kWideLanes>::intersect(r.ray_data(i), gr, tris, r.tmin[i],
+                                                          h.best[i], t, u, v);
       if (j < 0) continue;
       h.found |= 1u << i;
       if constexpr (kAny) {
@@ -509,7 +495,7 @@ struct GridKdHybrid::PacketWalk {
     const CullBox box = by_lane ? CullBox{} : cull_box(r, m);
     const float* p = g.groups_[0].f + first;
     for (uint32_t left = count; left != 0;) {
-      const hybrid::SharedCornerGroup gr = hybrid::SharedCornerGroup::at(p, left);
+      const hybrid::GroupView gr = hybrid::GroupView::at(p, left);
       p = gr.end();
       left -= gr.n;
       if (by_lane) {
@@ -720,11 +706,10 @@ struct GridKdHybrid::PacketWalk {
   [[gnu::always_inline]] void store(const uint32_t* lanes_of, const int* which, Hit* hits,
                                     bool* out) const {
     for (int k = 0; k < K; ++k) {
-      const int base = 16 * which[k];
+      const int base = hybrid::kPacketLanes * which[k];
       const uint32_t lanes = lanes_of[which[k]], found = H[k].found & lanes;
-      _mm_mask_storeu_epi8(out + base, __mmask16(lanes),
-                           _mm_maskz_mov_epi8(__mmask16(found), _mm_set1_epi8(1)));
-      if constexpr (!kAny) store_hits(H[k], found, hits + base);
+      store_found(lanes, found, out + base);
+      if constexpr (!kAny) store_hits(H[k].best, H[k].prim, H[k].u, H[k].v, found, hits + base);
     }
   }
 };
@@ -741,22 +726,24 @@ bool GridKdHybrid::packet_walk(const hybrid::PacketRays* call_packets, const uin
 GridKdHybrid::PacketCull GridKdHybrid::packet_cull(const Ray* rays, int n) const {
   if (!packets_ready() || n < 1) return PacketCull::Single;
   PacketRays packet;
-  const uint32_t lanes = prepare_packet(rays, std::min(16, n), max_abs_, world_clip_,
-                                        float(kPacketSpreadCells * cell_), packet);
+  const uint32_t lanes = prepare_packet(rays, std::min(hybrid::kPacketLanes, n), max_abs_,
+                                        world_clip_, float(kPacketSpreadCells * cell_), packet);
   if ((lanes & (lanes - 1)) == 0) return PacketCull::Single;
   return packet.crossings ? PacketCull::Crossings : PacketCull::Origins;
 }
 
 void GridKdHybrid::intersect_packet(const Ray* rays, int n, Hit* hits, bool* found) const {
   if (!packets_ready()) return Accelerator::intersect_packet(rays, n, hits, found);
-  for (int b = 0; b < n; b += 64)
-    packet64<false>(rays + b, std::min(64, n - b), hits + b, found + b);
+  constexpr int kCall = 4 * hybrid::kPacketLanes;
+  for (int b = 0; b < n; b += kCall)
+    packet_call<false>(rays + b, std::min(kCall, n - b), hits + b, found + b);
 }
 
 void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) const {
   if (!packets_ready()) return Accelerator::occluded_packet(rays, n, occluded_out);
-  for (int b = 0; b < n; b += 64)
-    packet64<true>(rays + b, std::min(64, n - b), nullptr, occluded_out + b);
+  constexpr int kCall = 4 * hybrid::kPacketLanes;
+  for (int b = 0; b < n; b += kCall)
+    packet_call<true>(rays + b, std::min(kCall, n - b), nullptr, occluded_out + b);
 }
 
 #else
@@ -776,7 +763,7 @@ void GridKdHybrid::occluded_packet(const Ray* rays, int n, bool* occluded_out) c
 #endif
 
 int GridKdHybrid::packet_width() const {
-  return packets_ready() ? 64 : 1;
+  return packets_ready() ? 4 * hybrid::kPacketLanes : 1;
 }
 
 }  // namespace kdgrid

@@ -74,6 +74,18 @@ constexpr bool kSharedCorners = kWideLanes == 16;
 #else
 constexpr bool kSharedCorners = false;
 #endif
+/// Rays a packet of the packet walk holds (accel/hybrid/packet_lanes.h): the float lanes of a
+/// 512-bit vector in builds for AVX-512, of a 256-bit vector in builds for AVX2 and FMA; 0 (no
+/// packet walk: the packet queries loop over the single walk) elsewhere, and where groups hold
+/// fewer than 4 lanes.
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+#define KDGRID_PACKET_LANES 16
+#elif defined(__AVX2__) && defined(__FMA__)
+#define KDGRID_PACKET_LANES 8
+#else
+#define KDGRID_PACKET_LANES 0
+#endif
+constexpr int kPacketLanes = kWideLanes >= 4 ? KDGRID_PACKET_LANES : 0;
 /// Floats a lane takes by lane: nine corner coordinates and the mesh's index.
 constexpr uint32_t kGroupLaneFloats = 10;
 /// The most floats a lane takes in either layout, its group's share included (a shared-corner
