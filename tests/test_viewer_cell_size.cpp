@@ -21,14 +21,15 @@ namespace {
 namespace fs = std::filesystem;
 
 TEST_F(Viewer, InputEscInACellSizeFieldCancelsTheRunningBuildWithoutRestartingIt) {
-  KDGRID_REQUIRE_VIEWER_SCENE(kNeedDrivenDefault, bunny, "bunny/bun_zipper.ply");
-  const std::string args = "'" + bunny + "'" + kFieldArgs;
-  const auto rects = field_rects(args, "bun_zipper.ply");
+  KDGRID_REQUIRE_VIEWER_SCENE(kNeedDrivenDefault, dragon, "dragon/dragon_vrip.ply");
+  const std::string args = "'" + dragon + "'" + kFieldArgs;
+  const auto rects = field_rects(args, "dragon_vrip.ply");
   ASSERT_TRUE(rects.is_object());
-  // A fine cell (several seconds to build) starts after the first picture; in the units field
-  // a digit is typed and Esc pressed while it builds.
+  // A fine cell on the full dragon (7e-5: 6 s and 2.2 GB on an idle Zen 5, the build-time limit
+  // off) starts after the first picture; in the units field a digit is typed and Esc pressed
+  // about 1.5 s into the build.
   const ViewerResult d = drive(
-      args + " --hold 60 --hybrid-max-build-seconds 0 --rebuild-cell-size 4e-5", "bun_zipper.ply",
+      args + " --hold 60 --hybrid-max-build-seconds 0 --rebuild-cell-size 7e-5", "dragon_vrip.ply",
       "sleep 1\n" + click_field(rects, "units") + "\nxdotool type 5\nkey Escape\nsleep 1");
   ASSERT_TRUE(d.ended_by_ctrl_q());
   const auto& builds = d.stats["builds"];
@@ -73,15 +74,15 @@ TEST_F(Viewer, InputATypedCellSizeShowsItsEstimateBeforeEnterAndAShortEnterBuild
 }
 
 TEST_F(Viewer, InputACancelledCellSizeIsNeitherShownNorSavedAndAChosenOneStaysWithItsScene) {
-  KDGRID_REQUIRE_VIEWER_SCENE(kNeedDrivenDefault, bunny, "bunny/bun_zipper.ply");
+  KDGRID_REQUIRE_VIEWER_SCENE(kNeedDrivenDefault, dragon, "dragon/dragon_vrip.ply");
   // Interactive runs: they read and write the remembered settings.
-  const std::string args = "'" + bunny + "'" + kFieldArgs + " --hybrid-max-build-seconds 0";
-  const auto rects = field_rects(args, "bun_zipper.ply");
+  const std::string args = "'" + dragon + "'" + kFieldArgs + " --hybrid-max-build-seconds 0";
+  const auto rects = field_rects(args, "dragon_vrip.ply");
   ASSERT_TRUE(rects.is_object());
-  // 0.05x (seconds to build) typed and entered, Esc 1 s later.
-  ViewerResult d = drive(args, "bun_zipper.ply",
+  // 0.02x (7e-5: 6 s to build on an idle Zen 5) typed and entered, Esc 1 s later.
+  ViewerResult d = drive(args, "dragon_vrip.ply",
                          click_field(rects, "x auto") +
-                             "\nxdotool type 0.05\nxdotool key Return\nsleep 1\nkey Escape\n"
+                             "\nxdotool type 0.02\nxdotool key Return\nsleep 1\nkey Escape\n"
                              "sleep 0.5");
   ASSERT_TRUE(d.ended_by_ctrl_q());
   const auto& st = d.stats["state"];
@@ -93,15 +94,15 @@ TEST_F(Viewer, InputACancelledCellSizeIsNeitherShownNorSavedAndAChosenOneStaysWi
   auto saved = json("kdgrid/viewer.json");
   ASSERT_TRUE(saved.is_object());
   EXPECT_EQ(saved["cell_size"], "auto") << saved.dump();
-  EXPECT_FALSE(saved["cell_size_by_scene"].contains(fs::canonical(bunny).string())) << saved.dump();
-  // 2x built: remembered for the bunny only, not for every scene.
-  d = drive(args, "bun_zipper.ply",
+  EXPECT_FALSE(saved["cell_size_by_scene"].contains(fs::canonical(dragon).string())) << saved.dump();
+  // 2x built: remembered for the dragon only, not for every scene.
+  d = drive(args, "dragon_vrip.ply",
             click_field(rects, "x auto") + "\nxdotool type 2\nxdotool key Return\nsleep 3");
   ASSERT_TRUE(d.ended_by_ctrl_q());
   EXPECT_EQ(d.stats["state"]["cell_choice"], "2x");
   saved = json("kdgrid/viewer.json");
   EXPECT_EQ(saved["cell_size"], "auto") << saved.dump();
-  EXPECT_EQ(saved["cell_size_by_scene"][fs::canonical(bunny).string()], "2x") << saved.dump();
+  EXPECT_EQ(saved["cell_size_by_scene"][fs::canonical(dragon).string()], "2x") << saved.dump();
 }
 
 // ---- remembered per scene, built size shown, refusal ------------------------------------------
