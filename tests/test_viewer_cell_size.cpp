@@ -94,7 +94,8 @@ TEST_F(Viewer, InputACancelledCellSizeIsNeitherShownNorSavedAndAChosenOneStaysWi
   auto saved = json("kdgrid/viewer.json");
   ASSERT_TRUE(saved.is_object());
   EXPECT_EQ(saved["cell_size"], "auto") << saved.dump();
-  EXPECT_FALSE(saved["cell_size_by_scene"].contains(fs::canonical(dragon).string())) << saved.dump();
+  EXPECT_FALSE(saved["cell_size_by_scene"].contains(fs::canonical(dragon).string()))
+      << saved.dump();
   // 2x built: remembered for the dragon only, not for every scene.
   d = drive(args, "dragon_vrip.ply",
             click_field(rects, "x auto") + "\nxdotool type 2\nxdotool key Return\nsleep 3");
