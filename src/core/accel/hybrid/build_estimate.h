@@ -63,17 +63,17 @@ struct HybridEstimate {
 };
 
 /// Estimate model constants (see HybridEstimate), fitted to the build phases that `kdgrid
-/// render --threads 1 --stats-json` reports, on the slow side: the rates of a shared machine,
-/// and the bytes a triangle of the finest cells the suite's scenes were built at
-/// (docs/EXPERIMENTS.md, "The build estimate", has the figures).
+/// render --threads 1 --stats-json` reports, rounded towards the slow side, and the bytes a
+/// triangle of the finest cells the suite's scenes were built at (docs/EXPERIMENTS.md, "The
+/// build estimate", has the figures).
 constexpr double kHybridBricksPerArea = 4.5;  ///< bricks per (4-cell)^2 of triangle area
 /// Tree, leaves, subtrees and triangle groups, a triangle.
 constexpr double kHybridBytesPerTriangle = hybrid::kSharedCorners ? 150 : 300;
-constexpr double kHybridSecondsPerBrick = 10e-6;     ///< matrix construction, one thread
-constexpr double kHybridSecondsPerTriangle = 25e-6;  ///< tree and subtrees, one thread
-constexpr double kHybridSecondsPerBinOp = 1e-9;      ///< one per-cell binning entry
+constexpr double kHybridSecondsPerBrick = 1.4e-6;     ///< matrix construction, one thread
+constexpr double kHybridSecondsPerTriangle = 3.5e-6;  ///< tree and subtrees, one thread
+constexpr double kHybridSecondsPerBinOp = 1e-9;       ///< one per-cell binning entry
 /// One entry of the empty-leaf table (hybrid_expand_empty): a cell of the grid, one thread.
-constexpr double kHybridSecondsPerExpandEntry = 1.5e-7;
+constexpr double kHybridSecondsPerExpandEntry = 1.5e-8;
 /// The leaf subtrees' extra work, a fraction of kHybridSecondsPerTriangle per triangle per
 /// level, where cells coarser than the triangles leave many triangles a leaf (one cell: the
 /// whole scene in one subtree).
