@@ -69,7 +69,7 @@ struct HybridEstimate {
 constexpr double kHybridBricksPerArea = 4.5;  ///< bricks per (4-cell)^2 of triangle area
 /// Tree, leaves, subtrees and triangle groups, a triangle.
 constexpr double kHybridBytesPerTriangle = hybrid::kSharedCorners ? 150 : 300;
-constexpr double kHybridSecondsPerBrick = 1.4e-6;     ///< matrix construction, one thread
+constexpr double kHybridSecondsPerBrick = 2.5e-6;     ///< matrix construction, one thread
 constexpr double kHybridSecondsPerTriangle = 3.5e-6;  ///< tree and subtrees, one thread
 constexpr double kHybridSecondsPerBinOp = 1e-9;       ///< one per-cell binning entry
 /// One entry of the empty-leaf table (hybrid_expand_empty): a cell of the grid, one thread.
