@@ -127,6 +127,17 @@ class Suite:
                                 table=table(["structure"] + self.scenes, rows)))
         return "".join(tables)
 
+    def bytes_table(self):
+        """Bytes a triangle of each structure's build on each scene (BuildStats::bytes)."""
+        bld = {(x["scene"], x["accel"]): x for x in self.b["builds"]}
+        rows = []
+        for a in self.accels:
+            rows.append([self.name[a]] + [
+                "%.0f" % bld[(s, a)]["bytes_per_triangle"]
+                if (s, a) in bld and bld[(s, a)].get("bytes_per_triangle") is not None else "-"
+                for s in self.scenes])
+        return table(["structure"] + self.scenes, rows)
+
     def observations(self):
         """Generated observations: the best non-reference structure per set, and the hybrid,
         averaged over the scenes."""
@@ -164,6 +175,7 @@ def isa_section(b, run):
                  embree_isa=simd.get("embree", {}).get("isa", "?"), ref=f.ref,
                  reps="%d" % f.meta["reps"], setup=f.setup, tables=f.throughput_tables(),
                  observations=f.observations(),
+                 memory=prose("bench", "isa-memory", table=f.bytes_table()),
                  packets=packets_section(b, f.res, f.scenes, f.accels, f.name, f.ref, f.setup,
                                          "###"),
                  renders=renders_section(b, f.scenes, f.accels, f.name, f.ref, f.setup, "###"))

@@ -149,6 +149,8 @@ class Page(unittest.TestCase):
         self.assertIn("kdgrid's code is AVX2, Embree's AVX2.", avx2)
         self.assertIn("**primary rays** (ratio", avx2)
         self.assertIn("\n### Packets\n", avx2)  # the committed run has a packet column
+        self.assertIn("**Bytes a triangle** of this build", avx2)
+        self.assertIn("| hybrid | 66 | 35 | 48 | 77 |", avx2)  # bench.json's, copied
         self.assertIn("- primary rays: the hybrid is ", avx2)
 
     def test_packet_column_gives_a_packets_section(self):
