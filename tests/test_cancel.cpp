@@ -175,13 +175,14 @@ TEST(Cancel, SortOfEveryEventSortsLikeStdSortAndStopsSoonAfterACancel) {
 
 TEST(Cancel, CtrlCInTheCliStopsABuildWithAClearMessageAndExitCode130) {
   KDGRID_REQUIRE_SCENE(dragon, "dragon/dragon_vrip.ply");
-  // A 7e-5 cell on the full dragon (with the build-time limit off) builds for 6 s on an idle Zen 5
-  // (2.2 GB), after a 0.2 s load (several seconds under a sanitizer). SIGINT every
+  // The full dragon at kLongDragonBuildCell (with the build-time limit off) builds for seconds,
+  // after a 0.2 s load (several seconds under a sanitizer). SIGINT every
   // 0.2 s from 2 s on (a background job of sh starts with SIGINT ignored until the build installs
   // its handler, so the signals that land in the load are lost).
   const std::string cmd =
       "sh -c '" + std::string(KDGRID_CLI_PATH) + " trace " + dragon +
-      " --accel hybrid --cell-size 7e-5 --hybrid-max-build-seconds 0 --pixel 320,240 --res 640x480 "
+      " --accel hybrid --cell-size " + kLongDragonBuildCell +
+      " --hybrid-max-build-seconds 0 --pixel 320,240 --res 640x480 "
       "& pid=$!; sleep 2; "
       "t0=$(date +%s%N); i=0; while kill -0 $pid 2>/dev/null && [ $i -lt 300 ]; do "
       "kill -INT $pid 2>/dev/null; sleep 0.2; i=$((i+1)); done; t1=$(date +%s%N); kill -KILL $pid "

@@ -25,11 +25,12 @@ TEST_F(Viewer, InputEscInACellSizeFieldCancelsTheRunningBuildWithoutRestartingIt
   const std::string args = "'" + dragon + "'" + kFieldArgs;
   const auto rects = field_rects(args, "dragon_vrip.ply");
   ASSERT_TRUE(rects.is_object());
-  // A fine cell on the full dragon (7e-5: 6 s and 2.2 GB on an idle Zen 5, the build-time limit
-  // off) starts after the first picture; in the units field a digit is typed and Esc pressed
-  // about 1.5 s into the build.
+  // The full dragon at kLongDragonBuildCell (seconds to build, the build-time limit off) starts
+  // after the first picture; in the units field a digit is typed and Esc pressed about 1.5 s
+  // into the build.
   const ViewerResult d = drive(
-      args + " --hold 60 --hybrid-max-build-seconds 0 --rebuild-cell-size 7e-5", "dragon_vrip.ply",
+      args + " --hold 60 --hybrid-max-build-seconds 0 --rebuild-cell-size " + kLongDragonBuildCell,
+      "dragon_vrip.ply",
       "sleep 1\n" + click_field(rects, "units") + "\nxdotool type 5\nkey Escape\nsleep 1");
   ASSERT_TRUE(d.ended_by_ctrl_q());
   const auto& builds = d.stats["builds"];
@@ -79,7 +80,7 @@ TEST_F(Viewer, InputACancelledCellSizeIsNeitherShownNorSavedAndAChosenOneStaysWi
   const std::string args = "'" + dragon + "'" + kFieldArgs + " --hybrid-max-build-seconds 0";
   const auto rects = field_rects(args, "dragon_vrip.ply");
   ASSERT_TRUE(rects.is_object());
-  // 0.02x (7e-5: 6 s to build on an idle Zen 5) typed and entered, Esc 1 s later.
+  // 0.02x typed and entered (about kLongDragonBuildCell: seconds to build), Esc 1 s later.
   ViewerResult d = drive(args, "dragon_vrip.ply",
                          click_field(rects, "x auto") +
                              "\nxdotool type 0.02\nxdotool key Return\nsleep 1\nkey Escape\n"
@@ -96,9 +97,11 @@ TEST_F(Viewer, InputACancelledCellSizeIsNeitherShownNorSavedAndAChosenOneStaysWi
   EXPECT_EQ(saved["cell_size"], "auto") << saved.dump();
   EXPECT_FALSE(saved["cell_size_by_scene"].contains(fs::canonical(dragon).string()))
       << saved.dump();
-  // 2x built: remembered for the dragon only, not for every scene.
+  // 2x built (waited for: the dragon's build takes seconds under load): remembered for the
+  // dragon only, not for every scene.
   d = drive(args, "dragon_vrip.ply",
-            click_field(rects, "x auto") + "\nxdotool type 2\nxdotool key Return\nsleep 3");
+            click_field(rects, "x auto") +
+                "\nxdotool type 2\nxdotool key Return\nwaitlog 'rebuilt hybrid' 60");
   ASSERT_TRUE(d.ended_by_ctrl_q());
   EXPECT_EQ(d.stats["state"]["cell_choice"], "2x");
   saved = json("kdgrid/viewer.json");

@@ -135,13 +135,13 @@ TEST_F(Viewer, LiveFlightOnSponzaChangesThePictureEvery200ms) {
 
 TEST_F(Viewer, LiveFlightDuringARebuildFollowsTheCameraOnTheOldStructure) {
   KDGRID_REQUIRE_VIEWER(kNeedFlight);
-  // The full dragon: a hybrid rebuild with a fine cell (7e-5: 6 s and 2.2 GB on an idle Zen 5,
-  // longer while the flight renders; the smaller dragon's fine cells build in about 2 s) runs
-  // while W is held.
+  // The full dragon: a hybrid rebuild at kLongDragonBuildCell (seconds, longer while the flight
+  // renders; the smaller dragon's finest cells build in about 2 s) runs while W is held.
   KDGRID_REQUIRE_SCENE(dragon, "dragon/dragon_vrip.ply");
-  const auto stats =
-      expect_live_flight(*this, dragon, "dragon_vrip.ply",
-                         "--accel hybrid --hybrid-max-build-seconds 0 --rebuild-cell-size 7e-5");
+  const auto stats = expect_live_flight(
+      *this, dragon, "dragon_vrip.ply",
+      std::string("--accel hybrid --hybrid-max-build-seconds 0 --rebuild-cell-size ") +
+          kLongDragonBuildCell);
   ASSERT_TRUE(stats.is_object());
   // The flight (1 to 3 s after the window showed the scene) happened during the rebuild:
   // Ctrl+Q cancelled it, or it ran past then.

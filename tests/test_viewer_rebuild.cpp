@@ -51,13 +51,13 @@ TEST_F(Viewer, LiveRebuildWithNewCellSizeChangesTheView) {
 
 TEST_F(Viewer, EscCancelsARunningBuildAndTheOldStructureStays) {
   KDGRID_REQUIRE_VIEWER_SCENE(kNeedDrivenDefault, dragon, "dragon/dragon_vrip.ply");
-  // A 7e-5 cell on the full dragon (with the build-time limit off) builds for 6 s on an idle
-  // Zen 5 (2.2 GB); Esc 2 s in.
-  const ViewerResult d = drive(
-      "'" + dragon +
-          "' --accel hybrid --width 640 --height 480 --max-samples 1 "
-          "--hold 90 --hybrid-max-build-seconds 0 --rebuild-cell-size 7e-5 --screenshot shot.png",
-      "dragon_vrip.ply", "sleep 2\nkey Escape\nsleep 1");
+  // The full dragon at kLongDragonBuildCell (with the build-time limit off) builds for seconds;
+  // Esc 2 s in.
+  const ViewerResult d = drive("'" + dragon +
+                                   "' --accel hybrid --width 640 --height 480 --max-samples 1 "
+                                   "--hold 90 --hybrid-max-build-seconds 0 --rebuild-cell-size " +
+                                   kLongDragonBuildCell + " --screenshot shot.png",
+                               "dragon_vrip.ply", "sleep 2\nkey Escape\nsleep 1");
   ASSERT_TRUE(d.ended_by_ctrl_q());
   const auto& builds = d.stats["builds"];
   ASSERT_EQ(builds.size(), 2u) << d.viewer_log;
@@ -76,19 +76,21 @@ TEST_F(Viewer, EscCancelsARunningBuildAndTheOldStructureStays) {
 
 TEST_F(Viewer, ANewCellSizeRequestCancelsTheRunningBuildAndBuildsTheNewSize) {
   KDGRID_REQUIRE_VIEWER_SCENE(kNeedXvfb, dragon, "dragon/dragon_vrip.ply");
-  // A 7e-5 cell on the full dragon (build-time limit off, 2.2 GB) builds for 6 s on an idle
-  // Zen 5 and longer on a busy machine; 2 s into it a 0.003 cell is requested through the
+  // The full dragon at kLongDragonBuildCell (build-time limit off) builds for seconds, longer on
+  // a busy machine; 2 s into it a 0.003 cell is requested through the
   // panel's cell-size path (under a second to build). The newer request stops the running build
   // within a second, and the 0.003 structure is what remains.
   const ViewerResult r =
       run_stats("'" + dragon +
                 "' --accel hybrid --width 640 --height 480 --max-samples 1 "
-                "--frames 3 --timeout 120 --hybrid-max-build-seconds 0 --rebuild-cell-size 7e-5 "
+                "--frames 3 --timeout 120 --hybrid-max-build-seconds 0 --rebuild-cell-size " +
+                kLongDragonBuildCell +
+                " "
                 "--supersede-cell-size 0.003 --supersede-after 2");
   ASSERT_TRUE(r.ok());
   const auto& st = r.stats;
   const auto& builds = st["builds"];
-  ASSERT_EQ(builds.size(), 3u) << "load, the 7e-5 rebuild, the 0.003 rebuild: " << builds.dump()
+  ASSERT_EQ(builds.size(), 3u) << "load, the long rebuild, the 0.003 rebuild: " << builds.dump()
                                << r.output;
   EXPECT_EQ(builds[1].value("error", ""), "cancelled")
       << "the running build was not superseded: " << builds[1].dump();
@@ -98,19 +100,20 @@ TEST_F(Viewer, ANewCellSizeRequestCancelsTheRunningBuildAndBuildsTheNewSize) {
   EXPECT_FLOAT_EQ(builds[2]["requested_cell_size"].get<float>(), 0.003f) << builds[2].dump();
   EXPECT_FLOAT_EQ(st["state"]["cell_size"].get<float>(), 0.003f) << st["state"].dump();
   EXPECT_EQ(st["state"]["error"], "") << "a superseded build is not an error";
-  // The 7e-5 build ended within a second of the second request (2 s in), not at its own end.
+  // The long build ended within a second of the second request (2 s in), not at its own end.
   EXPECT_LT(builds[1]["wall_seconds"].get<double>(), 3.0) << builds.dump();
 }
 
 TEST_F(Viewer, CtrlQDuringTheFirstBuildExitsWithinASecond) {
   KDGRID_REQUIRE_VIEWER_SCENE(kNeedXvfb | kNeedXdotool, dragon, "dragon/dragon_vrip.ply");
   const std::string driver = path("driver.sh");
-  // An interactive run (no --hold), as a person starts it: the full dragon at a fine cell (7e-5:
-  // 6 s and 2.2 GB on an idle Zen 5, the build-time limit off); Ctrl+Q 3 s into the build,
-  // before the window's title names a scene.
+  // An interactive run (no --hold), as a person starts it: the full dragon at
+  // kLongDragonBuildCell (seconds to build, the build-time limit off); Ctrl+Q 3 s into the
+  // build, before the window's title names a scene.
   std::ofstream(driver)
       << "#!/bin/bash\ncd '" << dir << "'\n'" << KDGRID_VIEWER_PATH << "' '" << dragon
-      << "' --accel hybrid --cell-size 7e-5 --hybrid-max-build-seconds 0 --width 640 --height 480 "
+      << "' --accel hybrid --cell-size " << kLongDragonBuildCell
+      << " --hybrid-max-build-seconds 0 --width 640 --height 480 "
          "> viewer.log 2>&1 &\n"
       << "pid=$!\n"
       << "wid=$(timeout 60 xdotool search --sync --name '^kdgrid-viewer$' | head -1)\n"

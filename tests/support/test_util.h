@@ -75,6 +75,12 @@ inline std::string load_error(const std::function<void()>& f) {
   return "";
 }
 
+/// A cell size at which the hybrid's build of the full dragon (dragon/dragon_vrip.ply, with
+/// --hybrid-max-build-seconds 0) runs long enough for a test to cancel, supersede or quit it
+/// seconds after it starts: 6 s and 2.2 GB on an idle Zen 5. Builds of the bunny at any cell size
+/// that fits take about a second there, too short to interrupt by a scripted key or signal.
+inline constexpr const char* kLongDragonBuildCell = "7e-5";
+
 }  // namespace kdgrid::test
 
 /// Declares `var` as the path of shared scene `rel`, or skips the test saying what is missing.

@@ -205,6 +205,11 @@ wheel() { for i in $(seq "$1"); do xdotool click "$2"; sleep 0.1; done; sleep 0.
 key() { for k in "$@"; do xdotool key --clearmodifiers "$k"; sleep 0.2; done; }
 # holdkey KEY SECONDS
 holdkey() { xdotool keydown "$1"; sleep "$2"; xdotool keyup "$1"; sleep 0.3; }
+# waitlog TEXT SECONDS: waits until the viewer has printed TEXT (viewer.log), at most SECONDS.
+waitlog() {
+  for i in $(seq 1 $(( $2 * 10 ))); do grep -q "$1" viewer.log && return 0; sleep 0.1; done
+  echo "driver: no '$1' in viewer.log after $2 s"
+}
 )sh";
 
 /// An action that presses Ctrl+Q and prints "driver: exit_ms N": how long the viewer ($pid)
