@@ -39,6 +39,8 @@ def quantize(v, lo, hi):
 
 
 def sort_keys(rays, key):
+    if len(rays) == 0:
+        return np.zeros(0, np.int64)
     org, d = rays[:, 0:3], rays[:, 4:7]
     origin = morton(quantize(org, org.min(0), org.max(0)))
     if key == "origin":

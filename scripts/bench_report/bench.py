@@ -110,6 +110,7 @@ class Suite:
         self.accels = ordered_unique(x["accel"] for x in b["builds"])
         self.sets = self.meta["sets"]
         self.res = {(r["scene"], r["accel"], r["set"]): r for r in b["results"]}
+        self.bld = {(x["scene"], x["accel"]): x for x in b["builds"]}
         ref = ordered_unique(r["reference"] for r in b["results"])
         self.ref = ref[0] if ref else "embree"
         self.name = labels(b["builds"])
@@ -129,12 +130,11 @@ class Suite:
 
     def bytes_table(self):
         """Bytes a triangle of each structure's build on each scene (BuildStats::bytes)."""
-        bld = {(x["scene"], x["accel"]): x for x in self.b["builds"]}
         rows = []
         for a in self.accels:
             rows.append([self.name[a]] + [
-                "%.0f" % bld[(s, a)]["bytes_per_triangle"]
-                if (s, a) in bld and bld[(s, a)].get("bytes_per_triangle") is not None else "-"
+                "%.0f" % self.bld[(s, a)]["bytes_per_triangle"]
+                if self.bld.get((s, a), {}).get("bytes_per_triangle") is not None else "-"
                 for s in self.scenes])
         return table(["structure"] + self.scenes, rows)
 
@@ -185,7 +185,7 @@ def bench_section(b, run, md_dir, img_dir):
     f = Suite(b, run)
     meta, scenes, accels, sets, res = f.meta, f.scenes, f.accels, f.sets, f.res
     ref, name, setup = f.ref, f.name, f.setup
-    bld = {(x["scene"], x["accel"]): x for x in b["builds"]}
+    bld = f.bld
     out = []
 
     rows = []
