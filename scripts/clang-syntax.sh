@@ -31,8 +31,8 @@ for flavour in "${flavours[@]}"; do
   echo "== $cxx $flavour: $(echo "$files" | wc -l) files"
   echo "$files" | xargs -P "$jobs" -n 4 "$cxx" "${flags[@]}" $arch || status=1
 done
-# The hybrid's groups of 8 in a build for AVX-512 (KDGRID_WIDE_LANES=8: lanes by coordinate, not
-# the shared corners the target would otherwise pick): the files that instantiate its walk.
+# The hybrid's groups of 8 in a build for AVX-512 (KDGRID_WIDE_LANES=8: the AVX2 form of shared
+# corners under the 16-lane packet walk): the files that instantiate its walk.
 if [ "$(uname -m)" = x86_64 ]; then
   echo "== $cxx -march=x86-64-v4 -DKDGRID_WIDE_LANES=8 (the hybrid's files)"
   ls src/core/accel/hybrid/*.cpp src/core/accel/factory.cpp |

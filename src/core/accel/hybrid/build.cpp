@@ -359,7 +359,7 @@ void GridKdHybrid::build_parts(const Mesh& mesh, const BuildParams& params, uint
 }
 
 void GridKdHybrid::fill_groups(const Mesh& mesh, const GroupPlan& plan) {
-  groups_.assign(size_t((plan.floats + 15) / 16), hybrid::GroupLine{});
+  groups_.assign(size_t((plan.floats + 15) / 16) + hybrid::kGroupTailLines, hybrid::GroupLine{});
   group_count_ = plan.fill.size();
   group_lanes_ = hybrid::kSharedCorners ? plan.lanes.size() : group_count_ * kWideLanes;
   group_corners_ = 0;

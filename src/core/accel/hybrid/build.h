@@ -29,6 +29,21 @@ struct CornerSet {
   uint32_t key[kMaxGroupCorners + 3];  ///< a hash of bits, compared first
   uint32_t size = 0;
 
+  /// The corners of a triangle that the set does not hold (each counted once).
+  uint32_t fresh(const std::array<Vec3, 3>& c) const {
+    uint32_t b[3][3], count = 0;
+    for (int k = 0; k < 3; ++k) {
+      std::memcpy(b[k], &c[k], sizeof b[k]);
+      const uint32_t h = b[k][0] * 0x9e3779b1u ^ b[k][1] * 0x85ebca77u ^ b[k][2] * 0xc2b2ae3du;
+      bool seen = false;
+      for (int j = 0; j < k && !seen; ++j) seen = std::memcmp(b[j], b[k], sizeof b[k]) == 0;
+      for (uint32_t i = 0; i < size && !seen; ++i)
+        seen = key[i] == h && std::memcmp(bits[i], b[k], sizeof b[k]) == 0;
+      count += !seen;
+    }
+    return count;
+  }
+
   /// Adds the corners of a triangle and sets their indices in the set, if the set then holds
   /// at most kMaxGroupCorners corners; else leaves it as it was and returns false.
   bool add(const std::array<Vec3, 3>& c, uint8_t index[3]) {

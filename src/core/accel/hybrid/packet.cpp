@@ -185,6 +185,47 @@ template <class F>
   yl = (vy - box.y_hi) - pyh, yh = (vy - box.y_lo) - pyl;
 }
 
+/// Codes of the 8 corners of a shared-corner group's table half (groups of 8; their coordinates
+/// on the test's axes from tx, ty, tz on, the first `left` of them read, the others 0), as
+/// corner_codes codes 16.
+[[gnu::always_inline, maybe_unused]] inline WideVectors<8>::I corner_codes8(
+    const CullBox& box, const float* tx, const float* ty, const float* tz, int32_t left) {
+  using F = WideVectors<8>::F;
+  const __m256i in =
+      _mm256_cmpgt_epi32(_mm256_set1_epi32(left), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+  F xl, xh, yl, yh;
+  corner_bounds(box, (F)_mm256_maskload_ps(tx, in), (F)_mm256_maskload_ps(ty, in),
+                (F)_mm256_maskload_ps(tz, in), xl, xh, yl, yh);
+  const F m = F{} + box.margin, neg_m = -m;
+  return ((m < xl) & 1) | ((xh < neg_m) & 2) | ((m < yl) & 4) | ((yh < neg_m) & 8);
+}
+
+/// uncull() of a shared-corner group of 8 lanes: the codes of its table's two halves, each
+/// lane's three codes taken from them by permutes and a blend (as SharedCornerGroup::sheared8
+/// takes its corners).
+[[gnu::always_inline, maybe_unused]] inline uint32_t uncull8(const PacketRays& packet,
+                                                             const CullBox& box,
+                                                             const hybrid::SharedCornerGroup& g) {
+  using I = WideVectors<8>::I;
+  const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
+  const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
+  const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
+  const __m256i lo = (__m256i)corner_codes8(box, tx, ty, tz, int32_t(g.u));
+  const __m256i hi = g.u > 8 ? (__m256i)corner_codes8(box, tx + 8, ty + 8, tz + 8, int32_t(g.u) - 8)
+                             : _mm256_setzero_si256();
+  const uint8_t* idx = g.index();
+  I all = ~I{};
+  for (uint32_t k = 0; k < 3; ++k) {
+    const __m256i ik =
+        _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(idx + k * g.n)));
+    const __m256 upper = _mm256_castsi256_ps(_mm256_slli_epi32(ik, 28));
+    all &= (I)_mm256_castps_si256(
+        _mm256_blendv_ps(_mm256_castsi256_ps(_mm256_permutevar8x32_epi32(lo, ik)),
+                         _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(hi, ik)), upper));
+  }
+  return WatertightWide<8>::bits(all == 0) & ((1u << g.n) - 1);
+}
+
 #if KDGRID_PACKET_LANES == 16
 /// Codes of 16 of a shared-corner group's corners (their coordinates on the test's axes from tx,
 /// ty, tz on; the lanes `corners`): bit 1, 2, 4, 8 set where every lane of the packet sees the
@@ -206,12 +247,10 @@ template <class F>
   return c;
 }
 
-/// The lanes of a shared-corner group that some ray of `box`'s lanes may hit: those whose three
-/// corners do not all share a side that every such ray sees them on. (One of the two uncull()s
-/// is unused: the one for the layout the build does not store.)
-[[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
-                                                            const CullBox& box,
-                                                            const hybrid::SharedCornerGroup& g) {
+/// uncull() of a shared-corner group of 16 lanes.
+[[gnu::always_inline, maybe_unused]] inline uint32_t uncull16(const PacketRays& packet,
+                                                              const CullBox& box,
+                                                              const hybrid::SharedCornerGroup& g) {
   const float* const tx = g.p + 1 + uint32_t(packet.kx) * g.u;
   const float* const ty = g.p + 1 + uint32_t(packet.ky) * g.u;
   const float* const tz = g.p + 1 + uint32_t(packet.kz) * g.u;
@@ -231,6 +270,18 @@ template <class F>
   return uint32_t(_mm512_testn_epi32_mask(all, all)) & lanes;
 }
 #endif
+
+/// The lanes of a shared-corner group that some ray of `box`'s lanes may hit: those whose three
+/// corners do not all share a side that every such ray sees them on. (One of the two uncull()s
+/// is unused: the one for the layout the build does not store.)
+[[gnu::always_inline, maybe_unused]] inline uint32_t uncull(const PacketRays& packet,
+                                                            const CullBox& box,
+                                                            const hybrid::SharedCornerGroup& g) {
+#if KDGRID_PACKET_LANES == 16
+  if constexpr (kWideLanes == 16) return uncull16(packet, box, g);
+#endif
+  return uncull8(packet, box, g);
+}
 
 /// The lanes of a group stored by lane that some ray of `box`'s lanes may hit: each of its three
 /// corners coded as corner_codes codes a shared corner (in W-lane vectors of integer flags), and

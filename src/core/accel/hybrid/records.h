@@ -5,7 +5,7 @@
 #include <cstdint>
 #include <cstring>
 #include <type_traits>
-#if defined(__AVX512F__)
+#if defined(__AVX2__)
 #include <immintrin.h>
 #endif
 
@@ -57,20 +57,26 @@ struct KdBox {
 /// in the order the leaf references them (which decides ties between equal hits). A triangle
 /// referenced by several leaves is copied into each. Two layouts, by build target:
 ///
-/// - Shared corners (AVX-512 with its byte and 128-bit forms, groups of 16): a group of n lanes
-///   stores its u distinct corners once (u <= 32) and, per lane, the byte index of each of its
-///   three corners. At float offsets from the group's start: a header (n | u << 8, as uint32);
-///   the u corners' x, then their y, then their z (u floats each); the lanes' mesh indices (n
+/// - Shared corners (groups of 16 in builds for AVX-512 with its byte and 128-bit forms, groups
+///   of 8 in builds for AVX2): a group of n lanes stores its u distinct corners once (u <=
+///   kMaxGroupCorners, twice the lanes) and, per lane, the byte index of each of its three
+///   corners. At float offsets from the group's start: a header (n | u << 8, as uint32); the u
+///   corners' x, then their y, then their z (u floats each); the lanes' mesh indices (n
 ///   uint32); the corner indices (3n bytes: corner k of lane i at byte k n + i), padded to a
-///   whole float. The walk gathers each coordinate of a corner of all lanes with one permute
-///   of the table (vpermt2ps), so a hit is bit for bit the one from stored coordinates. A
-///   group ends early where its next triangle would bring more than 32 distinct corners.
+///   whole float. The walk gathers each coordinate of a corner of all lanes from the table
+///   (AVX-512: one two-table permute, vpermt2ps; AVX2: a permute of each 8-float half, vpermps,
+///   and a blend), so a hit is bit for bit the one from stored coordinates. A group ends early
+///   where its next triangle would bring more than kMaxGroupCorners distinct corners. The 8-lane
+///   walk reads 8 index bytes of each corner whatever n is, so the array ends with a line to
+///   spare (kGroupTailLines).
 /// - By lane (other builds): a group holds kWideLanes lanes, for each corner k and axis a the
 ///   lanes' coordinates one after the other (lane i's at float (3k + a) kWideLanes + i), then
 ///   the lanes' mesh indices (as uint32, at 9 kWideLanes + i); a leaf's last group repeats its
 ///   last triangle in the lanes left over.
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
-constexpr bool kSharedCorners = kWideLanes == 16;
+constexpr bool kSharedCorners = kWideLanes == 16 || kWideLanes == 8;
+#elif defined(__AVX2__)
+constexpr bool kSharedCorners = kWideLanes == 8;
 #else
 constexpr bool kSharedCorners = false;
 #endif
@@ -91,8 +97,11 @@ constexpr uint32_t kGroupLaneFloats = 10;
 /// The most floats a lane takes in either layout, its group's share included (a shared-corner
 /// group of 2 lanes and 6 corners: 23 floats).
 constexpr uint32_t kGroupLaneFloatsAtMost = kSharedCorners ? 12 : kGroupLaneFloats;
-/// The most distinct corners a shared-corner group holds (two 16-float tables per axis).
-constexpr uint32_t kMaxGroupCorners = 32;
+/// The most distinct corners a shared-corner group holds: two tables of a vector's floats per
+/// axis (32 with groups of 16, 16 with groups of 8).
+constexpr uint32_t kMaxGroupCorners = 2 * uint32_t(kWideLanes);
+/// Lines of 16 floats past the last group (the 8-lane walk's reads of index bytes, above).
+constexpr size_t kGroupTailLines = kSharedCorners && kWideLanes == 8 ? 1 : 0;
 /// The floats of a shared-corner group of n lanes and u corners.
 constexpr uint32_t shared_group_floats(uint32_t n, uint32_t u) {
   return 1 + 3 * u + n + (3 * n + 3) / 4;
@@ -127,7 +136,7 @@ struct LaneGroup {
   }
 };
 
-#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+#if defined(__AVX2__)
 /// A shared-corner group, as WatertightWide and the walk read it.
 struct SharedCornerGroup {
   const float* p;
@@ -157,6 +166,46 @@ struct SharedCornerGroup {
   template <class F>
   [[gnu::always_inline]] void sheared(const WatertightTest::RayData& d, uint32_t lanes,
                                       F (&c)[3][3]) const {
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+    if constexpr (kWideLanes == 16)
+      sheared16(d, lanes, c);
+    else
+#endif
+      sheared8(d, c);
+  }
+  /// Groups of 8 (AVX2): each axis's table as two 8-float halves (masked loads: the corners
+  /// past u read no memory and hold 0), sheared, then each lane's corner j taken from the half
+  /// that bit 3 of j picks by a permute of each half and a blend on that bit.
+  template <class F>
+  [[gnu::always_inline]] void sheared8(const WatertightTest::RayData& d, F (&c)[3][3]) const {
+    using Wide = WatertightWide<8>;
+    const __m256i iota = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m256i in_lo = _mm256_cmpgt_epi32(_mm256_set1_epi32(int32_t(u)), iota);
+    const __m256i in_hi = _mm256_cmpgt_epi32(_mm256_set1_epi32(int32_t(u) - 8), iota);
+    const float* const tx = p + 1 + uint32_t(d.kx) * u;
+    const float* const ty = p + 1 + uint32_t(d.ky) * u;
+    const float* const tz = p + 1 + uint32_t(d.kz) * u;
+    F s[2][3];
+    Wide::shear(d, (F)_mm256_maskload_ps(tx, in_lo), (F)_mm256_maskload_ps(ty, in_lo),
+                (F)_mm256_maskload_ps(tz, in_lo), s[0][0], s[0][1], s[0][2]);
+    Wide::shear(d, (F)_mm256_maskload_ps(tx + 8, in_hi), (F)_mm256_maskload_ps(ty + 8, in_hi),
+                (F)_mm256_maskload_ps(tz + 8, in_hi), s[1][0], s[1][1], s[1][2]);
+    const uint8_t* idx = index();
+    for (int k = 0; k < 3; ++k) {
+      const __m256i ik = _mm256_cvtepu8_epi32(
+          _mm_loadl_epi64(reinterpret_cast<const __m128i*>(idx + uint32_t(k) * n)));
+      const __m256 upper = _mm256_castsi256_ps(_mm256_slli_epi32(ik, 28));
+      for (int j = 0; j < 3; ++j)
+        c[k][j] = (F)_mm256_blendv_ps(_mm256_permutevar8x32_ps((__m256)s[0][j], ik),
+                                      _mm256_permutevar8x32_ps((__m256)s[1][j], ik), upper);
+    }
+  }
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+  /// Groups of 16 (AVX-512): each axis's table as two 16-float halves, one two-table permute a
+  /// coordinate.
+  template <class F>
+  [[gnu::always_inline]] void sheared16(const WatertightTest::RayData& d, uint32_t lanes,
+                                        F (&c)[3][3]) const {
     using Wide = WatertightWide<16>;
     const float* const tx = p + 1 + uint32_t(d.kx) * u;
     const float* const ty = p + 1 + uint32_t(d.ky) * u;
@@ -178,6 +227,7 @@ struct SharedCornerGroup {
       for (int j = 0; j < 3; ++j)
         c[k][j] = (F)_mm512_permutex2var_ps((__m512)s[0][j], ik[k], (__m512)s[1][j]);
   }
+#endif
 };
 /// The layout this build stores (kSharedCorners).
 using GroupView = std::conditional_t<kSharedCorners, SharedCornerGroup, LaneGroup>;

@@ -33,6 +33,13 @@ using hybrid::Ref;
 /// (docs/EXPERIMENTS.md, "Wide leaves").
 constexpr float kSubtreeLaneCost = 0.0f;
 
+/// The triangles of a leaf's list among which each lane of a shared-corner group is chosen
+/// (TreeFlattener::plan_groups): 32 for groups of 8 (16 corners), whose lanes it gives 7%
+/// fewer corners; 1 (the leaf's order) for groups of 16 (32 corners), which hold about one
+/// corner a lane already and would gain 1-2% of their bytes for a tenth more build time
+/// (docs/EXPERIMENTS.md, "Memory").
+constexpr uint32_t kGroupWindow = kWideLanes == 8 ? 32 : 1;
+
 /// Nodes with more references than this build their children as parallel tasks.
 constexpr size_t kParallelThreshold = 2048;
 
@@ -516,8 +523,12 @@ struct GridKdHybrid::TreeFlattener {
 
   /// Shared corners: every leaf's groups planned, in parallel (the corner sets are most of the
   /// groups' build time): up to kWideLanes lanes and kMaxGroupCorners distinct corners a group.
+  /// Each lane after a group's first takes, of the leaf's next kGroupWindow triangles, the first
+  /// that brings at most one new corner, else the one that brings fewest (the leaf's list is
+  /// reordered so: its order is the walk's), so that a group holds a connected patch of the
+  /// mesh.
   void plan_groups(BuildNode* root) {
-    std::vector<std::pair<const uint32_t*, uint32_t>> leaf_lists;
+    std::vector<std::pair<uint32_t*, uint32_t>> leaf_lists;
     auto collect = [&](auto&& self, BuildNode* n) -> void {
       if (n->axis >= 0) {
         self(self, n->kid[0].get());
@@ -540,9 +551,18 @@ struct GridKdHybrid::TreeFlattener {
       for (uint32_t i = 0; i < n;) {
         hybrid::CornerSet set;
         uint32_t k = 0;
-        while (i + k < n && k < uint32_t(kWideLanes) &&
-               set.add(mesh.corners(prims[i + k]), &lg.index[3 * size_t(i + k)]))
+        while (i + k < n && k < uint32_t(kWideLanes)) {
+          const uint32_t at = i + k, end = std::min(n, at + kGroupWindow);
+          uint32_t pick = at, least = 4;
+          for (uint32_t c = at; kGroupWindow > 1 && k > 0 && c < end && least > 1; ++c)
+            if (const uint32_t f = set.fresh(mesh.corners(prims[c])); f < least) {
+              least = f;
+              pick = c;
+            }
+          std::rotate(prims + at, prims + pick, prims + pick + 1);
+          if (!set.add(mesh.corners(prims[at]), &lg.index[3 * size_t(at)])) break;
           ++k;
+        }
         lg.fill.push_back(uint8_t(k));
         lg.corners.push_back(uint8_t(set.size));
         i += k;
