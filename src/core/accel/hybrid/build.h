@@ -29,16 +29,33 @@ struct CornerSet {
   uint32_t key[kMaxGroupCorners + 3];  ///< a hash of bits, compared first
   uint32_t size = 0;
 
+  /// A corner's bits and their hash.
+  struct Corner {
+    uint32_t b[3], h;
+    explicit Corner(const Vec3& v) {
+      std::memcpy(b, &v, sizeof b);
+      h = b[0] * 0x9e3779b1u ^ b[1] * 0x85ebca77u ^ b[2] * 0xc2b2ae3du;
+    }
+    bool operator==(const Corner& o) const {
+      return h == o.h && b[0] == o.b[0] && b[1] == o.b[1] && b[2] == o.b[2];
+    }
+  };
+  /// The index of corner c in the set, or size where the set does not hold it.
+  uint32_t find(const Corner& c) const {
+    uint32_t i = 0;
+    while (i < size &&
+           (key[i] != c.h || bits[i][0] != c.b[0] || bits[i][1] != c.b[1] || bits[i][2] != c.b[2]))
+      ++i;
+    return i;
+  }
+
   /// The corners of a triangle that the set does not hold (each counted once).
   uint32_t fresh(const std::array<Vec3, 3>& c) const {
-    uint32_t b[3][3], count = 0;
-    for (int k = 0; k < 3; ++k) {
-      std::memcpy(b[k], &c[k], sizeof b[k]);
-      const uint32_t h = b[k][0] * 0x9e3779b1u ^ b[k][1] * 0x85ebca77u ^ b[k][2] * 0xc2b2ae3du;
-      bool seen = false;
-      for (int j = 0; j < k && !seen; ++j) seen = std::memcmp(b[j], b[k], sizeof b[k]) == 0;
-      for (uint32_t i = 0; i < size && !seen; ++i)
-        seen = key[i] == h && std::memcmp(bits[i], b[k], sizeof b[k]) == 0;
+    const Corner k[3] = {Corner(c[0]), Corner(c[1]), Corner(c[2])};
+    uint32_t count = 0;
+    for (int a = 0; a < 3; ++a) {
+      bool seen = find(k[a]) < size;
+      for (int j = 0; j < a && !seen; ++j) seen = k[j] == k[a];
       count += !seen;
     }
     return count;
@@ -49,16 +66,11 @@ struct CornerSet {
   bool add(const std::array<Vec3, 3>& c, uint8_t index[3]) {
     const uint32_t before = size;
     for (int k = 0; k < 3; ++k) {
-      uint32_t b[3];
-      std::memcpy(b, &c[k], sizeof b);
-      const uint32_t h = b[0] * 0x9e3779b1u ^ b[1] * 0x85ebca77u ^ b[2] * 0xc2b2ae3du;
-      uint32_t i = 0;
-      while (i < size &&
-             (key[i] != h || bits[i][0] != b[0] || bits[i][1] != b[1] || bits[i][2] != b[2]))
-        ++i;
+      const Corner v(c[k]);
+      const uint32_t i = find(v);
       if (i == size) {
-        key[size] = h;
-        std::memcpy(bits[size++], b, sizeof b);
+        key[size] = v.h;
+        std::memcpy(bits[size++], v.b, sizeof v.b);
       }
       index[k] = uint8_t(i);
     }
