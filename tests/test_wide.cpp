@@ -12,6 +12,7 @@
 
 #include "accel/brute.h"
 #include "accel/hybrid/hybrid.h"
+#include "accel/kdtree.h"
 #include "accel/triangle_wide.h"
 #include "comparator_meshes.h"
 #include "scene/load.h"
@@ -364,6 +365,69 @@ TEST(WideLeaves, GroupsOfEightHoldConnectedPatchesOfAShuffledMesh) {
     bad += fh != fb || (fh && !same_bits(hh.t, hb.t));
   }
   EXPECT_EQ(bad, 0);
+}
+
+/// The share of references whose shared-corner groups store 16-bit triangle ids, from the
+/// build's "triangle groups" figure ("...; 16-bit triangle ids for P% of references)"); -1
+/// where it has none.
+double narrow_id_percent(const BuildStats& st) {
+  for (const auto& [key, value] : st.extra) {
+    const size_t at = value.rfind("ids for ");
+    double percent = 0;
+    if (key == "triangle groups" && at != std::string::npos &&
+        std::sscanf(value.c_str() + at, "ids for %lf%%", &percent) == 1)
+      return percent;
+  }
+  return -1;
+}
+
+// A shared-corner group of 4 or more lanes stores their mesh indices as 16-bit differences from
+// the smallest where they lie within 65535 of it (records.h, kNarrowIds), else whole. A sphere
+// of 134,680 triangles in ring order: a group's neighbours have near indices, so nearly every
+// reference's group is narrow; the same triangles shuffled: a group's indices spread over the
+// whole mesh, so most are whole. Either way each hit names the triangle it lies on, at the t the
+// kd-tree finds.
+TEST(WideLeaves, SharedCornerGroupsNameTheirTrianglesByNarrowOrWholeIds) {
+  if (!hybrid::kSharedCorners)
+    GTEST_SKIP() << "this build stores groups by lane (its triangle ids are always whole)";
+  const Mesh ordered = test::sphere(260, 260);
+  ASSERT_GT(ordered.num_triangles(), 2u * 65536u);
+  Mesh shuffled = ordered;
+  std::mt19937 rng(3);
+  std::shuffle(shuffled.triangles.begin(), shuffled.triangles.end(), rng);
+  const std::vector<Ray> rays = test::random_rays(ordered, 3000, 21);
+  for (const Mesh* m : {&ordered, static_cast<const Mesh*>(&shuffled)}) {
+    const bool is_ordered = m == &ordered;
+    const char* name = is_ordered ? "ordered" : "shuffled";
+    GridKdHybrid h;
+    const double narrow = narrow_id_percent(h.build(*m, BuildParams{}));
+    std::printf("%s: 16-bit triangle ids for %.1f%% of references\n", name, narrow);
+    if (is_ordered)
+      EXPECT_GT(narrow, 90.0) << name;
+    else
+      EXPECT_LT(narrow, 50.0) << name;  // 13% with groups of 8, 35% with groups of 16
+    EXPECT_GE(narrow, 0.0) << name;
+    KdTree kd;
+    kd.build(*m, BuildParams{});
+    int bad = 0, hits = 0;
+    for (const Ray& r : rays) {
+      Hit hh, hk;
+      const bool fh = h.intersect(r, hh), fk = kd.intersect(r, hk);
+      bool good = fh == fk && (!fh || same_bits(hh.t, hk.t));
+      if (good && fh) {
+        ++hits;
+        // The hit point from the named triangle's corners and (u, v) is the ray's at t.
+        const auto c = m->corners(hh.prim);
+        const Vec3 on = c[0] * (1.0f - hh.u - hh.v) + c[1] * hh.u + c[2] * hh.v;
+        good = length(on - r.at(hh.t)) < 1e-4f;
+      }
+      if (!good && ++bad <= 5)
+        ADD_FAILURE() << name << ": hybrid " << fh << " prim " << hh.prim << " t " << hh.t
+                      << "; kd-tree " << fk << " prim " << hk.prim << " t " << hk.t;
+    }
+    EXPECT_EQ(bad, 0) << name;
+    EXPECT_GT(hits, 500) << name;
+  }
 }
 
 TEST(WideLeaves, HybridHitsMatchScalarBitForBitOnTheBunny) {

@@ -359,29 +359,50 @@ void GridKdHybrid::build_parts(const Mesh& mesh, const BuildParams& params, uint
 }
 
 void GridKdHybrid::fill_groups(const Mesh& mesh, const GroupPlan& plan) {
-  groups_.assign(size_t((plan.floats + 15) / 16) + hybrid::kGroupTailLines, hybrid::GroupLine{});
+  groups_.assign(size_t((plan.floats + 15) / 16), hybrid::GroupLine{});
   group_count_ = plan.fill.size();
   group_lanes_ = hybrid::kSharedCorners ? plan.lanes.size() : group_count_ * kWideLanes;
   group_corners_ = 0;
   for (const uint32_t u : plan.corners) group_corners_ += u;
+  group_narrow_ = 0;
+  if constexpr (hybrid::kSharedCorners)
+    for (size_t g = 0; g < plan.fill.size(); ++g)
+      if (hybrid::narrow_ids(plan.lanes.data() + plan.start[g], plan.fill[g]))
+        group_narrow_ += plan.fill[g];
   float* const base = groups_.empty() ? nullptr : groups_[0].f;
   tbb::parallel_for(size_t(0), plan.fill.size(), [&](size_t g) {
     float* const p = base + plan.offset[g];
     const uint32_t* const lanes = plan.lanes.data() + plan.start[g];
     if constexpr (hybrid::kSharedCorners) {
       const uint32_t n = plan.fill[g], u = plan.corners[g];
-      const uint32_t header = n | u << 8;
+      const bool narrow = hybrid::narrow_ids(lanes, n);
+      const uint32_t header = n | u << 8 | hybrid::shared_group_floats(n, u, narrow) << 16 |
+                              (narrow ? hybrid::kNarrowIds : 0);
       std::memcpy(p, &header, sizeof header);
-      std::memcpy(p + 1 + 3 * u, lanes, n * sizeof(uint32_t));
-      uint8_t* const index = reinterpret_cast<uint8_t*>(p + 1 + 3 * u + n);
+      uint8_t* const index = reinterpret_cast<uint8_t*>(p + 1 + 3 * u);
+      const uint32_t stride = hybrid::shared_index_stride(n);
       const uint8_t* const planned = plan.index.data() + 3 * size_t(plan.start[g]);
       for (uint32_t i = 0; i < n; ++i) {
         const auto c = mesh.corners(lanes[i]);
         for (int k = 0; k < 3; ++k) {
           const uint32_t j = planned[3 * i + uint32_t(k)];
-          index[uint32_t(k) * n + i] = uint8_t(j);
+          if constexpr (kWideLanes == 8)
+            index[uint32_t(k) * stride + i / 2] |= uint8_t(j << (4 * (i & 1)));
+          else
+            index[uint32_t(k) * stride + i] = uint8_t(j);
           for (int a = 0; a < 3; ++a) p[1 + uint32_t(a) * u + j] = component(c[k], a);
         }
+      }
+      float* const ids = p + 1 + 3 * u + hybrid::shared_index_floats(n);
+      if (narrow) {
+        const uint32_t lo = *std::min_element(lanes, lanes + n);
+        std::memcpy(ids, &lo, sizeof lo);
+        for (uint32_t i = 0; i < n; ++i) {
+          const uint16_t d = uint16_t(lanes[i] - lo);
+          std::memcpy(reinterpret_cast<char*>(ids + 1) + 2 * i, &d, sizeof d);
+        }
+      } else {
+        std::memcpy(ids, lanes, n * sizeof(uint32_t));
       }
     } else {
       constexpr uint32_t W = uint32_t(kWideLanes);
@@ -420,7 +441,11 @@ std::string GridKdHybrid::groups_text(uint64_t references) const {
     return std::to_string(group_count_) + " groups of up to " + std::to_string(kWideLanes) +
            " lanes for " + std::to_string(references) + " references (" +
            format_double("%.1f", double(references) / groups) + " lanes and " +
-           format_double("%.1f", double(group_corners_) / groups) + " distinct corners a group)";
+           format_double("%.1f", double(group_corners_) / groups) +
+           " distinct corners a group; 16-bit triangle ids for " +
+           format_double(
+               "%.1f", 100.0 * double(group_narrow_) / double(std::max<uint64_t>(1, references))) +
+           "% of references)";
   return std::to_string(group_count_) + " groups of " + std::to_string(kWideLanes) + " lanes for " +
          std::to_string(references) + " references (" +
          format_double("%.1f", 100.0 * (1.0 - double(references) /

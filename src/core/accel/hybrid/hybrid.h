@@ -317,6 +317,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   std::vector<hybrid::GroupLine> flat_subtree_floats_;  ///< flat subtrees (records.h)
   /// Groups, lanes and (shared corners) distinct corners stored (BuildStats)
   uint64_t group_count_ = 0, group_lanes_ = 0, group_corners_ = 0;
+  /// The lanes of shared-corner groups whose mesh indices are stored in 16 bits (records.h,
+  /// kNarrowIds).
+  uint64_t group_narrow_ = 0;
   uint64_t flat_subtrees_ = 0;  ///< leaf subtrees stored flat (BuildStats)
   mutable std::atomic<uint64_t> step_errors_{0};
   mutable std::atomic<uint64_t> rewalks_{0};  ///< rewalked_rays()

@@ -213,12 +213,11 @@ template <class F>
   const __m256i lo = (__m256i)corner_codes8(box, tx, ty, tz, int32_t(g.u));
   const __m256i hi = g.u > 8 ? (__m256i)corner_codes8(box, tx + 8, ty + 8, tz + 8, int32_t(g.u) - 8)
                              : _mm256_setzero_si256();
-  const uint8_t* idx = g.index();
   I all = ~I{};
-  for (uint32_t k = 0; k < 3; ++k) {
-    const __m256i ik =
-        _mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(idx + k * g.n)));
-    const __m256 upper = _mm256_castsi256_ps(_mm256_slli_epi32(ik, 28));
+  for (int k = 0; k < 3; ++k) {
+    __m256i ik;
+    __m256 upper;
+    g.lane_index8(k, ik, upper);
     all &= (I)_mm256_castps_si256(
         _mm256_blendv_ps(_mm256_castsi256_ps(_mm256_permutevar8x32_epi32(lo, ik)),
                          _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(hi, ik)), upper));

@@ -59,16 +59,20 @@ struct KdBox {
 ///
 /// - Shared corners (groups of 16 in builds for AVX-512 with its byte and 128-bit forms, groups
 ///   of 8 in builds for AVX2): a group of n lanes stores its u distinct corners once (u <=
-///   kMaxGroupCorners, twice the lanes) and, per lane, the byte index of each of its three
-///   corners. At float offsets from the group's start: a header (n | u << 8, as uint32); the u
-///   corners' x, then their y, then their z (u floats each); the lanes' mesh indices (n
-///   uint32); the corner indices (3n bytes: corner k of lane i at byte k n + i), padded to a
+///   kMaxGroupCorners, twice the lanes) and, per lane, the index of each of its three corners
+///   in that table. At float offsets from the group's start: a header (as uint32: n | u << 8
+///   | the group's floats << 16, and kNarrowIds set where the lanes' mesh indices are stored
+///   in 16 bits); the u corners' x, then their y, then their z (u floats each); the corner
+///   indices (shared_index_floats): groups of 16 a byte each (corner k of lane i at byte
+///   k n + i, padded to a whole float), groups of 8 a nibble each (corner k of lane i in bits
+///   4i to 4i + 3 of uint32 k); then the lanes' mesh indices (shared_id_floats): n uint32, or
+///   where there are at least 4 and they all lie within 65535 of the smallest, that one as
+///   uint32 and each lane's difference from it as uint16 (lane i's at byte 4 + 2i), padded to a
 ///   whole float. The walk gathers each coordinate of a corner of all lanes from the table
 ///   (AVX-512: one two-table permute, vpermt2ps; AVX2: a permute of each 8-float half, vpermps,
-///   and a blend), so a hit is bit for bit the one from stored coordinates. A group ends early
-///   where its next triangle would bring more than kMaxGroupCorners distinct corners. The 8-lane
-///   walk reads 8 index bytes of each corner whatever n is, so the array ends with a line to
-///   spare (kGroupTailLines).
+///   and a blend on the index's bit 3), so a hit is bit for bit the one from stored
+///   coordinates. A group ends early where its next triangle would bring more than
+///   kMaxGroupCorners distinct corners.
 /// - By lane (other builds): a group holds kWideLanes lanes, for each corner k and axis a the
 ///   lanes' coordinates one after the other (lane i's at float (3k + a) kWideLanes + i), then
 ///   the lanes' mesh indices (as uint32, at 9 kWideLanes + i); a leaf's last group repeats its
@@ -94,23 +98,59 @@ constexpr bool kSharedCorners = false;
 constexpr int kPacketLanes = kWideLanes >= 4 ? KDGRID_PACKET_LANES : 0;
 /// Floats a lane takes by lane: nine corner coordinates and the mesh's index.
 constexpr uint32_t kGroupLaneFloats = 10;
-/// The most floats a lane takes in either layout, its group's share included (a shared-corner
-/// group of 2 lanes and 6 corners: 23 floats).
-constexpr uint32_t kGroupLaneFloatsAtMost = kSharedCorners ? 12 : kGroupLaneFloats;
 /// The most distinct corners a shared-corner group holds: two tables of a vector's floats per
 /// axis (32 with groups of 16, 16 with groups of 8).
 constexpr uint32_t kMaxGroupCorners = 2 * uint32_t(kWideLanes);
-/// Lines of 16 floats past the last group (the 8-lane walk's reads of index bytes, above).
-constexpr size_t kGroupTailLines = kSharedCorners && kWideLanes == 8 ? 1 : 0;
-/// The floats of a shared-corner group of n lanes and u corners.
-constexpr uint32_t shared_group_floats(uint32_t n, uint32_t u) {
-  return 1 + 3 * u + n + (3 * n + 3) / 4;
+/// Header bit of a shared-corner group whose lanes' mesh indices are stored in 16 bits.
+constexpr uint32_t kNarrowIds = 1u << 24;
+/// The bytes of one corner's indices in a shared-corner group of n lanes: a uint32 of a nibble
+/// a lane in groups of 8, a byte a lane in groups of 16.
+constexpr uint32_t shared_index_stride(uint32_t n) {
+  return kWideLanes == 8 ? 4 : n;
 }
+/// The floats of a shared-corner group's corner indices (n lanes).
+constexpr uint32_t shared_index_floats(uint32_t n) {
+  return (3 * shared_index_stride(n) + 3) / 4;
+}
+/// The floats of a shared-corner group's mesh indices (n lanes; narrow: 16-bit differences).
+constexpr uint32_t shared_id_floats(uint32_t n, bool narrow) {
+  return narrow ? 1 + (n + 1) / 2 : n;
+}
+/// Whether a shared-corner group stores its n lanes' mesh indices `ids` as 16-bit differences:
+/// where that takes fewer floats and they fit.
+inline bool narrow_ids(const uint32_t* ids, uint32_t n) {
+  if (shared_id_floats(n, true) >= shared_id_floats(n, false)) return false;
+  uint32_t lo = ids[0], hi = ids[0];
+  for (uint32_t i = 1; i < n; ++i) {
+    lo = ids[i] < lo ? ids[i] : lo;
+    hi = ids[i] > hi ? ids[i] : hi;
+  }
+  return hi - lo <= 0xffffu;
+}
+/// The floats of a shared-corner group of n lanes and u corners.
+constexpr uint32_t shared_group_floats(uint32_t n, uint32_t u, bool narrow) {
+  return 1 + 3 * u + shared_index_floats(n) + shared_id_floats(n, narrow);
+}
+static_assert(shared_group_floats(kWideLanes, kMaxGroupCorners, false) < 256,
+              "a shared-corner group's floats fit the header's byte");
+/// The most floats a lane takes in either layout, its group's share included: with shared
+/// corners a group of 1 lane (14 floats in groups of 8, 12 in groups of 16; a larger group takes
+/// no more a lane, as checked below).
+constexpr uint32_t kGroupLaneFloatsAtMost =
+    kSharedCorners ? shared_group_floats(1, 3, false) : kGroupLaneFloats;
+static_assert(!kSharedCorners || [] {
+  for (uint32_t n = 2; n <= uint32_t(kWideLanes); ++n) {
+    const uint32_t u = 3 * n < kMaxGroupCorners ? 3 * n : kMaxGroupCorners;
+    if (shared_group_floats(n, u, false) > n * kGroupLaneFloatsAtMost) return false;
+  }
+  return true;
+}());
 /// The least bytes a lane takes, its group's share included (the memory guard's "at least"):
 /// by lane its 40; with shared corners those of a full group whose lanes name the same 3
-/// corners (9.5).
+/// corners and store narrow mesh indices.
 constexpr double kGroupLaneBytesAtLeast =
-    kSharedCorners ? shared_group_floats(kWideLanes, 3) * 4.0 / kWideLanes : kGroupLaneFloats * 4.0;
+    kSharedCorners ? shared_group_floats(kWideLanes, 3, true) * 4.0 / kWideLanes
+                   : kGroupLaneFloats * 4.0;
 
 /// A group by lane, as WatertightWide and the walk read it.
 struct LaneGroup {
@@ -145,20 +185,53 @@ struct SharedCornerGroup {
   [[gnu::always_inline]] static SharedCornerGroup at(const float* p, uint32_t) {
     uint32_t h;
     std::memcpy(&h, p, sizeof h);
-    return {p, h & 0xffu, h >> 8};
+    return {p, h & 0xffu, (h >> 8) & 0xffu};
   }
-  [[gnu::always_inline]] const float* end() const { return p + shared_group_floats(n, u); }
+  [[gnu::always_inline]] uint32_t header() const {
+    uint32_t h;
+    std::memcpy(&h, p, sizeof h);
+    return h;
+  }
+  [[gnu::always_inline]] bool narrow() const { return (header() & kNarrowIds) != 0; }
+  [[gnu::always_inline]] const float* end() const { return p + ((header() >> 16) & 0xffu); }
   [[gnu::always_inline]] uint32_t prim(uint32_t i) const {
+    const bool narrow_ids = narrow();
+    const float* const ids = end() - shared_id_floats(n, narrow_ids);
     uint32_t v;
-    std::memcpy(&v, p + 1 + 3 * u + i, sizeof v);
+    std::memcpy(&v, ids + (narrow_ids ? 0 : i), sizeof v);
+    if (narrow_ids) {
+      uint16_t d;
+      std::memcpy(&d, reinterpret_cast<const char*>(ids + 1) + 2 * i, sizeof d);
+      v += d;
+    }
     return v;
   }
   [[gnu::always_inline]] const uint8_t* index() const {
-    return reinterpret_cast<const uint8_t*>(p + 1 + 3 * u + n);
+    return reinterpret_cast<const uint8_t*>(p + 1 + 3 * u);
+  }
+  /// The table index of corner k of lane i.
+  uint32_t corner_index(int k, int i) const {
+    if constexpr (kWideLanes == 8) {
+      return (index()[uint32_t(k) * shared_index_stride(n) + uint32_t(i) / 2] >> (4 * (i & 1))) &
+             0xfu;
+    } else {
+      return index()[uint32_t(k) * n + uint32_t(i)];
+    }
   }
   Vec3 corner(int k, int i) const {
-    const uint32_t j = index()[uint32_t(k) * n + uint32_t(i)];
+    const uint32_t j = corner_index(k, i);
     return {p[1 + j], p[1 + u + j], p[1 + 2 * u + j]};
+  }
+  /// Groups of 8: corner k's table index of every lane (its low 3 bits pick within a half of
+  /// the table, as vpermps reads them) and, in each lane's sign bit, its bit 3 (which half: the
+  /// blend's selector).
+  [[gnu::always_inline]] void lane_index8(int k, __m256i& ik, __m256& upper) const {
+    int32_t w;
+    std::memcpy(&w, index() + uint32_t(k) * shared_index_stride(n), sizeof w);
+    const __m256i all = _mm256_set1_epi32(w);
+    ik = _mm256_srlv_epi32(all, _mm256_setr_epi32(0, 4, 8, 12, 16, 20, 24, 28));
+    upper =
+        _mm256_castsi256_ps(_mm256_sllv_epi32(all, _mm256_setr_epi32(28, 24, 20, 16, 12, 8, 4, 0)));
   }
   /// The table's corners sheared (16 at a time, so once a corner however many lanes name it),
   /// then each lane's corner taken from them by a permute. Masked loads: the lanes outside
@@ -190,11 +263,10 @@ struct SharedCornerGroup {
                 (F)_mm256_maskload_ps(tz, in_lo), s[0][0], s[0][1], s[0][2]);
     Wide::shear(d, (F)_mm256_maskload_ps(tx + 8, in_hi), (F)_mm256_maskload_ps(ty + 8, in_hi),
                 (F)_mm256_maskload_ps(tz + 8, in_hi), s[1][0], s[1][1], s[1][2]);
-    const uint8_t* idx = index();
     for (int k = 0; k < 3; ++k) {
-      const __m256i ik = _mm256_cvtepu8_epi32(
-          _mm_loadl_epi64(reinterpret_cast<const __m128i*>(idx + uint32_t(k) * n)));
-      const __m256 upper = _mm256_castsi256_ps(_mm256_slli_epi32(ik, 28));
+      __m256i ik;
+      __m256 upper;
+      lane_index8(k, ik, upper);
       for (int j = 0; j < 3; ++j)
         c[k][j] = (F)_mm256_blendv_ps(_mm256_permutevar8x32_ps((__m256)s[0][j], ik),
                                       _mm256_permutevar8x32_ps((__m256)s[1][j], ik), upper);

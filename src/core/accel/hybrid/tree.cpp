@@ -570,12 +570,16 @@ struct GridKdHybrid::TreeFlattener {
     });
   }
 
+  /// A group of `fill` lanes from plan.start's last, with `corners` distinct corners.
   void add_group(uint32_t fill, uint32_t corners) {
     plan.offset.push_back(uint32_t(plan.floats));
     plan.fill.push_back(fill);
     plan.corners.push_back(corners);
-    plan.floats += hybrid::kSharedCorners ? hybrid::shared_group_floats(fill, corners)
-                                          : hybrid::kGroupLaneFloats * uint32_t(kWideLanes);
+    plan.floats +=
+        hybrid::kSharedCorners
+            ? hybrid::shared_group_floats(
+                  fill, corners, hybrid::narrow_ids(plan.lanes.data() + plan.start.back(), fill))
+            : hybrid::kGroupLaneFloats * uint32_t(kWideLanes);
     if (plan.floats >= (uint64_t(1) << 32))
       throw ParamError(
           "hybrid: more than 2^32 floats of triangle groups in the leaves: use a larger cell "
