@@ -211,12 +211,11 @@ struct SharedCornerGroup {
   }
   /// The table index of corner k of lane i.
   uint32_t corner_index(int k, int i) const {
-    if constexpr (kWideLanes == 8) {
-      return (index()[uint32_t(k) * shared_index_stride(n) + uint32_t(i) / 2] >> (4 * (i & 1))) &
-             0xfu;
-    } else {
-      return index()[uint32_t(k) * n + uint32_t(i)];
-    }
+    const uint8_t* const corner_k = index() + uint32_t(k) * shared_index_stride(n);
+    if constexpr (kWideLanes == 8)
+      return (corner_k[uint32_t(i) / 2] >> (4 * (i & 1))) & 0xfu;
+    else
+      return corner_k[i];
   }
   Vec3 corner(int k, int i) const {
     const uint32_t j = corner_index(k, i);
