@@ -365,17 +365,15 @@ void GridKdHybrid::fill_groups(const Mesh& mesh, const GroupPlan& plan) {
   group_corners_ = 0;
   for (const uint32_t u : plan.corners) group_corners_ += u;
   group_narrow_ = 0;
-  if constexpr (hybrid::kSharedCorners)
-    for (size_t g = 0; g < plan.fill.size(); ++g)
-      if (hybrid::narrow_ids(plan.lanes.data() + plan.start[g], plan.fill[g]))
-        group_narrow_ += plan.fill[g];
+  for (size_t g = 0; g < plan.fill.size(); ++g)
+    if (plan.narrow[g]) group_narrow_ += plan.fill[g];
   float* const base = groups_.empty() ? nullptr : groups_[0].f;
   tbb::parallel_for(size_t(0), plan.fill.size(), [&](size_t g) {
     float* const p = base + plan.offset[g];
     const uint32_t* const lanes = plan.lanes.data() + plan.start[g];
     if constexpr (hybrid::kSharedCorners) {
       const uint32_t n = plan.fill[g], u = plan.corners[g];
-      const bool narrow = hybrid::narrow_ids(lanes, n);
+      const bool narrow = plan.narrow[g];
       const uint32_t header = n | u << 8 | hybrid::shared_group_floats(n, u, narrow) << 16 |
                               (narrow ? hybrid::kNarrowIds : 0);
       std::memcpy(p, &header, sizeof header);

@@ -273,6 +273,7 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
   struct GroupPlan {
     std::vector<uint32_t> lanes, start, offset, fill, corners;
     std::vector<uint8_t> index;
+    std::vector<uint8_t> narrow;  ///< per group: its triangle ids as 16-bit differences
     uint64_t floats = 0;
   };
   /// Builds nodes_, leaves_ and sub_nodes_; `plan` gets the groups and `references` the leaves'

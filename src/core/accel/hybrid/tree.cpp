@@ -575,11 +575,11 @@ struct GridKdHybrid::TreeFlattener {
     plan.offset.push_back(uint32_t(plan.floats));
     plan.fill.push_back(fill);
     plan.corners.push_back(corners);
-    plan.floats +=
-        hybrid::kSharedCorners
-            ? hybrid::shared_group_floats(
-                  fill, corners, hybrid::narrow_ids(plan.lanes.data() + plan.start.back(), fill))
-            : hybrid::kGroupLaneFloats * uint32_t(kWideLanes);
+    const bool narrow =
+        hybrid::kSharedCorners && hybrid::narrow_ids(plan.lanes.data() + plan.start.back(), fill);
+    plan.narrow.push_back(narrow);
+    plan.floats += hybrid::kSharedCorners ? hybrid::shared_group_floats(fill, corners, narrow)
+                                          : hybrid::kGroupLaneFloats * uint32_t(kWideLanes);
     if (plan.floats >= (uint64_t(1) << 32))
       throw ParamError(
           "hybrid: more than 2^32 floats of triangle groups in the leaves: use a larger cell "
