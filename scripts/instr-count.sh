@@ -40,28 +40,18 @@ source scripts/callgrind-build.sh
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 set_rays "$set" "$work/all.rays"
-# The band: rows [res/2 - rows/2, +rows) of the square image (docs/RAYSETS.md's header: "RAYS",
-# u32 version, u64 count, then 32 bytes per ray in image order); for the shadow and diffuse sets,
-# which hold a ray per pixel that hits, as many rays (or all, if fewer) from the middle of the
-# file. Prints the band's rays.
-n=$(/usr/bin/python3 - "$work/all.rays" "$work/band.rays" "$res" "$rows" "$set" <<'EOF'
-import struct, sys
-src, dst, res, rows, kind = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
-with open(src, "rb") as f:
-    head = f.read(16)
-    magic, version, count = head[:4], *struct.unpack("<IQ", head[4:])
-    if magic != b"RAYS" or (kind == "primary" and count != res * res):
-        sys.exit(f"instr-count: {src}: expected {res * res} rays, the header says {count}")
-    n = min(rows * res, count)
-    first = (res - rows) // 2 * res if kind == "primary" else (count - n) // 2
-    f.seek(16 + 32 * first)
-    body = f.read(32 * n)
-with open(dst, "wb") as f:
-    f.write(magic + struct.pack("<IQ", version, n))
-    f.write(body)
-print(n)
-EOF
-)
+# The band: rows [res/2 - rows/2, +rows) of the square image (the primary set holds a ray per
+# pixel in image order); for the shadow and diffuse sets, which hold a ray per pixel that hits,
+# as many rays (or all, if fewer) from the middle of the file.
+total=$("$python" scripts/rays_file.py count "$work/all.rays")
+if [[ "$set" == primary ]]; then
+  ((total == res * res)) || die "$work/all.rays: expected $((res * res)) rays, the header says $total"
+  n=$((rows * res)) first=$((((res - rows) / 2) * res))
+else
+  n=$((rows * res < total ? rows * res : total))
+  first=$(((total - n) / 2))
+fi
+"$python" scripts/rays_file.py cut "$work/all.rays" "$work/band.rays" "$first" "$n"
 echo "Instructions per closest-hit ray (callgrind, AcceleratorBase::intersect inclusive), $(basename "$scene"), $([[ "$set" == primary ]] && echo "the middle $rows rows of ${res}x${res} primary rays" || echo "the middle $n of the ${res}x${res} image's $set rays") ($n rays)${TRACE_ARGS:+, trace options $TRACE_ARGS}, at $(git rev-parse --short HEAD)$(git diff --quiet -- src || echo ' (modified)')"
 echo
 echo "| structure | instructions per ray | hit fraction |"

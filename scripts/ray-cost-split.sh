@@ -47,22 +47,10 @@ echo "| structure | rays | instructions | setup | steps | subtree | tests | mail
 echo "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
 for set in "${set_list[@]}"; do
   set_rays "$set" "$work/$set.all.rays"
-  # The middle rays (docs/RAYSETS.md's header: "RAYS", u32 version, u64 count, 32 bytes a ray).
-  /usr/bin/python3 - "$work/$set.all.rays" "$work/$set.rays" "$count" <<'EOF'
-import struct, sys
-src, dst, want = sys.argv[1], sys.argv[2], int(sys.argv[3])
-with open(src, "rb") as f:
-    head = f.read(16)
-    magic, (version, total) = head[:4], struct.unpack("<IQ", head[4:])
-    if magic != b"RAYS":
-        sys.exit(f"ray-cost-split: {src} is not a .rays file")
-    n = min(want, total)
-    f.seek(16 + 32 * ((total - n) // 2))
-    body = f.read(32 * n)
-with open(dst, "wb") as f:
-    f.write(magic + struct.pack("<IQ", version, n))
-    f.write(body)
-EOF
+  # The middle rays of the set.
+  total=$("$python" scripts/rays_file.py count "$work/$set.all.rays")
+  n=$((count < total ? count : total))
+  "$python" scripts/rays_file.py cut "$work/$set.all.rays" "$work/$set.rays" $(((total - n) / 2)) "$n"
   for a in "${accel_list[@]}"; do
     [[ "$a" != embree* ]] || die "$a has no line info to split; use kdtree, hybrid"
     query=intersect any=()

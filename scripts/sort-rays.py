@@ -13,10 +13,13 @@ direction in [-1, 1]^3. The sort is stable; OUT holds the same rays in the new o
 tool traces exactly the same rays (`kdgrid bench --rays-dir`). Needs numpy (python3-numpy).
 """
 import argparse
-import struct
+import os
 import sys
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import rays_file  # noqa: E402
 
 
 def spread10(x):
@@ -63,21 +66,19 @@ def main():
     ap.add_argument("--key", default="octant-origin",
                     choices=("octant-origin", "origin", "direction", "dir-origin"))
     a = ap.parse_args()
+    try:
+        n = rays_file.count(a.input)
+    except (rays_file.RaysFileError, OSError) as e:
+        sys.exit(f"sort-rays: {e}")
     with open(a.input, "rb") as f:
         raw = f.read()
-    if len(raw) < 16 or raw[:4] != b"RAYS" or struct.unpack("<I", raw[4:8])[0] != 1:
-        sys.exit("sort-rays: %s is not a version-1 .rays file" % a.input)
-    n = struct.unpack("<Q", raw[8:16])[0]
-    if len(raw) != 16 + 32 * n:
-        sys.exit("sort-rays: %s holds %d bytes, not the %d of %d rays" %
-                 (a.input, len(raw), 16 + 32 * n, n))
-    rays = np.frombuffer(raw, "<f4", offset=16).reshape(n, 8)
+    rays = np.frombuffer(raw, "<f4", offset=rays_file.HEADER_BYTES).reshape(n, 8)
     keys = sort_keys(rays, a.key)
     block = a.block if a.block > 0 else max(n, 1)
     order = np.concatenate([b + np.argsort(keys[b:b + block], kind="stable")
                             for b in range(0, n, block)]) if n else np.zeros(0, np.int64)
     with open(a.output, "wb") as f:
-        f.write(raw[:16])
+        f.write(raw[:rays_file.HEADER_BYTES])
         f.write(rays[order].astype("<f4").tobytes())
     print("sort-rays: %d rays by %s in blocks of %d -> %s" % (n, a.key, block, a.output))
 

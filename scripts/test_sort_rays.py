@@ -80,7 +80,7 @@ class SortRays(unittest.TestCase):
             f.write(b"PLY\n" + bytes(40))
         p, out = self.sort()
         self.assertNotEqual(p.returncode, 0)
-        self.assertIn("in.rays is not a version-1 .rays file", p.stderr)
+        self.assertIn("in.rays is not a .rays file", p.stderr)
         self.assertFalse(os.path.exists(out))
 
     def test_truncated_file_is_refused_with_its_size(self):
