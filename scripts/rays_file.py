@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """The .rays file of docs/RAYSETS.md, as the measurement scripts read it: a 16-byte header
 ("RAYS", uint32 version 1, uint64 ray count, little-endian), then 32 bytes a ray. Standard library
-only. Imported by sort-rays.py; run by instr-count.sh and ray-cost-split.sh:
+only. Imported by sort-rays.py (`read`); run by instr-count.sh and ray-cost-split.sh:
 
     /usr/bin/python3 scripts/rays_file.py count FILE                 # prints the ray count
     /usr/bin/python3 scripts/rays_file.py cut SRC DST FIRST N        # rays [FIRST, FIRST+N) to DST
@@ -36,15 +36,28 @@ def pack_header(count):
     return MAGIC + struct.pack("<IQ", VERSION, count)
 
 
-def count(path):
-    """The ray count of the .rays file at path, checked against its size."""
-    with open(path, "rb") as f:
-        n = header(f.read(HEADER_BYTES), path)
-        size = f.seek(0, 2)
+def checked_count(head, size, path):
+    """The ray count of a .rays file of `size` bytes that starts with `head`, checked against
+    its size."""
+    n = header(head, path)
     if size != HEADER_BYTES + RAY_BYTES * n:
         raise RaysFileError(
             f"{path} holds {size} bytes, not the {HEADER_BYTES + RAY_BYTES * n} of {n} rays")
     return n
+
+
+def count(path):
+    """The ray count of the .rays file at path, checked against its size."""
+    with open(path, "rb") as f:
+        head = f.read(HEADER_BYTES)
+        return checked_count(head, f.seek(0, 2), path)
+
+
+def read(path):
+    """The ray count and the whole bytes of the .rays file at path (read once, checked)."""
+    with open(path, "rb") as f:
+        raw = f.read()
+    return checked_count(raw[:HEADER_BYTES], len(raw), path), raw
 
 
 def cut(src, dst, first, n):

@@ -67,11 +67,9 @@ def main():
                     choices=("octant-origin", "origin", "direction", "dir-origin"))
     a = ap.parse_args()
     try:
-        n = rays_file.count(a.input)
+        n, raw = rays_file.read(a.input)
     except (rays_file.RaysFileError, OSError) as e:
         sys.exit(f"sort-rays: {e}")
-    with open(a.input, "rb") as f:
-        raw = f.read()
     rays = np.frombuffer(raw, "<f4", offset=rays_file.HEADER_BYTES).reshape(n, 8)
     keys = sort_keys(rays, a.key)
     block = a.block if a.block > 0 else max(n, 1)

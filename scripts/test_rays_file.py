@@ -55,6 +55,16 @@ class RaysFile(unittest.TestCase):
         self.assertEqual(rays, self.rays[3:7])
         self.assertEqual(rays_file.count(dst), 4)
 
+    def test_read_gives_the_count_and_the_bytes(self):
+        n, raw = rays_file.read(self.src)
+        self.assertEqual(n, 10)
+        with open(self.src, "rb") as f:
+            self.assertEqual(raw, f.read())
+        bad = os.path.join(self.dir.name, "short.rays")
+        write_rays(bad, self.rays, count=9)
+        with self.assertRaisesRegex(rays_file.RaysFileError, "short.rays holds"):
+            rays_file.read(bad)
+
     def test_whole_and_empty_cuts(self):
         dst = os.path.join(self.dir.name, "cut.rays")
         rays_file.cut(self.src, dst, 0, 10)
