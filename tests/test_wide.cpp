@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <random>
 #include <string>
@@ -333,6 +334,46 @@ TEST(WideLeaves, SharedCornerGroupsStoreEachCornerOnce) {
                       << "; brute force " << fb << " prim " << hb.prim << " t " << hb.t;
     }
     EXPECT_EQ(bad, 0) << c.name;
+  }
+}
+
+// The build's memory account (check_flatten_memory) counts the group plan's record of each group
+// as the references over kFullGroupLanesAtLeast, plus one group a leaf: a group that is not its
+// leaf's last holds at least that many lanes. A triangle soup (three new corners a lane) fills
+// shared-corner groups least, a sphere most; plain leaves and leaf subtrees; and one cell, whose
+// one leaf holds the whole soup, where the references' term is the whole bound.
+TEST(WideLeaves, GroupsAreAtMostWhatTheMemoryAccountCounts) {
+  const Mesh soup = test::random_soup(6000, 5), ball = test::sphere(60, 120);
+  struct Case {
+    const char* name;
+    const Mesh* mesh;
+    int subtree_min;
+    float cell;
+  };
+  const Case cases[] = {{"soup, plain leaves", &soup, 0, 0.0f},
+                        {"soup, leaf subtrees", &soup, 4, 0.0f},
+                        {"soup in one cell", &soup, 0, 4.0f},
+                        {"sphere, plain leaves", &ball, 0, 0.0f},
+                        {"sphere, leaf subtrees", &ball, 4, 0.0f}};
+  for (const Case& c : cases) {
+    BuildParams p;
+    p.hybrid_subtree_min = c.subtree_min;
+    p.cell_size = c.cell;
+    GridKdHybrid h;
+    const BuildStats st = h.build(*c.mesh, p);
+    double groups = -1;
+    for (const auto& [key, value] : st.extra) {
+      if (key == "triangle groups") groups = std::atof(value.c_str());
+    }
+    ASSERT_GT(groups, 0) << c.name;
+    EXPECT_LE(groups, double(st.references) / hybrid::kFullGroupLanesAtLeast + double(st.leaves))
+        << c.name << ": " << st.references << " references, " << st.leaves << " leaves";
+    if (c.cell > 0) {
+      EXPECT_EQ(st.leaves, 1u) << c.name;
+      if (hybrid::kSharedCorners) {  // the bound's worst case is reached
+        EXPECT_GT(groups, double(st.references) / hybrid::kFullGroupLanesAtLeast - 1) << c.name;
+      }
+    }
   }
 }
 

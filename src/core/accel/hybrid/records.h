@@ -101,6 +101,10 @@ constexpr uint32_t kGroupLaneFloats = 10;
 /// The most distinct corners a shared-corner group holds: two tables of a vector's floats per
 /// axis (32 with groups of 16, 16 with groups of 8).
 constexpr uint32_t kMaxGroupCorners = 2 * uint32_t(kWideLanes);
+/// The fewest lanes of a group that is not a leaf's last: kWideLanes, or with shared corners the
+/// lanes whose corners reach kMaxGroupCorners when each brings three new ones.
+constexpr uint32_t kFullGroupLanesAtLeast =
+    kSharedCorners ? kMaxGroupCorners / 3 : uint32_t(kWideLanes);
 /// Header bit of a shared-corner group whose lanes' mesh indices are stored in 16 bits.
 constexpr uint32_t kNarrowIds = 1u << 24;
 /// The bytes of one corner's indices in a shared-corner group of n lanes: a uint32 of a nibble

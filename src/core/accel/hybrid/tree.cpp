@@ -465,17 +465,23 @@ double check_flatten_memory(const TreeBuilder& tb, const Mesh& mesh, const Build
   const double lane_count = refs + (nodes + 1) / 2 * double(kWideLanes - 1);
   // A lane's mesh index, and with shared corners its three corner indices (planned, then listed).
   const double lane_bytes = sizeof(uint32_t) + (hybrid::kSharedCorners ? 6 : 0);
+  // The group plan's record of each group (first lane, float offset, fill, corners, narrow ids):
+  // the references in full groups, and each leaf's last.
+  const double groups = refs / hybrid::kFullGroupLanesAtLeast + (nodes + 1) / 2;
+  const double group_plan = groups * (4 * sizeof(uint32_t) + sizeof(uint8_t));
   // Checked against the build's peak bound (at most the budget).
   BuildParams bounded = params;
   bounded.memory_budget = stats.peak_estimate;
   const uint64_t listed = check_memory_budget("hybrid", mesh.num_triangles(),
                                               {{"build tree", double(tb.live_bytes())},
                                                {"references", lane_count * lane_bytes},
+                                               {"group plan", group_plan},
                                                {"nodes and leaves", flat}},
                                               bounded, fix);
   const uint64_t grouped = check_memory_budget(
       "hybrid", mesh.num_triangles(),
       {{"references", lane_count * lane_bytes},
+       {"group plan", group_plan},
        {"triangle groups", lane_count * hybrid::kGroupLaneFloatsAtMost * sizeof(float)},
        {"nodes and leaves", flat}},
       bounded, fix);
