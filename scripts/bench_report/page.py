@@ -5,6 +5,7 @@ from .common import load, prose, table
 from .bench import bench_section, isa_section, leaf_lanes_text
 from .big_scene import big_scene_section
 from .hybrid_variants import hybrid_variants_section
+from .other_cpus import other_cpus_section
 from .speed_accuracy import speed_accuracy_section
 from .sweeps import sweep_section
 from .viewer import viewer_section
@@ -57,6 +58,7 @@ def build_page(results_dir, md_dir, img_dir, root):
     avx2 = load(os.path.join(results_dir, "bench-avx2.json"))
     if avx2:
         out.append(isa_section(avx2, run))
+    out.append(other_cpus_section(results_dir))
     out.append(speed_accuracy_section(results_dir))
     out.append(sweep_section(results_dir, md_dir, img_dir))
     out.append(hybrid_variants_section(results_dir))

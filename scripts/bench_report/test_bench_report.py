@@ -158,6 +158,62 @@ class Page(unittest.TestCase):
         self.assertIn("| hybrid | %s |" % row, avx2)
         self.assertIn("- primary rays: the hybrid is ", avx2)
 
+    def test_other_cpu_folders_give_one_table_each_with_ranges_over_runs(self):
+        import json
+        with open(os.path.join(RESULTS, "bench.json")) as f:
+            base = json.load(f)
+
+        def run(ratio, render, packet, isa="AVX-512"):
+            b = json.loads(json.dumps(base))
+            b["meta"]["simd"]["kdgrid"]["isa"] = b["meta"]["simd"]["embree"]["isa"] = isa
+            for r in b["results"]:
+                if r["accel"] == "hybrid" and r["scene"] == "bunny" and r["set"] == "primary":
+                    r["ratio_to_reference"] = ratio
+                    r["packet"]["ratio_to_reference"] = packet
+            for x in b["renders"]:
+                if x["accel"] == "hybrid" and x["scene"] == "bunny":
+                    x["ratio_to_reference"] = render
+            return b
+        with tempfile.TemporaryDirectory() as tmp:
+            res = os.path.join(tmp, "results")
+            shutil.copytree(RESULTS, res)
+            shutil.rmtree(os.path.join(res, "cpus"), ignore_errors=True)
+            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+            self.assertIn("## On other CPUs\n\n*Not measured on another CPU: run "
+                          "`scripts/bench-cpu.sh` there.*", page)
+            cpu = os.path.join(res, "cpus", "test-cpu")
+            os.makedirs(cpu)
+            os.makedirs(os.path.join(res, "cpus", "no-runs-yet"))
+            for name, b in (("avx512.1.json", run(0.9, 1.2, 0.7)),
+                            ("avx512.2.json", run(1.1, 1.2, 0.704)),
+                            ("avx2.1.json", run(0.5, 0.6, 0.8, "AVX2"))):
+                with open(os.path.join(cpu, name), "w") as f:
+                    json.dump(b, f)
+            with open(os.path.join(cpu, "cpu.json"), "w") as f:
+                json.dump({"model_name": "Test CPU", "vendor": "GenuineIntel", "family": 6,
+                           "model": 1, "avx512": True, "commit": "abc1234",
+                           "commands": ["kdgrid bench --json X"]}, f)
+            page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
+        part = page[page.index("## On other CPUs"):page.index("## Speed vs accuracy")]
+        self.assertEqual(part.count("\n### "), 1)  # the folder without runs has no table
+        self.assertIn("### Test CPU (GenuineIntel, family 6, model 1; with AVX-512)", part)
+        self.assertIn("`docs/results/cpus/test-cpu/`: 2 thread(s), 1 run(s) of 5", part)
+        # Ranges over the runs, each build's rows under its own heading, AVX-512 first.
+        self.assertLess(part.index("**AVX-512 build"), part.index("**AVX2 build"))
+        avx512, avx2 = part.split("**AVX2 build")
+        self.assertIn("| primary rays | 0.90-1.10 |", avx512)
+        self.assertIn("| primary packets (64 rays) / `rtcIntersect16` | 0.70 |", avx512)
+        self.assertIn("| the whole render | 1.20 |", avx512)
+        self.assertIn("| primary rays | 0.50 |", avx2)
+        self.assertIn("| the whole render | 0.60 |", avx2)
+        hyb = {x["scene"]: x["bytes_per_triangle"] for x in base["builds"]
+               if x["accel"] == "hybrid"}
+        emb = {x["scene"]: x["bytes_per_triangle"] for x in base["builds"]
+               if x["accel"] == "embree"}
+        self.assertIn("| bytes a triangle, hybrid / Embree | %.2f |" % (
+            hyb["bunny"] / emb["bunny"]), avx512)
+        self.assertIn("kdgrid bench --json X\n```", part)
+
     def test_packet_column_gives_a_packets_section(self):
         # A bench.json with kdgrid bench's packet column gets a Packets section; one without it
         # (measured before the column existed, or with --packet-tile 0) gets none.
