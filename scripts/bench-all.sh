@@ -45,7 +45,8 @@ for p in ${only//,/ }; do
 done
 # The commit measured, and whether the tree differs from it, before this script writes a file.
 commit="$(git rev-parse --short HEAD)"
-if [[ -n "$(git status --porcelain --untracked-files=no)" ]]; then commit+=" (with local changes)"; fi
+# Changes to the pages and results (docs/) are not changes to what is measured.
+if [[ -n "$(git status --porcelain --untracked-files=no -- . ':!docs')" ]]; then commit+=" (with local changes)"; fi
 mkdir -p "$results"
 commands="$results/commands.tsv"
 # A full run starts the command list afresh; a partial one (ONLY) replaces only its own lines.

@@ -58,7 +58,8 @@ fi
 need_built build/avx2/src/cli/kdgrid
 
 commit="$(git rev-parse --short HEAD)"
-if [[ -n "$(git status --porcelain --untracked-files=no)" ]]; then commit+=" (with local changes)"; fi
+# Changes to the pages and results (docs/) are not changes to what is measured.
+if [[ -n "$(git status --porcelain --untracked-files=no -- . ':!docs')" ]]; then commit+=" (with local changes)"; fi
 # A new measurement replaces the folder's old one as a whole: runs of two commits never mix.
 rm -rf "$out"
 mkdir -p "$out"
