@@ -101,6 +101,35 @@ TEST(Hybrid, NextLeafCacheNeverChangesTheAnswer) {
       << "coherent rays take cached leaves";
 }
 
+// The next-leaf cache turns itself off while its predictions mostly fail (incoherent rays),
+// scoring then only one lookup in NextLeafCache::kOffSample, and on again once the rays are
+// coherent: a camera's rays after random ones take most of their leaves from it again.
+TEST(Hybrid, NextLeafCacheTurnsOffForIncoherentRaysAndOnAgain) {
+  const Mesh m = octahedron_sphere(5, 1.0f, Vec3(0.3f, -0.2f, 0.1f));
+  GridKdHybrid h;
+  h.build(m, params_with(0.0f, false));
+  // Leaves taken from the cache and lookups (taken or not) over `rays`, traced in order.
+  auto trace = [&h](const Ray* first, size_t n) {
+    const uint64_t before = GridKdHybrid::next_leaves_from_cache();
+    RayCounters c;
+    Hit hit;
+    for (size_t i = 0; i < n; ++i) h.intersect_counted(first[i], hit, c);
+    return std::pair<uint64_t, uint64_t>{GridKdHybrid::next_leaves_from_cache() - before,
+                                         c.lookups};
+  };
+  const std::vector<Ray> incoherent = random_rays(m, 8192, 21), coherent = coherent_rays(64);
+  trace(incoherent.data(), 4096);  // the score falls to its floor
+  const auto [taken_off, lookups_off] = trace(incoherent.data() + 4096, 4096);
+  trace(coherent.data(), 1024);  // the sampled scoring climbs back
+  const auto [taken_on, lookups_on] = trace(coherent.data() + 1024, coherent.size() - 1024);
+  std::printf("incoherent: %llu of %llu lookups taken; coherent: %llu of %llu\n",
+              (unsigned long long)taken_off, (unsigned long long)lookups_off,
+              (unsigned long long)taken_on, (unsigned long long)lookups_on);
+  EXPECT_GT(lookups_off, 2u * 4096) << "random rays cross several leaves";
+  EXPECT_LT(taken_off, lookups_off / 4) << "off for incoherent rays";
+  EXPECT_GT(taken_on, lookups_on / 2) << "on again for coherent rays";
+}
+
 // BuildParams::hybrid_next_leaf_cache = false (`--hybrid-no-next-leaf-cache`), the paper's walk:
 // no leaf taken from the next-leaf cache, and the same hits and counters as the walk with it,
 // ray by ray.

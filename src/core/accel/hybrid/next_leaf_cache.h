@@ -13,9 +13,11 @@ namespace kdgrid::hybrid {
 /// next leaf's record loads while the exit is being computed. The entry leaf is taken the same
 /// way from the thread's previous ray's. A score of recent predictions switches the cache off
 /// while they mostly fail (incoherent rays), so that a wrong prediction's mispredicted branch
-/// is not paid on every step; the plain lookups then keep scoring the predictions they would
-/// have made. One cache per thread, shared by every hybrid, since each checks a leaf against
-/// its own kd boxes. Zero-initialized, as every thread_local is (no member initializers).
+/// is not paid on every step. While it is off, every plain lookup records the leaf it found and
+/// one in kOffSample also scores the prediction it would have made, so that the cache turns on
+/// again as soon as the rays are coherent. One cache per thread, shared by every hybrid, since each
+/// checks a leaf against its own kd boxes. Zero-initialized, as every thread_local is (no member
+/// initializers).
 struct NextLeafCache {
   /// Score: +1 per right prediction, -kMissCost per wrong one, within [kScoreMin, kScoreMax];
   /// the cache is used while it is >= 0 (more right predictions than wrong ones keep it on). A
@@ -26,12 +28,16 @@ struct NextLeafCache {
   /// Entries per thread (direct-mapped by leaf and exit axis; 16 KiB): a larger table catches
   /// few more (docs/EXPERIMENTS.md, "The next-leaf cache").
   static constexpr uint64_t kEntries = 4096;
+  /// While the cache is off, one lookup in kOffSample (a power of two) is scored: scoring every
+  /// one cost diffuse rays up to 5% (docs/EXPERIMENTS.md, "The next-leaf cache").
+  static constexpr uint32_t kOffSample = 8;
 
   /// The leaf last reached across each leaf face, by a hash of the leaf and the exit axis (the
   /// ray's direction fixes the face's side).
   uint32_t leaf[kEntries];
   uint32_t start;  ///< the entry leaf of the thread's previous ray
   int32_t score;
+  uint32_t tick;   ///< lookups made while the cache was off (their sampling)
   uint64_t taken;  ///< leaves taken from the cache (GridKdHybrid::next_leaves_from_cache)
   uint64_t owner;  ///< GridKdHybrid::uid_ of the structure whose leaf ids the cache holds (0: none)
 
