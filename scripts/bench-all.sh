@@ -44,9 +44,7 @@ for p in ${only//,/ }; do
   esac
 done
 # The commit measured, and whether the tree differs from it, before this script writes a file.
-commit="$(git rev-parse --short HEAD)"
-# Changes to the pages and results (docs/) are not changes to what is measured.
-if [[ -n "$(git status --porcelain --untracked-files=no -- . ':!docs')" ]]; then commit+=" (with local changes)"; fi
+commit="$(measured_commit)"
 mkdir -p "$results"
 commands="$results/commands.tsv"
 # A full run starts the command list afresh; a partial one (ONLY) replaces only its own lines.
@@ -85,9 +83,8 @@ fi
 # The suite again as it runs on a CPU without AVX-512: kdgrid built for x86-64-v3 (preset avx2,
 # build/avx2) against Embree restricted to AVX2. Skipped, saying so, on a CPU without AVX2.
 if part avx2; then
-  if grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo; then
-    cmake --preset avx2 >/dev/null
-    cmake --build build/avx2 -j "${KDGRID_JOBS:-$(nproc)}" --target kdgrid
+  if has_avx2; then
+    build_avx2
     run "$root/build/avx2/src/cli/kdgrid" bench --suite "$scenes/suite.json" --res "$res" \
       --reps "$reps" --threads "$threads" --embree-isa avx2 --render \
       --json "$results/bench-avx2.json" --md "$results/bench-avx2.md"

@@ -24,9 +24,7 @@ threads="${BENCH_THREADS:-0}"
 [[ "$reps" =~ ^[1-9][0-9]*$ ]] || die "BENCH_REPS=$reps: a positive whole number"
 [[ "$threads" =~ ^[0-9]+$ ]] || die "BENCH_THREADS=$threads: a whole number (0 = all)"
 need_scenes "$scenes/suite.json"
-if ! grep -qw avx2 /proc/cpuinfo || ! grep -qw fma /proc/cpuinfo; then
-  die "this CPU has no AVX2 and FMA: neither build this script compares can run on it"
-fi
+has_avx2 || die "this CPU has no AVX2 and FMA: neither build this script compares can run on it"
 
 cpuinfo_field() { sed -n "s/^$1[[:space:]]*: *//p" /proc/cpuinfo | head -1; }
 vendor="$(cpuinfo_field vendor_id)"
@@ -44,25 +42,20 @@ out="docs/results/cpus/$name"
 builds=()
 if grep -qw avx512f /proc/cpuinfo; then builds+=(avx512); fi
 builds+=(avx2)
-if [[ "${SKIP_BUILD:-0}" != 1 ]]; then
-  for b in "${builds[@]}"; do
-    if [[ $b == avx512 ]]; then
-      bash scripts/build.sh release -DKDGRID_BUILD_VIEWER=OFF
-    else
-      cmake --preset avx2 >/dev/null
-      cmake --build build/avx2 -j "${KDGRID_JOBS:-$(nproc)}" --target kdgrid
-    fi
-  done
+if [[ ${builds[0]} == avx512 ]]; then
+  build_release OFF
+  need_built build/release/src/cli/kdgrid
 fi
-[[ ${builds[0]} == avx512 ]] && need_built build/release/src/cli/kdgrid
+build_avx2
 need_built build/avx2/src/cli/kdgrid
 
-commit="$(git rev-parse --short HEAD)"
-# Changes to the pages and results (docs/) are not changes to what is measured.
-if [[ -n "$(git status --porcelain --untracked-files=no -- . ':!docs')" ]]; then commit+=" (with local changes)"; fi
-# A new measurement replaces the folder's old one as a whole: runs of two commits never mix.
-rm -rf "$out"
-mkdir -p "$out"
+commit="$(measured_commit)"
+# The runs go to a hidden folder beside the old measurement (bench-report skips names starting
+# with '.'), which they replace as a whole once all are done: runs of two commits never mix, and
+# a failed or interrupted run leaves the old measurement as it was.
+work="docs/results/cpus/.$name.partial"
+rm -rf "$work"
+mkdir -p "$work"
 export KDGRID_SCENES="$scenes"
 commands=()
 # The builds in turn within each run, so that a change in the machine's load shows in both.
@@ -74,16 +67,17 @@ for ((r = 1; r <= runs; r++)); do
       cmd=(build/avx2/src/cli/kdgrid bench --suite "$scenes/suite.json" --accel hybrid
         --embree-isa avx2)
     fi
-    cmd+=(--reps "$reps" --threads "$threads" --packet-tile 8 --render -q --json "$out/$b.$r.json")
+    cmd+=(--reps "$reps" --threads "$threads" --packet-tile 8 --render -q --json "$work/$b.$r.json")
     shown="${cmd[*]}"
     shown="${shown//$scenes/\$KDGRID_SCENES}"
+    shown="${shown//$work/$out}"
     echo "== run $r of $runs: $shown" >&2
     "${cmd[@]}" || die "run $r of the $b build failed: $shown"
     [[ $r == 1 ]] && commands+=("${shown//.1.json/.RUN.json}")
   done
 done
 
-"$python" - "$out/cpu.json" "$commit" "$runs" "$vendor" "$family" "$model" "${commands[@]}" <<'EOF'
+"$python" - "$work/cpu.json" "$commit" "$runs" "$vendor" "$family" "$model" "${commands[@]}" <<'EOF'
 import json, platform, subprocess, sys
 path, commit, runs, vendor, family, model, *commands = sys.argv[1:]
 def sh(cmd):
@@ -104,6 +98,8 @@ with open(path, "w") as f:
     json.dump(cpu, f, indent=2)
     f.write("\n")
 EOF
+rm -rf "$out"
+mv "$work" "$out"
 echo "bench-cpu: $out" >&2
 if [[ "${SKIP_REPORT:-0}" != 1 ]]; then
   "$python" scripts/bench-report docs/results --img-dir docs/img --out docs/RESULTS.md

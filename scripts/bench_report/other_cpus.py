@@ -118,7 +118,8 @@ def other_cpus_section(results_dir):
     parts = []
     for name in sorted(os.listdir(top)):
         folder = os.path.join(top, name)
-        if not os.path.isdir(folder):
+        # bench-cpu.sh's runs in progress (or cut short) are in a hidden folder.
+        if name.startswith(".") or not os.path.isdir(folder):
             continue
         by_build = load_runs(folder)
         if by_build:

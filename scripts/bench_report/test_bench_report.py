@@ -189,13 +189,20 @@ class Page(unittest.TestCase):
                             ("avx2.1.json", run(0.5, 0.6, 0.8, "AVX2"))):
                 with open(os.path.join(cpu, name), "w") as f:
                     json.dump(b, f)
+            # bench-cpu.sh's runs in progress: a hidden folder, not a CPU of the page.
+            partial = os.path.join(res, "cpus", ".other-cpu.partial")
+            os.makedirs(partial)
+            with open(os.path.join(partial, "avx512.1.json"), "w") as f:
+                json.dump(run(0.3, 0.3, 0.3), f)
             with open(os.path.join(cpu, "cpu.json"), "w") as f:
                 json.dump({"model_name": "Test CPU", "vendor": "GenuineIntel", "family": 6,
                            "model": 1, "avx512": True, "commit": "abc1234",
                            "commands": ["kdgrid bench --json X"]}, f)
             page = build_page(res, tmp, os.path.join(ROOT, "docs", "img"), ROOT)
         part = page[page.index("## On other CPUs"):page.index("## Speed vs accuracy")]
-        self.assertEqual(part.count("\n### "), 1)  # the folder without runs has no table
+        # Neither the folder without runs nor the hidden one has a table.
+        self.assertEqual(part.count("\n### "), 1)
+        self.assertNotIn("other-cpu", part)
         self.assertIn("### Test CPU (GenuineIntel, family 6, model 1; with AVX-512)", part)
         self.assertIn("`docs/results/cpus/test-cpu/`: 2 thread(s), 1 run(s) of 5", part)
         # Ranges over the runs, each build's rows under its own heading, AVX-512 first.

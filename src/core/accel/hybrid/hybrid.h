@@ -275,6 +275,9 @@ class GridKdHybrid final : public AcceleratorBase<GridKdHybrid> {
     std::vector<uint8_t> index;
     std::vector<uint8_t> narrow;  ///< per group: its triangle ids as 16-bit differences
     uint64_t floats = 0;
+    /// What a group adds to the plan (start, offset, fill, corners, narrow), for the build's
+    /// memory account.
+    static constexpr double kBytesPerGroup = 4 * sizeof(uint32_t) + sizeof(uint8_t);
   };
   /// Builds nodes_, leaves_ and sub_nodes_; `plan` gets the groups and `references` the leaves'
   /// references.

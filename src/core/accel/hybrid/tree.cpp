@@ -436,10 +436,11 @@ namespace {
 /// The kd build's account checked against its peak bound, then the flattening's exact needs
 /// (the references are counted now; leaf subtrees add a few): each reference becomes a lane of
 /// a triangle group, and each leaf pads its last group (at most kWideLanes - 1 lanes a leaf).
-/// Flattening lists the lanes while the build tree is alive, then the groups replace both.
-/// Updates stats' account; returns the build tree's node count.
+/// Flattening lists the lanes while the build tree is alive, then the groups replace both; the
+/// group plan (group_plan_bytes a group) lives through both. Updates stats' account; returns the
+/// build tree's node count.
 double check_flatten_memory(const TreeBuilder& tb, const Mesh& mesh, const BuildParams& params,
-                            BuildStats& stats) {
+                            double group_plan_bytes, BuildStats& stats) {
   const std::string fix =
       "fewer, larger leaves need less: a larger --cell-size (or --cell-percentile), or a "
       "lower kd_max_depth";
@@ -468,7 +469,7 @@ double check_flatten_memory(const TreeBuilder& tb, const Mesh& mesh, const Build
   // The group plan's record of each group (first lane, float offset, fill, corners, narrow ids):
   // the references in full groups, and each leaf's last.
   const double groups = refs / hybrid::kFullGroupLanesAtLeast + (nodes + 1) / 2;
-  const double group_plan = groups * (4 * sizeof(uint32_t) + sizeof(uint8_t));
+  const double group_plan = groups * group_plan_bytes;
   // Checked against the build's peak bound (at most the budget).
   BuildParams bounded = params;
   bounded.memory_budget = stats.peak_estimate;
@@ -750,7 +751,7 @@ void GridKdHybrid::build_tree(const Mesh& mesh, const BuildParams& params, Group
   TreeBuilder tb(mesh, origin_, cell_, dims_, params, stats_.peak_estimate);
   std::unique_ptr<BuildNode> root = tb.build_root();
   stats_.sah_evaluations = tb.sah_evaluations();
-  const double nodes = check_flatten_memory(tb, mesh, params, stats_);
+  const double nodes = check_flatten_memory(tb, mesh, params, GroupPlan::kBytesPerGroup, stats_);
   const double refs = double(tb.leaf_refs());
   nodes_.reserve(size_t(nodes));
   leaves_.reserve(size_t(nodes + 1) / 2);
